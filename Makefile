@@ -1,0 +1,17 @@
+# The two set-up commands of the README. Both create .venv (Python 3.10) on first use.
+.PHONY: setup demo test bench
+
+setup:
+	@bash scripts/setup.sh
+
+# Main job end to end on the shipped defaults: export the shipped checkpoint, run it on the
+# Lava simulator (Loihi 2 fixed point) with OFPD in onnxruntime, print and save the object flow.
+demo: setup
+	.venv/bin/toffe-deploy export ckpt/ --force
+	.venv/bin/toffe-deploy run --target loihi-sim --out export/object_flow.jsonl
+
+test: setup
+	.venv/bin/python -m pytest -q tests
+
+bench: setup
+	.venv/bin/python benchmarks/energy_latency.py

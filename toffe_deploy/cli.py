@@ -1,0 +1,45 @@
+"""The ``toffe-deploy`` command line: dispatch to sub-commands, turn user errors into one line."""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from . import __version__
+from .commands import COMMAND_MODULES
+from .errors import ToffeError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="toffe-deploy",
+        description="Deploy TOFFE object flow (OFS spiking cascade + OFPD CNN) on Loihi 2 "
+        "(Lava) and an edge GPU (onnxruntime); train, export, run and measure it.",
+    )
+    parser.add_argument("--version", action="version", version=f"toffe-deploy {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(f"toffe_deploy.commands.{name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except ToffeError as exc:
+        print(f"toffe-deploy: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("toffe-deploy: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

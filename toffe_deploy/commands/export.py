@@ -1,0 +1,7 @@
+"""`toffe-deploy export`: (being built)."""
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    p = sub.add_parser("export", help="(being built)")
+    p.set_defaults(func=lambda args: 2)

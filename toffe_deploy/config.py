@@ -1,0 +1,132 @@
+"""The TOFFE configuration carried by a checkpoint (config.json) and by a deploy bundle.
+
+Speed bins follow the paper's Table "Speed ranges for the four speed bins" (m/s):
+1: 1-18, 2: 18-42, 3: 42-84, 4: 84-500 (max programmed object speed 144 m/s).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+from .errors import InputError
+
+SPEED_BINS_MPS: tuple[tuple[float, float], ...] = ((1.0, 18.0), (18.0, 42.0), (42.0, 84.0), (84.0, 500.0))
+CONFIG_FORMAT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class ToffeConfig:
+    """Everything a trained TOFFE needs besides its weights.
+
+    sensor_size is (width, height) in pixels. A window of ``dt_us`` microseconds is split into
+    ``n_bins`` (the paper's B) equal time bins. OFS stage k (1-based) fires for objects at speed
+    bin k or faster; the cascade runs k = N..1 and masks with a closing of ``mask_kernel``.
+    """
+
+    sensor_size: tuple[int, int] = (640, 480)
+    n_bins: int = 5
+    dt_us: int = 500
+    speed_bins: tuple[tuple[float, float], ...] = SPEED_BINS_MPS
+    representative_speeds: tuple[float, ...] = (9.5, 30.0, 63.0, 114.0)
+    ofs_kernel: int = 3
+    ofs_in_channels: int = 2
+    mask_kernel: int = 5
+    ofpd: dict[str, Any] = field(default_factory=dict)
+    dataset: dict[str, Any] = field(default_factory=dict)
+    format_version: int = CONFIG_FORMAT_VERSION
+
+    @property
+    def n_speed_bins(self) -> int:
+        return len(self.speed_bins)
+
+    @property
+    def width(self) -> int:
+        return int(self.sensor_size[0])
+
+    @property
+    def height(self) -> int:
+        return int(self.sensor_size[1])
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["sensor_size"] = list(self.sensor_size)
+        d["speed_bins"] = [list(b) for b in self.speed_bins]
+        d["representative_speeds"] = list(self.representative_speeds)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], path: str | os.PathLike = "config.json") -> "ToffeConfig":
+        if not isinstance(d, dict):
+            raise InputError(path, "config is not a JSON object")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise InputError(path, f"unknown config keys: {', '.join(unknown)}")
+        try:
+            kw = dict(d)
+            if "sensor_size" in kw:
+                kw["sensor_size"] = tuple(int(v) for v in kw["sensor_size"])
+            if "speed_bins" in kw:
+                kw["speed_bins"] = tuple((float(a), float(b)) for a, b in kw["speed_bins"])
+            if "representative_speeds" in kw:
+                kw["representative_speeds"] = tuple(float(v) for v in kw["representative_speeds"])
+            for k in ("n_bins", "dt_us", "ofs_kernel", "ofs_in_channels", "mask_kernel", "format_version"):
+                if k in kw:
+                    kw[k] = int(kw[k])
+            cfg = cls(**kw)
+        except (TypeError, ValueError) as exc:
+            raise InputError(path, f"malformed config: {exc}") from None
+        cfg.validate(path)
+        return cfg
+
+    def validate(self, path: str | os.PathLike = "config.json") -> None:
+        def bad(msg: str) -> None:
+            raise InputError(path, msg)
+
+        if self.format_version != CONFIG_FORMAT_VERSION:
+            bad(f"config format_version {self.format_version} is not supported (expected {CONFIG_FORMAT_VERSION})")
+        if len(self.sensor_size) != 2 or min(self.sensor_size) <= 0:
+            bad(f"sensor_size must be [width, height] > 0, got {list(self.sensor_size)}")
+        if self.n_bins < 1:
+            bad(f"n_bins must be >= 1, got {self.n_bins}")
+        if self.dt_us < self.n_bins:
+            bad(f"dt_us must be >= n_bins, got dt_us={self.dt_us}")
+        if not self.speed_bins:
+            bad("speed_bins is empty")
+        lo_prev = -math.inf
+        for lo, hi in self.speed_bins:
+            if not (lo < hi) or lo < lo_prev:
+                bad(f"speed_bins must be increasing [lo, hi) ranges, got {[list(b) for b in self.speed_bins]}")
+            lo_prev = lo
+        if len(self.representative_speeds) != len(self.speed_bins):
+            bad("representative_speeds must have one entry per speed bin")
+        if self.ofs_kernel % 2 != 1 or self.ofs_kernel < 1:
+            bad(f"ofs_kernel must be odd, got {self.ofs_kernel}")
+        if self.mask_kernel < 1:
+            bad(f"mask_kernel must be >= 1, got {self.mask_kernel}")
+
+    def speed_bin_of(self, speed_mps: float) -> int:
+        """1-based speed bin of a speed; 0 below the first bin, N above the last."""
+        if speed_mps < self.speed_bins[0][0]:
+            return 0
+        for k, (_lo, hi) in enumerate(self.speed_bins, start=1):
+            if speed_mps < hi:
+                return k
+        return len(self.speed_bins)
+
+
+def load_config(path: str | os.PathLike) -> ToffeConfig:
+    try:
+        with open(path, "r", encoding="utf-8") as f:
+            d = json.load(f)
+    except FileNotFoundError:
+        raise InputError(path, "missing file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot read: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    return ToffeConfig.from_dict(d, path)

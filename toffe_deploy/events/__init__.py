@@ -1,0 +1,6 @@
+"""Events in one in-memory form (a structured numpy array plus the sensor size), file readers
+and writers, and binning into TOFFE's discretized event volume."""
+from .core import EVENT_DTYPE, Events, make_events
+from .binning import bin_window, window_slice
+
+__all__ = ["EVENT_DTYPE", "Events", "make_events", "bin_window", "window_slice"]
