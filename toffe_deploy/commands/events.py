@@ -1,7 +1,90 @@
-"""`toffe-deploy events`: (being built)."""
+"""`toffe-deploy events`: inspect and convert event recordings (any supported format)."""
 from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+FORMATS_HELP = ("our HDF5 layout (toffe-events), DSEC HDF5, MVSEC HDF5, .npz, .npy, AEDAT4; "
+                "recognised by content")
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sensor-size", nargs=2, type=int, metavar=("W", "H"), default=None,
+                   help="sensor width and height in pixels; overrides the file's (defaults for files "
+                        "without one: DSEC 640 480, MVSEC 346 260, npz/npy inferred from the coordinates)")
+    p.add_argument("--sort", action="store_true",
+                   help="sort events by time instead of rejecting decreasing timestamps "
+                        "(loads the whole file into memory)")
 
 
 def register(sub) -> None:
-    p = sub.add_parser("events", help="(being built)")
-    p.set_defaults(func=lambda args: 2)
+    p = sub.add_parser("events", help="inspect and convert event recordings",
+                       description=f"Inspect and convert event recordings. Formats: {FORMATS_HELP}.")
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+    s = p.add_subparsers(dest="events_command", metavar="ACTION")
+
+    info = s.add_parser("info", help="events, duration, sensor size, event rate, polarity balance, "
+                                     "ground truth",
+                        description="Summarize an event file in one streaming pass; every event is "
+                                    "checked on the way (coordinates, timestamps), so this also validates it.")
+    info.add_argument("file", metavar="FILE", help=f"event file ({FORMATS_HELP})")
+    info.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    info.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    _add_common(info)
+    info.set_defaults(func=_info)
+
+    conv = s.add_parser("convert", help="convert an event file to our HDF5 layout (.h5) or .npz",
+                        description="Read any supported event file and write it as our HDF5 layout "
+                                    "(OUT ending in .h5/.hdf5; ground truth and attributes carried over) "
+                                    "or as .npz (x, y, t, p, sensor_size). Loads the whole file. "
+                                    "Written atomically.")
+    conv.add_argument("input", metavar="IN", help=f"event file ({FORMATS_HELP})")
+    conv.add_argument("output", metavar="OUT", help="output file: .h5/.hdf5 (our layout) or .npz")
+    conv.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
+    _add_common(conv)
+    conv.set_defaults(func=_convert)
+
+
+def _size(args):
+    return tuple(args.sensor_size) if args.sensor_size else None
+
+
+def _info(args) -> int:
+    from ..events.info import format_info, summarize
+
+    info = summarize(args.file, sensor_size=_size(args), sort=args.sort,
+                     progress=not args.no_progress and not args.json)
+    if args.json:
+        json.dump(info, sys.stdout, indent=2, default=str)
+        sys.stdout.write("\n")
+    else:
+        print(format_info(info))
+    return 0
+
+
+def _convert(args) -> int:
+    from pathlib import Path
+
+    from ..errors import InputError
+    from ..events.io import open_events, write_events_h5, write_events_npz
+
+    out = Path(args.output)
+    suffix = out.suffix.lower()
+    if suffix not in (".h5", ".hdf5", ".npz"):
+        raise InputError(out, "output must end in .h5, .hdf5 (our HDF5 layout) or .npz")
+    if out.exists() and not args.force:
+        raise InputError(out, "exists (use --force to overwrite)")
+    if out.resolve() == Path(args.input).resolve():
+        raise InputError(out, "is the input file; choose another output")
+    with open_events(args.input, sensor_size=_size(args), sort=args.sort) as src:
+        ev = src.read_all()
+        if suffix == ".npz":
+            write_events_npz(out, ev.events, ev.sensor_size)
+        else:
+            attrs = {k: v for k, v in src.attrs.items()}
+            attrs.setdefault("converted_from", {"path": str(args.input), "format": src.format_name})
+            write_events_h5(out, ev.events, ev.sensor_size, ground_truth=src.ground_truth, attrs=attrs,
+                            t_range=(src.t_start_us, src.t_end_us))
+    print(f"wrote {out}: {len(ev):,} events, {ev.sensor_size[0]}x{ev.sensor_size[1]}", file=sys.stderr)
+    return 0

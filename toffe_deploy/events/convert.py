@@ -1,0 +1,55 @@
+"""Raw columns from any format -> EVENT_DTYPE, with the checks the cast would otherwise hide.
+
+Why a separate step: a negative or fractional coordinate would silently wrap or truncate in a
+uint16 cast, and a time in seconds would silently become 0 us; each reader converts through
+here so the user hears about it instead.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from .core import EVENT_DTYPE
+from .validate import coordinates_in_range
+
+
+def polarity01(p: np.ndarray) -> np.ndarray:
+    """Polarity as 1 = ON, 0 = OFF from any common encoding: bool, 0/1, -1/+1 (p > 0 is ON)."""
+    return (np.asarray(p) > 0).astype(np.uint8)
+
+
+def time_us(path, t: np.ndarray, offset: int = 0, scale: float = 1.0, what: str = "t") -> np.ndarray:
+    """Timestamps as int64 microseconds: t * scale (rounded when scaled from float seconds).
+
+    With scale 1 a float column must hold whole numbers (microseconds), else InputError: the
+    likely cause is a time in seconds, which would silently collapse to a few microseconds.
+    """
+    t = np.asarray(t)
+    if np.issubdtype(t.dtype, np.floating):
+        if not np.isfinite(t).all():
+            i = int(np.flatnonzero(~np.isfinite(t))[0])
+            raise InputError(path, f"{what} = {t[i]!r} at event {offset + i} is not a finite time")
+        if scale == 1.0:
+            frac = np.flatnonzero(t != np.round(t))
+            if frac.size:
+                i = int(frac[0])
+                raise InputError(path, f"{what} = {t[i]!r} at event {offset + i} is not a whole number of "
+                                       "microseconds (a time in seconds? times must be in us)")
+            return t.astype(np.int64)
+        return np.round(t * scale).astype(np.int64)
+    if not (np.issubdtype(t.dtype, np.integer) or t.dtype == np.bool_):
+        raise InputError(path, f"{what} has dtype {t.dtype}, expected integer or float times")
+    t = t.astype(np.int64)
+    return t * int(scale) if scale != 1.0 else t
+
+
+def to_events(path, x, y, t_us: np.ndarray, p, offset: int = 0) -> np.ndarray:
+    """An EVENT_DTYPE array from columns; coordinates must be whole numbers in 0..65535."""
+    coordinates_in_range(path, "x", x, offset)
+    coordinates_in_range(path, "y", y, offset)
+    out = np.empty(np.asarray(t_us).shape[0], EVENT_DTYPE)
+    out["x"] = x
+    out["y"] = y
+    out["t"] = t_us
+    out["p"] = polarity01(p)
+    return out

@@ -1,0 +1,163 @@
+"""Open any supported event file by its content: one entry point for every command.
+
+Formats, recognised by magic bytes first and extension second (a file named .h5 that is not
+HDF5 is reported as corrupt, not guessed at):
+
+- our HDF5 layout (root attr format = "toffe-events", see fmt_toffe): read and written;
+- DSEC-style HDF5 (/events/{x,y,t,p} + /t_offset [+ /ms_to_idx]), default sensor 640x480;
+- MVSEC-style HDF5 (/davis/{left,right}/events, N x 4 float: x, y, t [s], p [+-1]), 346x260;
+- .npz (arrays x, y, t, p [+ sensor_size]) and .npy (structured array with x, y, t, p, or
+  N x 4: x, y, t, p); written by ``write_events_npz``;
+- AEDAT4 (iniVation DV) through the ``aedat`` package.
+
+A ``sensor_size`` argument overrides the file's (or the format's default). ``sort=True`` loads
+the whole file and sorts it by time (stable) instead of rejecting decreasing timestamps.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .core import Events
+from .fmt_toffe import FORMAT_NAME, ToffeH5Source, write_events_h5
+from .source import ArraySource, EventSource
+
+__all__ = ["open_events", "read_events", "write_events_h5", "write_events_npz", "EventSource",
+           "detect_format", "FORMATS"]
+
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+NPY_MAGIC = b"\x93NUMPY"
+ZIP_MAGIC = b"PK\x03\x04"
+AEDAT4_MAGIC = b"#!AER-DAT4.0"
+#: Formats ``detect_format`` can answer, for ``--help`` texts.
+FORMATS = (FORMAT_NAME, "dsec", "mvsec", "npz", "npy", "aedat4")
+
+
+def _sniff(path: Path) -> bytes:
+    if not path.exists():
+        raise InputError(path, "no such file")
+    if path.is_dir():
+        raise InputError(path, "is a directory, not an event file")
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError as exc:
+        raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
+    if not head:
+        raise InputError(path, "empty file")
+    return head
+
+
+def _open_h5(path: Path):
+    import h5py
+
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        raise InputError(path, f"not a readable HDF5 file (truncated or corrupt?): {exc}") from None
+
+
+def _h5_kind(path: Path, h5) -> str:
+    if h5.attrs.get("format") in (FORMAT_NAME, FORMAT_NAME.encode()):
+        return FORMAT_NAME
+    if "events" in h5 and hasattr(h5["events"], "keys") and "t" in h5["events"]:
+        return "dsec"          # /t_offset and /ms_to_idx are optional
+    if "davis" in h5:
+        return "mvsec"
+    raise InputError(path, "HDF5 file without an event layout we know (expected our "
+                           "toffe-events layout, DSEC /events/{x,y,t,p} or MVSEC /davis/left/events)")
+
+
+def detect_format(path: str | os.PathLike) -> str:
+    """The format name of an event file (one of FORMATS), from its content."""
+    path = Path(path)
+    head = _sniff(path)
+    if head.startswith(HDF5_MAGIC) or (path.suffix.lower() in (".h5", ".hdf5", ".hdf") and _is_h5(path)):
+        h5 = _open_h5(path)
+        try:
+            return _h5_kind(path, h5)
+        finally:
+            h5.close()
+    if head.startswith(NPY_MAGIC):
+        return "npy"
+    if head.startswith(ZIP_MAGIC):
+        return "npz"
+    if head.startswith(AEDAT4_MAGIC):
+        return "aedat4"
+    suffix = path.suffix.lower()
+    if suffix in (".h5", ".hdf5", ".hdf", ".npz", ".npy", ".aedat4", ".aedat"):
+        raise InputError(path, f"does not look like a {suffix} file (truncated or corrupt?)")
+    raise InputError(path, f"unknown event file format (supported: {', '.join(FORMATS)})")
+
+
+def _is_h5(path: Path) -> bool:
+    import h5py
+
+    try:
+        return bool(h5py.is_hdf5(path))   # HDF5 with a user block: magic at 512, 1024, ...
+    except OSError:
+        return False
+
+
+def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = None,
+                sort: bool = False) -> EventSource:
+    """Open an event file of any supported format for chunked reading (see module docstring).
+
+    Every problem with the file raises InputError naming it. ``sort=True`` loads the whole
+    file into memory (the only way to sort); without it decreasing timestamps are an error.
+    """
+    path = Path(path)
+    kind = detect_format(path)
+    if kind in (FORMAT_NAME, "dsec", "mvsec"):
+        h5 = _open_h5(path)
+        try:
+            if kind == FORMAT_NAME:
+                src = ToffeH5Source(path, h5, sensor_size)
+            elif kind == "dsec":
+                from .fmt_dsec import DsecSource
+                src = DsecSource(path, h5, sensor_size)
+            else:
+                from .fmt_mvsec import MvsecSource
+                src = MvsecSource(path, h5, sensor_size)
+        except BaseException:
+            h5.close()
+            raise
+    elif kind in ("npz", "npy"):
+        from .fmt_numpy import open_numpy
+        src = open_numpy(path, kind, sensor_size)
+    else:
+        from .fmt_aedat import AedatSource
+        src = AedatSource(path, sensor_size)
+    if sort:
+        return _sorted_source(src)
+    return src
+
+
+def _sorted_source(src: EventSource) -> EventSource:
+    """Load every event (coordinates and signs checked, order not), sort stably by t: an in-memory source."""
+    with src:
+        gt, attrs = src.ground_truth, src.attrs
+        ev = src.read_unordered()
+        n = int(ev.shape[0])
+        ev = ev[np.argsort(ev["t"], kind="stable")]
+        span = (min(src.t_start_us, int(ev["t"][0])) if n else src.t_start_us,
+                max(src.t_end_us, int(ev["t"][-1]) + 1) if n else src.t_end_us)
+        out = ArraySource(src.path, ev, src.sensor_size, gt, attrs, t_range=span, validated=True)
+        out.format_name = src.format_name
+        return out
+
+
+def read_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = None,
+                sort: bool = False) -> Events:
+    """The whole file as Events (validated; sorted by time when ``sort``)."""
+    with open_events(path, sensor_size=sensor_size, sort=sort) as src:
+        return src.read_all()
+
+
+def write_events_npz(path: str | os.PathLike, events: np.ndarray, sensor_size: tuple[int, int]) -> None:
+    """Write events as an uncompressed-columns .npz (x, y, t, p, sensor_size), atomically."""
+    from .fmt_numpy import write_npz
+    write_npz(path, events, sensor_size)
