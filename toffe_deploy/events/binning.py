@@ -31,8 +31,18 @@ def bin_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, sensor_size
     b = ((t - t0) * n_bins) // dt_us
     p = (events["p"] > 0).astype(np.int64)
     idx = ((b * 2 + p) * height + events["y"].astype(np.int64)) * width + events["x"].astype(np.int64)
-    counts = np.bincount(idx, minlength=n_bins * 2 * height * width)
+    size = n_bins * 2 * height * width
     info = np.iinfo(dtype) if np.issubdtype(dtype, np.integer) else None
-    if info is not None and counts.size and counts.max(initial=0) > info.max:
+    if idx.size * 64 < size:
+        # Sparse window (the usual case at full resolution): count the touched bins only, so
+        # the cost follows the events, not the 3 M bins of a 640x480 volume.
+        out = np.zeros(size, dtype=dtype)
+        uniq, cnt = np.unique(idx, return_counts=True)
+        if info is not None:
+            np.minimum(cnt, info.max, out=cnt)
+        out[uniq] = cnt
+        return out.reshape(n_bins, 2, height, width)
+    counts = np.bincount(idx, minlength=size)
+    if info is not None and counts.max(initial=0) > info.max:
         np.minimum(counts, info.max, out=counts)
     return counts.astype(dtype, copy=False).reshape(n_bins, 2, height, width)
