@@ -1,0 +1,96 @@
+"""`toffe-deploy dataset synth|show` end to end on real files in tmp_path."""
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from toffe_deploy.cli import main
+from toffe_deploy.dataset.groundtruth import window_truth
+from toffe_deploy.events.io import open_events, write_events_h5
+
+
+@pytest.fixture(scope="module")
+def synth_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("synth")
+    assert main(["dataset", "synth", "--out", str(out), "--split", "test", "--limit", "4",
+                 "--duration-s", "0.01", "--seed", "3"]) == 0
+    return out
+
+
+def test_synth_writes_files_and_index(synth_dir):
+    index = json.loads((synth_dir / "index.json").read_text())
+    rows = index["sequences"]
+    assert index["splits"] == {"train": 0, "test": 4, "multi": 0}
+    assert sorted(r["speed_bin"] for r in rows) == [1, 2, 3, 4]  # --limit keeps every bin
+    for r in rows:
+        assert {"shape", "trajectory", "orientation_deg", "direction", "sensor_size"} <= set(r)
+        with open_events(synth_dir / r["file"]) as src:
+            assert src.sensor_size == (640, 480) and src.num_events == r["n_events"] > 0
+            assert (src.t_start_us, src.t_end_us) == (0, 10000)
+            gt = src.ground_truth
+            assert gt["t"].shape[0] == 200 and set(np.unique(gt["speed_bin"])) <= {r["speed_bin"], r["speed_bin"] - 1,
+                                                                                r["speed_bin"] + 1}
+            assert src.attrs["seed"] == r["seed"] and src.attrs["objects"][0]["shape"] == r["shape"]
+            assert len(window_truth(gt, 0, 5000)) == 1
+
+
+def test_synth_resumes_and_adds_splits(synth_dir, capsys):
+    files = sorted(synth_dir.rglob("*.h5"))
+    mtimes = [f.stat().st_mtime_ns for f in files]
+    assert main(["dataset", "synth", "--out", str(synth_dir), "--split", "test", "--limit", "4",
+                 "--duration-s", "0.01", "--seed", "3"]) == 0
+    assert [f.stat().st_mtime_ns for f in files] == mtimes  # up to date: not rewritten
+    assert main(["dataset", "synth", "--out", str(synth_dir), "--split", "multi", "--multi-count", "1",
+                 "--duration-s", "0.005", "--seed", "3"]) == 0
+    index = json.loads((synth_dir / "index.json").read_text())
+    assert index["splits"] == {"train": 0, "test": 4, "multi": 1}  # test rows kept
+    assert index["sequences"][-1]["n_objects"] >= 2
+    assert "5 sequences" in capsys.readouterr().out
+
+
+def test_show_writes_png_with_truth(synth_dir, tmp_path, capsys):
+    f = next((synth_dir / "test").glob("*.h5"))
+    png = tmp_path / "look.png"
+    assert main(["dataset", "show", str(f), "--out", str(png), "--dt-us", "2000", "--frames", "3", "--cols", "3"]) == 0
+    img = cv2.imread(str(png))
+    assert img.shape == (480, 3 * 640, 3)
+    assert (img[..., 1] > 120).sum() < img[..., 1].size  # something drawn on white
+    assert (np.abs(img[..., 2].astype(int) - img[..., 0]) > 100).any()  # red or blue events
+    assert "3 object truths drawn" in capsys.readouterr().out
+
+
+def test_show_file_without_ground_truth(tmp_path, random_events):
+    f = tmp_path / "plain.h5"
+    write_events_h5(f, random_events(500, (64, 48), 10_000), (64, 48))
+    assert main(["dataset", "show", str(f), "--out", str(tmp_path / "p.png"), "--frames", "1"]) == 0
+    assert cv2.imread(str(tmp_path / "p.png")).shape == (48, 64, 3)
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["dataset", "show", "{tmp}/missing.h5"], "missing.h5"),
+    (["dataset", "show", "{tmp}/bad.h5"], "bad.h5"),
+    (["dataset", "show", "{tmp}/plain.npz", "--out", "{tmp}/x.jpg"], "must be a .png"),
+    (["dataset", "synth", "--out", "{tmp}/afile"], "not a directory"),
+    (["dataset", "synth", "--out", "{tmp}/brokenidx", "--split", "test", "--limit", "1"], "index.json"),
+    (["dataset", "synth", "--out", "{tmp}/o", "--threshold", "0.1", "--threshold-sigma", "0.2"], "threshold-sigma"),
+])
+def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, needle, random_events):
+    (tmp_path / "bad.h5").write_bytes(b"not hdf5 at all")
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "brokenidx").mkdir()
+    (tmp_path / "brokenidx" / "index.json").write_text("{oops")
+    from toffe_deploy.events.io import write_events_npz
+    write_events_npz(tmp_path / "plain.npz", random_events(10, (32, 24)), (32, 24))
+    assert main([a.replace("{tmp}", str(tmp_path)) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("toffe-deploy: error:") and needle in err and "\n" not in err
+
+
+def test_bad_option_values_exit_2(tmp_path, capsys):
+    for argv in (["--duration-s", "-1"], ["--limit", "0"], ["--noise-hz", "nan"]):
+        with pytest.raises(SystemExit) as exc:
+            main(["dataset", "synth", "--out", str(tmp_path), *argv])
+        assert exc.value.code == 2
