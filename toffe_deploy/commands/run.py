@@ -1,7 +1,213 @@
-"""`toffe-deploy run`: (being built)."""
+"""`toffe-deploy run [BUNDLE] --target T`: the deployed TOFFE on a stream of events.
+
+Windows of the bundle's dt stream from the recording (never loaded whole), each goes through the
+OFS cascade on the target's backend and OFPD in onnxruntime, and its object flow is printed as
+one JSON line. A summary (windows, objects, windows/s, latency percentiles, and pixE/dirE/speedE
+when the recording carries ground truth) closes the run: on stderr when the JSON lines go to
+stdout, so stdout stays pure JSON lines, on stdout otherwise.
+"""
 from __future__ import annotations
+
+import collections
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+from ..errors import InputError, ToffeError
+
+TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
+SAMPLE = Path(__file__).resolve().parent.parent / "samples" / "sample_multi.h5"
+SYNTH_KEYS = ("split", "index", "duration", "seed")
 
 
 def register(sub) -> None:
-    p = sub.add_parser("run", help="(being built)")
-    p.set_defaults(func=lambda args: 2)
+    p = sub.add_parser(
+        "run", help="run a deploy bundle on events and print object flow per window",
+        description="Run the deployed TOFFE (OFS cascade + OFPD) on a stream of events and print, per "
+                    "window, each object's speed bin, speed, position and direction as one JSON line.")
+    p.add_argument("bundle", nargs="?", default="export/",
+                   help="deploy bundle directory written by `toffe-deploy export` (default: export/)")
+    p.add_argument("--target", choices=TARGETS, default="cpu",
+                   help="where the OFS cascade runs: cpu (numpy fixed point, no torch/Lava), cuda (OFPD on "
+                        "onnxruntime's CUDA/TensorRT provider), loihi-sim (Lava simulator), loihi2 (Loihi 2 "
+                        "hardware through lava-loihi); default: cpu")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--events", metavar="FILE",
+                     help="event recording (our HDF5, npz/npy, DSEC/MVSEC HDF5, AEDAT4); "
+                          "default: the shipped multi-object sample")
+    src.add_argument("--synthetic", metavar="SPEC",
+                     help="generate the recording on the fly with the data-set generator: "
+                          "'SPLIT[:INDEX][,duration=S][,seed=N]', e.g. 'multi:2,duration=0.05' "
+                          "(SPLIT: train, test or multi); rendered at the bundle's sensor size")
+    p.add_argument("--out", metavar="FILE.jsonl", help="write the JSON lines to this file (atomically) "
+                                                       "instead of stdout")
+    p.add_argument("--render", metavar="DIR", help="also write one frame per window (events and flow arrows "
+                                                   "coloured by the flow colour wheel) into DIR")
+    p.add_argument("--video", action="store_true", help="with --render: one MP4 (DIR/object_flow.mp4) "
+                                                        "instead of PNG frames")
+    p.add_argument("--fps", type=float, default=10.0, help="frame rate of the --video file (default: 10)")
+    p.add_argument("--max-windows", type=int, metavar="N", help="stop after N windows")
+    p.add_argument("--start-us", type=int, metavar="T", help="first window starts at T (default: recording start)")
+    p.add_argument("--tag", choices=("fixed_pt", "floating_pt"), default="fixed_pt",
+                   help="Lava process models for the loihi targets: fixed_pt (bit-accurate Loihi 2, default) "
+                        "or floating_pt")
+    p.add_argument("--ofpd", choices=("fp32", "fp16", "int8"), default="fp32",
+                   help="OFPD model of the bundle: fp32 (default, the reference) or the fp16 / int8 variant "
+                        "written by `toffe-deploy export --variants`")
+    p.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON (atomically)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=run_command)
+
+
+def parse_synthetic(spec: str) -> dict:
+    """'multi:2,duration=0.05,seed=1' -> {split, index, duration, seed} (ToffeError if malformed)."""
+    out = {"split": "multi", "index": 0, "duration": None, "seed": 0}
+    for i, tok in enumerate(t.strip() for t in spec.split(",") if t.strip()):
+        if "=" not in tok:
+            if i:
+                raise ToffeError(f"--synthetic {spec!r}: expected key=value after the first item, got {tok!r}")
+            split, _, idx = tok.partition(":")
+            out["split"] = split
+            if idx:
+                out["index"] = idx
+            continue
+        key, _, val = tok.partition("=")
+        if key not in SYNTH_KEYS:
+            raise ToffeError(f"--synthetic {spec!r}: unknown key {key!r} (known: {', '.join(SYNTH_KEYS)})")
+        out[key] = val
+    try:
+        out["index"] = int(out["index"])
+        out["seed"] = int(out["seed"])
+        out["duration"] = None if out["duration"] is None else float(out["duration"])
+    except ValueError as exc:
+        raise ToffeError(f"--synthetic {spec!r}: {exc}") from None
+    if out["split"] not in ("train", "test", "multi"):
+        raise ToffeError(f"--synthetic {spec!r}: split must be train, test or multi, got {out['split']!r}")
+    if out["duration"] is not None and not out["duration"] > 0:
+        raise ToffeError(f"--synthetic {spec!r}: duration must be > 0 s")
+    return out
+
+
+def synthetic_source(spec: str, sensor_size: tuple[int, int]):
+    """An in-memory EventSource with ground truth from the data-set generator."""
+    from ..dataset.camera import PinholeCamera
+    from ..dataset.splits import split_specs
+    from ..dataset.synth import generate_sequence
+    from ..events.source import ArraySource
+
+    s = parse_synthetic(spec)
+    specs = split_specs(s["split"], seed=s["seed"], duration_s=s["duration"])
+    if not 0 <= s["index"] < len(specs):
+        raise ToffeError(f"--synthetic {spec!r}: index must be in 0..{len(specs) - 1} for split {s['split']}")
+    seq = dataclasses.replace(specs[s["index"]], camera=PinholeCamera(width=sensor_size[0], height=sensor_size[1]))
+    events, gt, size = generate_sequence(seq, seed=s["seed"])
+    return ArraySource(f"synthetic:{seq.name}", events, size, ground_truth=gt,
+                       attrs={"generator": "toffe-deploy synth", "sequence": seq.name},
+                       t_range=(0, int(round(seq.duration_s * 1e6))), validated=True)
+
+
+def open_source(args, sensor_size: tuple[int, int]):
+    from ..events.io import open_events
+
+    if args.synthetic:
+        return synthetic_source(args.synthetic, sensor_size)
+    path = Path(args.events) if args.events else SAMPLE
+    if not args.events and not SAMPLE.is_file():
+        raise InputError(SAMPLE, "the shipped sample recording is missing (reinstall, or pass --events FILE)")
+    src = open_events(path)
+    if tuple(src.sensor_size) != tuple(sensor_size):
+        src.close()
+        raise InputError(path, f"sensor size {src.sensor_size[0]}x{src.sensor_size[1]} differs from the bundle's "
+                               f"{sensor_size[0]}x{sensor_size[1]} (export a checkpoint trained for this sensor)")
+    return src
+
+
+def run_command(args) -> int:
+    from ..deploy.bundle import load_bundle
+    from ..runtime.output import RunSummary, jsonl_sink, write_window
+    from ..runtime.pipeline import Pipeline
+    from ..runtime.spikes import SpikeVolume
+
+    if args.max_windows is not None and args.max_windows < 1:
+        raise ToffeError("--max-windows must be >= 1")
+    if args.video and not args.render:
+        raise ToffeError("--video needs --render DIR")
+    if args.tag != "fixed_pt" and args.target in ("cpu", "cuda"):
+        raise ToffeError(f"--tag {args.tag} selects Lava process models: it applies to --target loihi-sim or loihi2; "
+                         f"the {args.target} target runs the fixed-point OFS")
+    bundle = load_bundle(args.bundle)
+    cfg = bundle.config
+    src = open_source(args, cfg.sensor_size)
+    with src:
+        t_start = src.t_start_us if args.start_us is None else int(args.start_us)
+        n_total = max(0, -(-(src.t_end_us - t_start) // cfg.dt_us))
+        if args.max_windows is not None:
+            n_total = min(n_total, args.max_windows)
+        truth = src.ground_truth
+        errors = None
+        if truth:
+            from ..metrics import FlowErrors, Prediction
+            from ..runtime.truth import TruthIndex
+
+            truth = TruthIndex(truth)
+            errors = FlowErrors()
+        renderer = None
+        if args.render:
+            from ..runtime.render import FrameRenderer
+
+            renderer = FrameRenderer(args.render, video=args.video, fps=args.fps)
+
+        pending: collections.deque = collections.deque()   # (t0, volume, time the window was ready)
+
+        def windows():
+            for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=t_start)):
+                if i >= n_total:
+                    return
+                vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size)
+                pending.append((t0, vol, time.perf_counter()))
+                yield t0, vol
+
+        summary = RunSummary(target=args.target)
+        t_setup = time.perf_counter()
+        pipe = Pipeline(bundle, args.target, tag=args.tag, ofpd_variant=args.ofpd)
+        ok = False
+        stream_out = args.out is None
+        try:
+            from tqdm import tqdm
+
+            with pipe, jsonl_sink(args.out) as sink:
+                summary.startup_s = time.perf_counter() - t_setup
+                t_run = time.perf_counter()
+                bar = tqdm(total=n_total, unit="win", desc=f"run {args.target}", file=sys.stderr,
+                           disable=args.no_progress or n_total < 2, leave=False)
+                with bar:
+                    for res in pipe.process_stream(windows()):
+                        t0, vol, t_ready = pending.popleft()
+                        summary.add(res, time.perf_counter() - t_ready)
+                        write_window(sink, res)
+                        if errors is not None:
+                            errors.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps,
+                                                          o.speed_bin_mps) for o in res.objects],
+                                              truth.window(res.t0_us, cfg.dt_us))
+                        if renderer is not None:
+                            renderer.add(vol, res.objects, res.t0_us)
+                        bar.update(1)
+                summary.wall_s = time.perf_counter() - t_run
+            ok = True
+        finally:
+            if renderer is not None:
+                renderer.close(ok)
+    if errors is not None:
+        summary.errors = errors.summary()
+    out = sys.stderr if stream_out else sys.stdout
+    for line in summary.lines():
+        print(line, file=out)
+    if args.summary_json:
+        import json
+
+        from ..fileio import atomic_path
+
+        with atomic_path(args.summary_json) as tmp:
+            tmp.write_text(json.dumps(summary.to_json(), indent=2) + "\n", encoding="utf-8")
+    return 0

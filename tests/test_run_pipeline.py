@@ -1,0 +1,354 @@
+"""`toffe-deploy run` on the cpu target: end-to-end object flow, output, rendering, bad input.
+
+A small real bundle (64x48, untrained DOTIE OFS + random OFPD exported to ONNX) and a real
+multi-object recording from the data-set generator, both in tmp dirs; real onnxruntime.
+"""
+import dataclasses
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from toffe_deploy import ofpd_io
+from toffe_deploy.cascade import run_cascade
+from toffe_deploy.cli import main
+from toffe_deploy.config import ToffeConfig
+from toffe_deploy.fixed_point import run_ofs_fixed
+from toffe_deploy.runtime import ofpd_input
+from toffe_deploy.runtime.spikes import SpikeVolume
+
+SENSOR = (64, 48)
+
+
+def make_bundle(root, sensor=SENSOR, ofpd=None):
+    """init_checkpoint -> quantize -> ONNX -> write_bundle: a real bundle without the exporter."""
+    import torch
+
+    from toffe_deploy.checkpoint import init_checkpoint, load_checkpoint
+    from toffe_deploy.deploy.bundle import write_bundle
+    from toffe_deploy.fixed_point import quantize_ofs
+    from toffe_deploy.model.ofpd import OFPD
+
+    cfg = ToffeConfig(sensor_size=sensor, ofpd=ofpd or {"crop_px": 32, "pool": 2, "min_events": 4})
+    ck = load_checkpoint(init_checkpoint(root / "ckpt", cfg, seed=1))
+    # Low thresholds (0.25 .. 0.55, DOTIE's are 1.0 ..) so the sparse events of a tiny sensor make spikes.
+    ofs = [quantize_ofs(p["weight"], 0.25 + 0.1 * k, 0.7) for k, p in enumerate(ck.ofs)]
+    model = OFPD.from_config(ck.config)
+    model.load_state_dict({k: torch.from_numpy(v) for k, v in ck.ofpd_state.items()})
+    model.eval()
+    onnx_path = root / "ofpd.onnx"
+    torch.onnx.export(model, torch.zeros((1,) + ofpd_io.input_shape(ck.config)), str(onnx_path),
+                      input_names=["events"], output_names=["pose", "direction", "speed"],
+                      dynamic_axes={"events": {0: "N"}}, opset_version=17)
+    return write_bundle(root / "bundle", ck.config, ofs, onnx_path)
+
+
+def make_recording(path, sensor=SENSOR, duration=0.012, index=0, seed=0):
+    from toffe_deploy.dataset.camera import PinholeCamera
+    from toffe_deploy.dataset.splits import split_specs
+    from toffe_deploy.dataset.synth import generate_sequence
+    from toffe_deploy.events.io import write_events_h5
+
+    spec = split_specs("multi", seed=seed, duration_s=duration)[index]
+    spec = dataclasses.replace(spec, camera=PinholeCamera(width=sensor[0], height=sensor[1]))
+    ev, gt, size = generate_sequence(spec, seed=seed)
+    write_events_h5(path, ev, size, ground_truth=gt, t_range=(0, int(duration * 1e6)))
+    return path
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    root = tmp_path_factory.mktemp("run")
+    bundle = make_bundle(root)
+    rec = make_recording(root / "rec.h5")
+    return {"root": root, "bundle": bundle, "rec": rec}
+
+
+def run_cli(capsys, *argv):
+    rc = main(["run", *map(str, argv), "--no-progress"])
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def _random_window(rng, cfg, n_stages=4):
+    """A window's ones (a few blobs, some off the sensor edge, plus noise) split into disjoint
+    stage frames (some ones in no frame), as the cascade makes them."""
+    w, h = cfg.sensor_size
+    x = np.zeros((cfg.n_bins, 2, h, w), bool)
+    for _ in range(int(rng.integers(1, 5))):
+        cy, cx = rng.integers(-5, h + 5), rng.integers(-5, w + 5)
+        ys, xs = slice(max(cy - 6, 0), max(cy + 6, 0)), slice(max(cx - 6, 0), max(cx + 6, 0))
+        x[:, :, ys, xs] = rng.random(x[:, :, ys, xs].shape) < 0.3
+    x |= rng.random(x.shape) < 0.002
+    vol = SpikeVolume.from_dense(x)
+    stage = rng.integers(0, n_stages + 1, len(vol))       # 0 = masked out of every frame
+    masks = [stage == k for k in range(1, n_stages + 1)]
+    return vol, masks, np.stack([vol.subset(m).to_dense() for m in masks])
+
+
+@pytest.mark.parametrize("ofpd", [{"crop_px": 32, "pool": 2, "min_events": 10, "dedupe_px": 12},
+                                  {"crop_px": 16, "pool": 4, "min_events": 4, "dedupe_px": 20},
+                                  {"crop_px": 24, "pool": 3, "min_events": 1, "dedupe_px": 6}])
+def test_sparse_ofpd_input_equals_ofpd_io(rng, ofpd):
+    cfg = ToffeConfig(sensor_size=SENSOR, ofpd=ofpd)
+    n_obj = 0
+    for _ in range(12):
+        vol, masks, dense = _random_window(rng, cfg)
+        ks_ref, merged_ref = ofpd_io.merge_frames(dense, cfg)
+        lookup = np.empty(SENSOR[0] * SENSOR[1], np.int64) if n_obj % 2 else None   # both pixel-set paths
+        ks, merged = ofpd_input.merge_objects(vol, masks, cfg, lookup)
+        assert ks.tolist() == ks_ref.tolist()
+        assert np.array_equal(np.stack([m.to_dense() for m in merged]) if merged else merged_ref, merged_ref)
+        assert np.array_equal(ks_ref, np.flatnonzero(ofpd_io.has_object(dense, cfg))[::-1] + 1)
+        if ks.size:
+            assert np.array_equal(ofpd_input.prepare(merged, cfg, lookup), ofpd_io.prepare(merged_ref, cfg))
+        n_obj += ks.size
+    assert n_obj > 5
+
+
+def test_cpu_pipeline_equals_dense_reference(env):
+    """Sparse cascade + sparse OFPD input == run_cascade(run_ofs_fixed) + ofpd_io on dense arrays."""
+    import onnxruntime as ort
+
+    from toffe_deploy.events.binning import bin_window
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.runtime.pipeline import Pipeline
+
+    b = env["bundle"]
+    cfg = b.config
+    sess = ort.InferenceSession(str(b.ofpd_onnx), providers=["CPUExecutionProvider"])
+    with open_events(env["rec"]) as src:
+        wins = [(t0, bin_window(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size)) for t0, ev in src.iter_windows(cfg.dt_us)]
+    with Pipeline(b, "cpu") as pipe:
+        got = list(pipe.process_stream(wins))
+    assert [r.t0_us for r in got] == [t0 for t0, _ in wins]
+    n_obj = 0
+    for (t0, x), res in zip(wins, got):
+        ref = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, b.ofs[k - 1]), cfg.n_speed_bins, cfg.mask_kernel)
+        ks, merged = ofpd_io.merge_frames(np.stack(ref.frames), cfg)
+        assert [o.speed_bin for o in res.objects] == ks.tolist()
+        assert [o.n_events for o in res.objects] == [int(m.sum()) for m in merged]
+        if ks.size:
+            pose, direction, speed = sess.run(None, {"events": ofpd_io.prepare(merged, cfg)})
+            dec = ofpd_io.decode(pose, direction, speed, ks, cfg)
+            np.testing.assert_allclose([o.x for o in res.objects], dec["x_px"], rtol=0, atol=1e-5)
+            np.testing.assert_allclose([o.direction_rad for o in res.objects], dec["direction_rad"], atol=1e-5)
+            np.testing.assert_allclose([o.speed_mps for o in res.objects], dec["speed_mps"], rtol=1e-5)
+            n_obj += ks.size
+    assert n_obj > 0                          # the comparison covered real objects
+
+
+def test_run_cli_writes_jsonl_and_summary_with_ground_truth(env, capsys, tmp_path):
+    out = tmp_path / "flow.jsonl"
+    summ = tmp_path / "summary.json"
+    rc, stdout, stderr = run_cli(capsys, env["bundle"].root, "--target", "cpu", "--events", env["rec"], "--out", out,
+                                 "--summary-json", summ)
+    assert rc == 0, stderr
+    lines = [json.loads(s) for s in out.read_text().splitlines()]
+    assert len(lines) == 24                   # 12 ms / 500 us
+    assert lines[1]["t0_us"] - lines[0]["t0_us"] == 500 and lines[0]["t1_us"] == lines[0]["t0_us"] + 500
+    objs = [o for ln in lines for o in ln["objects"]]
+    assert objs and set(objs[0]) == {"speed_bin", "speed_mps", "speed_bin_mps", "x", "y", "direction_rad",
+                                     "direction_deg", "n_events"}
+    assert all(1 <= o["speed_bin"] <= 4 for o in objs)
+    assert all(abs(np.degrees(o["direction_rad"]) - o["direction_deg"]) < 1e-2 for o in objs)
+    assert "24 windows" in stdout and "windows/s" in stdout and "pixE" in stdout
+    s = json.loads(summ.read_text())
+    assert s["windows"] == 24 and s["objects"] == len(objs) and s["errors"]["n_gt"] > 0
+
+
+def test_run_cli_stdout_is_pure_jsonl_and_max_windows(env, capsys):
+    rc, stdout, stderr = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--max-windows", "3")
+    assert rc == 0
+    assert [json.loads(s)["t0_us"] for s in stdout.splitlines()] == [0, 500, 1000]
+    assert "3 windows" in stderr
+
+
+def test_cpu_target_imports_neither_torch_nor_lava(env, tmp_path):
+    code = ("import sys; from toffe_deploy.cli import main; "
+            f"rc = main(['run', {str(env['bundle'].root)!r}, '--events', {str(env['rec'])!r}, '--out', "
+            f"{str(tmp_path / 'o.jsonl')!r}, '--no-progress']); "
+            "heavy = sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'lava', 'lava_procs')); "
+            "print('RC', rc, 'HEAVY', heavy)")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert "RC 0 HEAVY []" in p.stdout, p.stdout + p.stderr
+
+
+def test_render_png_frames_and_video(env, capsys, tmp_path):
+    rc, _, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--max-windows", "4",
+                         "--render", tmp_path / "png", "--out", tmp_path / "a.jsonl")
+    assert rc == 0, err
+    import cv2
+
+    pngs = sorted((tmp_path / "png").glob("frame_*.png"))
+    assert len(pngs) == 4
+    img = cv2.imread(str(pngs[0]))
+    assert img.shape == (48, 64, 3) and img.any()
+    rc, _, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--max-windows", "4",
+                         "--render", tmp_path / "vid", "--video", "--out", tmp_path / "b.jsonl")
+    assert rc == 0, err
+    cap = cv2.VideoCapture(str(tmp_path / "vid" / "object_flow.mp4"))
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    assert n == 4
+
+
+def test_flow_colour_wheel_hue_is_direction():
+    import cv2
+
+    from toffe_deploy.runtime.render import flow_color
+
+    cols = flow_color(np.radians([0.0, 90.0, 180.0, 270.0]))
+    hues = cv2.cvtColor(cols.reshape(-1, 1, 3), cv2.COLOR_BGR2HSV)[:, 0, 0].astype(int) * 2
+    assert hues.tolist() == [0, 90, 180, 270]
+    assert tuple(cols[0]) == (0, 0, 255)      # moving right: red, as the optical-flow wheel
+
+
+def test_synthetic_recording_runs(env, capsys, tmp_path):
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--synthetic", "multi:1,duration=0.003", "--out",
+                           tmp_path / "s.jsonl")
+    assert rc == 0, err
+    assert len((tmp_path / "s.jsonl").read_text().splitlines()) == 6 and "pixE" in out
+
+
+@pytest.mark.parametrize("spec", ["multi,foo=1", "walk:1", "multi:x", "multi,duration=-1", "multi:99"])
+def test_bad_synthetic_spec_is_one_line_error(env, capsys, spec):
+    rc, _, err = run_cli(capsys, env["bundle"].root, "--synthetic", spec)
+    assert rc == 2 and err.startswith("toffe-deploy: error: --synthetic") and err.count("\n") == 1
+
+
+def test_sensor_size_mismatch_is_one_line_error(env, capsys, tmp_path):
+    rec = make_recording(tmp_path / "small.h5", sensor=(32, 24), duration=0.002)
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--events", rec)
+    assert rc == 2 and out == ""
+    assert err.strip() == f"toffe-deploy: error: {rec}: sensor size 32x24 differs from the bundle's 64x48 " \
+                          "(export a checkpoint trained for this sensor)"
+
+
+def test_unreadable_events_is_one_line_error(env, capsys, tmp_path):
+    bad = tmp_path / "garbage.h5"
+    bad.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\x00" * 50)
+    rc, _, err = run_cli(capsys, env["bundle"].root, "--events", bad)
+    assert rc == 2 and err.startswith(f"toffe-deploy: error: {bad}") and err.count("\n") == 1
+    rc, _, err = run_cli(capsys, env["bundle"].root, "--events", tmp_path / "missing.h5")
+    assert rc == 2 and "missing.h5" in err and err.count("\n") == 1
+
+
+def test_tampered_or_incomplete_bundle_is_one_line_error(env, capsys, tmp_path):
+    b = tmp_path / "b"
+    shutil.copytree(env["bundle"].root, b)
+    with open(b / "ofpd.onnx", "ab") as f:
+        f.write(b"\0")
+    rc, _, err = run_cli(capsys, b, "--events", env["rec"])
+    assert rc == 2 and "sha256 mismatch" in err and err.count("\n") == 1
+    (b / "ofpd.onnx").unlink()
+    rc, _, err = run_cli(capsys, b, "--events", env["rec"])
+    assert rc == 2 and "ofpd.onnx: missing file" in err
+    rc, _, err = run_cli(capsys, tmp_path / "nope", "--events", env["rec"])
+    assert rc == 2 and "does not exist" in err
+
+
+def test_cuda_target_without_gpu_provider_says_what_is_missing(env, capsys):
+    import onnxruntime as ort
+
+    if "CUDAExecutionProvider" in ort.get_available_providers():
+        pytest.skip("this machine has onnxruntime's CUDA provider")
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--target", "cuda", "--events", env["rec"])
+    assert rc == 2 and out == "" and err.count("\n") == 1
+    assert "CUDAExecutionProvider" in err and "onnxruntime-gpu" in err and "--target cpu" in err
+
+
+def test_bad_options_are_one_line_errors(env, capsys):
+    rc, _, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--max-windows", "0")
+    assert rc == 2 and "--max-windows" in err
+    rc, _, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--video")
+    assert rc == 2 and "--render" in err
+
+
+def _flows(results):
+    return [r.to_json() for r in results]
+
+
+def test_loihi_sim_and_cpu_give_identical_object_flow(env, capsys, tmp_path):
+    pytest.importorskip("lava")
+    out = {}
+    for target in ("cpu", "loihi-sim"):
+        rc, _, err = run_cli(capsys, env["bundle"].root, "--target", target, "--events", env["rec"], "--max-windows", "8",
+                             "--out", tmp_path / f"{target}.jsonl")
+        assert rc == 0, err
+        out[target] = (tmp_path / f"{target}.jsonl").read_text()
+    assert out["cpu"] == out["loihi-sim"]
+    assert sum(len(json.loads(s)["objects"]) for s in out["cpu"].splitlines()) > 0
+
+
+def test_loihi_sim_and_cpu_agree_on_the_shipped_sample(tmp_path):
+    """Full 640x480 on the shipped recording: first windows through both backends."""
+    pytest.importorskip("lava")
+    from toffe_deploy.commands.run import SAMPLE
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.runtime.pipeline import Pipeline
+
+    bundle = make_bundle(tmp_path, sensor=(640, 480), ofpd={})
+    cfg = bundle.config
+    with open_events(SAMPLE) as src:
+        assert tuple(src.sensor_size) == (640, 480)
+        wins = [(t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size))
+                for _, (t0, ev) in zip(range(3), src.iter_windows(cfg.dt_us, t_start=20_000))]
+    flows = {}
+    for target in ("cpu", "loihi-sim"):
+        with Pipeline(bundle, target) as pipe:
+            flows[target] = _flows(pipe.process_stream(wins))
+    assert flows["cpu"] == flows["loihi-sim"]
+    assert {o["speed_bin"] for r in flows["cpu"] for o in r["objects"]} >= {1, 2}
+
+
+def test_truth_index_equals_window_truth_on_the_whole_table(env):
+    from toffe_deploy.dataset.groundtruth import window_truth
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.runtime.truth import TruthIndex
+
+    with open_events(env["rec"]) as src:
+        gt = src.ground_truth
+    idx = TruthIndex(gt)
+    n = 0
+    for t0 in range(0, 12_000, 500):
+        want = window_truth(gt, t0, 500)
+        assert idx.window(t0, 500) == want
+        n += len(want)
+    assert n > 0
+
+
+def test_loihi2_without_lava_loihi_and_tag_on_cpu_are_one_line_errors(env, capsys):
+    pytest.importorskip("lava")
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--target", "loihi2", "--events", env["rec"])
+    assert rc == 2 and out == "" and err.count("\n") == 1 and "lava-loihi" in err and "loihi-sim" in err
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--tag", "floating_pt", "--events", env["rec"])
+    assert rc == 2 and "--tag floating_pt" in err and err.count("\n") == 1
+
+
+def test_loihi_sim_floating_pt_runs(env, capsys, tmp_path):
+    pytest.importorskip("lava")
+    rc, _, err = run_cli(capsys, env["bundle"].root, "--target", "loihi-sim", "--tag", "floating_pt", "--events",
+                         env["rec"], "--max-windows", "3", "--out", tmp_path / "f.jsonl")
+    assert rc == 0, err
+    assert len((tmp_path / "f.jsonl").read_text().splitlines()) == 3
+
+
+def test_unwritable_outputs_are_one_line_errors(env, capsys, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    rc, _, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--out", blocker / "o.jsonl")
+    assert rc == 2 and err.startswith(f"toffe-deploy: error: {blocker / 'o.jsonl'}: cannot write") and err.count("\n") == 1
+    rc, _, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--render", blocker, "--out",
+                         tmp_path / "o.jsonl")
+    assert rc == 2 and "cannot create the render directory" in err and err.count("\n") == 1
+    assert not (tmp_path / "o.jsonl").exists()           # nothing half-written
+
+
+def test_missing_ofpd_variant_is_one_line_error(env, capsys):
+    rc, _, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--ofpd", "int8")
+    assert rc == 2 and "no int8 OFPD variant" in err and err.count("\n") == 1

@@ -1,0 +1,115 @@
+"""The cpu target's event-driven cascade against the dense fixed-point reference, bit for bit."""
+import numpy as np
+import pytest
+
+from toffe_deploy.cascade import close_binary, run_cascade
+from toffe_deploy.events.binning import bin_window
+from toffe_deploy.fixed_point import quantize_ofs, run_ofs_fixed
+from toffe_deploy.runtime.cpu import CpuCascade
+from toffe_deploy.runtime.morph import CompactClosing
+from toffe_deploy.runtime.ofs_sparse import dedupe, run_ofs_sparse
+from toffe_deploy.runtime.spikes import SpikeVolume
+
+
+def _stage_params(rng, n=3, k=3, c=2):
+    out = []
+    for i in range(n):
+        w = rng.uniform(-0.05, 0.2, (1, c, k, k))
+        w[0, :, k // 2, k // 2] = 0.2
+        out.append(quantize_ofs(w, threshold=(0.3 + 0.2 * i) * k * k / 9, leak=float(rng.uniform(0.2, 0.9))))
+    return out
+
+
+def _blobby(rng, shape=(5, 2, 24, 32), n_blobs=3, p=0.5):
+    """Sparse volume with a few dense blobs, some touching the sensor edge."""
+    x = np.zeros(shape, bool)
+    b, c, h, w = shape
+    for _ in range(n_blobs):
+        y0, x0 = rng.integers(-2, h - 3), rng.integers(-2, w - 3)
+        sy, sx = rng.integers(3, 9, 2)
+        ys, xs = slice(max(y0, 0), max(y0 + sy, 0)), slice(max(x0, 0), max(x0 + sx, 0))
+        view = x[:, :, ys, xs]
+        view |= rng.random(view.shape) < p
+    x |= rng.random(shape) < 0.01
+    return x
+
+
+def test_dedupe_gives_unique_values_and_inverse(rng):
+    v = rng.integers(0, 50, 300)
+    uniq, inv = dedupe(v, np.empty(50, np.int64))
+    assert sorted(uniq.tolist()) == sorted(set(v.tolist()))
+    assert np.array_equal(uniq[inv], v)
+
+
+def test_spike_volume_from_events_matches_bin_window(random_events):
+    ev = random_events(n=3000, sensor_size=(32, 24), duration_us=2000)
+    vol = SpikeVolume.from_events(ev, 400, 500, 5, (32, 24))
+    assert np.array_equal(vol.to_dense(), bin_window(ev, 400, 500, 5, (32, 24)) > 0)
+    assert np.all(np.diff(vol.idx) > 0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_sparse_ofs_is_bit_exact_with_dense_reference(seed):
+    rng = np.random.default_rng(seed)
+    k = [1, 3, 5][seed % 3]
+    x = _blobby(rng)
+    for p in _stage_params(rng, n=2, k=k):
+        ref = run_ofs_fixed(x, p)
+        assert ref.any()                       # the comparison means something
+        assert np.array_equal(run_ofs_sparse(x, p), ref)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_compact_closing_equals_full_frame_closing(seed):
+    rng = np.random.default_rng(100 + seed)
+    h, w = 40, 56
+    img = _blobby(rng, (1, 1, h, w), n_blobs=4, p=0.3)[0, 0]
+    kernel = [5, 3, 4, 7][seed % 4]
+    ref = close_binary(img, kernel)
+    cc = CompactClosing(np.flatnonzero(img), h, w, kernel)
+    assert np.array_equal(cc.dense(), ref)
+    assert np.array_equal(cc.at(np.arange(h * w)), ref.ravel())
+
+
+def test_compact_closing_of_nothing_is_empty():
+    cc = CompactClosing(np.zeros(0, np.int64), 10, 12, 5)
+    assert not cc.dense().any() and not cc.at(np.arange(120)).any()
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_cpu_cascade_equals_run_cascade(seed):
+    rng = np.random.default_rng(200 + seed)
+    params = _stage_params(rng, n=4)
+    windows = [_blobby(rng, n_blobs=4).astype(np.uint16) * 3 for _ in range(2)] + [np.zeros((5, 2, 24, 32), np.uint16)]
+    with CpuCascade(params, 5, 5, (32, 24)) as cas:
+        got = list(cas.cascade_stream(windows))
+    assert len(got) == 3
+    for x, g in zip(windows, got):
+        ref = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, params[k - 1]), 4, 5)
+        for field in ("inputs", "spikes", "closed", "frames"):
+            for a, b in zip(getattr(ref, field), getattr(g, field)):
+                assert a.shape == b.shape and np.array_equal(a, b), field
+
+
+def test_cpu_cascade_rejects_wrong_window_shape(rng):
+    cas = CpuCascade(_stage_params(rng, n=2), 5, 5, (32, 24))
+    with pytest.raises(ValueError, match="window must be"):
+        next(cas.cascade_stream([np.zeros((5, 2, 24, 30), np.uint8)]))
+
+
+@pytest.mark.parametrize("dv", [0, 1, 1094, 2048, 4095])
+def test_lif_window_equals_lif_step_including_saturation(rng, dv):
+    from toffe_deploy.fixed_point import LoihiOFSParams, lif_step
+    from toffe_deploy.runtime.ofs_sparse import lif_window
+
+    p = LoihiOFSParams(weight=np.ones((1, 1, 1, 1), np.int32), vth_mant=int(rng.integers(1, 3000)), dv=dv,
+                       weight_scale=1.0)
+    a = rng.integers(-3000, 3000, (7, 4000))
+    a[:, :50] = 200_000                   # drives v into the +24-bit clip
+    a[:, 50:100] = -200_000               # and the - clip
+    v, o = np.zeros(4000, np.int64), np.zeros(4000, bool)
+    ref = []
+    for t in range(7):
+        v, o = lif_step(v, o, a[t], p)
+        ref.append(o)
+    assert np.array_equal(lif_window(a.astype(np.float64), p), np.stack(ref))

@@ -1,0 +1,5 @@
+"""Running a deploy bundle on a stream of events: OFS cascade backends (cpu numpy fixed point,
+Lava simulator / Loihi 2), OFPD in onnxruntime, and the pipeline that joins them.
+
+Heavy or optional dependencies (Lava, onnxruntime) are imported where used, never here.
+"""

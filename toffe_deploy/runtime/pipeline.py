@@ -1,0 +1,206 @@
+"""The deployed TOFFE on a stream of windows: OFS cascade on a backend, OFPD in onnxruntime.
+
+Per window [t0, t0 + dt) and speed bin k = N..1 (paper section "TOFFE Inference"):
+
+    frames_k  = speed-separated event volume of stage k          (cascade, eq. 3-4)
+    objects   = ofpd_io's grouping of the frames into objects (merge_frames: an object's speed
+                bin is the fastest stage reporting it, its frame the events of all stages in
+                its box), then decode(OFPD(prepare(merged_j)), k_j) for each object j
+
+with all objects of a window prepared and sent to OFPD in one batched session run.
+
+Targets: ``cpu`` (numpy fixed point, event driven; onnxruntime CPU; imports neither torch nor
+Lava), ``cuda`` (the same cascade, OFPD on the CUDA/TensorRT provider), ``loihi-sim`` (the Lava
+engineer's ``LavaCascade`` in Loihi2SimCfg) and ``loihi2`` (the same on Loihi2HwCfg). Every
+backend's cascade result goes through the same frame -> OFPD code, so targets whose cascades are
+bit exact report identical object flow.
+"""
+from __future__ import annotations
+
+import collections
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Iterable, Iterator, Union
+
+import numpy as np
+
+from ..errors import InputError
+from ..ofpd_io import decode
+from . import ofpd_input
+from .cpu import CpuCascade
+from .ofpd_runner import OFPDRunner
+from .spikes import SpikeVolume
+
+TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
+TAGS = ("fixed_pt", "floating_pt")
+
+Window = Union[np.ndarray, SpikeVolume]
+"""A window as a dense binned (B, 2, H, W) array (nonzero = event) or as a SpikeVolume."""
+
+
+@dataclass
+class ObjectFlow:
+    """One object in one window: speed bin k (the OFS stage that separated it), speed (m/s,
+    regressed within the bin; speed_bin_mps is the paper's bin-only estimate), centre (x, y) in
+    sensor pixels, direction of motion in rad (image plane, y down: atan2(dy, dx)) and the
+    number of event ones (bin, polarity, pixel) in its speed-separated frame."""
+
+    speed_bin: int
+    speed_mps: float
+    speed_bin_mps: float
+    x: float
+    y: float
+    direction_rad: float
+    n_events: int
+
+    @property
+    def direction_deg(self) -> float:
+        return math.degrees(self.direction_rad)
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["direction_deg"] = self.direction_deg
+        return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in d.items()}
+
+
+@dataclass
+class WindowResult:
+    """Object flow of window [t0_us, t1_us)."""
+
+    t0_us: int
+    t1_us: int
+    objects: list[ObjectFlow] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return {"t0_us": int(self.t0_us), "t1_us": int(self.t1_us), "objects": [o.to_json() for o in self.objects]}
+
+
+def ofpd_model(bundle, variant: str = "fp32"):
+    """The bundle's OFPD ONNX file for a variant: fp32 (the reference), or fp16 / int8 when the
+    bundle was exported with ``--variants`` (smaller and faster on edge GPUs / CPUs)."""
+    if variant == "fp32":
+        return bundle.ofpd_onnx
+    path = getattr(bundle, "ofpd_variants", {}).get(variant)
+    if path is None:
+        raise InputError(bundle.root, f"bundle has no {variant} OFPD variant (re-export with "
+                                      f"`toffe-deploy export CKPT --variants {variant}`, or use the fp32 model)")
+    return path
+
+
+def _allow_lava_fork() -> None:
+    """Let Lava's import set the 'fork' start method even if something fixed it already.
+
+    Lava calls ``multiprocessing.set_start_method('fork')`` (no force) when first imported; that
+    raises "context has already been set" once anything touched the default context (tqdm's
+    first progress bar does). Resetting an already-'fork' default is harmless: Lava sets it again.
+    """
+    import multiprocessing as mp
+    import sys
+
+    if "lava.magma.runtime.message_infrastructure.multiprocessing" in sys.modules:
+        return
+    if mp.get_start_method(allow_none=True) == "fork":
+        mp.set_start_method(None, force=True)
+
+
+def _make_cascade(bundle, target: str, tag: str):
+    cfg = bundle.config
+    if target in ("cpu", "cuda"):
+        if tag != "fixed_pt":
+            raise ValueError(f"target {target} runs the fixed-point OFS only (tag fixed_pt), not {tag}")
+        return CpuCascade(bundle.ofs, cfg.n_bins, cfg.mask_kernel, cfg.sensor_size)
+    _allow_lava_fork()
+    from .loihi import LavaCascade   # Lava only for the Loihi targets
+
+    return LavaCascade(params=bundle.ofs, n_bins=cfg.n_bins, mask_kernel=cfg.mask_kernel,
+                       sensor_size=cfg.sensor_size, tag=tag, hardware=(target == "loihi2"))
+
+
+class Pipeline:
+    """``Pipeline(bundle, target)``: a context manager whose ``process_stream`` turns
+    (t0_us, window) pairs into ``WindowResult``s, in order. Entering starts the backend (the Lava
+    runtime for loihi targets); leaving stops it, also on errors and Ctrl-C."""
+
+    def __init__(self, bundle, target: str = "cpu", tag: str = "fixed_pt", ofpd_threads: int | None = 1,
+                 ofpd_variant: str = "fp32"):
+        if target not in TARGETS:
+            raise ValueError(f"unknown target {target!r}; choose one of {', '.join(TARGETS)}")
+        if tag not in TAGS:
+            raise ValueError(f"unknown tag {tag!r}; choose one of {', '.join(TAGS)}")
+        self.bundle = bundle
+        self.config = bundle.config
+        self.target = target
+        self.tag = tag
+        self.ofpd = OFPDRunner(ofpd_model(bundle, ofpd_variant), "cuda" if target == "cuda" else "cpu",
+                               threads=ofpd_threads)
+        self.cascade = _make_cascade(bundle, target, tag)
+        self._lookup = np.empty(self.config.width * self.config.height, dtype=np.int64)   # scratch
+        self._entered = False
+
+    def __enter__(self) -> "Pipeline":
+        self.cascade.__enter__()
+        self._entered = True
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._entered:
+            self._entered = False
+            self.cascade.__exit__(*exc)
+
+    def close(self) -> None:
+        self.__exit__(None, None, None)
+
+    @property
+    def sparse(self) -> bool:
+        """Whether the backend takes windows as coordinates (cpu, cuda) or dense (Lava)."""
+        return isinstance(self.cascade, CpuCascade)
+
+    def _check(self, x: Window) -> None:
+        w, h = self.config.sensor_size
+        want = (self.config.n_bins, 2, h, w)
+        if tuple(x.shape) != want:
+            raise ValueError(f"window must be {want} (B, 2, H, W), got {tuple(x.shape)}")
+
+    def objects_of(self, volume: SpikeVolume, frames: list[np.ndarray]) -> list[ObjectFlow]:
+        """Object flow of one window from its ones and its stage frames (bool masks over
+        volume.idx, index k - 1): ofpd_io's object grouping, then one batched OFPD call."""
+        ks, merged = ofpd_input.merge_objects(volume, frames, self.config, self._lookup)
+        if not ks.size:
+            return []
+        pose, direction, speed = self.ofpd.run(ofpd_input.prepare(merged, self.config, self._lookup))
+        dec = decode(pose, direction, speed, ks, self.config)
+        return [ObjectFlow(speed_bin=int(k), speed_mps=float(dec["speed_mps"][i]),
+                           speed_bin_mps=float(dec["speed_bin_mps"][i]), x=float(dec["x_px"][i]),
+                           y=float(dec["y_px"][i]), direction_rad=float(dec["direction_rad"][i]),
+                           n_events=len(merged[i]))
+                for i, k in enumerate(ks)]
+
+    def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
+        """(t0_us, window) pairs in, WindowResult per window out, in order, streaming."""
+        if not self._entered:
+            with self:
+                yield from self.process_stream(windows)
+            return
+        dt = self.config.dt_us
+        n = self.config.n_speed_bins
+        if self.sparse:
+            for t0, x in windows:
+                self._check(x)
+                vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(np.asarray(x) > 0)
+                res = self.cascade.cascade_sparse(vol)
+                yield WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, res.frames))
+            return
+        # Lava backends take dense windows and may pipeline them: remember each window's t0.
+        starts: collections.deque = collections.deque()
+
+        def dense():
+            for t0, x in windows:
+                self._check(x)
+                starts.append(int(t0))
+                yield x.to_dense(np.uint8) if isinstance(x, SpikeVolume) else np.asarray(x)
+
+        for res in self.cascade.cascade_stream(dense()):
+            t0 = starts.popleft()
+            vol = SpikeVolume.from_dense(res.inputs[n - 1])          # the window's ones
+            frames = [np.asarray(f).reshape(-1)[vol.idx] for f in res.frames]
+            yield WindowResult(t0, t0 + dt, self.objects_of(vol, frames))
