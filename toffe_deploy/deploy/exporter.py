@@ -1,0 +1,159 @@
+"""``toffe-deploy export``: checkpoint -> verified deploy bundle.
+
+Order of work, chosen so that a failure never leaves anything at the output path and so that
+the parity checks test the very bytes that ship:
+
+1. refuse a non-bundle output directory (before any work), load and validate the checkpoint;
+2. quantize the OFS stages (one-line error naming an unrepresentable parameter; clamps become
+   warnings), export OFPD to ONNX (+ variants), write netx and NIR files into a staging dir;
+3. write a staging bundle and load it back through ``load_bundle`` (hash-verified);
+4. run the parity checks against that loaded bundle and the float checkpoint;
+5. write the final bundle atomically (same files + parity.json, manifest last).
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence, TextIO
+
+from ..checkpoint import load_checkpoint
+from ..errors import ToffeError
+from .bundle import Bundle, check_output_dir, sha256_file, write_bundle
+from .parity import torch_threads
+from .quantize import quantize_stages
+
+DEFAULT_CHECKS = ("fixed_vs_float", "lava_vs_fixed", "onnx_vs_torch", "end_to_end")
+
+
+@dataclass
+class ExportResult:
+    bundle: Bundle
+    parity: dict | None
+    warnings: list[str]
+    seconds: float
+
+
+def _checkpoint_hashes(root: Path) -> dict[str, str]:
+    return {p.name: sha256_file(p) for p in sorted(root.iterdir()) if p.is_file() and not p.name.startswith(".")}
+
+
+def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, force: bool = False,
+                  variants: Sequence[str] = (), checks: Sequence[str] | None = DEFAULT_CHECKS,
+                  data: str | os.PathLike | None = None, seed: int = 0, n_windows: int = 16, lava_windows: int = 2,
+                  progress: bool = True, log: TextIO | None = sys.stderr) -> ExportResult:
+    """Export a checkpoint directory to a bundle at ``out_dir`` (see module docstring).
+
+    checks: which parity checks to run (None or () = none, for quick bundles in tests).
+    data: a data-set directory whose held-out ('test') sequences provide the parity windows;
+    otherwise windows are generated with the synthetic generator (seeded, small).
+    """
+    t_start = time.perf_counter()
+    out_dir = Path(out_dir)
+    check_output_dir(out_dir, force=force)
+    if checks and "lava_vs_fixed" in checks:
+        from .parity import preload_lava
+        preload_lava()          # before the first tqdm bar (see its docstring)
+    ckpt = load_checkpoint(ckpt_dir)
+    config = ckpt.config
+    q = quantize_stages(ckpt.ofs, Path(ckpt_dir) / "ofs.safetensors")
+    warnings = list(q.warnings)
+
+    from . import onnx_export
+    from .netx_h5 import RESET_NOTE, write_ofs_netx
+    from .nir_graph import write_ofs_nir
+
+    for v in variants:
+        if v not in onnx_export.VARIANTS:
+            raise ToffeError(f"unknown ONNX variant {v!r} (choose from {', '.join(onnx_export.VARIANTS)})")
+
+    stage_root = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.export-", dir=_parent(out_dir)))
+    try:
+        stage = stage_root / "files"
+        stage.mkdir()
+        model = onnx_export.build_ofpd(config, ckpt.ofpd_state)
+        with torch_threads(1):
+            onnx_path = onnx_export.export_ofpd_onnx(model, config, stage / "ofpd.onnx")
+        files: dict[str, Path] = {}
+        netx = write_ofs_netx(stage / "netx", config, q.params)
+        files.update({f"netx/{p.name}": p for p in netx})
+        files["ofs.nir"] = write_ofs_nir(stage / "ofs.nir", config, q.params)
+
+        windows = None
+        if variants or checks:
+            from .windows import heldout_windows
+            windows = heldout_windows(config, data=data, seed=seed, n_windows=n_windows, progress=progress)
+        variant_info = {}
+        for v in variants:
+            calib = None
+            if v == "int8":
+                from .parity import ofpd_inputs
+                calib = ofpd_inputs(windows, q.params, config)
+            p = onnx_export.make_variant(v, onnx_path, stage / f"ofpd_{v}.onnx", calib=calib)
+            files[p.name] = p
+            variant_info[v] = {"file": p.name, **_variant_doc(v)}
+
+        manifest = {
+            "source": {"checkpoint": str(Path(ckpt_dir).resolve()), "files_sha256": _checkpoint_hashes(Path(ckpt_dir))},
+            "ofs": {"quantization": q.report, "arithmetic": "toffe_deploy.fixed_point (see README.md)"},
+            "ofpd": {**onnx_export.onnx_io_info(onnx_path), "variants": variant_info},
+            "netx": {"files": sorted(f for f in files if f.startswith("netx/")), "reset_note": RESET_NOTE},
+            "nir": {"file": "ofs.nir", "nir_version": _version("nir"),
+                    "note": "reset by subtraction and the cascade masking are described in the graph metadata"},
+            "warnings": warnings,
+        }
+        staged = write_bundle(stage_root / "bundle", config, q.params, onnx_path, files=files, manifest=manifest,
+                              float_params=ckpt.ofs)
+        parity = None
+        if checks:
+            from .parity import run_parity
+            parity = run_parity(staged, ckpt, windows, checks=checks, model=model, lava_windows=lava_windows,
+                                progress=progress, log=log)
+            files["parity.json"] = _json_bytes(parity)
+            manifest["parity"] = {name: {"status": c["status"], "headline": c.get("headline")}
+                                  for name, c in parity["checks"].items()}
+            for v, rep in parity["checks"].get("onnx_vs_torch", {}).get("variants", {}).items():
+                variant_info[v]["max_abs_diff_vs_torch"] = rep["max_abs_diff"]
+                if rep["non_finite_outputs"]:
+                    warnings.append(f"ONNX variant {v}: {rep['non_finite_outputs']} non-finite outputs on held-out inputs")
+            warnings += [f"parity {name}: {c['status']} ({c.get('headline')})" for name, c in parity["checks"].items()
+                         if c["status"] == "fail"]
+        bundle = write_bundle(out_dir, config, q.params, onnx_path, files=files, manifest=manifest,
+                              float_params=ckpt.ofs, force=force)
+        for rel, entry in staged.manifest["files"].items():
+            if bundle.manifest["files"].get(rel, {}).get("sha256") != entry["sha256"]:
+                raise RuntimeError(f"bundle file {rel} differs from the one the parity checks ran on")
+    finally:
+        shutil.rmtree(stage_root, ignore_errors=True)
+    if log is not None:
+        for w in warnings:
+            print(f"toffe-deploy: warning: {w}", file=log)
+    return ExportResult(bundle=bundle, parity=parity, warnings=warnings, seconds=time.perf_counter() - t_start)
+
+
+def _parent(p: Path) -> Path:
+    parent = p.resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    return parent
+
+
+def _json_bytes(d) -> bytes:
+    import json
+
+    return (json.dumps(d, indent=2) + "\n").encode("utf-8")
+
+
+def _version(name: str) -> str | None:
+    from .bundle import package_versions
+
+    return package_versions((name,))[name]
+
+
+def _variant_doc(v: str) -> dict:
+    if v == "fp16":
+        return {"precision": "float16 weights and activations, float32 inputs and outputs"}
+    return {"precision": "int8 QDQ (static, per-channel weights, activations calibrated on held-out frames)"}

@@ -1,0 +1,141 @@
+"""The bundle's README.md: written into every bundle so the documentation travels with it.
+
+The repository's export/README.md is this text (the exporter replaces export/ as a whole, so
+the file there is always the one generated here).
+"""
+from __future__ import annotations
+
+README_TITLE = "# toffe-deploy bundle"
+
+_README = README_TITLE + """ (`toffe-deploy export CKPT -o DIR`)
+
+A deploy bundle is what `toffe-deploy export` makes from a trained checkpoint and what
+`toffe-deploy run` executes: the OFS spiking cascade quantized to Loihi 2 fixed point (run as
+Lava processes, or bit-exactly by the numpy `cpu` target) and the OFPD CNN as ONNX (for
+onnxruntime on the host or an edge GPU). `run` verifies every file against the sha256 in
+`manifest.json` and refuses a bundle that was modified. The export is atomic: a failed export
+leaves no bundle behind, and an existing directory is replaced only when it is a bundle (or
+empty, or holds only this README), otherwise only with `--force`.
+
+## File tree
+
+```
+export/
+  manifest.json        versions, config summary, quantization report, parity summary, sha256 of every file
+  config.json          the checkpoint's ToffeConfig, unchanged
+  ofs_loihi.json       quantized OFS, one entry per speed bin (the form lava_procs builds processes from)
+  ofpd.onnx            OFPD, fp32, ONNX opset 17, dynamic batch
+  ofpd_fp16.onnx       optional (--variants fp16): weights and activations in float16, fp32 I/O
+  ofpd_int8.onnx       optional (--variants int8): dynamic int8 quantization (weights int8)
+  ofs.nir              the OFS stages as a NIR graph (nir.read loads it)
+  netx/ofs_stage<k>.net  lava-dl netx HDF5, one network per stage (conv + CUBA neuron)
+  parity.json          the four parity checks of this export, with their goals
+  README.md            this file
+```
+
+## The OFS arithmetic (what every integer below means)
+
+Stage k (speed bin k, k = 1..N) is one conv layer (C_in = 2 polarity channels -> 1, K x K,
+zero padding K//2, stride 1, no bias) into one population of LIF neurons. Per time step t of a
+window (B steps, one per time bin; state zero at the window start; input s_in = 1 where the
+bin holds at least one event of that polarity):
+
+```
+a_in[t] = sum_{c,i,j} w[c,i,j] * s_in[t, c, y+i-K//2, x+j-K//2]
+v[t]    = clip24( trunc0(v[t-1] * (4096 - dv) / 4096) + (a_in[t] << 6) - (vth_mant << 6) * o[t-1] )
+o[t]    = v[t] > (vth_mant << 6)
+```
+
+trunc0 truncates toward zero, clip24 saturates at +-(2^23 - 1). This is the paper's eq. (1)-(2)
+with reset by subtraction of vth * o[t-1], undecayed, at step t, in float units
+W = w / weight_scale, vth = vth_mant / weight_scale, lambda = 1 - dv / 4096. The current is
+memoryless (du = 4095). The cascade (eq. 3-4) runs stage N first; each stage's spikes, OR-ed
+over the window, are closed with a `mask_kernel` square and inverted to mask the next
+(slower) stage's input.
+
+## ofs_loihi.json
+
+| field | meaning |
+|---|---|
+| `format`, `format_version` | `"toffe-ofs-loihi"`, 1 |
+| `weight_layout` | `(1, C_in, K, K)`, cross-correlation (torch Conv2d layout) |
+| `state_shift` | 6: a_in and vth are shifted left by 6 bits into the 24-bit state |
+| `reset`, `input` | the reset rule and input encoding above, in words |
+| `stages[k-1].stage` | k (1 = slowest speed bin) |
+| `stages[k-1].weight` | int weights in [-127, 127], nested lists (1, C_in, K, K) |
+| `stages[k-1].vth_mant` | threshold mantissa, 1 .. 2^17 - 1 |
+| `stages[k-1].dv` | voltage decay, 0 .. 4095 (lambda = 1 - dv / 4096) |
+| `stages[k-1].du` | current decay, 4095 (memoryless input current) |
+| `stages[k-1].weight_scale` | s: float weight = weight / s, float threshold = vth_mant / s |
+| `stages[k-1].notes` | every clamp the quantizer applied (empty when none) |
+| `stages[k-1].float` | the checkpoint's float threshold and leak, for reference |
+
+The weight scale maps the largest |w| of the stage to 127 (full 8-bit range); the threshold
+is expressed in the same scale; a threshold whose mantissa would need more than 17 bits
+lowers the scale (a note says so).
+
+## ofpd.onnx (and variants)
+
+Input `events`: (N, C, h, w) float32 with dynamic N, made by `toffe_deploy.ofpd_io.prepare`
+from N speed-separated frames. Outputs `pose` (N, 2) px on the full sensor, `direction` (N, 2)
+(cos, sin) of the image-plane motion angle (y down), `speed` (N, 1) ln(m/s); decode with
+`toffe_deploy.ofpd_io.decode`. Checked with `onnx.checker` (full check) at export.
+
+## netx/ofs_stage<k>.net (lava-dl netx HDF5)
+
+`layer/0`: `type = input`, `shape = (C_in, H, W)`; `layer/1`: `type = conv`, `shape = (1, H, W)`,
+`inChannels`, `outChannels = 1`, `kernelSize`, `stride = 1`, `padding = K//2`, `dilation = 1`,
+`groups = 1`, `weight` (1, C_in, K, K) int (the same integers as ofs_loihi.json) and
+`neuron/{type = CUBA, iDecay = 4096, vDecay = dv, vThMant = vth_mant, refDelay = 1}`;
+`simulation/{Ts = 1, tSample = B}`. Load with `lava.lib.dl.netx.hdf5.Network(net_config=path)`.
+**netx's stock CUBA neuron resets to zero after a spike, not by subtraction**: a netx network
+is for interoperability only; the faithful path is `lava_procs` (reset by subtraction), which
+builds from ofs_loihi.json. Stages are separate files because the cascade's masking between
+them (closing, inversion) is not a netx layer.
+
+## ofs.nir (Neuromorphic Intermediate Representation)
+
+One graph: `input` (C_in, H, W) feeds, for every stage k, `stage<k>_conv` (nir.Conv2d, float
+weights W = w / s, padding K//2) -> `stage<k>_lif` (nir.LIF) -> `stage<k>_output`. The float
+values are the ones the quantized integers represent exactly. NIR's LIF is continuous-time,
+tau dv/dt = (v_leak - v) + r I; for one step of dt = 1 it is set as tau = 1 / (1 - lambda),
+r = tau, v_leak = 0, so v[t] = lambda v[t-1] + I[t]. NIR has no reset-by-subtraction field:
+graph `metadata` says `reset = subtraction` (paper eq. 1, vth * o[t-1] at step t), holds the
+integer parameters, the time step (dt_us / B) and the cascade rule (stage N first, closing
+with mask_kernel, inversion) which NIR cannot express.
+
+## parity.json
+
+| key | check | goal |
+|---|---|---|
+| `windows` | where the held-out windows came from (data set or generator, seed, sizes) | |
+| `fixed_vs_float` | numpy fixed-point OFS vs float torch OFS, per stage on the full binary windows: spike agreement, precision, recall, F1 (float = reference); `quantization_band` (bound on the float-vs-integer potential difference), `differing_in_band` (differences at pixels whose float potential came that close to the threshold, i.e. explained by 8-bit weights / 17-bit threshold) and `f1_outside_band` | F1 >= 0.99 |
+| `lava_vs_fixed` | Lava simulator (Loihi2SimCfg, fixed_pt, lava_procs) vs numpy fixed point, per stage on small crops (48x32) placed where the reference fires most: differing spikes, spikes compared | 0 |
+| `onnx_vs_torch` | onnxruntime vs torch OFPD: max abs difference of pose, direction, speed (and per variant) | < 1e-4 |
+| `end_to_end` | deployed pipeline (the runtime's cpu target: fixed point + onnxruntime) vs float pipeline (torch OFS + torch OFPD), both scored against ground truth with `toffe_deploy.metrics`: pixE, dirE, speedE, relative differences; `agreement` compares the two pipelines' objects directly | within 2 % |
+
+Each check has `status` (`pass`, `fail` or `skipped: reason`), its measured figures and its
+`goal`. A check that cannot run says why instead of passing silently.
+
+## manifest.json
+
+| field | meaning |
+|---|---|
+| `format`, `format_version` | `"toffe-deploy-bundle"`, 1 |
+| `created_utc`, `tool` | when and by which toffe-deploy version |
+| `dependencies` | versions of numpy, opencv, onnx, onnxruntime, torch, lava-nc, lava-dl, nir, h5py, safetensors |
+| `source` | the checkpoint path and the sha256 of its files |
+| `config_summary` | sensor_size, n_bins (B), dt_us, speed bins, representative speeds, kernels |
+| `config` | the full ToffeConfig (also config.json) |
+| `ofs` | per stage vth_mant, dv, du, weight_scale, clamps, and `quantization` errors (max abs / relative weight error, threshold and leak error) |
+| `ofpd` | opset, input/output names and shapes, variants with their files |
+| `netx`, `nir` | their files and the reset caveat |
+| `parity` | status and headline figure of each check |
+| `warnings` | every clamp and every missed parity goal, also printed at export |
+| `files` | `{path: {sha256, bytes}}` for every file of the bundle except manifest.json |
+"""
+
+
+def bundle_readme() -> str:
+    """README.md written into every bundle."""
+    return _README

@@ -1,0 +1,123 @@
+"""Held-out windows for the export's parity checks, with their ground truth.
+
+Source, in this order:
+- ``data``: the held-out ('test') sequences of a data set directory (as written by
+  ``toffe-deploy dataset``), windows spread evenly over the files and over time (seeded);
+- otherwise: the synthetic generator's multi-object scenes (``dataset.splits`` 'multi', two to
+  four objects at distinct speed bins at once, so every cascade stage has work), rendered at the
+  checkpoint's sensor size, short, with a fixed seed. parity.json records which.
+
+Windows without events are skipped (nothing to compare); each window is binned exactly as the
+runtime bins it (``events.binning.bin_window``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..config import ToffeConfig
+from ..errors import InputError
+from ..events.binning import bin_window
+
+GEN_SEQUENCES = 2          # multi-object scenes generated when no data set is given
+
+
+@dataclass
+class HeldOut:
+    """windows[i] (B, 2, H, W) counts starting at t0[i]; truths[i] the visible objects (or None)."""
+
+    windows: list[np.ndarray]
+    t0: list[int]
+    truths: list[list] = field(default_factory=list)
+    source: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.windows)
+
+
+def _pick(t_starts: np.ndarray, n: int) -> np.ndarray:
+    if t_starts.size <= n:
+        return t_starts
+    return t_starts[np.linspace(0, t_starts.size - 1, n).round().astype(np.int64)]
+
+
+def _windows_of(events: np.ndarray, gt: dict | None, config: ToffeConfig, t_lo: int, t_hi: int, n: int):
+    """Up to n non-empty windows of [t_lo, t_hi), evenly spread; yields (t0, binned, truths)."""
+    from ..dataset.groundtruth import window_truth
+
+    dt = config.dt_us
+    starts = np.arange(t_lo, t_hi - dt + 1, dt, dtype=np.int64)
+    if starts.size == 0:
+        return []
+    counts = np.diff(np.searchsorted(events["t"], np.append(starts, starts[-1] + dt)))
+    starts = starts[counts > 0]
+    out = []
+    for t0 in _pick(starts, n):
+        b = bin_window(events, int(t0), dt, config.n_bins, config.sensor_size)
+        out.append((int(t0), b, window_truth(gt, int(t0), dt) if gt is not None else None))
+    return out
+
+
+def _from_generator(config: ToffeConfig, seed: int, n_windows: int, progress: bool) -> HeldOut:
+    from ..dataset.camera import PinholeCamera
+    from ..dataset.splits import split_specs
+    from ..dataset.synth import generate_sequence
+
+    per_seq = -(-n_windows // GEN_SEQUENCES)
+    duration_s = (per_seq + 2) * config.dt_us * 1e-6
+    specs = split_specs("multi", seed=seed, duration_s=duration_s, multi_count=GEN_SEQUENCES)
+    cam = PinholeCamera(width=config.width, height=config.height)
+    held = HeldOut([], [], [], {"kind": "generated", "generator": "toffe_deploy.dataset.synth (split 'multi')",
+                               "seed": seed, "sequences": [s.name for s in specs], "duration_s": duration_s,
+                               "sensor_size": list(config.sensor_size), "dt_us": config.dt_us,
+                               "held_out": "multi-object scenes on the test curves; training uses the "
+                                           "'train' split only"})
+    for i, spec in enumerate(specs):
+        events, gt, _ = generate_sequence(dataclasses.replace(spec, camera=cam), seed + i)
+        for t0, b, tr in _windows_of(events, gt, config, config.dt_us, int(duration_s * 1e6), per_seq):
+            held.windows.append(b)
+            held.t0.append(t0)
+            held.truths.append(tr)
+    return held
+
+
+def _from_data(config: ToffeConfig, data: str | os.PathLike, seed: int, n_windows: int) -> HeldOut:
+    from ..events.io import open_events
+    from ..model.data import find_sequences
+
+    files = find_sequences(data, "test")
+    rng = np.random.default_rng(seed)
+    chosen = sorted(rng.choice(len(files), size=min(len(files), n_windows), replace=False).tolist())
+    per_file = -(-n_windows // len(chosen))
+    held = HeldOut([], [], [], {"kind": "data set", "data": str(Path(data).resolve()), "split": "test",
+                               "files": [files[i].name for i in chosen], "seed": seed, "dt_us": config.dt_us})
+    for i in chosen:
+        with open_events(files[i]) as src:
+            if tuple(src.sensor_size) != tuple(config.sensor_size):
+                raise InputError(files[i], f"sensor size {list(src.sensor_size)} differs from the checkpoint's "
+                                           f"{list(config.sensor_size)}")
+            events = src.read(src.t_start_us, src.t_end_us + 1)
+            gt = src.ground_truth
+            for t0, b, tr in _windows_of(events, gt, config, src.t_start_us, src.t_end_us + 1, per_file):
+                held.windows.append(b)
+                held.t0.append(t0)
+                held.truths.append(tr)
+    return held
+
+
+def heldout_windows(config: ToffeConfig, data: str | os.PathLike | None = None, seed: int = 0,
+                    n_windows: int = 16, progress: bool = False) -> HeldOut:
+    """The parity windows (see module docstring); InputError when none has events."""
+    held = _from_data(config, data, seed, n_windows) if data is not None else \
+        _from_generator(config, seed, n_windows, progress)
+    if not held.windows:
+        raise InputError(data or "generator", "no held-out window with events for the parity checks")
+    held.windows = held.windows[:n_windows]
+    held.t0 = held.t0[:n_windows]
+    held.truths = held.truths[:n_windows]
+    held.source["n_windows"] = len(held.windows)
+    return held
