@@ -56,8 +56,8 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
     out_dir = Path(out_dir)
     check_output_dir(out_dir, force=force)
     if checks and "lava_vs_fixed" in checks:
-        from .parity import preload_lava
-        preload_lava()          # before the first tqdm bar (see its docstring)
+        from .parity import _preload_lava
+        _preload_lava()         # before the first tqdm bar (see runtime.loihi.import_lava)
     ckpt = load_checkpoint(ckpt_dir)
     config = ckpt.config
     q = quantize_stages(ckpt.ofs, Path(ckpt_dir) / "ofs.safetensors")

@@ -418,17 +418,14 @@ def check_end_to_end(bundle: Bundle, models, model, held: HeldOut) -> dict:
 
 # ----------------------------------------------------------------------------- all
 
-def preload_lava() -> None:
-    """Import Lava's runtime before anything creates a multiprocessing lock.
-
-    Lava calls multiprocessing.set_start_method('fork') (without force) when its runtime module
-    is first imported; once anything has touched the default context (tqdm creates an mp lock
-    for every bar, even a disabled one) that call raises "context has already been set".
-    Without Lava installed the Lava check reports itself skipped later.
-    """
+def _preload_lava() -> None:
+    """Import Lava before the first tqdm bar (see runtime.loihi.import_lava); without Lava the
+    Lava check reports itself skipped later."""
+    from ..errors import ToffeError
+    from ..runtime.loihi import import_lava
     try:
-        import lava.magma.core.process.process  # noqa: F401
-    except ImportError:
+        import_lava()
+    except ToffeError:
         pass
 
 
@@ -450,7 +447,7 @@ def run_parity(bundle: Bundle, ckpt, held: HeldOut, checks: Sequence[str], model
     if unknown:
         raise ValueError(f"unknown parity checks {unknown}")
     if "lava_vs_fixed" in checks:
-        preload_lava()
+        _preload_lava()
     results: dict = {}
     with torch_threads(1):
         _run_checks(todo, checks, results, progress, log)

@@ -44,9 +44,23 @@ class LavaRuntimeError(ToffeError):
     """The Lava network failed or stopped answering (reported in one line, exit code 2)."""
 
 
-def _import_lava():
+def import_lava() -> None:
+    """Import Lava's runtime, whatever touched multiprocessing before.
+
+    Lava calls ``multiprocessing.set_start_method('fork')`` (no force) when its runtime is first
+    imported; that raises "context has already been set" once anything created a multiprocessing
+    object (tqdm does for every progress bar, even a disabled one). An unset or 'fork' default
+    is reset so that Lava's own call succeeds; it sets 'fork' again. Missing Lava is one line.
+    """
+    import multiprocessing as mp
+    import sys
+
+    if "lava.magma.runtime.message_infrastructure.multiprocessing" not in sys.modules and mp.get_start_method(allow_none=True) == "fork":
+        mp.set_start_method(None, force=True)
     try:
+        import lava.magma.core.process.process  # noqa: F401
         import lava.magma.core.run_configs  # noqa: F401
+        import lava.magma.runtime.message_infrastructure.multiprocessing  # noqa: F401
     except ImportError as e:  # pragma: no cover - exercised only without the extra installed
         raise ToffeError(f"the Lava targets need lava-nc ({e}); install the 'lava' extra: "
                          "pip install -e '.[lava]', or use --target cpu") from e
@@ -54,7 +68,7 @@ def _import_lava():
 
 def check_hardware() -> None:
     """Raise the one-line ToffeError unless lava-loihi (needed for Loihi2HwCfg) is importable."""
-    _import_lava()
+    import_lava()
     from lava.utils.loihi import is_installed
     if not is_installed():
         raise ToffeError(HW_MISSING)
@@ -69,7 +83,7 @@ def run_config(tag: str = "fixed_pt", hardware: bool = False):
     """
     if tag not in TAGS:
         raise ToffeError(f"unknown Lava model tag {tag!r}; choose one of {', '.join(TAGS)}")
-    _import_lava()
+    import_lava()
     from lava.magma.core.run_configs import Loihi2HwCfg, Loihi2SimCfg
 
     from lava_procs.bridge.models import PyCascadeBridgeModel

@@ -87,29 +87,12 @@ def ofpd_model(bundle, variant: str = "fp32"):
     return path
 
 
-def _allow_lava_fork() -> None:
-    """Let Lava's import set the 'fork' start method even if something fixed it already.
-
-    Lava calls ``multiprocessing.set_start_method('fork')`` (no force) when first imported; that
-    raises "context has already been set" once anything touched the default context (tqdm's
-    first progress bar does). Resetting an already-'fork' default is harmless: Lava sets it again.
-    """
-    import multiprocessing as mp
-    import sys
-
-    if "lava.magma.runtime.message_infrastructure.multiprocessing" in sys.modules:
-        return
-    if mp.get_start_method(allow_none=True) == "fork":
-        mp.set_start_method(None, force=True)
-
-
 def _make_cascade(bundle, target: str, tag: str):
     cfg = bundle.config
     if target in ("cpu", "cuda"):
         if tag != "fixed_pt":
             raise ValueError(f"target {target} runs the fixed-point OFS only (tag fixed_pt), not {tag}")
         return CpuCascade(bundle.ofs, cfg.n_bins, cfg.mask_kernel, cfg.sensor_size)
-    _allow_lava_fork()
     from .loihi import LavaCascade   # Lava only for the Loihi targets
 
     return LavaCascade(params=bundle.ofs, n_bins=cfg.n_bins, mask_kernel=cfg.mask_kernel,
