@@ -1,0 +1,129 @@
+"""The benchmark harness end to end at tiny size (--quick): real bundle, real files, real onnxruntime."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from toffe_deploy.config import ToffeConfig
+from toffe_deploy.events import make_events
+
+ROOT = Path(__file__).resolve().parents[1]
+SIZE = (64, 48)
+
+
+def _load_harness():
+    spec = importlib.util.spec_from_file_location("energy_latency", ROOT / "benchmarks" / "energy_latency.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def moving_squares(n_windows: int, dt_us: int = 500, size=SIZE) -> np.ndarray:
+    """Two 8 px squares: a fast one (8 px per window) and a slow one (1 px per window); their
+    leading/trailing edges emit ON/OFF events every 50 us, the sensor sampling of the data set."""
+    w, h = size
+    xs, ys, ts, ps = [], [], [], []
+    for t in range(0, n_windows * dt_us, 50):
+        for x0, y0, v in ((4 + 16 * t / 1e3, 8, 16), (20 + 2 * t / 1e3, 30, 2)):
+            xe = int(x0) % (w - 10)
+            for y in range(y0, y0 + 8):
+                xs += [xe + 8, xe]
+                ys += [y, y]
+                ts += [t, t]
+                ps += [1, 0]
+    return make_events(xs, ys, ts, ps)
+
+
+@pytest.fixture(scope="module")
+def tiny_bundle(tmp_path_factory):
+    """An untrained bundle at 64x48 from the exporter (no parity checks: no Lava here)."""
+    from toffe_deploy.checkpoint import init_checkpoint
+    from toffe_deploy.deploy.exporter import export_bundle
+
+    tmp = tmp_path_factory.mktemp("bench")
+    init_checkpoint(tmp / "ckpt", ToffeConfig(sensor_size=SIZE, ofpd={"crop_px": 32, "pool": 2}))
+    export_bundle(tmp / "ckpt", tmp / "bundle", checks=(), progress=False, log=None)
+    return tmp / "bundle"
+
+
+@pytest.fixture(scope="module")
+def tiny_events(tmp_path_factory):
+    from toffe_deploy.events.io import write_events_h5
+
+    path = tmp_path_factory.mktemp("ev") / "squares.h5"
+    write_events_h5(path, moving_squares(12), SIZE)
+    return path
+
+
+def test_quick_run_writes_table_json_and_png(tiny_bundle, tiny_events, tmp_path, capsys):
+    harness = _load_harness()
+    out = tmp_path / "results"
+    rc = harness.main(["--quick", "--bundle", str(tiny_bundle), "--events", str(tiny_events), "--out", str(out),
+                       "--targets", "cpu,cuda,loihi-sim,loihi2", "--sysfs-root", str(tmp_path / "no-sysfs")])
+    assert rc == 0
+    md = (out / "energy_latency.md").read_text()
+    assert md == capsys.readouterr().out.rstrip("\n") + "\n" or "ratio DOTIE with clustering / TOFFE" in md
+    assert "paper i9-12700KF" in md and "ratio DOTIE with clustering / TOFFE" in md
+    res = json.loads((out / "energy_latency.json").read_text())
+    assert res["format"] == "toffe-energy-latency" and res["quick"] is True
+    assert res["machine"]["cpu_cores"] >= 1 and "cpu_model" in res["machine"]
+    assert res["machine"]["energy_counters"]["found"] == []          # the fake root has no counters
+    rows = {(r["model"], r["target"]): r for r in res["rows"]}
+    for m in ("dotie", "dotie_cluster", "toffe"):
+        r = rows[(m, "cpu")]
+        assert r["status"] == "ok"
+        lat = r["latency"]
+        assert 0 < lat["p50_ms"] <= lat["p90_ms"] <= lat["p99_ms"]
+        assert r["E_kind"].startswith("modelled") and r["E_mj"] > 0    # no counter: modelled, and says so
+        assert rows[(m, "loihi-sim")]["L_kind"].startswith("modelled")
+        assert rows[(m, "loihi2")]["status"] == "unavailable" and rows[(m, "loihi2")]["reason"]
+    lo = rows[("toffe", "loihi-sim")]["loihi"]
+    assert len(lo["stages"]) == 4 and lo["latency_ms"] > 0
+    assert "cpu" in res["ratios"] and res["goals"]["evaluated"]
+    png = (out / "energy_latency.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and struct.unpack(">II", png[16:24])[0] > 100
+
+
+def test_missing_bundle_is_one_line_error(tmp_path, capsys):
+    harness = _load_harness()
+    rc = harness.main(["--quick", "--bundle", str(tmp_path / "nope"), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and err[-1].startswith("energy_latency: error:") and "toffe-deploy export" in err[-1]
+    assert not (tmp_path / "o").exists()
+
+
+def test_sensor_size_mismatch_is_one_line_error(tiny_bundle, tmp_path, capsys):
+    from toffe_deploy.events.io import write_events_h5
+
+    ev = tmp_path / "big.h5"
+    write_events_h5(ev, moving_squares(2, size=(128, 96)), (128, 96))
+    harness = _load_harness()
+    rc = harness.main(["--quick", "--bundle", str(tiny_bundle), "--events", str(ev), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and "sensor size 128x96" in err[-1]
+
+
+def test_quick_run_with_a_counter_reports_measured_or_below_noise(tiny_bundle, tiny_events, tmp_path):
+    """A (fake) RAPL tree that never moves: every counter row is 'below noise', never a number."""
+    base = tmp_path / "sys" / "class" / "powercap" / "intel-rapl:0"
+    base.mkdir(parents=True)
+    (base / "name").write_text("package-0\n")
+    (base / "energy_uj").write_text("123456\n")
+    (base / "max_energy_range_uj").write_text("262143328850\n")
+    harness = _load_harness()
+    out = tmp_path / "r"
+    rc = harness.main(["--quick", "--bundle", str(tiny_bundle), "--events", str(tiny_events), "--out", str(out),
+                       "--targets", "cpu", "--sysfs-root", str(tmp_path / "sys"), "--energy-s", "0.05",
+                       "--idle-s", "0.05"])
+    assert rc == 0
+    res = json.loads((out / "energy_latency.json").read_text())
+    assert res["machine"]["energy_counters"]["found"][0]["name"] == "rapl"
+    for r in res["rows"]:
+        assert r["E_kind"].startswith("below noise (RAPL") and r["E_mj"] is None
+        assert r["energy_measured"]["k"] >= 1 and r["E_model_mj"] > 0
+    assert "below noise [b]" in (out / "energy_latency.md").read_text()

@@ -1,0 +1,136 @@
+"""Operation counts of one inference of each benchmarked model, for the cost model.
+
+Counting replays the exact arithmetic (the skeleton's fixed-point ``synaptic_input``/``lif_step``
+for OFS, the DOTIE baseline's own layer) with recording switched on; it is never timed. The
+cascade it produces equals ``run_cascade`` with ``run_ofs_fixed`` (the test checks it), which is
+what every target computes bit-exactly (cpu backend, Lava fixed_pt), so the counts hold for the
+Loihi 2 model whatever target produced the timing.
+
+Per model and inference:
+* ``loihi``: LoihiActivity per spiking layer (OFS stage k, or DOTIE's layer);
+* ``host_all``: HostOps when the whole model runs on a CPU (the ``cpu`` target);
+* ``host_hybrid``: HostOps left on the host when the spiking layers run on Loihi 2 (masks and
+  OFPD for TOFFE; morphology and DBSCAN for DOTIE with clustering; nothing for DOTIE without).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..baselines.dotie import DotieLayerTrace, DotieParams, boxes_from_labels, dotie_separate
+from ..cascade import CascadeResult, run_cascade
+from ..config import ToffeConfig
+from ..ofpd_io import has_object
+from ..fixed_point import LoihiOFSParams, lif_step, synaptic_input
+from .cost_model import (HostOps, LoihiActivity, ann_ops, dbscan_ops, dense_conv_ops, dense_lif_ops, event_conv_ops,
+                         fixed_lif_ops, mask_ops, morphology_ops, synop_count)
+
+
+@dataclass
+class ModelCount:
+    loihi: list[LoihiActivity] = field(default_factory=list)
+    host_all: HostOps = field(default_factory=HostOps)
+    host_hybrid: HostOps = field(default_factory=HostOps)
+    extra: dict = field(default_factory=dict)
+
+
+def counted_ofs_stage(inp: np.ndarray, p: LoihiOFSParams, act: LoihiActivity) -> tuple[np.ndarray, int]:
+    """``run_ofs_fixed`` with its activity recorded. Returns (spikes (B, H, W), host LIF updates):
+    an event-driven host implementation updates only neurons with input or non-zero state."""
+    b, _c, h, w = inp.shape
+    v = np.zeros((h, w), np.int64)
+    o = np.zeros((h, w), bool)
+    out = np.zeros((b, h, w), bool)
+    host_updates = 0
+    for t in range(b):
+        s_in = inp[t] > 0
+        syn = synop_count(s_in, p.kernel_size)
+        live = (syn > 0) | (v != 0) | o
+        v, o = lif_step(v, o, synaptic_input(s_in, p.weight), p)
+        act.add_step(syn, live | o, o)
+        host_updates += int(np.count_nonzero(live))
+        out[t] = o
+    return out, host_updates
+
+
+def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeConfig,
+                ofpd_macs: int, ofpd_in_elems: int, ofpd_params: int = 0,
+                ofpd_activations: int = 0, ofpd_rows: int | None = None) -> tuple[CascadeResult, ModelCount]:
+    """Counts of one TOFFE inference: the cascade (recorded), masks, and one OFPD row (``ofpd_macs``
+    MACs, weights read once, ``ofpd_activations`` outputs written and read, ``ofpd_in_elems``
+    inputs) per object: ``ofpd_rows`` when the caller knows it (the objects the deployed pipeline
+    reported for this window), else one per stage frame that ``ofpd_io.has_object`` accepts."""
+    mask_kernel = config.mask_kernel
+    b, ch, h, w = binned.shape
+    n = len(params)
+    acts = [LoihiActivity(h * w) for _ in range(n)]
+    host_updates = [0] * n
+
+    def stage(k: int, inp: np.ndarray) -> np.ndarray:
+        spikes, upd = counted_ofs_stage(inp, params[k - 1], acts[k - 1])
+        host_updates[k - 1] = upd
+        return spikes
+
+    res = run_cascade(binned, stage, n, mask_kernel)
+    ofpd_calls = int(has_object(np.stack(res.frames), config).sum()) if ofpd_rows is None else int(ofpd_rows)
+    vol = b * ch * h * w
+    # Host side as the cpu target runs it (runtime/cpu.py): masks over the window's ones only,
+    # closing only over the bounding box of the stage's spikes grown by the kernel.
+    masks = HostOps()
+    for k in range(n):
+        ones = int(np.count_nonzero(res.inputs[k]))
+        masks = masks + HostOps(op_int8=2 * ones, sram_bytes=10 * ones)
+        fired = res.spikes[k].any(axis=0)
+        if fired.any():
+            ys, xs = np.nonzero(fired)
+            bh = min(int(ys.max() - ys.min()) + 1 + 2 * mask_kernel, h)
+            bw = min(int(xs.max() - xs.min()) + 1 + 2 * mask_kernel, w)
+            masks = masks + morphology_ops(bh, bw, mask_kernel, 2)
+    ofpd = (ann_ops(ofpd_macs, ofpd_params, ofpd_activations) + HostOps(sram_bytes=8 * ofpd_in_elems)).scaled(ofpd_calls)
+    binarize = mask_ops(vol)                  # one scan of the dense binned window (DOTIE pays it too)
+    ofs_host = HostOps()
+    for k in range(n):
+        ofs_host = ofs_host + event_conv_ops(sum(acts[k].synops)) + fixed_lif_ops(host_updates[k])
+    mc = ModelCount(loihi=acts, host_all=binarize + ofs_host + masks + ofpd, host_hybrid=masks + ofpd,
+                    extra={"ofpd_calls": ofpd_calls, "input_events": int(np.count_nonzero(binned))})
+    return res, mc
+
+
+def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()) -> tuple[ModelCount, ModelCount, np.ndarray]:
+    """Counts of one DOTIE inference without and with clustering (dense conv + LIF as its public
+    code runs them; DBSCAN's neighbour pairs counted exactly with a radius query).
+    Also returns the layer's spikes (B, H, W) for timing the host part."""
+    b, ch, h, w = binned.shape
+    trace = DotieLayerTrace()
+    spikes, out = dotie_separate(binned, p, trace)
+    x = np.asarray(binned).sum(axis=1)
+    act = LoihiActivity(h * w)
+    u_prev = np.zeros((h, w), np.float32)
+    for t in range(b):
+        syn = synop_count(x[t].astype(np.float32), p.weight.shape[0])
+        live = (syn > 0) | (u_prev != 0) | spikes[t]
+        act.add_step(syn, live, spikes[t])
+        u_prev = trace.potentials[t]
+    host_layer = (mask_ops(b * ch * h * w) + dense_conv_ops(h, w, 1, 1, 3, b) + dense_lif_ops(h * w, b))
+    post = (mask_ops(b * h * w) + morphology_ops(h, w, p.dilate_kernel, 1) + morphology_ops(h, w, p.close_kernel, 2)
+            + mask_ops(2 * h * w))
+    plain = ModelCount(loihi=[act], host_all=host_layer + post, host_hybrid=post,
+                       extra={"separated_px": int(out.sum())})
+    ys, xs = np.nonzero(out)
+    pts = np.column_stack([xs, ys]).astype(np.float64)
+    pairs = 0
+    n_boxes = 0
+    if pts.shape[0]:
+        from sklearn.cluster import DBSCAN
+        from sklearn.neighbors import NearestNeighbors
+
+        nbrs = NearestNeighbors(radius=p.eps).fit(pts).radius_neighbors(pts, return_distance=False)
+        pairs = int(sum(len(a) for a in nbrs))
+        labels = DBSCAN(eps=p.eps, min_samples=p.min_samples).fit(pts).labels_
+        n_boxes = len(boxes_from_labels(pts, labels, p))
+    cl = dbscan_ops(int(pts.shape[0]), pairs) + HostOps(add_fp32=4 * pts.shape[0], sram_bytes=16 * pts.shape[0])
+    cluster = ModelCount(loihi=[act], host_all=plain.host_all + cl, host_hybrid=post + cl,
+                         extra={"separated_px": int(out.sum()), "dbscan_points": int(pts.shape[0]),
+                                "dbscan_neighbour_pairs": pairs, "boxes": n_boxes})
+    return plain, cluster, spikes
