@@ -138,3 +138,13 @@ def test_multi_object_sequences_keep_objects_apart_and_in_view():
         for i in range(len(bins)):
             for j in range(i + 1, len(bins)):
                 assert np.hypot(*(xy[:, i] - xy[:, j]).T).min() > 60  # > one object width apart
+
+
+def test_contrast_modes_set_object_intensity():
+    from toffe_deploy.dataset.synth import BRIGHT, DARK
+    bright = {o.intensity for s in split_specs("test", seed=0) for o in s.objects}
+    mixed = {o.intensity for s in split_specs("test", seed=0, contrast="mixed") for o in s.objects}
+    dark = {o.intensity for s in split_specs("multi", seed=0, multi_count=3, contrast="dark") for o in s.objects}
+    assert bright == {BRIGHT} and mixed == {BRIGHT, DARK} and dark == {DARK}
+    with pytest.raises(ValueError):
+        split_specs("test", contrast="grey")

@@ -86,6 +86,9 @@ def register(sub) -> None:
                    help="per-pixel threshold mismatch, standard deviation (default: 0.03)")
     s.add_argument("--noise-hz", type=_nonneg_float, default=0.0,
                    help="background-activity noise rate per pixel in Hz (default: 0, off)")
+    s.add_argument("--contrast", choices=("bright", "dark", "mixed"), default="bright",
+                   help="objects brighter than the background (default), darker, or either per object "
+                        "(mixed makes the direction of slow objects ambiguous within one window; see data/README.md)")
     s.add_argument("--texture", type=_nonneg_float, default=0.0,
                    help="relative amplitude of a smooth background texture, e.g. 0.1 (default: 0, uniform)")
     s.add_argument("--jobs", type=_positive_int, default=1,
@@ -125,7 +128,7 @@ def _synth(args) -> int:
     specs = {}
     for split in splits:
         lst = split_specs(split, seed=args.seed, duration_s=args.duration_s, dvs=dvs, texture=args.texture,
-                          multi_count=args.multi_count)
+                          multi_count=args.multi_count, contrast=args.contrast)
         if args.limit is not None:
             lst = balanced_subset(lst, args.limit, seed=args.seed)
         specs[split] = lst

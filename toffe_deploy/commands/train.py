@@ -1,7 +1,48 @@
-"""`toffe-deploy train`: (being built)."""
+"""`toffe-deploy train`: train the OFS stages and the OFPD on a synthetic data set."""
 from __future__ import annotations
+
+from pathlib import Path
 
 
 def register(sub) -> None:
-    p = sub.add_parser("train", help="(being built)")
-    p.set_defaults(func=lambda args: 2)
+    p = sub.add_parser(
+        "train", help="train OFS (per speed bin) and OFPD into a checkpoint directory",
+        description="Train TOFFE on the 'train' split of a data set made by `toffe-deploy dataset synth`. "
+        "Writes a checkpoint directory (config.json, ofs.safetensors, ofpd.safetensors, train_log.json); "
+        "progress is saved after each OFS stage and each OFPD epoch, so --resume continues an interrupted run.")
+    p.add_argument("--data", required=True, type=Path, help="data-set directory (holds index.json)")
+    p.add_argument("--out", required=True, type=Path, help="checkpoint directory to write (e.g. ckpt/)")
+    p.add_argument("--stage", choices=("ofs", "ofpd", "all"), default="all",
+                   help="what to train: the OFS stages, the OFPD (needs trained OFS in --out), or both (default)")
+    p.add_argument("--dt", type=int, default=500, help="window length in microseconds the checkpoint is trained for (default 500)")
+    p.add_argument("--ofs-epochs", type=int, default=4, help="epochs per OFS stage (default 4)")
+    p.add_argument("--epochs", type=int, default=30, help="OFPD epochs (default 30)")
+    p.add_argument("--windows-per-seq", type=int, default=30,
+                   help="training windows sampled per sequence (default 30)")
+    p.add_argument("--seed", type=int, default=0, help="random seed for window sampling, init and shuffling (default 0)")
+    p.add_argument("--resume", action="store_true", help="continue from the training state saved in --out")
+    p.add_argument("--device", default="auto", help="torch device: auto (CUDA when present, else CPU), cpu, cuda")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..errors import ToffeError
+
+    for name in ("dt", "ofs_epochs", "epochs", "windows_per_seq"):
+        if getattr(args, name) < (0 if "epochs" in name else 1):
+            raise ToffeError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
+    import torch
+
+    if args.device not in ("auto", "cpu") and not args.device.startswith("cuda"):
+        raise ToffeError(f"--device must be auto, cpu or cuda[:N], got {args.device}")
+    if args.device.startswith("cuda") and not torch.cuda.is_available():
+        raise ToffeError("--device cuda: no CUDA device available")
+    from ..model.train import TrainOptions, train
+
+    torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
+    out = train(TrainOptions(data=args.data, out=args.out, stage=args.stage, ofs_epochs=args.ofs_epochs,
+                             ofpd_epochs=args.epochs, seed=args.seed, resume=args.resume, dt_us=args.dt,
+                             per_file=args.windows_per_seq, device=args.device, progress=not args.no_progress))
+    print(f"checkpoint written to {out}")
+    return 0

@@ -9,8 +9,15 @@
 Each object's lap time is drawn so its speeds over the lap fall in the programmed range of its
 target bin (PROGRAMMED_SPEEDS; bin 4 stops at the paper's maximum programmed speed, 144 m/s,
 bin 1 starts at 2 m/s so the slowest objects still move a pixel in 5 ms). Starting phase,
-brightness (brighter or darker than the background) and lap time come from the split seed, so
-a split is deterministic for a seed.
+and lap time come from the split seed, so a split is deterministic for a seed.
+
+Contrast: objects are brighter than the background by default (``contrast="bright"``), as a lit
+object against a darker scene. ``"mixed"`` draws bright or dark per object, ``"dark"`` makes all
+dark. Why bright by default: within one window a bright object moving right and a dark object
+moving left fire the same events (ON on the right edge, OFF on the left); only the motion
+during the window tells them apart, and a bin-1 object moves 0.1-1 px in 500 us, so with mixed
+contrast the direction of slow objects is ambiguous for any per-window model (measured: dirE of
+bin 1 about 60 deg at dt = 500 us with mixed contrast).
 """
 from __future__ import annotations
 
@@ -43,20 +50,34 @@ def sequence_seed(seed: int, name: str) -> int:
     return int(np.random.SeedSequence([int(seed), zlib.crc32(name.encode())]).generate_state(1)[0])
 
 
-def _object(rng, shape, curve, bin_k, orientation, clockwise, scale, size, depth_amp, offset=(0.0, 0.0)):
+CONTRASTS = ("bright", "dark", "mixed")
+
+
+def _intensity(rng, contrast: str) -> float:
+    dark = rng.random() < 0.5          # drawn in every mode, so the other parameters do not move
+    if contrast == "mixed":
+        return DARK if dark else BRIGHT
+    return DARK if contrast == "dark" else BRIGHT
+
+
+def _object(rng, shape, curve, bin_k, orientation, clockwise, scale, size, depth_amp, offset=(0.0, 0.0),
+            contrast="bright"):
     lo, hi = PROGRAMMED_SPEEDS[bin_k]
     lap = lap_time_for_speeds(curve, scale, depth_amp, lo, hi, rng)
     traj = Trajectory(curve, lap_time_s=round(lap, 9), scale_m=scale, depth_m=DEPTH_M, depth_amp_m=depth_amp,
                       orientation_deg=orientation, clockwise=clockwise,
                       phase0=round(float(rng.uniform(0.0, TAU)), 9), offset_m=tuple(offset))
-    return ObjectSpec(shape, traj, size_m=size, intensity=BRIGHT if rng.random() < 0.5 else DARK, target_bin=bin_k)
+    return ObjectSpec(shape, traj, size_m=size, intensity=_intensity(rng, contrast), target_bin=bin_k)
 
 
 def split_specs(split: str, seed: int = 0, duration_s: float | None = None, dvs: DVSParams | None = None,
-                texture: float = 0.0, multi_count: int = DEFAULT_MULTI_COUNT) -> list[SequenceSpec]:
+                texture: float = 0.0, multi_count: int = DEFAULT_MULTI_COUNT,
+                contrast: str = "bright") -> list[SequenceSpec]:
     """The sequence specs of one split, in a fixed order (see module doc)."""
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r} (expected one of {', '.join(SPLITS)})")
+    if contrast not in CONTRASTS:
+        raise ValueError(f"unknown contrast {contrast!r} (expected one of {', '.join(CONTRASTS)})")
     dur = float(duration_s if duration_s is not None else DEFAULT_DURATION_S[split])
     dvs = dvs or DVSParams()
     specs = []
@@ -70,7 +91,7 @@ def split_specs(split: str, seed: int = 0, duration_s: float | None = None, dvs:
         for curve, orient, cw, shape, b in itertools.product(curves, orients, (True, False), SHAPES, (1, 2, 3, 4)):
             name = f"{split}_{curve}_o{int(orient):03d}_{'cw' if cw else 'ccw'}_{shape}_b{b}"
             rng = np.random.default_rng(sequence_seed(seed, name))
-            add(name, [_object(rng, shape, curve, b, orient, cw, SCALE_M, SIZE_M, DEPTH_AMP_M)])
+            add(name, [_object(rng, shape, curve, b, orient, cw, SCALE_M, SIZE_M, DEPTH_AMP_M, contrast=contrast)])
     else:
         for i in range(multi_count):
             name = f"multi_{i:03d}"
@@ -82,7 +103,8 @@ def split_specs(split: str, seed: int = 0, duration_s: float | None = None, dvs:
             for b, q in zip(bins, quads):
                 objs.append(_object(rng, str(rng.choice(SHAPES)), str(rng.choice(TEST_CURVES)), int(b),
                                     float(rng.choice(ORIENTATIONS_DEG)), bool(rng.random() < 0.5),
-                                    MULTI_SCALE_M, MULTI_SIZE_M, MULTI_DEPTH_AMP_M, MULTI_QUADRANTS_M[q]))
+                                    MULTI_SCALE_M, MULTI_SIZE_M, MULTI_DEPTH_AMP_M, MULTI_QUADRANTS_M[q],
+                                    contrast=contrast))
             add(name, objs)
     return specs
 

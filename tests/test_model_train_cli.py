@@ -1,0 +1,60 @@
+"""End to end on a tiny synthetic data set: train (and resume), then eval with JSON."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from toffe_deploy.checkpoint import load_checkpoint
+from toffe_deploy.cli import main
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    d = tmp_path_factory.mktemp("synth")
+    for split in ("train", "test"):
+        assert main(["dataset", "synth", "--out", str(d), "--split", split, "--limit", "4", "--duration-s", "0.01"]) == 0
+    return d
+
+
+def test_train_resume_and_eval(data, tmp_path, capsys):
+    ck = tmp_path / "ck"
+    args = ["train", "--data", str(data), "--out", str(ck), "--ofs-epochs", "1", "--windows-per-seq", "5",
+            "--no-progress", "--seed", "3"]
+    assert main(args + ["--epochs", "1"]) == 0
+    first = load_checkpoint(ck)
+    state = json.loads((ck / ".train_state" / "state.json").read_text())
+    assert state["ofs_done"] == [1, 2, 3, 4] and state["ofpd_epoch"] == 1
+    assert (ck / ".train_state" / "ofpd_partial.pt").is_file()        # what --resume continues from
+    log = json.loads((ck / "train_log.json").read_text())
+    assert len(log["ofs_separation_train"]) == 4 and log["train_windows"] > 0
+
+    assert main(args + ["--epochs", "2", "--resume"]) == 0          # continues: OFS kept, one more OFPD epoch
+    second = load_checkpoint(ck)
+    assert json.loads((ck / ".train_state" / "state.json").read_text())["ofpd_epoch"] == 2
+    assert len(json.loads((ck / "train_log.json").read_text())["ofpd_loss"]) == 2   # epoch 2 only, not 1 + 2
+    for a, b in zip(first.ofs, second.ofs):
+        np.testing.assert_array_equal(a["weight"], b["weight"])
+    assert any(not np.array_equal(first.ofpd_state[k], second.ofpd_state[k]) for k in first.ofpd_state)
+    capsys.readouterr()
+
+    out_json = tmp_path / "eval.json"
+    assert main(["eval", str(ck), "--data", str(data), "--dt", "500,1000", "--max-windows", "3",
+                 "--json", str(out_json), "--no-progress"]) == 0
+    table = capsys.readouterr().out
+    assert "| 500 |" in table and "| 1000* |" in table and "paper pixE" in table
+    res = json.loads(out_json.read_text())
+    assert [r["dt_us"] for r in res["per_dt"]] == [500, 1000]
+    assert res["per_dt"][0]["all"]["n_gt"] > 0 and set(res["per_dt"][0]["separation"]) == {"1", "2", "3", "4"}
+
+
+def test_train_rejects_missing_data_in_one_line(tmp_path, capsys):
+    assert main(["train", "--data", str(tmp_path / "nope"), "--out", str(tmp_path / "ck")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "data directory does not exist" in err
+
+
+def test_stage_ofpd_needs_trained_ofs(data, tmp_path, capsys):
+    assert main(["train", "--data", str(data), "--out", str(tmp_path / "empty"), "--stage", "ofpd"]) == 2
+    assert "--stage ofpd needs a checkpoint" in capsys.readouterr().err

@@ -1,0 +1,65 @@
+"""OFPD: the paper's two conv layers + one FC layer with pose, direction and speed heads.
+
+Input: ``toffe_deploy.ofpd_io.prepare`` output (N, 2B+2, g, g): 2B pooled event planes of an
+object-centric crop plus two coordinate planes (cell centres in px / COORD_SCALE).
+
+    h      = ReLU(FC(MaxPool2(ReLU(conv2(ReLU(conv1(x_events)))))))   conv1, conv2 stride 2
+    pose   = COORD_SCALE * mean(coordinate planes) + R * pose_head(h)     (px, R = crop_px / 2)
+    dir    = direction_head(h) / |direction_head(h)|                      (cos, sin)
+    speed  = speed_head(h) + ln(30)                                        (ln m/s)
+
+The convolutions see only the 2B event planes (translation invariant features); the crop centre comes from the coordinate planes inside the graph, so the exported ONNX model
+outputs full-resolution pixels and the runtime needs no side channel. Shapes are listed by
+``ofpd_io.ofpd_param_shapes`` (torch-free, used to validate checkpoints).
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+from ..config import ToffeConfig
+from ..ofpd_io import COORD_SCALE, input_shape, ofpd_settings
+
+SPEED_OFFSET = math.log(30.0)   # centre of the log-speed range, so the head starts near 0
+
+
+class OFPD(nn.Module):
+    def __init__(self, in_channels: int, grid: int, conv_channels=(16, 32), conv_kernels=(5, 3),
+                 hidden: int = 64, crop_px: int = 128):
+        super().__init__()
+        c1, c2 = conv_channels
+        k1, k2 = conv_kernels
+        if grid % 8:
+            raise ValueError(f"OFPD grid {grid} must be a multiple of 8")
+        self.n_event_planes = in_channels - 2
+        self.pose_range = crop_px / 2.0
+        self.conv1 = nn.Conv2d(self.n_event_planes, c1, k1, stride=2, padding=k1 // 2)
+        self.conv2 = nn.Conv2d(c1, c2, k2, stride=2, padding=k2 // 2)
+        self.fc = nn.Linear(c2 * (grid // 8) ** 2, hidden)
+        self.pose_head = nn.Linear(hidden, 2)
+        self.direction_head = nn.Linear(hidden, 2)
+        self.speed_head = nn.Linear(hidden, 1)
+        with torch.no_grad():
+            self.pose_head.weight.mul_(0.1)
+            self.pose_head.bias.zero_()
+
+    @classmethod
+    def from_config(cls, config: ToffeConfig) -> "OFPD":
+        s = ofpd_settings(config)
+        c_in, g, _ = input_shape(config)
+        return cls(c_in, g, tuple(s["conv_channels"]), tuple(s["conv_kernels"]), s["hidden"], s["crop_px"])
+
+    def forward(self, x: torch.Tensor):
+        centre = x[:, self.n_event_planes:].mean(dim=(2, 3)) * COORD_SCALE          # (N, 2) px
+        h = F.relu(self.conv1(x[:, :self.n_event_planes]))
+        h = F.relu(self.conv2(h))
+        h = F.max_pool2d(h, 2)
+        h = F.relu(self.fc(h.flatten(1)))
+        pose = centre + self.pose_range * self.pose_head(h)
+        d = self.direction_head(h)
+        direction = d / torch.sqrt((d * d).sum(dim=1, keepdim=True) + 1e-12)
+        speed = self.speed_head(h) + SPEED_OFFSET
+        return pose, direction, speed

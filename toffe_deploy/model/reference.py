@@ -1,0 +1,97 @@
+"""Reference cascade inference (eq. 3-4) for training and evaluation, on numpy windows.
+
+Two OFS stage back-ends plug into ``toffe_deploy.cascade.run_cascade``:
+- ``fixed_stage_fn``: the Loihi 2 fixed-point arithmetic (fixed_point.run_ofs_fixed) of the
+  quantized stages, i.e. what the deployment computes (default for evaluation);
+- ``float_stage_fn``: the trained torch OFS in float (the paper's model before quantization).
+
+Both run a stage only on the bounding box of the input's events grown by K // 2: with zero
+state and zero input a LIF neuron never fires, and a pixel's input only reaches K // 2 pixels,
+so the result is identical to the full-sensor run at a fraction of the cost.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..cascade import run_cascade
+from ..config import ToffeConfig
+from ..fixed_point import LoihiOFSParams, quantize_ofs, run_ofs_fixed
+from ..metrics import Prediction
+from .. import ofpd_io
+
+
+def quantize_stages(ofs: list[dict]) -> list[LoihiOFSParams]:
+    """Checkpoint OFS stages (weight, threshold, leak) -> Loihi fixed-point parameters."""
+    return [quantize_ofs(p["weight"], p["threshold"], p["leak"]) for p in ofs]
+
+
+def on_event_bbox(run: Callable[[np.ndarray], np.ndarray], inp: np.ndarray, margin: int) -> np.ndarray:
+    """Apply run((B, C, h, w) -> (B, h, w)) to the events' bounding box (+margin) of inp (B, C, H, W)."""
+    b, _c, h, w = inp.shape
+    out = np.zeros((b, h, w), dtype=bool)
+    any_px = inp.any(axis=(0, 1))
+    rows, cols = np.flatnonzero(any_px.any(axis=1)), np.flatnonzero(any_px.any(axis=0))
+    if rows.size == 0:
+        return out
+    y0, y1 = max(rows[0] - margin, 0), min(rows[-1] + margin + 1, h)
+    x0, x1 = max(cols[0] - margin, 0), min(cols[-1] + margin + 1, w)
+    out[:, y0:y1, x0:x1] = run(inp[:, :, y0:y1, x0:x1])
+    return out
+
+
+def fixed_stage_fn(stages: list[LoihiOFSParams]):
+    """run_stage(k, inp) for run_cascade with the fixed-point arithmetic."""
+
+    def run_stage(k: int, inp: np.ndarray) -> np.ndarray:
+        p = stages[k - 1]
+        return on_event_bbox(lambda x: run_ofs_fixed(x, p), inp, p.kernel_size // 2)
+
+    return run_stage
+
+
+def float_stage_fn(models):
+    """run_stage(k, inp) for run_cascade with torch OFS models (index k-1), float, no grad."""
+    import torch
+
+    def run_stage(k: int, inp: np.ndarray) -> np.ndarray:
+        m = models[k - 1]
+        margin = m.conv.kernel_size[0] // 2
+
+        def run(x):
+            with torch.no_grad():
+                s = m(torch.from_numpy(x.astype(np.float32))[:, None])      # (B, 1, C, h, w)
+            return s[:, 0, 0].numpy() > 0
+
+        return on_event_bbox(run, inp, margin)
+
+    return run_stage
+
+
+def ofpd_torch_fn(model):
+    """ofpd(x (N, C, h, w) float32) -> (pose, direction, speed) numpy, with a torch OFPD."""
+    import torch
+
+    def run(x: np.ndarray):
+        with torch.no_grad():
+            return tuple(t.numpy() for t in model(torch.from_numpy(x)))
+
+    return run
+
+
+def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig):
+    """One window (B, 2, H, W) counts -> (list[Prediction], CascadeResult).
+
+    Objects are the report groups of the stage frames (ofpd_io.merge_frames: speed bin = the
+    fastest stage that fires, input = the union of the group's frames); one batched OFPD call.
+    """
+    res = run_cascade(binned, run_stage, config.n_speed_bins, config.mask_kernel)
+    ks, merged = ofpd_io.merge_frames(np.stack(res.frames), config)
+    if ks.size == 0:
+        return [], res
+    pose, direction, speed = ofpd(ofpd_io.prepare(merged, config))
+    d = ofpd_io.decode(pose, direction, speed, ks, config)
+    preds = [Prediction(int(k), float(d["x_px"][i]), float(d["y_px"][i]), float(d["direction_rad"][i]),
+                        float(d["speed_mps"][i]), float(d["speed_bin_mps"][i])) for i, k in enumerate(ks)]
+    return preds, res

@@ -1,0 +1,423 @@
+"""Training of the OFS stages and of the OFPD (torch), resumable, seeded.
+
+OFS stage k (target: fire on events of objects at speed bin >= k, stay silent otherwise and on
+noise) is trained from DOTIE's initialisation on binary single-object crops (model/data.py),
+computed exactly on the pixels that can fire (model/ofs_sparse.py). With the per-neuron window
+margin d = max_t u[t] / vth - 1 (> 0 iff it fired; eq. (1)-(2) with the spike reset) and E the
+window's event pixels:
+
+    L_pos(n) = mean_{p in E} max(0, m - d_p)          windows with object bin >= k
+    L_neg(n) = mean_{p in E} max(0, d_p + m)          slower windows and noise-only crops
+    L = mean_pos L_pos + 2 mean_neg L_neg,   m = 0.2
+
+A margin loss (hinge on the membrane potential) instead of a loss on spikes keeps a gradient on
+silent neurons (spike-count losses collapsed to all-silent stages here). W, vth and lambda all
+learn; after every step vth > 0 and lambda in [0, 1] (Loihi-representable;
+fixed_point.quantize_ofs maps them to 8-bit weights, a 17-bit threshold and a 12-bit decay).
+
+OFPD is trained on what it sees at inference: each training crop goes through the cascade of
+the *quantized* OFS stages in Loihi fixed point (model/reference.py), and every reported object
+(ofpd_io.merge_frames: the union of the stage frames of one object) becomes one sample,
+prepared by ofpd_io.prepare.
+Targets: sensor (x, y), (cos, sin) of the direction, ln(speed). Augmentation: the 8 flips and
+transposes of the crop (pose mirrored about the crop centre, direction mirrored likewise).
+Loss: SmoothL1(pose px / 4) + |d_pred - d_gt|^2 + |ln v_pred - ln v_gt|.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from ..checkpoint import (CONFIG_FILE, load_checkpoint, random_ofpd_state, save_checkpoint, dotie_ofs)
+from ..config import ToffeConfig
+from ..fileio import atomic_path
+from .. import ofpd_io
+from ..cascade import run_cascade
+from .data import WindowSet
+from .ofs import OFS
+from .ofpd import OFPD
+from .reference import fixed_stage_fn, quantize_stages
+
+STATE_DIR = ".train_state"
+MARGIN = 0.2        # in threshold units: fire with u > 1.2 vth, stay below 0.8 vth
+NEG_WEIGHT = 2.0    # negatives: a handful of spikes already leaves a frame with an "object"
+
+
+def pick_device(name: str = "auto") -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+# ------------------------------------------------------------------------------------ OFS
+def ofs_loss(margin: torch.Tensor, event: torch.Tensor, owner: torch.Tensor, positive: torch.Tensor) -> torch.Tensor:
+    """See module docstring, on sparse rows (ofs_sparse): margin d (M,), event (M,) float,
+    owner (M,) window index in the batch, positive (n,) bool."""
+    n = positive.shape[0]
+    zeros = margin.new_zeros(n)
+    n_ev = zeros.index_add(0, owner, event).clamp(min=1.0)
+    pos_px = torch.relu(MARGIN - margin) * event
+    neg_px = torch.relu(margin + MARGIN) * event
+    l_pos = zeros.index_add(0, owner, pos_px) / n_ev
+    l_neg = zeros.index_add(0, owner, neg_px) / n_ev
+    loss = margin.new_zeros(())
+    if positive.any():
+        loss = loss + l_pos[positive].mean()
+    if (~positive).any():
+        loss = loss + NEG_WEIGHT * l_neg[~positive].mean()
+    return loss
+
+
+def noise_crops(n: int, n_bins: int, crop: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, B, 2, R, R) bool background-noise-only windows, densities log-uniform 1e-4..3e-3."""
+    dens = np.exp(rng.uniform(np.log(1e-4), np.log(3e-3), size=(n, 1, 1, 1, 1)))
+    return rng.random((n, n_bins, 2, crop, crop)) < dens
+
+
+def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: bool = True):
+    """Sparse rows of all training crops plus n/8 noise-only crops; returns (SparseWindows, speed_bin)
+    with speed_bin 0 for the noise crops (a negative for every stage)."""
+    from .ofs_sparse import pack_windows
+
+    rng = np.random.default_rng(seed)
+    n_noise = max(len(windows) // 8, 4)
+
+    def vols():
+        for i in tqdm(range(len(windows)), desc="packing OFS windows", leave=False, disable=not progress):
+            yield windows.dense([i])[0]
+        for _ in range(n_noise):
+            yield noise_crops(1, windows.n_bins, windows.crop, rng)[0]
+
+    sw = pack_windows(vols(), kernel)
+    return sw, np.concatenate([windows.speed_bin, np.zeros(n_noise, np.int64)])
+
+
+def train_ofs_stage(k: int, packed, speed_bin: np.ndarray, epochs: int, seed: int, device: torch.device,
+                    batch: int = 64, lr: float = 0.02, init: dict | None = None, progress: bool = True) -> dict:
+    """Train OFS stage k on packed windows; returns dict(weight (1,C,K,K) f32, threshold, leak, loss_curve)."""
+    from .ofs_sparse import sparse_ofs_margin
+
+    torch.manual_seed(seed + 1000 * k)
+    rng = np.random.default_rng(seed + k)
+    model = OFS(packed.channels, packed.kernel).to(device)
+    if init is not None:
+        with torch.no_grad():
+            model.conv.weight.copy_(torch.from_numpy(np.asarray(init["weight"], dtype=np.float32)))
+            model.threshold.fill_(float(init["threshold"]))
+            model.leak.fill_(float(init["leak"]))
+    opt = torch.optim.Adam(model.parameters(), lr=lr)
+    labels = speed_bin >= k
+    n = len(packed)
+    losses = []
+    for ep in range(epochs):
+        order = rng.permutation(n)
+        tot, cnt = 0.0, 0
+        bar = tqdm(range(0, n, batch), desc=f"OFS stage {k} epoch {ep + 1}/{epochs}", leave=False, disable=not progress)
+        for s in bar:
+            idx = order[s:s + batch]
+            feats, event, owner = packed.batch(idx, device)
+            margin = sparse_ofs_margin(feats, model.conv.weight, model.threshold, model.leak)
+            loss = ofs_loss(margin, event, owner, torch.from_numpy(labels[idx]).to(device))
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            model.clamp_()
+            tot += float(loss) * len(idx)
+            cnt += len(idx)
+            bar.set_postfix(loss=f"{tot / cnt:.3f}", vth=f"{float(model.threshold):.2f}", leak=f"{float(model.leak):.2f}")
+        losses.append(tot / max(cnt, 1))
+    return dict(weight=model.conv.weight.detach().cpu().numpy().astype(np.float32),
+                threshold=float(model.threshold), leak=float(model.leak), loss_curve=losses)
+
+
+def calibrate_threshold(k: int, params: dict, windows: WindowSet, config: ToffeConfig, limit: int = 320,
+                        seed: int = 0, scales=(0.8, 0.9, 1.0, 1.1, 1.2, 1.35, 1.5, 1.7, 2.0)) -> tuple[dict, list]:
+    """Pick vth' = s * vth for stage k maximising the balanced window-level accuracy of the
+    quantized stage alone on a class-balanced subset: (TPR + TNR) / 2 with 'fires' as in
+    separation_scores. The margin loss ranks pixels; this sets the operating point that the
+    cascade's has_object decision actually uses. Returns (params, [(s, balanced acc)])."""
+    from ..fixed_point import quantize_ofs
+    from .reference import on_event_bbox
+    from ..fixed_point import run_ofs_fixed
+
+    rng = np.random.default_rng(seed + 77 * k)
+    pos, neg = np.flatnonzero(windows.speed_bin >= k), np.flatnonzero(windows.speed_bin < k)
+    if pos.size == 0 or neg.size == 0:
+        return params, []
+    idx = np.concatenate([rng.permutation(pos)[:limit // 2], rng.permutation(neg)[:limit // 2]])
+    vols = windows.dense(idx)
+    labels = windows.speed_bin[idx] >= k
+    curve = []
+
+    def score(sc: float) -> None:
+        p = quantize_ofs(params["weight"], params["threshold"] * sc, params["leak"])
+        fired = np.zeros(idx.size, bool)
+        for i in range(idx.size):
+            spikes = on_event_bbox(lambda x: run_ofs_fixed(x, p), vols[i], p.kernel_size // 2)
+            frame = vols[i] & _closed(spikes, config)[None, None]
+            fired[i] = ofpd_io.has_object(frame[None], config)[0]
+        bal = 0.5 * (np.mean(fired[labels]) + np.mean(~fired[~labels]))
+        curve.append((round(float(sc), 4), float(bal)))
+
+    def best() -> float:
+        return max(curve, key=lambda c: (round(c[1], 4), -abs(c[0] - 1.0)))[0]
+
+    for sc in scales:
+        score(sc)
+    coarse = best()
+    for sc in (coarse - 0.1, coarse - 0.05, coarse + 0.05, coarse + 0.1):   # refine around the best
+        if sc > 0:
+            score(sc)
+    best = best()
+    return dict(params, threshold=float(params["threshold"] * best)), curve
+
+
+def separation_scores(stages, windows: WindowSet, config: ToffeConfig, limit: int = 600, seed: int = 0) -> list[dict]:
+    """Window-level precision/recall of each fixed-point stage run alone on the crops."""
+    from ..metrics import SeparationCounts
+
+    rng = np.random.default_rng(seed)
+    idx = rng.permutation(len(windows))[:limit]
+    run = fixed_stage_fn(stages)
+    counts = [SeparationCounts() for _ in stages]
+    for i in idx:
+        vol = windows.dense([i])[0]
+        for k in range(1, len(stages) + 1):
+            spikes = run(k, vol)
+            frame = vol & _closed(spikes, config)[None, None]
+            counts[k - 1].add(ofpd_io.has_object(frame[None], config), windows.speed_bin[i] >= k)
+    return [c.as_dict() for c in counts]
+
+
+def _closed(spikes: np.ndarray, config: ToffeConfig) -> np.ndarray:
+    from ..cascade import close_binary
+
+    return close_binary(spikes.any(axis=0), config.mask_kernel)
+
+
+# ----------------------------------------------------------------------------------- OFPD
+@dataclass
+class OFPDSet:
+    """Prepared OFPD samples: planes (N, 2B, g, g) uint8 = pooled fraction * P^2, origin (N, 2) =
+    sensor px of the prepare crop's top-left, targets x, y, direction, speed, stage."""
+
+    planes: np.ndarray
+    origin: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    direction: np.ndarray
+    speed: np.ndarray
+    stage: np.ndarray
+    pool: int
+    crop_px: int
+
+
+def build_ofpd_set(windows: WindowSet, stages, config: ToffeConfig, progress: bool = True) -> OFPDSet:
+    """Run the fixed-point cascade on every crop; each reported object (ofpd_io.merge_frames,
+    as at inference) is a sample, labelled with the crop's ground truth."""
+    s = ofpd_io.ofpd_settings(config)
+    pool, size = s["pool"], s["crop_px"]
+    run = fixed_stage_fn(stages)
+    planes, origin, tx, ty, td, tv, tk = [], [], [], [], [], [], []
+    nb = 2 * config.n_bins
+    for i in tqdm(range(len(windows)), desc="OFPD samples (fixed-point cascade)", leave=False, disable=not progress):
+        vol = windows.dense([i])[0]
+        res = run_cascade(vol, run, config.n_speed_bins, config.mask_kernel)
+        ks, merged = ofpd_io.merge_frames(np.stack(res.frames), config)
+        if ks.size == 0:
+            continue
+        x = ofpd_io.prepare(merged, config)
+        org = ofpd_io.crop_origins(merged, config) + windows.origin[i]
+        for j, k in enumerate(ks):
+            planes.append(np.rint(x[j, :nb] * pool * pool).astype(np.uint8))
+            origin.append(org[j])
+            tx.append(windows.x[i]); ty.append(windows.y[i]); td.append(windows.direction[i])
+            tv.append(windows.speed[i]); tk.append(k)
+    g = size // pool
+    return OFPDSet(np.asarray(planes, dtype=np.uint8).reshape(-1, nb, g, g), np.asarray(origin, dtype=np.float64).reshape(-1, 2),
+                   np.asarray(tx), np.asarray(ty), np.asarray(td), np.asarray(tv), np.asarray(tk, dtype=np.int64), pool, size)
+
+
+def ofpd_batch(ds: OFPDSet, idx: np.ndarray, rng: np.random.Generator | None):
+    """Model input (n, 2B+2, g, g) float32 and targets (pose px (n,2), dir (n,2), ln speed (n,)),
+    with a random flip/transpose per batch when rng is given (see module docstring)."""
+    planes = ds.planes[idx].astype(np.float32) / (ds.pool * ds.pool)
+    g = planes.shape[-1]
+    org = ds.origin[idx]
+    cx = org[:, 0] + (ds.crop_px - 1) / 2.0
+    cy = org[:, 1] + (ds.crop_px - 1) / 2.0
+    dx, dy = ds.x[idx] - cx, ds.y[idx] - cy
+    c, s = np.cos(ds.direction[idx]), np.sin(ds.direction[idx])
+    if rng is not None:
+        if rng.random() < 0.5:
+            planes = planes[..., ::-1]; dx = -dx; c = -c
+        if rng.random() < 0.5:
+            planes = planes[..., ::-1, :]; dy = -dy; s = -s
+        if rng.random() < 0.5:
+            planes = planes.swapaxes(-1, -2); dx, dy = dy, dx; c, s = s, c
+    centres = (np.arange(g) + 0.5) * ds.pool - 0.5
+    coord_x = (org[:, 0, None, None] + centres[None, None, :]) / ofpd_io.COORD_SCALE * np.ones((1, g, 1))
+    coord_y = (org[:, 1, None, None] + centres[None, :, None]) / ofpd_io.COORD_SCALE * np.ones((1, 1, g))
+    x = np.concatenate([planes, coord_x[:, None], coord_y[:, None]], axis=1).astype(np.float32)
+    pose = np.stack([cx + dx, cy + dy], axis=1)
+    return (torch.from_numpy(np.ascontiguousarray(x)), torch.from_numpy(pose.astype(np.float32)),
+            torch.from_numpy(np.stack([c, s], axis=1).astype(np.float32)),
+            torch.from_numpy(np.log(np.maximum(ds.speed[idx], 0.5)).astype(np.float32)))
+
+
+def ofpd_loss(model, batch, device):
+    x, pose_t, dir_t, lnv_t = (t.to(device) for t in batch)
+    pose, direction, speed = model(x)
+    lp = F.smooth_l1_loss(pose / 4.0, pose_t / 4.0)
+    ld = ((direction - dir_t) ** 2).sum(dim=1).mean()
+    lv = (speed[:, 0] - lnv_t).abs().mean()
+    return lp + ld + lv, (float(lp), float(ld), float(lv))
+
+
+# ------------------------------------------------------------------------------- driver
+@dataclass
+class TrainOptions:
+    data: Path
+    out: Path
+    stage: str = "all"
+    ofs_epochs: int = 4
+    ofpd_epochs: int = 30
+    seed: int = 0
+    resume: bool = False
+    dt_us: int = 500
+    per_file: int = 30
+    device: str = "auto"
+    progress: bool = True
+
+
+def _state_path(out: Path) -> Path:
+    return out / STATE_DIR
+
+
+def _load_state(out: Path) -> dict:
+    p = _state_path(out) / "state.json"
+    return json.loads(p.read_text()) if p.is_file() else {}
+
+
+def _save_state(out: Path, state: dict, ofpd_model=None, opt=None) -> None:
+    d = _state_path(out)
+    d.mkdir(parents=True, exist_ok=True)
+    if ofpd_model is not None:
+        with atomic_path(d / "ofpd_partial.pt") as tmp:
+            torch.save({"model": ofpd_model.state_dict(), "opt": opt.state_dict()}, tmp)
+    with atomic_path(d / "state.json") as tmp:
+        tmp.write_text(json.dumps(state, indent=1))
+
+
+def make_config(files, data: Path, dt_us: int, seed: int) -> ToffeConfig:
+    """Config from the data set's sensor size and provenance."""
+    from ..events.io import open_events
+
+    with open_events(files[0]) as src:
+        sensor = src.sensor_size
+        attrs = dict(src.attrs)
+    prov = {"data_dir": os.fspath(data), "train_sequences": len(files), "train_seed": seed,
+            "generator": attrs.get("generator"), "first_sequence": files[0].name}
+    return ToffeConfig(sensor_size=tuple(sensor), dt_us=int(dt_us), ofpd=dict(ofpd_io.OFPD_DEFAULTS), dataset=prov)
+
+
+def train(opts: TrainOptions) -> Path:
+    """Run the requested training stages into opts.out (a checkpoint directory)."""
+    from .data import find_sequences, load_windows
+
+    device = pick_device(opts.device)
+    out = Path(opts.out)
+    files = find_sequences(opts.data, "train")
+    state = _load_state(out) if opts.resume else {}
+    have_ckpt = (out / CONFIG_FILE).is_file()
+    if have_ckpt and (opts.resume or opts.stage == "ofpd"):
+        ck = load_checkpoint(out)
+        config, ofs_params, ofpd_state = ck.config, ck.ofs, ck.ofpd_state
+    else:
+        if opts.stage == "ofpd":
+            from ..errors import InputError
+            raise InputError(out, "--stage ofpd needs a checkpoint with trained OFS stages in --out (run --stage ofs first)")
+        config = make_config(files, Path(opts.data), opts.dt_us, opts.seed)
+        ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
+        state = {}
+    t_start = time.time()
+    windows = load_windows(files, config, config.dt_us, opts.per_file, opts.seed, progress=opts.progress)
+    if len(windows) == 0:
+        from ..errors import InputError
+        raise InputError(opts.data, "no usable single-object training windows")
+    log = state.setdefault("log", {})
+    log["train_windows"] = len(windows)
+    log["windows_per_bin"] = {str(k): int(np.sum(windows.speed_bin == k)) for k in range(1, config.n_speed_bins + 1)}
+
+    if opts.stage in ("ofs", "all"):
+        done = set(state.get("ofs_done", []))
+        if len(done) < config.n_speed_bins:
+            packed, bins = pack_training_windows(windows, config.ofs_kernel, opts.seed, opts.progress)
+        for k in range(1, config.n_speed_bins + 1):
+            if k in done:
+                continue
+            r = train_ofs_stage(k, packed, bins, opts.ofs_epochs, opts.seed, device, init=dotie_ofs(config)[0],
+                                progress=opts.progress)
+            cal, curve = calibrate_threshold(k, dict(weight=r["weight"], threshold=r["threshold"], leak=r["leak"]),
+                                             windows, config, seed=opts.seed)
+            ofs_params[k - 1] = cal
+            log[f"ofs_stage{k}"] = {"loss_curve": r["loss_curve"], "trained_threshold": r["threshold"],
+                                    "threshold": cal["threshold"], "leak": r["leak"], "calibration": curve}
+            done.add(k)
+            state["ofs_done"] = sorted(done)
+            save_checkpoint(out, config, ofs_params, ofpd_state)
+            _save_state(out, state)
+        stages = quantize_stages(ofs_params)
+        log["ofs_separation_train"] = separation_scores(stages, windows, config, seed=opts.seed)
+        _save_state(out, state)
+
+    if opts.stage in ("ofpd", "all"):
+        stages = quantize_stages(ofs_params)
+        ds = build_ofpd_set(windows, stages, config, progress=opts.progress)
+        log["ofpd_samples"] = int(ds.planes.shape[0])
+        model = OFPD.from_config(config).to(device)
+        torch.manual_seed(opts.seed)
+        opt = torch.optim.Adam(model.parameters(), lr=2e-3)
+        sched_total = max(opts.ofpd_epochs, 1)
+        ep0 = 0
+        partial = _state_path(out) / "ofpd_partial.pt"
+        if opts.resume and state.get("ofpd_epoch") and partial.is_file():
+            blob = torch.load(partial, map_location=device, weights_only=True)
+            model.load_state_dict(blob["model"])
+            opt.load_state_dict(blob["opt"])
+            ep0 = int(state["ofpd_epoch"])
+        rng = np.random.default_rng(opts.seed + ep0)
+        n = ds.planes.shape[0]
+        for ep in range(ep0, opts.ofpd_epochs):
+            for gp in opt.param_groups:      # cosine decay, a function of the epoch so resume agrees
+                gp["lr"] = 2e-3 * 0.5 * (1 + math.cos(math.pi * ep / sched_total))
+            model.train()
+            order = rng.permutation(n)
+            agg = np.zeros(3)
+            bar = tqdm(range(0, n, 64), desc=f"OFPD epoch {ep + 1}/{opts.ofpd_epochs}", leave=False, disable=not opts.progress)
+            for s in bar:
+                loss, parts = ofpd_loss(model, ofpd_batch(ds, order[s:s + 64], rng), device)
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                agg += np.array(parts) * len(order[s:s + 64])
+                bar.set_postfix(pose=f"{agg[0] / (s + 64):.3f}", dir=f"{agg[1] / (s + 64):.3f}", lnv=f"{agg[2] / (s + 64):.3f}")
+            log.setdefault("ofpd_loss", []).append((agg / max(n, 1)).tolist())
+            state["ofpd_epoch"] = ep + 1
+            _save_state(out, state, model, opt)
+        ofpd_state = {k: v.detach().cpu().numpy() for k, v in model.state_dict().items()}
+        save_checkpoint(out, config, ofs_params, ofpd_state)
+    log["train_seconds"] = round(time.time() - t_start, 1)
+    _save_state(out, state)
+    with atomic_path(out / "train_log.json") as tmp:
+        tmp.write_text(json.dumps(log, indent=1))
+    return out
