@@ -7,8 +7,10 @@ setup:
 # Main job end to end on the shipped defaults: export the shipped checkpoint, run it on the
 # Lava simulator (Loihi 2 fixed point) with OFPD in onnxruntime, print and save the object flow.
 demo: setup
-	.venv/bin/toffe-deploy export ckpt/ --force
+	.venv/bin/toffe-deploy export ckpt/
 	.venv/bin/toffe-deploy run --target loihi-sim --out export/object_flow.jsonl
+	@echo "object flow, one JSON line per window (export/object_flow.jsonl):"
+	@cat export/object_flow.jsonl
 
 test: setup
 	.venv/bin/python -m pytest -q tests

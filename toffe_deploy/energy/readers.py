@@ -14,6 +14,7 @@ for those that exist but cannot be read (RAPL is root-only on recent kernels), w
 """
 from __future__ import annotations
 
+import abc
 import ctypes
 import glob
 import os
@@ -51,7 +52,7 @@ def unwrap_delta(prev: int, cur: int, max_range: int) -> int:
     return max_range - prev + cur
 
 
-class EnergyReader:
+class EnergyReader(abc.ABC):
     """A cumulative energy source. ``energy_j()`` is monotonic from the reader's creation.
 
     name: short id (``rapl``, ``nvml``, ``ina3221``, ``ina3221x``); source: what exactly is
@@ -63,8 +64,9 @@ class EnergyReader:
     def __init__(self) -> None:
         self.source = ""
 
+    @abc.abstractmethod
     def energy_j(self) -> float:
-        raise NotImplementedError
+        """Joules since the reader was created (monotonic)."""
 
     def close(self) -> None:
         """Release what the reader holds (threads, libraries). Idempotent."""
@@ -269,8 +271,9 @@ class PowerIntegrator(EnergyReader):
         self._thread = threading.Thread(target=self._loop, name=f"{self.name}-sampler", daemon=True)
         self._thread.start()
 
+    @abc.abstractmethod
     def power_w(self) -> float:
-        raise NotImplementedError
+        """Instantaneous power in watts."""
 
     def _sample(self) -> float:
         with self._lock:

@@ -105,10 +105,9 @@ class AedatSource(EventSource):
         parts = list(self.iter_chunks(t0, t1)) if t1 > t0 else []
         return np.concatenate(parts) if parts else np.empty(0, EVENT_DTYPE)
 
-    def read_index(self, i0, i1, prev_t=None):
-        ev = self.read_unordered()[max(0, i0):max(0, i1)]
-        check_chunk(self.path, ev, self.sensor_size, offset=max(0, i0), prev_t=prev_t)
-        return ev
+    def _read_index(self, i0, i1):
+        # No seek index in AEDAT4: decode the packets and slice (the base class validates).
+        return self.read_unordered()[max(0, i0):max(0, i1)]
 
     def _t_at(self, i):
         return int(self.read_unordered()["t"][i])
@@ -120,4 +119,5 @@ class AedatSource(EventSource):
         return ev
 
     def _index_of_time(self, t):
-        raise NotImplementedError("AEDAT4 has no seek index; use read() / iter_chunks()")
+        # No seek index: a full decode, then a search (read() and iter_chunks() stream instead).
+        return int(np.searchsorted(self.read_unordered()["t"], t, side="left"))

@@ -14,6 +14,7 @@ so ``iter_windows`` over [t_start_us, t_end_us) sees every event exactly once.
 """
 from __future__ import annotations
 
+import abc
 import os
 from pathlib import Path
 from typing import Iterator
@@ -27,7 +28,7 @@ from .validate import check_chunk
 CHUNK_EVENTS = 1 << 20
 
 
-class EventSource:
+class EventSource(abc.ABC):
     """Random access and streaming over one event file (see module docstring).
 
     Subclasses implement ``num_events``, ``_read_index(i0, i1)`` (converted to EVENT_DTYPE,
@@ -44,14 +45,17 @@ class EventSource:
 
     # ---- to implement ------------------------------------------------------------------
     @property
+    @abc.abstractmethod
     def num_events(self) -> int:
-        raise NotImplementedError
+        """Number of events in the file."""
 
+    @abc.abstractmethod
     def _read_index(self, i0: int, i1: int) -> np.ndarray:
-        raise NotImplementedError
+        """Events i0..i1 (unvalidated) as EVENT_DTYPE."""
 
+    @abc.abstractmethod
     def _t_at(self, i: int) -> int:
-        raise NotImplementedError
+        """Timestamp of event i."""
 
     # ---- metadata ----------------------------------------------------------------------
     @property

@@ -139,6 +139,19 @@ def train_ofs_stage(k: int, packed, speed_bin: np.ndarray, epochs: int, seed: in
                 threshold=float(model.threshold), leak=float(model.leak), loss_curve=losses)
 
 
+def snap_to_loihi(params: dict) -> dict:
+    """The float parameters that Loihi 2 fixed point represents exactly (quantize, then map back).
+
+    Saving these makes the float model and the deployed integer one the same network up to the
+    truncation of the decay, so fixed-vs-float disagreements are ties at the threshold only
+    (measured by the export engineer: stage F1 0.984 -> >= 0.9997 on a trial checkpoint).
+    """
+    from ..fixed_point import quantize_ofs
+
+    w, th, lam = quantize_ofs(params["weight"], params["threshold"], params["leak"]).float_equivalent()
+    return {**params, "weight": w.astype(np.float32), "threshold": float(th), "leak": float(lam)}
+
+
 def calibrate_threshold(k: int, params: dict, windows: WindowSet, config: ToffeConfig, limit: int = 320,
                         seed: int = 0, scales=(0.8, 0.9, 1.0, 1.1, 1.2, 1.35, 1.5, 1.7, 2.0)) -> tuple[dict, list]:
     """Pick vth' = s * vth for stage k maximising the balanced window-level accuracy of the
@@ -369,7 +382,7 @@ def train(opts: TrainOptions) -> Path:
                                 progress=opts.progress)
             cal, curve = calibrate_threshold(k, dict(weight=r["weight"], threshold=r["threshold"], leak=r["leak"]),
                                              windows, config, seed=opts.seed)
-            ofs_params[k - 1] = cal
+            ofs_params[k - 1] = snap_to_loihi(cal)
             log[f"ofs_stage{k}"] = {"loss_curve": r["loss_curve"], "trained_threshold": r["threshold"],
                                     "threshold": cal["threshold"], "leak": r["leak"], "calibration": curve}
             done.add(k)
