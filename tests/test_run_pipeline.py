@@ -74,39 +74,51 @@ def run_cli(capsys, *argv):
 
 
 def _random_window(rng, cfg, n_stages=4):
-    """A window's ones (a few blobs, some off the sensor edge, plus noise) split into disjoint
-    stage frames (some ones in no frame), as the cascade makes them."""
+    """A window's ones split into disjoint stage frames as the cascade makes them: several blobs
+    (some off the sensor edge), each mostly in one stage (so one stage often holds several
+    objects), a share of each blob's ones spilled into other stages (the leftover edges), noise,
+    and some ones in no frame at all."""
     w, h = cfg.sensor_size
     x = np.zeros((cfg.n_bins, 2, h, w), bool)
-    for _ in range(int(rng.integers(1, 5))):
+    home = np.zeros((h, w), np.int64)                     # 0 = noise: any stage
+    for _ in range(int(rng.integers(2, 7))):
         cy, cx = rng.integers(-5, h + 5), rng.integers(-5, w + 5)
         ys, xs = slice(max(cy - 6, 0), max(cy + 6, 0)), slice(max(cx - 6, 0), max(cx + 6, 0))
-        x[:, :, ys, xs] = rng.random(x[:, :, ys, xs].shape) < 0.3
+        x[:, :, ys, xs] |= rng.random(x[:, :, ys, xs].shape) < 0.3
+        home[ys, xs] = rng.integers(1, n_stages + 1)
     x |= rng.random(x.shape) < 0.002
     vol = SpikeVolume.from_dense(x)
-    stage = rng.integers(0, n_stages + 1, len(vol))       # 0 = masked out of every frame
+    stage = home.reshape(-1)[vol.pix]
+    spill = (stage == 0) | (rng.random(len(vol)) < 0.15)
+    stage[spill] = rng.integers(0, n_stages + 1, int(spill.sum()))   # 0 = masked out of every frame
     masks = [stage == k for k in range(1, n_stages + 1)]
     return vol, masks, np.stack([vol.subset(m).to_dense() for m in masks])
 
 
 @pytest.mark.parametrize("ofpd", [{"crop_px": 32, "pool": 2, "min_events": 10, "dedupe_px": 12},
                                   {"crop_px": 16, "pool": 4, "min_events": 4, "dedupe_px": 20},
-                                  {"crop_px": 24, "pool": 3, "min_events": 1, "dedupe_px": 6}])
+                                  {"crop_px": 24, "pool": 3, "min_events": 1, "dedupe_px": 6},
+                                  {"crop_px": 16, "pool": 2, "min_events": 6, "dedupe_px": 5}])
 def test_sparse_ofpd_input_equals_ofpd_io(rng, ofpd):
+    """The runtime's coordinate path == the dense ofpd_io API (training/export), bit for bit:
+    stages, merged frames (hence n_events), has_object and the prepared OFPD input."""
     cfg = ToffeConfig(sensor_size=SENSOR, ofpd=ofpd)
-    n_obj = 0
-    for _ in range(12):
+    n_obj, multi = 0, 0
+    for t in range(16):
         vol, masks, dense = _random_window(rng, cfg)
         ks_ref, merged_ref = ofpd_io.merge_frames(dense, cfg)
-        lookup = np.empty(SENSOR[0] * SENSOR[1], np.int64) if n_obj % 2 else None   # both pixel-set paths
+        lookup = np.empty(SENSOR[0] * SENSOR[1], np.int64) if t % 2 else None   # both pixel-set paths
         ks, merged = ofpd_input.merge_objects(vol, masks, cfg, lookup)
-        assert ks.tolist() == ks_ref.tolist()
-        assert np.array_equal(np.stack([m.to_dense() for m in merged]) if merged else merged_ref, merged_ref)
-        assert np.array_equal(ks_ref, np.flatnonzero(ofpd_io.has_object(dense, cfg))[::-1] + 1)
-        if ks.size:
-            assert np.array_equal(ofpd_input.prepare(merged, cfg, lookup), ofpd_io.prepare(merged_ref, cfg))
+        assert ks.dtype == ks_ref.dtype and ks.tolist() == ks_ref.tolist()
+        assert len(merged) == len(merged_ref)
+        for m, ref in zip(merged, merged_ref):
+            assert np.array_equal(m.to_dense(), ref) and len(m) == int(ref.sum())
+        assert np.array_equal(np.flatnonzero(ofpd_io.has_object(dense, cfg)), np.unique(ks_ref - 1))
+        got, ref = ofpd_input.prepare(merged, cfg, lookup), ofpd_io.prepare(merged_ref, cfg)
+        assert got.dtype == ref.dtype and got.shape == ref.shape and got.tobytes() == ref.tobytes()
         n_obj += ks.size
-    assert n_obj > 5
+        multi += int(np.any(np.bincount(ks) > 1))
+    assert n_obj > 16 and multi >= 3            # covered windows with several objects in one stage
 
 
 def test_cpu_pipeline_equals_dense_reference(env):

@@ -15,6 +15,13 @@ the sensor; the network reads the crop centre back as their mean and adds its ow
 so its ``pose`` output is already in full-resolution pixels while all learned features stay
 translation invariant (a crop learns far faster than a whole-sensor regression on a 2-core CPU).
 
+Which objects a window reports (``report_objects``: fastest stage first, one +-dedupe_px box
+claimed per object, several objects per stage possible) and each object's frame
+(``merge_frames``) are decided here too. All of it is implemented once, on pixel coordinates
+(``report_objects_xy``, ``object_masks_xy``, ``crop_origin_xy``, ``prepare_xy``); the dense
+functions only extract coordinates (np.nonzero) and call that core, and the cpu runtime
+(runtime/ofpd_input.py) calls it on the window's event coordinates without building dense frames.
+
 Output (``decode``): pose (N, 2) px; direction (N, 2) = (cos, sin) -> atan2, image-plane angle
 with y pointing down; speed (N, 1) = ln(speed in m/s), exponentiated and clipped into the
 stage's speed bin [lo, min(hi, MAX_SPEED_MPS)] (the OFS cascade already decided the bin; the
@@ -23,7 +30,7 @@ representative speed of stage k.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
 import cv2
 import numpy as np
@@ -84,7 +91,23 @@ def ofpd_param_shapes(config: ToffeConfig) -> dict[str, tuple[int, ...]]:
 
 def event_pixels(frames: np.ndarray) -> np.ndarray:
     """(N, B, 2, H, W) -> (N, H, W) bool: pixels with any event in any bin or polarity."""
-    return np.asarray(frames).reshape(frames.shape[0], -1, *frames.shape[-2:]).any(axis=1)
+    frames = np.asarray(frames)
+    return frames.reshape(frames.shape[0], int(np.prod(frames.shape[1:-2])), *frames.shape[-2:]).any(axis=1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The core, on pixel coordinates. The dense API below and the cpu runtime
+# (runtime/ofpd_input.py, which keeps a window as event coordinates) both call these, so the
+# objects a window reports and each object's OFPD input are defined exactly once.
+# Coordinates are integer arrays (int64); every mean below is a float64 sum of integers (exact),
+# so results do not depend on the order of the pixels.
+# ---------------------------------------------------------------------------------------------
+
+def _mean(a: np.ndarray) -> float:
+    """a.mean() of a non-empty integer coordinate array, bit for bit, without np.mean's overhead:
+    the integer sum is exact (as is np.mean's float64 sum of integers < 2^53), and both divide
+    that same number by the count with one IEEE division."""
+    return float(np.add.reduce(a)) / a.shape[0]
 
 
 def centroid_of_pixels(xs: np.ndarray, ys: np.ndarray, half: int, width: int, height: int) -> tuple[float, float]:
@@ -92,51 +115,131 @@ def centroid_of_pixels(xs: np.ndarray, ys: np.ndarray, half: int, width: int, he
     within ``half`` of it (stray events far away barely move it); sensor centre when empty."""
     if xs.size == 0:
         return (width - 1) / 2.0, (height - 1) / 2.0
-    cx, cy = xs.mean(), ys.mean()
-    near = (np.abs(xs - cx) < half) & (np.abs(ys - cy) < half)
+    cx, cy = _mean(xs), _mean(ys)
+    near = in_box(xs, ys, cx, cy, half)
     if near.any():
-        cx, cy = xs[near].mean(), ys[near].mean()
-    return float(cx), float(cy)
-
-
-def _centroid(mask: np.ndarray, half: int) -> tuple[float, float]:
-    ys, xs = np.nonzero(mask)
-    return centroid_of_pixels(xs, ys, half, mask.shape[1], mask.shape[0])
-
-
-def _box(cx: float, cy: float, r: float, h: int, w: int) -> np.ndarray:
-    ys, xs = np.ogrid[:h, :w]
-    return (np.abs(xs - cx) < r) & (np.abs(ys - cy) < r)
-
-
-def mode_centroid(mask: np.ndarray, r: int, half: int) -> tuple[float, float]:
-    """Centroid of the densest cluster of a (H, W) bool mask: seed at the pixel whose
-    (2r+1)^2 box holds the most event pixels (first in row-major order on ties), then twice the
-    centroid of the pixels in the box |x - cx|, |y - cy| < r around the current estimate (falls
-    back to centroid_of_pixels(half) when the box is empty). Box-kernel mean shift: with several
-    objects in one frame it lands on one of them, not between them."""
-    h, w = mask.shape
-    dens = cv2.boxFilter(mask.astype(np.float32), -1, (2 * r + 1, 2 * r + 1), normalize=False,
-                         borderType=cv2.BORDER_CONSTANT)
-    sy, sx = np.unravel_index(int(np.argmax(dens)), dens.shape)
-    ys, xs = np.nonzero(mask)
-    cx, cy = float(sx), float(sy)
-    for _ in range(2):
-        near = (np.abs(xs - cx) < r) & (np.abs(ys - cy) < r)
-        if not near.any():
-            return centroid_of_pixels(xs, ys, half, w, h)
-        cx, cy = float(xs[near].mean()), float(ys[near].mean())
+        cx, cy = _mean(xs[near]), _mean(ys[near])
     return cx, cy
 
 
-def report_objects(pixels: np.ndarray, config: ToffeConfig) -> list[tuple[int, float, float]]:
+def in_box(xs: np.ndarray, ys: np.ndarray, cx, cy, r: float) -> np.ndarray:
+    """The box of an object at (cx, cy): |x - cx| < r and |y - cy| < r, at the given coordinates
+    (broadcasting: several boxes at once). Computed as max(|x - cx|, |y - cy|) < r, the same
+    comparisons with fewer temporaries (this is the hot loop of report_objects_xy)."""
+    dx = np.subtract(xs, cx)
+    np.abs(dx, out=dx)
+    dy = np.subtract(ys, cy)
+    np.abs(dy, out=dy)
+    np.maximum(dx, dy, out=dx)
+    return np.less(dx, r)
+
+
+def _box_count_seed(xs: np.ndarray, ys: np.ndarray, r: int, width: int, height: int) -> tuple[int, int, int]:
+    """(max box count, y, x of its first row-major position) over the pixels' bounding box grown
+    by r (clipped to the sensor), by a box filter on that rectangle."""
+    x0, y0 = max(int(xs.min()) - r, 0), max(int(ys.min()) - r, 0)
+    x1, y1 = min(int(xs.max()) + r + 1, width), min(int(ys.max()) + r + 1, height)
+    grid = np.zeros((y1 - y0, x1 - x0), dtype=np.float32)
+    grid[ys - y0, xs - x0] = 1.0
+    # integer counts <= (2r+1)^2 < 2^24: exact in float32, whatever order OpenCV sums in
+    dens = cv2.boxFilter(grid, -1, (2 * r + 1, 2 * r + 1), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    at = int(np.argmax(dens))
+    sy, sx = divmod(at, x1 - x0)
+    return int(dens.reshape(-1)[at]), y0 + sy, x0 + sx
+
+
+def density_seed(xs: np.ndarray, ys: np.ndarray, r: int, width: int, height: int) -> tuple[int, int]:
+    """(x, y) of the sensor pixel whose (2r+1)^2 box holds the most of the given unique pixels,
+    the first in row-major order on ties ((0, 0) when there are none): the argmax of the dense
+    cv2.boxFilter(mask, (2r+1, 2r+1), BORDER_CONSTANT) over the whole sensor, without it.
+
+    The pixels are split into groups separated by gaps > 2r along x, then y, then x... (no box
+    holds pixels of two groups, and the groups' bounding boxes grown by r are disjoint), so the
+    count at any position is that of at most one group and zero outside the grown boxes:
+    - a group whose extent is <= 2r on both axes fits in one box: its best count is all of its
+      n pixels, first reached (row-major) at (max(xmax - r, 0), max(ymax - r, 0));
+    - any other group is box-filtered on its grown bounding box (row-major order within that
+      rectangle is the sensor's), unless its n is below the best count found (it cannot win).
+    The answer is the best count, the smallest (y, x) on ties. The argmax may be a pixel
+    without an event (between events). Cost follows the pixels, not the sensor, in the usual
+    case of compact objects.
+    """
+    if xs.size == 0:
+        return 0, 0
+    xs = np.asarray(xs, dtype=np.int64)
+    ys = np.asarray(ys, dtype=np.int64)
+    r2 = 2 * r
+    x_lo, x_hi, y_lo, y_hi = int(xs.min()), int(xs.max()), int(ys.min()), int(ys.max())
+    if x_hi - x_lo <= r2 and y_hi - y_lo <= r2:                 # one box holds them all
+        return max(x_hi - r, 0), max(y_hi - r, 0)
+    best_n, best_key = 0, 0                       # most pixels, then smallest y * W + x
+    hard: list[tuple[np.ndarray, np.ndarray]] = []
+    work = [(xs, ys, 0 if x_hi - x_lo > r2 else 1, False)]   # (pixels, axis, other axis tried)
+    while work:
+        gx, gy, axis, tried = work.pop()
+        a = gx if axis == 0 else gy
+        order = np.argsort(a)
+        cut = np.flatnonzero(np.diff(a[order]) > r2) + 1
+        if cut.size == 0:                        # no gap on this axis: the other, else box filter
+            if tried:
+                hard.append((gx, gy))
+            else:
+                work.append((gx, gy, 1 - axis, True))
+            continue
+        sx, sy = gx[order], gy[order]
+        starts = np.concatenate(([0], cut))
+        ends = np.concatenate((cut, [sx.size]))
+        xmax, ymax = np.maximum.reduceat(sx, starts), np.maximum.reduceat(sy, starts)
+        compact = ((xmax - np.minimum.reduceat(sx, starts)) <= r2) & ((ymax - np.minimum.reduceat(sy, starts)) <= r2)
+        if compact.any():
+            n = (ends - starts)[compact]
+            m = int(n.max())
+            if m >= best_n:
+                sel = n == m
+                key = np.maximum(ymax[compact][sel] - r, 0) * width + np.maximum(xmax[compact][sel] - r, 0)
+                k = int(key.min())
+                if m > best_n or k < best_key:
+                    best_n, best_key = m, k
+        if not compact.all():
+            for g in np.flatnonzero(~compact):    # no gap left on this axis: try the other
+                work.append((sx[starts[g]:ends[g]], sy[starts[g]:ends[g]], 1 - axis, True))
+    for gx, gy in sorted(hard, key=lambda p: -p[0].size):
+        if gx.size < best_n:
+            break
+        n, y, x = _box_count_seed(gx, gy, r, width, height)
+        if n > best_n or (n == best_n and y * width + x < best_key):
+            best_n, best_key = n, y * width + x
+    y, x = divmod(best_key, width)
+    return x, y
+
+
+def mode_centroid_xy(xs: np.ndarray, ys: np.ndarray, r: int, half: int, width: int,
+                     height: int) -> tuple[float, float]:
+    """Centroid of the densest cluster of unique event pixels (xs, ys) on a (width, height)
+    sensor: seed at density_seed, then twice the centroid of the pixels in the box
+    |x - cx|, |y - cy| < r around the current estimate (falls back to centroid_of_pixels(half)
+    when the box is empty). Box-kernel mean shift: with several objects in one frame it lands on
+    one of them, not between them."""
+    sx, sy = density_seed(xs, ys, r, width, height)
+    cx, cy = float(sx), float(sy)
+    for _ in range(2):
+        near = in_box(xs, ys, cx, cy, r)
+        if not near.any():
+            return centroid_of_pixels(xs, ys, half, width, height)
+        cx, cy = _mean(xs[near]), _mean(ys[near])
+    return cx, cy
+
+
+def report_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
+                      config: ToffeConfig) -> list[tuple[int, float, float]]:
     """The objects one window reports: [(stage index k-1, cx, cy)], fastest stage first.
 
-    pixels (N, H, W) bool: event pixels of the N stage frames (index k-1 = stage k). Going from
-    the fastest stage down, the pixels of frame k outside the boxes |x - cx|, |y - cy| < R
-    (R = ofpd.dedupe_px) of the objects found so far are its candidates; while the box around
-    their mode_centroid holds >= ofpd.min_events of them, that is an object of speed bin k and
-    its box is claimed (several objects of one bin in one frame are reported separately).
+    stage_pixels[k-1] = (xs, ys): the unique event pixels of stage k's frame (any order) on a
+    sensor (width, height). Going from the fastest stage down, the pixels of frame k outside the
+    boxes |x - cx|, |y - cy| < R (R = ofpd.dedupe_px) of the objects found so far are its
+    candidates; while the box around their mode_centroid_xy holds >= ofpd.min_events of them,
+    that is an object of speed bin k and its box is claimed (several objects of one bin in one
+    frame are reported separately).
 
     Why: OFS_k fires for speed bin >= k, so an object's bin is the fastest stage that fires on
     it. The cascade's closed mask rarely takes every event of the object; its leftover edges
@@ -145,21 +248,95 @@ def report_objects(pixels: np.ndarray, config: ToffeConfig) -> list[tuple[int, f
     reports and the nearest report is matched).
     """
     s = ofpd_settings(config)
-    r = int(s["dedupe_px"])
-    n, h, w = pixels.shape
-    claimed = np.zeros((h, w), dtype=bool)
-    out = []
-    for i in range(n - 1, -1, -1):                          # fastest stage first; N is tiny
-        rem = pixels[i] & ~claimed
-        while rem.sum() >= s["min_events"]:                 # one pass per object found
-            cx, cy = mode_centroid(rem, r, s["crop_px"] // 2)
-            box = _box(cx, cy, r, h, w)
-            if (rem & box).sum() < s["min_events"]:
+    r, need, half = int(s["dedupe_px"]), s["min_events"], s["crop_px"] // 2
+    w, h = int(sensor_size[0]), int(sensor_size[1])
+    out: list[tuple[int, float, float]] = []
+    for i in range(len(stage_pixels) - 1, -1, -1):          # fastest stage first; N is tiny
+        xs, ys = (np.asarray(a, dtype=np.int64) for a in stage_pixels[i])
+        if out and xs.size:                                 # drop the claimed boxes, all at once
+            c = np.array([o[1:] for o in out])
+            free = ~in_box(xs[:, None], ys[:, None], c[None, :, 0], c[None, :, 1], r).any(axis=1)
+            xs, ys = xs[free], ys[free]
+        while xs.size >= need:                              # one pass per object found
+            cx, cy = mode_centroid_xy(xs, ys, r, half, w, h)
+            box = in_box(xs, ys, cx, cy, r)
+            if np.count_nonzero(box) < need:
                 break
             out.append((i, cx, cy))
-            claimed |= box
-            rem &= ~box
+            xs, ys = xs[~box], ys[~box]
     return out
+
+
+def object_masks_xy(xs: np.ndarray, ys: np.ndarray, objects: Sequence[tuple[int, float, float]],
+                    config: ToffeConfig) -> list[np.ndarray]:
+    """merge_frames on coordinates: for each reported object, the bool mask of the given ones
+    (a window's ones of every stage frame) inside its box |x - cx|, |y - cy| < ofpd.dedupe_px:
+    all of the object's events, whichever stage the cascade's mask gave them to."""
+    r = ofpd_settings(config)["dedupe_px"]
+    if not objects:
+        return []
+    c = np.array([o[1:] for o in objects], dtype=np.float64)
+    return list(in_box(xs[None, :], ys[None, :], c[:, :1], c[:, 1:], r))
+
+
+def crop_origin_xy(xs: np.ndarray, ys: np.ndarray, sensor_size: tuple[int, int], config: ToffeConfig) -> tuple[int, int]:
+    """Top-left (x0, y0) of the crop of one frame with unique event pixels (xs, ys): the crop
+    centre x0 + (S - 1) / 2 nearest to the two-pass centroid (within half a pixel)."""
+    size = ofpd_settings(config)["crop_px"]
+    cx, cy = centroid_of_pixels(xs, ys, size // 2, int(sensor_size[0]), int(sensor_size[1]))
+    return int(np.floor(cx - (size - 1) / 2 + 0.5)), int(np.floor(cy - (size - 1) / 2 + 0.5))
+
+
+def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origins: np.ndarray,
+               config: ToffeConfig, unique_counts=None) -> np.ndarray:
+    """The OFPD input (N, 2B+2, S/P, S/P) float32 of N frames given as their ones.
+
+    ones[i] = (xs, ys, ch): the (unique) ones of frame i, ch = 2 b + polarity; origins[i] =
+    crop_origin_xy of its event pixels. x[2b+p, cell] = #ones of channel 2b+p in the crop cell /
+    P^2 (the mean of P x P binary pixels, exact in float32), zero elsewhere; the coordinate planes
+    as in the module doc. ``unique_counts(keys) -> (unique keys, counts)`` may replace
+    np.unique(keys, return_counts=True) (the runtime passes an O(n) one).
+    """
+    s = ofpd_settings(config)
+    size, pool = s["crop_px"], s["pool"]
+    g = size // pool
+    b = config.n_bins
+    n = len(ones)
+    out = np.zeros((n, 2 * b + 2, g, g), dtype=np.float32)
+    if n == 0:
+        return out
+    origins = np.asarray(origins, dtype=np.int64).reshape(n, 2)
+    centres = (np.arange(g) + 0.5) * pool - 0.5          # cell centre in crop pixel units
+    out[:, 2 * b] = ((origins[:, 0, None] + centres[None, :]) / COORD_SCALE)[:, None, :]
+    out[:, 2 * b + 1] = ((origins[:, 1, None] + centres[None, :]) / COORD_SCALE)[:, :, None]
+    counts = [len(o[0]) for o in ones]
+    obj = np.repeat(np.arange(n), counts)
+    fx = np.concatenate([o[0] for o in ones]).astype(np.int64) - np.repeat(origins[:, 0], counts)
+    fy = np.concatenate([o[1] for o in ones]).astype(np.int64) - np.repeat(origins[:, 1], counts)
+    ch = np.concatenate([o[2] for o in ones]).astype(np.int64)
+    inside = (fx >= 0) & (fx < size) & (fy >= 0) & (fy < size)
+    keys = (((obj * (2 * b + 2) + ch) * g + fy // pool) * g + fx // pool)[inside]
+    if keys.size:
+        cells, hits = (unique_counts or (lambda k: np.unique(k, return_counts=True)))(keys)
+        out.reshape(-1)[cells] = hits.astype(np.float32) / np.float32(pool * pool)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The dense API (N, B, 2, H, W): coordinates out of the frames (np.nonzero), then the core.
+# ---------------------------------------------------------------------------------------------
+
+def mode_centroid(mask: np.ndarray, r: int, half: int) -> tuple[float, float]:
+    """mode_centroid_xy of the event pixels of a (H, W) bool mask."""
+    ys, xs = np.nonzero(mask)
+    return mode_centroid_xy(xs, ys, r, half, mask.shape[1], mask.shape[0])
+
+
+def report_objects(pixels: np.ndarray, config: ToffeConfig) -> list[tuple[int, float, float]]:
+    """report_objects_xy of pixels (N, H, W) bool, the event pixels of the N stage frames of one
+    window (index k-1 = stage k): [(stage index k-1, cx, cy)], fastest stage first."""
+    n, h, w = pixels.shape
+    return report_objects_xy([np.nonzero(p)[::-1] for p in pixels], (w, h), config)
 
 
 def has_object(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
@@ -178,31 +355,29 @@ def has_object(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
 def merge_frames(frames: np.ndarray, config: ToffeConfig) -> tuple[np.ndarray, np.ndarray]:
     """The objects of ONE window: (stage_k (G,) 1-based, OFPD frames (G, B, 2, H, W)).
 
-    Object j's frame is the events of every stage inside its box (report_objects): all of the
-    object's events, whichever stage the cascade's mask gave them to, and none of another
-    object's. Feed these to prepare / decode.
+    Object j's frame is the events of every stage inside its box (report_objects,
+    object_masks_xy): all of the object's events, whichever stage the cascade's mask gave them
+    to, and none of another object's. Feed these to prepare / decode.
     """
     frames = np.asarray(frames) > 0
     objs = report_objects(event_pixels(frames), config)
-    r = ofpd_settings(config)["dedupe_px"]
     h, w = frames.shape[-2:]
-    every = frames.any(axis=0)
-    merged = np.zeros((len(objs),) + frames.shape[1:], dtype=bool)
-    for j, (i, cx, cy) in enumerate(objs):
-        merged[j] = every & _box(cx, cy, r, h, w)
-    return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), merged
+    every = np.flatnonzero(frames.any(axis=0))             # the window's ones, (b, c, y, x) linear
+    ys, xs = np.divmod(every % (h * w), w)
+    merged = np.zeros((len(objs), int(np.prod(frames.shape[1:]))), dtype=bool)
+    for j, m in enumerate(object_masks_xy(xs, ys, objs, config)):
+        merged[j, every[m]] = True
+    return (np.array([i + 1 for i, _, _ in objs], dtype=np.int64),
+            merged.reshape((len(objs),) + frames.shape[1:]))
 
 
 def crop_origins(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
-    """(N, 2) int top-left (x0, y0) of each frame's crop on the sensor."""
-    s = ofpd_settings(config)
-    size = s["crop_px"]
+    """(N, 2) int top-left (x0, y0) of each frame's crop on the sensor (crop_origin_xy)."""
     px = event_pixels(np.asarray(frames))
     out = np.empty((px.shape[0], 2), dtype=np.int64)
     for i in range(px.shape[0]):          # one centroid per frame (N is small: stages x windows)
-        cx, cy = _centroid(px[i], size // 2)
-        # crop centre x0 + (S - 1) / 2 nearest to the centroid (within half a pixel)
-        out[i] = int(np.floor(cx - (size - 1) / 2 + 0.5)), int(np.floor(cy - (size - 1) / 2 + 0.5))
+        ys, xs = np.nonzero(px[i])
+        out[i] = crop_origin_xy(xs, ys, (px.shape[2], px.shape[1]), config)
     return out
 
 
@@ -214,23 +389,11 @@ def prepare(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
     n, b, c, h, w = frames.shape
     if c != 2 or b != config.n_bins:
         raise ValueError(f"frames must be (N, {config.n_bins}, 2, H, W), got {frames.shape}")
-    s = ofpd_settings(config)
-    size, pool = s["crop_px"], s["pool"]
-    g = size // pool
-    origins = crop_origins(frames, config)
-    out = np.zeros((n, 2 * b + 2, g, g), dtype=np.float32)
-    centres = (np.arange(g) + 0.5) * pool - 0.5          # cell centre in crop pixel units
+    ones = []
     for i in range(n):
-        x0, y0 = origins[i]
-        sx0, sy0 = max(x0, 0), max(y0, 0)
-        sx1, sy1 = min(x0 + size, w), min(y0 + size, h)
-        crop = np.zeros((b * 2, size, size), dtype=np.float32)
-        if sx1 > sx0 and sy1 > sy0:
-            crop[:, sy0 - y0:sy1 - y0, sx0 - x0:sx1 - x0] = frames[i, :, :, sy0:sy1, sx0:sx1].reshape(b * 2, sy1 - sy0, sx1 - sx0) > 0
-        out[i, :2 * b] = crop.reshape(2 * b, g, pool, g, pool).mean(axis=(2, 4))
-        out[i, 2 * b] = ((x0 + centres) / COORD_SCALE)[None, :]
-        out[i, 2 * b + 1] = ((y0 + centres) / COORD_SCALE)[:, None]
-    return out
+        bb, cc, ys, xs = np.nonzero(frames[i] > 0)
+        ones.append((xs, ys, bb * 2 + cc))
+    return prepare_xy(ones, crop_origins(frames, config), config)
 
 
 def speed_bounds(config: ToffeConfig) -> np.ndarray:

@@ -15,12 +15,13 @@ def window_slice(events: np.ndarray, t0: int, dt_us: int) -> np.ndarray:
     return events[i0:i1]
 
 
-def bin_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, sensor_size: tuple[int, int],
-               dtype=np.uint16) -> np.ndarray:
-    """Counts per (bin, polarity, y, x) for the events in [t0, t0 + dt_us).
+def event_bin_index(events: np.ndarray, t0: int, dt_us: int, n_bins: int,
+                    sensor_size: tuple[int, int]) -> np.ndarray:
+    """Linear index ((b * 2 + p) * H + y) * W + x into the (n_bins, 2, H, W) volume of each event
+    in [t0, t0 + dt_us), b = (t - t0) * B // dt, p = polarity (events outside are dropped).
 
-    Events outside the window are ignored, so a caller may pass a superset. Counts saturate at
-    the dtype's maximum. Returns an array of shape (n_bins, 2, height, width).
+    The one definition of an event's bin and channel: bin_window counts these indices and the
+    runtime's SpikeVolume.from_events keeps their unique values.
     """
     width, height = int(sensor_size[0]), int(sensor_size[1])
     t = events["t"]
@@ -30,7 +31,18 @@ def bin_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, sensor_size
         t = events["t"]
     b = ((t - t0) * n_bins) // dt_us
     p = (events["p"] > 0).astype(np.int64)
-    idx = ((b * 2 + p) * height + events["y"].astype(np.int64)) * width + events["x"].astype(np.int64)
+    return ((b * 2 + p) * height + events["y"].astype(np.int64)) * width + events["x"].astype(np.int64)
+
+
+def bin_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, sensor_size: tuple[int, int],
+               dtype=np.uint16) -> np.ndarray:
+    """Counts per (bin, polarity, y, x) for the events in [t0, t0 + dt_us).
+
+    Events outside the window are ignored, so a caller may pass a superset. Counts saturate at
+    the dtype's maximum. Returns an array of shape (n_bins, 2, height, width).
+    """
+    width, height = int(sensor_size[0]), int(sensor_size[1])
+    idx = event_bin_index(events, t0, dt_us, n_bins, sensor_size)
     size = n_bins * 2 * height * width
     info = np.iinfo(dtype) if np.issubdtype(dtype, np.integer) else None
     if idx.size * 64 < size:

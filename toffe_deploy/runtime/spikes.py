@@ -16,6 +16,8 @@ from functools import cached_property
 
 import numpy as np
 
+from ..events.binning import event_bin_index
+
 
 @dataclass(frozen=True)
 class SpikeVolume:
@@ -65,14 +67,7 @@ class SpikeVolume:
         Events outside [t0, t0 + dt_us) are ignored. O(n log n) in the number of events.
         """
         width, height = int(sensor_size[0]), int(sensor_size[1])
-        t = events["t"]
-        keep = (t >= t0) & (t < t0 + dt_us)
-        if not keep.all():
-            events = events[keep]
-            t = events["t"]
-        b = ((t - t0) * n_bins) // dt_us
-        p = (events["p"] > 0).astype(np.int64)
-        idx = ((b * 2 + p) * height + events["y"].astype(np.int64)) * width + events["x"].astype(np.int64)
+        idx = event_bin_index(events, t0, dt_us, n_bins, sensor_size)
         return cls(np.unique(idx), (int(n_bins), 2, height, width))
 
     def to_dense(self, dtype=bool) -> np.ndarray:
