@@ -255,7 +255,7 @@ def report_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sen
         xs, ys = (np.asarray(a, dtype=np.int64) for a in stage_pixels[i])
         if out and xs.size:                                 # drop the claimed boxes, all at once
             c = np.array([o[1:] for o in out])
-            free = ~in_box(xs[:, None], ys[:, None], c[None, :, 0], c[None, :, 1], r).any(axis=1)
+            free = ~in_box(xs[None, :], ys[None, :], c[:, :1], c[:, 1:], r).any(axis=0)   # (boxes, pixels)
             xs, ys = xs[free], ys[free]
         while xs.size >= need:                              # one pass per object found
             cx, cy = mode_centroid_xy(xs, ys, r, half, w, h)
@@ -317,8 +317,14 @@ def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origin
     inside = (fx >= 0) & (fx < size) & (fy >= 0) & (fy < size)
     keys = (((obj * (2 * b + 2) + ch) * g + fy // pool) * g + fx // pool)[inside]
     if keys.size:
-        cells, hits = (unique_counts or (lambda k: np.unique(k, return_counts=True)))(keys)
-        out.reshape(-1)[cells] = hits.astype(np.float32) / np.float32(pool * pool)
+        area = pool * pool
+        if area & (area - 1) == 0:
+            # P^2 a power of two: adding 1/P^2 once per one gives hits/P^2 exactly in float32
+            # (multiples of 2^-m up to 1), the same numbers as the division below, in O(n)
+            np.add.at(out.reshape(-1), keys, np.float32(1.0 / area))
+        else:
+            cells, hits = (unique_counts or (lambda k: np.unique(k, return_counts=True)))(keys)
+            out.reshape(-1)[cells] = hits.astype(np.float32) / np.float32(area)
     return out
 
 

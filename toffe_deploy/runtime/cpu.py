@@ -5,7 +5,8 @@ Same results as ``run_cascade(x, lambda k, inp: run_ofs_fixed(inp, params[k-1]),
 
     inp_N      = the window's ones
     out_k      = OFS_k(inp_k)                          on the window's active set (ofs_sparse)
-    closed_k   = Close(any_t out_k)                    on the compacted frame (morph)
+    closed_k   = Close(any_t out_k)                    on the compacted frame (morph.WindowCompaction,
+                                                       laid out once per window for all stages)
     frame_k    = inp_k & closed_k,   inp_k-1 = inp_k & ~closed_k   (masks over the window's ones)
 
 ``cascade_stream`` offers the interface of the Lava adapter (``LavaCascade``): dense (B, 2, H, W)
@@ -21,8 +22,8 @@ import numpy as np
 
 from ..cascade import CascadeResult
 from ..fixed_point import LoihiOFSParams
-from .morph import CompactClosing
-from .ofs_sparse import SparseOFSWindow, padded_lookup
+from .morph import CompactClosing, WindowCompaction
+from .ofs_sparse import SparseOFSWindow, StageConstants, padded_lookup
 from .spikes import SpikeVolume
 
 
@@ -77,6 +78,7 @@ class CpuCascade:
         self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
         self.kernel_size = kernels.pop()
         self._lookup = padded_lookup(self.sensor_size, self.kernel_size)
+        self._consts = [StageConstants(p, self.n_bins) for p in self.params]
 
     def __enter__(self) -> "CpuCascade":
         return self
@@ -101,18 +103,21 @@ class CpuCascade:
         in_pix = win.input_pixels            # the closing is looked up per pixel, not per one
         n = self.n_stages
         res = SparseCascadeResult(volume, win, [None] * n, [None] * n, [None] * n, [None] * n)
+        compaction = WindowCompaction(win.active, in_pix, h, w, self.mask_kernel)
         alive = np.ones(len(volume), dtype=bool)
         for k in range(n, 0, -1):
-            spikes = win.run_stage(alive, self.params[k - 1])
-            closing = CompactClosing(win.active[spikes.any(axis=0)], h, w, self.mask_kernel)
-            in_closed = np.zeros_like(alive)
-            if alive.any() and not closing.empty:
-                in_closed = closing.at(in_pix)[win.pix_inverse] & alive
+            spikes = win.run_stage(alive, self.params[k - 1], self._consts[k - 1])
+            closing, closed_at_pix = compaction.close(spikes.any(axis=0))
+            if closed_at_pix is None:
+                in_closed = np.zeros_like(alive)
+            else:
+                in_closed = closed_at_pix[win.pix_inverse]
+                in_closed &= alive
             res.inputs[k - 1] = alive
             res.spikes[k - 1] = spikes
             res.closings[k - 1] = closing
-            res.frames[k - 1] = alive & in_closed
-            alive = alive & ~in_closed
+            res.frames[k - 1] = in_closed                 # inp_k & closed_k
+            alive = alive ^ in_closed                     # inp_k & ~closed_k (in_closed lies in alive)
         return res
 
     def cascade_stream(self, windows: Iterable[np.ndarray]) -> Iterator[CascadeResult]:

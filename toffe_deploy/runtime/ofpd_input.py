@@ -56,6 +56,62 @@ def merge_objects(volume: SpikeVolume, frames: Sequence[np.ndarray], config: Tof
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), merged
 
 
+def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig,
+          lookup: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``prepare(*merge_objects(...))`` in one pass: (stage_k (G,), OFPD input (G, 2B+2, S/P,
+    S/P) float32, n_events (G,) = the number of ones of each merged frame).
+
+    The same core calls on the same coordinate sets, with the window's pixels de-duplicated
+    once (``volume.pixel_index``, shared with the OFS window) instead of once per stage frame
+    and once per object: a frame's (or an object's) unique pixels are the unique pixel ids
+    its ones point to, marked on a (U,) array over the window's U unique pixels. An object's
+    merged frame is the ones of every frame whose pixel lies in its box, so its unique pixels
+    are the window pixels of those ones inside the box.
+    """
+    _b, nc, h, w = volume.shape
+    upix, pinv = volume.pixel_index(lookup)
+    uy, ux = np.divmod(upix, w)
+    n_u = upix.shape[0]
+
+    def pixels_of(ones: np.ndarray) -> np.ndarray:          # unique pixel ids of some ones
+        mark = np.zeros(n_u, dtype=bool)
+        mark[pinv[ones]] = True
+        return np.flatnonzero(mark)
+
+    objs = report_objects_xy([(ux[u], uy[u]) for u in (pixels_of(m) for m in frames)], (w, h), config)
+    if not objs:
+        c, g, _ = input_shape(config)
+        return np.zeros(0, dtype=np.int64), np.zeros((0, c, g, g), np.float32), np.zeros(0, dtype=np.int64)
+    every = np.flatnonzero(np.logical_or.reduce(list(frames)))     # the ones of every frame
+    ev_u = pinv[every]
+    fx, fy = ux[ev_u], uy[ev_u]
+    masks = object_masks_xy(fx, fy, objs, config)
+    ev_pix = pixels_of(every)
+    pix_masks = object_masks_xy(ux[ev_pix], uy[ev_pix], objs, config)
+    ch = volume.bc[every] if nc == 2 else volume.b[every] * 2 + volume.c[every]
+    ones, origins, n_ev = [], [], []
+    for m, pm in zip(masks, pix_masks):
+        mu = ev_pix[pm]
+        origins.append(crop_origin_xy(ux[mu], uy[mu], (w, h), config))
+        ones.append((fx[m], fy[m], ch[m]))
+        n_ev.append(ones[-1][0].shape[0])
+    x = prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 2), config, _counter(config, len(ones), lookup))
+    return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, np.asarray(n_ev, dtype=np.int64)
+
+
+def _counter(config: ToffeConfig, n: int, lookup: np.ndarray | None):
+    """An O(n) replacement of np.unique(keys, return_counts=True) for prepare_xy, when the
+    scratch ``lookup`` covers every cell key of n frames (else None: prepare_xy's default)."""
+    c, g, _ = input_shape(config)
+    if lookup is None or lookup.shape[0] < n * c * g * g:
+        return None
+
+    def counts(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cells, inv = dedupe(keys, lookup)
+        return cells, np.bincount(inv, minlength=cells.shape[0])
+    return counts
+
+
 def prepare(frames: Sequence[SpikeVolume], config: ToffeConfig, lookup: np.ndarray | None = None) -> np.ndarray:
     """(N, 2B+2, S/P, S/P) float32, equal to ``ofpd_io.prepare`` of the dense frames."""
     b = config.n_bins

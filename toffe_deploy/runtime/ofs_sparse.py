@@ -66,7 +66,7 @@ class SparseOFSWindow:
             lookup = padded_lookup((width, height), k)
         self.b = volume.b
         self.c = volume.c
-        in_pix, self.pix_inverse = dedupe(volume.pix, lookup)
+        in_pix, self.pix_inverse = volume.pixel_index(lookup)
         self.input_pixels = in_pix          # unique pixels of the window's ones; pix = in_pix[pix_inverse]
         y, x = np.divmod(in_pix, width)
         ii, jj = np.divmod(np.arange(k * k), k)
@@ -76,14 +76,20 @@ class SparseOFSWindow:
         ay, ax = np.divmod(slots, wp)
         ay -= r
         ax -= r
-        inside = (ay >= 0) & (ay < height) & (ax >= 0) & (ax < width)
-        order = np.concatenate([np.flatnonzero(inside), np.flatnonzero(~inside)])
-        rank = np.empty_like(order)
-        rank[order] = np.arange(order.shape[0])
-        first = order[:int(np.count_nonzero(inside))]
-        self.active = ay[first] * width + ax[first]
-        self.n_slots = int(order.shape[0])
-        self.tap_target = rank[inv].reshape(target.shape)
+        self.n_slots = int(slots.shape[0])
+        if in_pix.size == 0 or (int(y.min()) >= r and int(y.max()) < height - r
+                                and int(x.min()) >= r and int(x.max()) < width - r):
+            # no input pixel within r of the sensor's edge: every slot is on the sensor, in order
+            self.active = ay * width + ax
+            self.tap_target = inv.reshape(target.shape)
+        else:
+            inside = (ay >= 0) & (ay < height) & (ax >= 0) & (ax < width)
+            order = np.concatenate([np.flatnonzero(inside), np.flatnonzero(~inside)])
+            rank = np.empty_like(order)
+            rank[order] = np.arange(order.shape[0])
+            first = order[:int(np.count_nonzero(inside))]
+            self.active = ay[first] * width + ax[first]
+            self.tap_target = rank[inv].reshape(target.shape)
         self.n_bins = n_bins
         self._keys_all: np.ndarray | None = None
 
@@ -97,10 +103,14 @@ class SparseOFSWindow:
             self._keys_all = (self.b * self.n_slots)[:, None] + self.tap_target[self.pix_inverse]
         return self._keys_all
 
-    def synaptic_input(self, alive: np.ndarray, weight: np.ndarray) -> np.ndarray:
-        """a_in (B, M_pad) of the input ones selected by ``alive`` (bool over volume.idx), as
-        float64 holding exact integers (|a_in| <= 127 * C * K * K, far below 2**53)."""
-        w_taps = weight[0].reshape(weight.shape[1], -1).astype(np.float64)      # (C, K*K)
+    def synaptic_input(self, alive: np.ndarray, weight: np.ndarray, scale: float = 1.0,
+                       w_taps: np.ndarray | None = None) -> np.ndarray:
+        """a_in (B, M_pad) of the input ones selected by ``alive`` (bool over volume.idx), times
+        ``scale`` (a power of two), as float64 holding exact integers (|a_in| <= 127 * C * K * K
+        * scale, far below 2**53). ``w_taps``: weight[0] as (C, K*K) float64 times scale, when
+        the caller has it already (StageConstants)."""
+        if w_taps is None:
+            w_taps = np.multiply(weight[0].reshape(weight.shape[1], -1), scale, dtype=np.float64)   # (C, K*K)
         keys = self._keys()
         if alive.all():
             c = self.c
@@ -110,21 +120,34 @@ class SparseOFSWindow:
         acc = np.bincount(keys.ravel(), weights=w_taps[c].ravel(), minlength=self.n_bins * self.n_slots)
         return acc.reshape(self.n_bins, self.n_slots)
 
-    def run_stage(self, alive: np.ndarray, params: LoihiOFSParams) -> np.ndarray:
-        """Output spikes (B, M) bool on the active set; the same as run_ofs_fixed there."""
+    def run_stage(self, alive: np.ndarray, params: LoihiOFSParams,
+                  consts: "StageConstants | None" = None) -> np.ndarray:
+        """Output spikes (B, M) bool on the active set; the same as run_ofs_fixed there.
+
+        The neuron runs on every active pixel: a pre-filter of the pixels that can reach the
+        threshold costs more numpy calls than it saves on a few thousand pixels."""
         if params.kernel_size != self.kernel_size:
             raise ValueError(f"stage kernel {params.kernel_size} != window kernel {self.kernel_size}")
-        out = np.zeros((self.n_bins, self.n_active), dtype=bool)
         if self.n_active == 0 or not alive.any():
-            return out
-        a_in = self.synaptic_input(alive, params.weight)[:, :self.n_active]
-        # v[t] <= sum_{s<=t} max(a_in[s], 0) << 6 (v starts at 0, the truncated decay never
-        # raises it, the reset only lowers it), so a neuron whose total positive input stays
-        # <= vth never spikes: run the neuron on the others alone.
-        live = np.flatnonzero(np.maximum(a_in, 0.0).sum(axis=0) * float(1 << STATE_SHIFT) > params.vth_mant << STATE_SHIFT)
-        if live.size:
-            out[:, live] = lif_window(a_in[:, live] if live.size < self.n_active else a_in, params)
-        return out
+            return np.zeros((self.n_bins, self.n_active), dtype=bool)
+        if consts is None:
+            consts = StageConstants(params, self.n_bins)
+        # a_in << 6 directly (the weights scaled by 2**6: the same integers, one pass fewer)
+        a64 = self.synaptic_input(alive, params.weight, float(1 << STATE_SHIFT), consts.w_taps)[:, :self.n_active]
+        return _lif_scaled(a64, params, consts.clip)
+
+
+class StageConstants:
+    """Per-stage constants of the sparse OFS, computed once per cascade rather than per window:
+    w_taps = weight[0] as (C, K*K) float64 times 2**6 (a_in << 6 by scatter-add), and whether
+    the 24-bit clip can bind over B steps. The inputs are binary, so |a_in| <= sum |w| and
+    |v| <= B * (sum|w| << 6 + vth) (see lif_window) bounds every step."""
+
+    def __init__(self, params: LoihiOFSParams, n_bins: int):
+        w = params.weight[0].reshape(params.weight.shape[1], -1)
+        self.w_taps = np.multiply(w, float(1 << STATE_SHIFT), dtype=np.float64)
+        bound = float(np.abs(self.w_taps).sum())
+        self.clip = int(n_bins) * (bound + float(params.vth_mant << STATE_SHIFT)) > STATE_MAX
 
 
 def lif_window(a_in: np.ndarray, p: LoihiOFSParams) -> np.ndarray:
@@ -138,21 +161,30 @@ def lif_window(a_in: np.ndarray, p: LoihiOFSParams) -> np.ndarray:
     so |v| <= B * (max|a_in << 6| + vth) bounds every step. Bit exactness against lif_step is
     tested (tests/test_run_sparse.py), saturation included.
     """
-    f = (DECAY_UNITY - p.dv) / DECAY_UNITY
     vth = float(p.vth_mant << STATE_SHIFT)
     a64 = np.multiply(a_in, float(1 << STATE_SHIFT), dtype=np.float64)
+    clip = a64.shape[0] * (float(np.abs(a64).max(initial=0.0)) + vth) > STATE_MAX
+    return _lif_scaled(a64, p, clip)
+
+
+def _lif_scaled(a64: np.ndarray, p: LoihiOFSParams, clip: bool) -> np.ndarray:
+    """lif_window on a_in << 6 (float64, exact integers); ``clip``: whether the 24-bit clip may
+    bind. The reset v -= vth * o[t-1] subtracts vth or exactly 0.0 (cheaper than a masked
+    subtract on these short vectors; the same numbers)."""
+    f = (DECAY_UNITY - p.dv) / DECAY_UNITY
+    vth = float(p.vth_mant << STATE_SHIFT)
     n_steps = a64.shape[0]
-    clip = n_steps * (float(np.abs(a64).max(initial=0.0)) + vth) > STATE_MAX
-    out = np.zeros(a64.shape, dtype=bool)
-    v = np.zeros(a64.shape[1:], dtype=np.float64)
+    out = np.empty(a64.shape, dtype=bool)
+    v = a64[0].copy()
+    reset = np.empty_like(v)
     for t in range(n_steps):                # B (= 5) steps, each vectorized over the active set
         if t:
-            v *= f
-            np.trunc(v, out=v)
+            if f != 1.0:
+                v *= f
+                np.trunc(v, out=v)
             v += a64[t]
-            np.subtract(v, vth, out=v, where=out[t - 1])
-        else:
-            v[:] = a64[0]
+            np.multiply(out[t - 1], vth, out=reset)
+            v -= reset
         if clip:
             np.clip(v, -STATE_MAX, STATE_MAX, out=v)
         np.greater(v, vth, out=out[t])

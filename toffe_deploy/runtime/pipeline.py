@@ -150,15 +150,15 @@ class Pipeline:
     def objects_of(self, volume: SpikeVolume, frames: list[np.ndarray]) -> list[ObjectFlow]:
         """Object flow of one window from its ones and its stage frames (bool masks over
         volume.idx, index k - 1): ofpd_io's object grouping, then one batched OFPD call."""
-        ks, merged = ofpd_input.merge_objects(volume, frames, self.config, self._lookup)
+        ks, x, n_events = ofpd_input.batch(volume, frames, self.config, self._lookup)
         if not ks.size:
             return []
-        pose, direction, speed = self.ofpd.run(ofpd_input.prepare(merged, self.config, self._lookup))
+        pose, direction, speed = self.ofpd.run(x)
         dec = decode(pose, direction, speed, ks, self.config)
         return [ObjectFlow(speed_bin=int(k), speed_mps=float(dec["speed_mps"][i]),
                            speed_bin_mps=float(dec["speed_bin_mps"][i]), x=float(dec["x_px"][i]),
                            y=float(dec["y_px"][i]), direction_rad=float(dec["direction_rad"][i]),
-                           n_events=len(merged[i]))
+                           n_events=int(n_events[i]))
                 for i, k in enumerate(ks)]
 
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:

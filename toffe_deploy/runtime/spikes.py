@@ -35,18 +35,46 @@ class SpikeVolume:
         return int(self.shape[2] * self.shape[3])
 
     # Coordinates are derived once per volume (cached; a subset takes its parent's slices).
+    # One divmod gives the plane b * C + c and the pixel of every one; b and c come from it.
+    @cached_property
+    def bc(self) -> np.ndarray:
+        """Plane index b * C + c of each one (= the OFPD channel 2 b + polarity when C = 2)."""
+        self.__dict__["bc"], self.__dict__["pix"] = np.divmod(self.idx, self.n_pixels)
+        return self.__dict__["bc"]
+
     @cached_property
     def b(self) -> np.ndarray:
-        return self.idx // (self.shape[1] * self.n_pixels)
+        if self.shape[1] == 2:                    # shifts: cheaper than integer division
+            return np.right_shift(self.bc, 1)
+        return self.bc // self.shape[1]
 
     @cached_property
     def c(self) -> np.ndarray:
-        return (self.idx // self.n_pixels) % self.shape[1]
+        if self.shape[1] == 2:
+            return np.bitwise_and(self.bc, 1)
+        return self.bc % self.shape[1]
 
     @cached_property
     def pix(self) -> np.ndarray:
         """Linear pixel index y * W + x of each one."""
-        return self.idx % self.n_pixels
+        _ = self.bc
+        return self.__dict__["pix"]
+
+    def pixel_index(self, lookup: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(unique pixels, inverse) of ``pix``: pix = unique[inverse]. Computed once per volume
+        (the OFS window and the OFPD grouping share it); with a scratch ``lookup`` (>= H * W
+        entries, contents irrelevant) in O(n) and in no particular order, else sorted."""
+        got = self.__dict__.get("_pixel_index")
+        if got is None:
+            if lookup is None:
+                u, inv = np.unique(self.pix, return_inverse=True)
+                got = (u, inv.reshape(-1))
+            else:
+                from .ofs_sparse import dedupe
+
+                got = dedupe(self.pix, lookup)
+            self.__dict__["_pixel_index"] = got
+        return got
 
     def __len__(self) -> int:
         return int(self.idx.shape[0])
@@ -78,7 +106,7 @@ class SpikeVolume:
     def subset(self, keep: np.ndarray) -> "SpikeVolume":
         """The ones selected by a boolean mask over ``idx`` (e.g. a cascade stage's input)."""
         sub = SpikeVolume(self.idx[keep], self.shape)
-        for name in ("b", "c", "pix"):
+        for name in ("bc", "b", "c", "pix"):
             if name in self.__dict__:
                 sub.__dict__[name] = self.__dict__[name][keep]
         return sub
