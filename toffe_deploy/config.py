@@ -6,13 +6,13 @@ Speed bins follow the paper's Table "Speed ranges for the four speed bins" (m/s)
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 from dataclasses import dataclass, field
 from typing import Any
 
 from .errors import InputError
+from .fileio import read_json
 
 SPEED_BINS_MPS: tuple[tuple[float, float], ...] = ((1.0, 18.0), (18.0, 42.0), (42.0, 84.0), (84.0, 500.0))
 CONFIG_FORMAT_VERSION = 1
@@ -120,13 +120,4 @@ class ToffeConfig:
 
 
 def load_config(path: str | os.PathLike) -> ToffeConfig:
-    try:
-        with open(path, "r", encoding="utf-8") as f:
-            d = json.load(f)
-    except FileNotFoundError:
-        raise InputError(path, "missing file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot read: {exc}") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    return ToffeConfig.from_dict(d, path)
+    return ToffeConfig.from_dict(read_json(path), path)

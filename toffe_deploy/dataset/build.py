@@ -24,7 +24,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from ..errors import InputError, ToffeError
-from ..fileio import atomic_path
+from ..fileio import atomic_path, read_json
 from .splits import SPLITS, sequence_seed
 from .synth import GENERATOR_NAME, GENERATOR_VERSION, SequenceSpec, object_tracks, generate_sequence
 
@@ -104,10 +104,7 @@ def read_index(root: str | os.PathLike) -> dict[str, Any] | None:
     path = Path(root) / "index.json"
     if not path.exists():
         return None
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(path, f"not a readable data-set index ({exc})") from None
+    d = read_json(path)
     if not isinstance(d, dict) or d.get("format") != INDEX_FORMAT or not isinstance(d.get("sequences"), list):
         raise InputError(path, f"not a {INDEX_FORMAT} file")
     return d

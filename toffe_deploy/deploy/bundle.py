@@ -33,7 +33,7 @@ import numpy as np
 from .. import __version__
 from ..config import ToffeConfig, load_config
 from ..errors import InputError
-from ..fileio import atomic_dir
+from ..fileio import atomic_dir, read_json
 from ..fixed_point import DECAY_UNITY, STATE_SHIFT, VTH_MANT_MAX, WEIGHT_MAX, LoihiOFSParams
 
 BUNDLE_FORMAT = "toffe-deploy-bundle"
@@ -310,14 +310,9 @@ def read_manifest(root: str | os.PathLike) -> dict:
     if not root.is_dir():
         raise InputError(root, "not a directory (a bundle is a directory with manifest.json)")
     mpath = root / MANIFEST
-    try:
-        m = json.loads(mpath.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(root, "not a deploy bundle (no manifest.json)") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(mpath, f"cannot read: {exc}") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(mpath, f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not mpath.exists():
+        raise InputError(root, "not a deploy bundle (no manifest.json)")
+    m = read_json(mpath)
     if not isinstance(m, dict) or m.get("format") != BUNDLE_FORMAT:
         raise InputError(mpath, f"not a toffe-deploy bundle manifest (format is not {BUNDLE_FORMAT!r})")
     if m.get("format_version") != BUNDLE_FORMAT_VERSION:
@@ -356,12 +351,7 @@ def load_bundle(path: str | os.PathLike, verify: bool = True) -> Bundle:
         verify_bundle(root, m)
     config = load_config(root / CONFIG)
     ofs_path = root / OFS_FILE
-    try:
-        ofs_d = json.loads(ofs_path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(ofs_path, "missing file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(ofs_path, f"cannot read: {exc}") from None
+    ofs_d = read_json(ofs_path)
     ofs = ofs_from_json(ofs_d, ofs_path, expect_channels=config.ofs_in_channels, expect_kernel=config.ofs_kernel,
                         expect_stages=config.n_speed_bins)
     onnx_path = root / OFPD_ONNX
