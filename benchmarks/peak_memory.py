@@ -1,0 +1,72 @@
+#!/usr/bin/env python
+"""Peak memory of a command and all its child processes, Lava's /dev/shm channels included.
+
+    python benchmarks/peak_memory.py toffe-deploy run export/ --target loihi-sim --events long.h5 --out /tmp/f.jsonl
+
+Samples every 0.5 s: the proportional set size (PSS, each shared page counted once) of every
+process in the command's tree, without their /dev/shm pages, plus the growth of /dev/shm's use
+since the start (Lava's channel rings). Prints the peak and what /dev/shm still holds after the
+command ended (leaked segments would show there). Linux only (reads /proc).
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+
+def process_tree(pid: int) -> list[int]:
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        try:
+            for task in os.listdir(f"/proc/{p}/task"):
+                with open(f"/proc/{p}/task/{task}/children") as f:
+                    todo += [int(c) for c in f.read().split()]
+        except OSError:
+            pass
+    return out
+
+
+def pss_without_shm(pid: int) -> int:
+    pss = shm = 0
+    try:
+        with open(f"/proc/{pid}/smaps_rollup") as f:
+            for line in f:
+                if line.startswith("Pss:"):
+                    pss = int(line.split()[1]) * 1024
+                elif line.startswith("Pss_Shmem:"):
+                    shm = int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return pss - shm
+
+
+def shm_used() -> int:
+    st = os.statvfs("/dev/shm")
+    return (st.f_blocks - st.f_bfree) * st.f_frsize
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] in ("-h", "--help"):
+        print(__doc__)
+        return 0 if argv else 2
+    base = shm_used()
+    t0 = time.time()
+    proc = subprocess.Popen(argv)
+    peak = peak_shm = 0
+    while proc.poll() is None:
+        shm = max(shm_used() - base, 0)
+        peak = max(peak, sum(pss_without_shm(p) for p in process_tree(proc.pid)) + shm)
+        peak_shm = max(peak_shm, shm)
+        time.sleep(0.5)
+    print(f"exit {proc.returncode}, {time.time() - t0:.0f} s; peak memory {peak / 1e6:.0f} MB "
+          f"(PSS of the process tree + /dev/shm), of which /dev/shm {peak_shm / 1e6:.0f} MB; "
+          f"/dev/shm still used after the end: {max(shm_used() - base, 0) / 1e6:.1f} MB", file=sys.stderr)
+    return proc.returncode
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
