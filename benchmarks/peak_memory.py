@@ -3,7 +3,7 @@
 
     python benchmarks/peak_memory.py toffe-deploy run export/ --target loihi-sim --events long.h5 --out /tmp/f.jsonl
 
-Samples every 0.5 s: the proportional set size (PSS, each shared page counted once) of every
+Samples every 0.2 s: the proportional set size (PSS, each shared page counted once) of every
 process in the command's tree, without their /dev/shm pages, plus the growth of /dev/shm's use
 since the start (Lava's channel rings). Prints the peak and what /dev/shm still holds after the
 command ended (leaked segments would show there). Linux only (reads /proc).
@@ -61,7 +61,7 @@ def main(argv: list[str]) -> int:
         shm = max(shm_used() - base, 0)
         peak = max(peak, sum(pss_without_shm(p) for p in process_tree(proc.pid)) + shm)
         peak_shm = max(peak_shm, shm)
-        time.sleep(0.5)
+        time.sleep(0.2)
     print(f"exit {proc.returncode}, {time.time() - t0:.0f} s; peak memory {peak / 1e6:.0f} MB "
           f"(PSS of the process tree + /dev/shm), of which /dev/shm {peak_shm / 1e6:.0f} MB; "
           f"/dev/shm still used after the end: {max(shm_used() - base, 0) / 1e6:.1f} MB", file=sys.stderr)
