@@ -36,6 +36,7 @@ from toffe_deploy.cascade import run_cascade  # noqa: E402
 from toffe_deploy.fileio import atomic_path  # noqa: E402
 from toffe_deploy.fixed_point import quantize_ofs, run_ofs_fixed  # noqa: E402
 from toffe_deploy.runtime.loihi import LavaCascade  # noqa: E402
+from peak_memory import pss_without_shm  # noqa: E402  (benchmarks/ is sys.path[0])
 
 
 @dataclass(frozen=True)
@@ -90,26 +91,6 @@ def dotie_params(n_stages: int):
     return [quantize_ofs(w, 0.5 + 0.2 * k, 0.3) for k in range(n_stages)]
 
 
-def _pss_without_shmem(pid: int) -> int:
-    """Proportional set size of a process minus its /dev/shm pages, in bytes.
-
-    Lava's processes are forks of the host and share most pages copy-on-write; PSS divides each
-    shared page among its sharers, so the sum over processes counts it once. /dev/shm pages are
-    left out here and counted once from the segments themselves.
-    """
-    pss = shmem = 0
-    try:
-        with open(f"/proc/{pid}/smaps_rollup") as f:
-            for line in f:
-                if line.startswith("Pss:"):
-                    pss = int(line.split()[1]) * 1024
-                elif line.startswith("Pss_Shmem:"):
-                    shmem = int(line.split()[1]) * 1024
-    except (FileNotFoundError, ProcessLookupError):
-        return 0
-    return pss - shmem
-
-
 def _shm_bytes(names: list[str]) -> int:
     total = 0
     for n in names:
@@ -133,7 +114,7 @@ class MemorySampler(threading.Thread):
         self._halt = threading.Event()
 
     def sample(self) -> None:
-        rss = _pss_without_shmem(os.getpid()) + sum(_pss_without_shmem(p) for p in self.pids)
+        rss = pss_without_shm(os.getpid()) + sum(pss_without_shm(p) for p in self.pids)
         shm = _shm_bytes(self.shm)
         self.peak = max(self.peak, rss + shm)
         self.peak_shm = max(self.peak_shm, shm)

@@ -31,6 +31,12 @@ def process_tree(pid: int) -> list[int]:
 
 
 def pss_without_shm(pid: int) -> int:
+    """Proportional set size of a process minus its /dev/shm pages, in bytes (0 once it is gone).
+
+    Lava's processes are forks of the host and share most pages copy-on-write; PSS divides each
+    shared page among its sharers, so the sum over processes counts it once. /dev/shm pages are
+    left out here and counted once from the segments themselves.
+    """
     pss = shm = 0
     try:
         with open(f"/proc/{pid}/smaps_rollup") as f:
