@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from toffe_deploy.baselines.dotie import (DotieParams, boxes_from_labels, dotie_cluster, dotie_detect, dotie_frames,
-                                          dotie_input, dotie_layer, dotie_separate, dotie_separate_x)
+                                          dotie_detect_window, dotie_input, dotie_layer, dotie_separate,
+                                          dotie_separate_x)
 from toffe_deploy.events.binning import bin_window
 
 
@@ -38,24 +39,36 @@ def _window(shape=(5, 2, 60, 80)):
     return b
 
 
-def test_separation_keeps_the_firing_object_and_drops_noise():
+def test_separation_runs_per_step_and_drops_noise():
+    # interior current 0.15*8 + 0.2 = 1.4: fires at steps 0, 2, 4 (U = 1.4, 0.82, 1.646, 0.894, 1.668);
+    # edge current 0.95 fires at steps 1, 3 (U = 0.95, 1.235, 0.32, 1.046, 0.264); corners (0.65) never
     spikes, out = dotie_separate(_window())
-    assert spikes.shape == (5, 60, 80) and spikes[:, 10:50, 10:50].any()
-    # corners never fire (current 0.65 -> U converges to 0.93 < 1) but dilation + closing win them back
-    # except where OpenCV's even 12x12 kernel shifts the closing by a pixel, as in DOTIE's code
-    assert out[11:50, 11:50].all() and not out[45, 65] and out.sum() <= 1600
+    assert spikes.shape == out.shape == (5, 60, 80)
+    assert spikes.reshape(5, -1).sum(axis=1).tolist() == [38 * 38, 4 * 38, 38 * 38, 4 * 38, 38 * 38]
+    for t in (0, 2, 4):      # the 12x12 dilation + closing win the whole blob back
+        assert out[t, 10:50, 10:50].all() and out[t].sum() == 1600
+    for t in (1, 3):         # a ring of spikes recovers a 12 px band, not the blob's centre
+        assert out[t, 10, 10:50].all() and not out[t, 29, 29] and 0 < out[t].sum() < 1600
+    assert not out[:, 45, 65].any()          # the stray event is never separated
 
 
-def test_detection_boxes_the_object_and_filters_small_boxes():
+def test_detection_clusters_every_step_and_filters_small_boxes():
     dets = dotie_detect(_window())
-    assert len(dets) == 1
-    d = dets[0]
-    assert (d.x0, d.y0, d.x1, d.y1) == (10, 10, 49, 49) and d.n_points == dotie_separate(_window())[1].sum()
-    assert d.cx == pytest.approx(29.5, abs=0.3) and d.cy == pytest.approx(29.5, abs=0.3)
+    assert len(dets) == 5 and all(len(d) == 1 for d in dets)
+    assert {(d[0].x0, d[0].y0, d[0].x1, d[0].y1) for d in dets} == {(10, 10, 49, 49)}
+    out = dotie_separate(_window())[1]
+    assert [d[0].n_points for d in dets] == out.reshape(5, -1).sum(axis=1).tolist()
+    assert dets[0][0].cx == pytest.approx(29.5) and dets[0][0].cy == pytest.approx(29.5)
+    # once per window: one clustering of the union of the steps
+    win = dotie_detect_window(dotie_input(_window()))
+    assert len(win) == 1 and win[0].n_points == 1600
     small = np.zeros((60, 80), bool)
     small[5:10, 5:10] = True          # 5x5 object: squared diagonal 32 < 2300 -> dropped
     assert dotie_cluster(small) == []
     assert dotie_cluster(small, DotieParams(min_box_diag2=0.0))[0].n_points == 25
+    tiny = np.zeros((60, 80), bool)
+    tiny[5, 5:14] = True              # 9 pixels < min_samples: DBSCAN is not run at all
+    assert dotie_cluster(tiny, DotieParams(min_box_diag2=0.0)) == []
 
 
 def test_boxes_per_label_match_a_plain_loop(rng):

@@ -82,6 +82,10 @@ def test_quick_run_writes_table_json_and_png(tiny_bundle, tiny_events, tmp_path,
         assert r["E_kind"].startswith("modelled") and r["E_mj"] > 0    # no counter: modelled, and says so
         assert rows[(m, "loihi-sim")]["L_kind"].startswith("modelled")
         assert rows[(m, "loihi2")]["status"] == "unavailable" and rows[(m, "loihi2")]["reason"]
+    win, per_step = rows[("dotie_cluster_window", "cpu")], rows[("dotie_cluster", "cpu")]
+    assert win["status"] == "ok" and win["extra"]["dbscan_runs"] <= 1          # one DBSCAN per window at most
+    assert per_step["extra"]["dbscan_runs"] >= win["extra"]["dbscan_runs"]      # DOTIE's code: one per step
+    assert "cpu_latency_ratio_window" in res["goals"] and "one DBSCAN per window" in md
     lo = rows[("toffe", "loihi-sim")]["loihi"]
     assert len(lo["stages"]) == 4 and lo["latency_ms"] > 0
     assert "cpu" in res["ratios"] and res["goals"]["evaluated"]

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from toffe_deploy.baselines.dotie import dotie_separate
 from toffe_deploy.cascade import run_cascade
 from toffe_deploy.config import ToffeConfig
 from toffe_deploy.energy.activity import count_dotie, count_toffe
@@ -40,9 +41,28 @@ def test_counted_cascade_equals_reference_and_counts_are_consistent(rng):
 
 def test_dotie_counts_neighbour_pairs_and_both_variants(rng):
     x = _window(rng)
-    plain, clus, spikes = count_dotie(x)
+    plain, clus, window, spikes = count_dotie(x)
     assert spikes.shape == (5, 24, 32)
-    assert clus.extra["dbscan_points"] == plain.extra["separated_px"] > 0
+    # DBSCAN runs once per step on that step's separated pixels, only where there are >= 10
+    _s, out = dotie_separate(x)
+    per_step = out.reshape(5, -1).sum(axis=1)
+    assert clus.extra["dbscan_runs"] == int((per_step >= 10).sum()) >= 2
+    assert clus.extra["dbscan_points"] == int(per_step[per_step >= 10].sum()) > 0
+    assert plain.extra["separated_px"] == int(per_step.sum())
+    assert window.extra["dbscan_runs"] == 1 and window.extra["dbscan_points"] == int(out.any(axis=0).sum())
     assert clus.extra["dbscan_neighbour_pairs"] >= clus.extra["dbscan_points"]   # each point is its own neighbour
     assert clus.host_all.energy_j() > plain.host_all.energy_j()
     assert plain.loihi[0].n_neurons == 24 * 32 and plain.loihi[0] is clus.loihi[0]
+
+
+def test_toffe_input_cost_follows_the_events_not_the_sensor():
+    # the cpu target builds its window from the events: the same events on a 16x larger
+    # sensor cost the same host operations outside the cascade's own (sensor-independent) work
+    params = _params()
+    small = np.zeros((5, 2, 24, 32), np.uint16)
+    small[:, 1, 4:10, 4:10] = 1
+    big = np.zeros((5, 2, 96, 128), np.uint16)
+    big[:, 1, 4:10, 4:10] = 1
+    _r, a = count_toffe(small, params, ToffeConfig(sensor_size=(32, 24)), ofpd_macs=0, ofpd_in_elems=0)
+    _r, b = count_toffe(big, params, ToffeConfig(sensor_size=(128, 96)), ofpd_macs=0, ofpd_in_elems=0)
+    assert a.host_all.sram_bytes == b.host_all.sram_bytes and a.host_all.add_int32 == b.host_all.add_int32

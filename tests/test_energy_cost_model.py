@@ -23,6 +23,9 @@ def test_op_counts_of_building_blocks():
     assert cm.dbscan_ops(0, 0).energy_j() == 0.0
     d = cm.dbscan_ops(100, 2000)
     assert d.mac_fp32 == 4000 and d.add_int32 == 2000
+    assert cm.event_index_ops(1000).add_int32 == 6000 and cm.event_index_ops(1000).sram_bytes == 24000
+    u = cm.sort_unique_ops(1024)                  # 1024 keys: 10 comparison levels
+    assert u.add_int32 == 10240 and u.sram_bytes == 16 * 10240 and cm.sort_unique_ops(1).energy_j() == 0.0
 
 
 def test_synop_count_is_exact_fan_in_with_zero_padding():

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import pytest
 
-from toffe_deploy.energy.measure import BELOW_NOISE, MEASURED, combine_idle, dynamic_energy, latency_percentiles
+from toffe_deploy.energy.measure import (BELOW_NOISE, MEASURED, combine_idle, dynamic_energy, latency_percentiles,
+                                         time_interleaved)
 
 
 def test_idle_power_times_duration_is_subtracted_then_divided_by_k():
@@ -43,3 +44,15 @@ def test_latency_percentiles_in_ms():
     lat = latency_percentiles([i * 1e-3 for i in range(1, 101)])      # 1..100 ms
     assert lat["p50_ms"] == pytest.approx(50.5) and lat["p90_ms"] == pytest.approx(90.1)
     assert lat["p99_ms"] == pytest.approx(99.01) and lat["n"] == 100 and lat["max_ms"] == pytest.approx(100.0)
+
+
+def test_models_are_timed_in_turn_in_blocks_of_windows():
+    calls = []
+    fns = {m: (lambda i, m=m: calls.append((m, i))) for m in ("a", "b")}
+    lat = time_interleaved(fns, n_items=5, warmup=1, repeats=2, block=2)
+    assert {m: len(v) for m, v in lat.items()} == {"a": 10, "b": 10}      # every item, every pass, per model
+    assert calls[:2] == [("a", 0), ("b", 0)]                                # warm-up
+    # then per block: one untimed call, the block's items; model a, then b, on the same items
+    assert calls[2:8] == [("a", 0), ("a", 0), ("a", 1), ("b", 0), ("b", 0), ("b", 1)]
+    assert calls[-4:] == [("a", 4), ("a", 4), ("b", 4), ("b", 4)]          # the last block holds one item
+    assert all(t >= 0 for v in lat.values() for t in v)

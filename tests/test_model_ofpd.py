@@ -28,7 +28,8 @@ def test_prepare_centres_crop_on_events_and_encodes_position():
     centre = x[:, -2:].mean(axis=(2, 3)) * ofpd_io.COORD_SCALE
     np.testing.assert_allclose(centre, [[13.5, 7.5], [43.5, 32.5]], atol=0.51)
     # the event planes hold all events (pooled means of binary pixels) and the same pattern
-    assert x[0, :10].sum() * 4 == pytest.approx(5 * 8 * 6)
+    pool = ofpd_io.ofpd_settings(CFG)["pool"]
+    assert x[0, :10].sum() * pool * pool == pytest.approx(5 * 8 * 6)
     np.testing.assert_array_equal(x[0, :10], x[1, :10])
 
 

@@ -58,3 +58,33 @@ def test_train_rejects_missing_data_in_one_line(tmp_path, capsys):
 def test_stage_ofpd_needs_trained_ofs(data, tmp_path, capsys):
     assert main(["train", "--data", str(data), "--out", str(tmp_path / "empty"), "--stage", "ofpd"]) == 2
     assert "--stage ofpd needs a checkpoint" in capsys.readouterr().err
+
+
+def test_ofpd_pool_retrains_only_the_ofpd(data, tmp_path, capsys):
+    from toffe_deploy.checkpoint import init_checkpoint
+    from toffe_deploy.config import ToffeConfig
+    from toffe_deploy.ofpd_io import input_shape
+
+    ck = tmp_path / "ck"
+    init_checkpoint(ck, ToffeConfig(ofpd={"pool": 2}), seed=1)
+    before = load_checkpoint(ck)
+    (ck / "train_log.json").write_text(json.dumps({"ofs_stage1": {"threshold": 1.5}, "ofpd_loss": [[9, 9, 9]]}))
+    assert main(["train", "--data", str(data), "--out", str(ck), "--stage", "ofpd", "--ofpd-pool", "8",
+                 "--ofpd-kernels", "5,3", "--epochs", "1", "--windows-per-seq", "3", "--no-progress"]) == 0
+    after = load_checkpoint(ck)
+    assert after.config.ofpd["pool"] == 8 and input_shape(after.config)[1:] == (16, 16)
+    assert after.config.ofpd["conv_kernels"] == [5, 3] and after.ofpd_state["conv1.weight"].shape[-1] == 5
+    assert after.ofpd_state["fc.weight"].shape[1] < before.ofpd_state["fc.weight"].shape[1]
+    log = json.loads((ck / "train_log.json").read_text())
+    assert log["ofpd_samples"] > 0 and len(log["ofpd_loss"]) == 1 and log["ofpd_loss"] != [[9, 9, 9]]
+    assert log["ofs_stage1"] == {"threshold": 1.5}          # the kept OFS stages keep their record
+    for a, b in zip(before.ofs, after.ofs):            # the OFS stages are kept as they were
+        np.testing.assert_array_equal(a["weight"], b["weight"])
+    capsys.readouterr()
+    assert main(["train", "--data", str(data), "--out", str(ck), "--stage", "ofpd", "--ofpd-pool", "3",
+                 "--epochs", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--ofpd-pool 3" in err and load_checkpoint(ck).config.ofpd["pool"] == 8
+    assert main(["train", "--data", str(data), "--out", str(ck), "--stage", "ofpd", "--ofpd-kernels", "4,3",
+                 "--epochs", "1", "--no-progress"]) == 2
+    assert "two odd sizes" in capsys.readouterr().err

@@ -42,9 +42,9 @@ MAX_SPEED_MPS = 150.0      # the data set's programmed speeds stay below 144 m/s
 
 OFPD_DEFAULTS: dict[str, Any] = {
     "crop_px": 128,         # S: crop side in full-resolution pixels
-    "pool": 2,              # P: cell side; the network sees (S/P) x (S/P)
+    "pool": 4,              # P: cell side; the network sees (S/P) x (S/P)
     "conv_channels": [16, 32],
-    "conv_kernels": [5, 3],
+    "conv_kernels": [3, 3],
     "hidden": 64,           # FC width shared by the three heads
     "min_events": 12,       # has_object: fewer event pixels than this = no object in the frame
     "dedupe_px": 64,        # report_objects: box half-size (px) around a reported object

@@ -20,6 +20,11 @@ def register(sub) -> None:
     p.add_argument("--windows-per-seq", type=int, default=30,
                    help="training windows sampled per sequence (default 30)")
     p.add_argument("--seed", type=int, default=0, help="random seed for window sampling, init and shuffling (default 0)")
+    p.add_argument("--ofpd-pool", type=int, default=None, metavar="P",
+                   help="OFPD input cell size in pixels: the 128 px crop is pooled to (128/P)^2 cells "
+                        "(default: the checkpoint's setting, else 4); a new value trains a fresh OFPD")
+    p.add_argument("--ofpd-kernels", default=None, metavar="K1,K2",
+                   help="OFPD conv kernel sizes (default: the checkpoint's, else 3,3); a new value trains a fresh OFPD")
     p.add_argument("--resume", action="store_true", help="continue from the training state saved in --out")
     p.add_argument("--device", default="auto", help="torch device: auto (CUDA when present, else CPU), cpu, cuda")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -29,6 +34,14 @@ def register(sub) -> None:
 def run(args) -> int:
     from ..errors import ToffeError
 
+    if args.ofpd_pool is not None and args.ofpd_pool < 1:
+        raise ToffeError(f"--ofpd-pool must be a positive number of pixels, got {args.ofpd_pool}")
+    kernels = None
+    if args.ofpd_kernels is not None:
+        try:
+            kernels = tuple(int(k) for k in args.ofpd_kernels.split(","))
+        except ValueError:
+            raise ToffeError(f"--ofpd-kernels needs two odd sizes like 3,3, got {args.ofpd_kernels!r}") from None
     for name in ("dt", "ofs_epochs", "epochs", "windows_per_seq"):
         if getattr(args, name) < (0 if "epochs" in name else 1):
             raise ToffeError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
@@ -43,6 +56,7 @@ def run(args) -> int:
     torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
     out = train(TrainOptions(data=args.data, out=args.out, stage=args.stage, ofs_epochs=args.ofs_epochs,
                              ofpd_epochs=args.epochs, seed=args.seed, resume=args.resume, dt_us=args.dt,
-                             per_file=args.windows_per_seq, device=args.device, progress=not args.no_progress))
+                             per_file=args.windows_per_seq, device=args.device, ofpd_pool=args.ofpd_pool,
+                             ofpd_kernels=kernels, progress=not args.no_progress))
     print(f"checkpoint written to {out}")
     return 0

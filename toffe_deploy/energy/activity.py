@@ -24,7 +24,7 @@ from ..config import ToffeConfig
 from ..ofpd_io import has_object
 from ..fixed_point import LoihiOFSParams, lif_step, synaptic_input
 from .cost_model import (HostOps, LoihiActivity, ann_ops, dbscan_ops, dense_conv_ops, dense_lif_ops, event_conv_ops,
-                         fixed_lif_ops, mask_ops, morphology_ops, synop_count)
+                         event_index_ops, fixed_lif_ops, mask_ops, morphology_ops, sort_unique_ops, synop_count)
 
 
 @dataclass
@@ -74,7 +74,6 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
 
     res = run_cascade(binned, stage, n, mask_kernel)
     ofpd_calls = int(has_object(np.stack(res.frames), config).sum()) if ofpd_rows is None else int(ofpd_rows)
-    vol = b * ch * h * w
     # Host side as the cpu target runs it (runtime/cpu.py): masks over the window's ones only,
     # closing only over the bounding box of the stage's spikes grown by the kernel.
     masks = HostOps()
@@ -88,7 +87,10 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
             bw = min(int(xs.max() - xs.min()) + 1 + 2 * mask_kernel, w)
             masks = masks + morphology_ops(bh, bw, mask_kernel, 2)
     ofpd = (ann_ops(ofpd_macs, ofpd_params, ofpd_activations) + HostOps(sram_bytes=8 * ofpd_in_elems)).scaled(ofpd_calls)
-    binarize = mask_ops(vol)                  # one scan of the dense binned window (DOTIE pays it too)
+    # the cpu target builds its window from the events (SpikeVolume.from_events: index, then
+    # np.unique), never scanning a dense volume
+    n_raw = int(np.asarray(binned).sum())
+    binarize = event_index_ops(n_raw) + sort_unique_ops(n_raw)
     ofs_host = HostOps()
     for k in range(n):
         ofs_host = ofs_host + event_conv_ops(sum(acts[k].synops)) + fixed_lif_ops(host_updates[k])
@@ -97,10 +99,12 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
     return res, mc
 
 
-def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()) -> tuple[ModelCount, ModelCount, np.ndarray]:
-    """Counts of one DOTIE inference without and with clustering (dense conv + LIF as its public
-    code runs them; DBSCAN's neighbour pairs counted exactly with a radius query).
-    Also returns the layer's spikes (B, H, W) for timing the host part."""
+def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()
+                ) -> tuple[ModelCount, ModelCount, ModelCount, np.ndarray]:
+    """Counts of one DOTIE inference without clustering, with clustering (per step, as its public
+    code) and with one clustering per window (``dotie_detect_window``): dense conv + LIF as its
+    public code runs them, per step the recovery of the fast events, and DBSCAN (``count_clustering``);
+    what the baseline skips is not counted. Also returns the layer's spikes (B, H, W)."""
     b, ch, h, w = binned.shape
     trace = DotieLayerTrace()
     spikes, out = dotie_separate(binned, p, trace)
@@ -112,25 +116,49 @@ def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()) -> tuple[Mod
         live = (syn > 0) | (u_prev != 0) | spikes[t]
         act.add_step(syn, live, spikes[t])
         u_prev = trace.potentials[t]
-    host_layer = (mask_ops(b * ch * h * w) + dense_conv_ops(h, w, 1, 1, 3, b) + dense_lif_ops(h * w, b))
-    post = (mask_ops(b * h * w) + morphology_ops(h, w, p.dilate_kernel, 1) + morphology_ops(h, w, p.close_kernel, 2)
-            + mask_ops(2 * h * w))
+    # dotie_frames: the events' indices, a zero-filled (B, H, W) uint16 count stack, one add per event
+    n_raw = int(np.asarray(binned).sum())
+    frames = event_index_ops(n_raw) + HostOps(add_int32=n_raw, sram_bytes=2 * b * h * w + 4 * n_raw)
+    host_layer = frames + dense_conv_ops(h, w, 1, 1, 3, b) + dense_lif_ops(h * w, b)
+    post = mask_ops(b * h * w)                       # any(S[t]) per step
+    for t in range(b):
+        if spikes[t].any():                          # dilate + close (3 passes of 12x12), AND with x[t] > 0
+            post = post + morphology_ops(h, w, p.dilate_kernel, 1) + morphology_ops(h, w, p.close_kernel, 2) \
+                + mask_ops(3 * h * w)
     plain = ModelCount(loihi=[act], host_all=host_layer + post, host_hybrid=post,
                        extra={"separated_px": int(out.sum())})
-    ys, xs = np.nonzero(out)
-    pts = np.column_stack([xs, ys]).astype(np.float64)
-    pairs = 0
-    n_boxes = 0
-    if pts.shape[0]:
-        from sklearn.cluster import DBSCAN
-        from sklearn.neighbors import NearestNeighbors
-
-        nbrs = NearestNeighbors(radius=p.eps).fit(pts).radius_neighbors(pts, return_distance=False)
-        pairs = int(sum(len(a) for a in nbrs))
-        labels = DBSCAN(eps=p.eps, min_samples=p.min_samples).fit(pts).labels_
-        n_boxes = len(boxes_from_labels(pts, labels, p))
-    cl = dbscan_ops(int(pts.shape[0]), pairs) + HostOps(add_fp32=4 * pts.shape[0], sram_bytes=16 * pts.shape[0])
+    cl = HostOps()
+    totals = {"dbscan_points": 0, "dbscan_runs": 0, "dbscan_neighbour_pairs": 0, "boxes": 0}
+    for t in range(b):
+        ops, stats = count_clustering(out[t], p)
+        cl = cl + ops
+        for k, v in stats.items():
+            totals[k] += v
     cluster = ModelCount(loihi=[act], host_all=plain.host_all + cl, host_hybrid=post + cl,
-                         extra={"separated_px": int(out.sum()), "dbscan_points": int(pts.shape[0]),
-                                "dbscan_neighbour_pairs": pairs, "boxes": n_boxes})
-    return plain, cluster, spikes
+                         extra={"separated_px": int(out.sum()), **totals})
+    window_ops, window_stats = count_clustering(out.any(axis=0), p)
+    window = ModelCount(loihi=[act], host_all=plain.host_all + HostOps(op_int8=out.size) + window_ops,
+                        host_hybrid=post + window_ops, extra={"separated_px": int(out.sum()), **window_stats})
+    return plain, cluster, window, spikes
+
+
+def count_clustering(image: np.ndarray, p: DotieParams = DotieParams()) -> tuple[HostOps, dict]:
+    """Operations of ``dotie_cluster`` on one (H, W) image: the scan for its pixels, then, from
+    min_samples pixels on, DBSCAN with its neighbour pairs counted exactly (radius query) and
+    the box filter. Returns (ops, {dbscan_points, dbscan_runs, dbscan_neighbour_pairs, boxes})."""
+    ys, xs = np.nonzero(image)
+    ops = HostOps(op_int8=image.size, sram_bytes=image.size)           # np.nonzero's scan
+    stats = {"dbscan_points": 0, "dbscan_runs": 0, "dbscan_neighbour_pairs": 0, "boxes": 0}
+    if xs.shape[0] < p.min_samples:
+        return ops, stats
+    from sklearn.cluster import DBSCAN
+    from sklearn.neighbors import NearestNeighbors
+
+    pts = np.column_stack([xs, ys]).astype(np.float64)
+    nbrs = NearestNeighbors(radius=p.eps).fit(pts).radius_neighbors(pts, return_distance=False)
+    pairs = int(sum(len(a) for a in nbrs))
+    labels = DBSCAN(eps=p.eps, min_samples=p.min_samples).fit(pts).labels_
+    ops = ops + dbscan_ops(int(pts.shape[0]), pairs) + HostOps(add_fp32=4 * pts.shape[0], sram_bytes=16 * pts.shape[0])
+    stats.update(dbscan_points=int(pts.shape[0]), dbscan_runs=1, dbscan_neighbour_pairs=pairs,
+                 boxes=len(boxes_from_labels(pts, labels, p)))
+    return ops, stats

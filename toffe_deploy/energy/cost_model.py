@@ -140,6 +140,21 @@ def morphology_ops(h: int, w: int, kernel: int, passes: int) -> HostOps:
     return HostOps(op_int8=n * 2 * kernel, sram_bytes=n * 4)
 
 
+def event_index_ops(n_events: int) -> HostOps:
+    """``events.binning.event_bin_index``: per event its bin (t - t0) * B // dt and linear index
+    ((b * 2 + p) * H + y) * W + x, about 6 integer ops; 16 B of event read, 8 B of index written."""
+    return HostOps(add_int32=6 * n_events, sram_bytes=24 * n_events)
+
+
+def sort_unique_ops(n: int) -> HostOps:
+    """np.unique of n int64 keys: a sort of ~n log2 n comparisons, 8 B read and written per
+    comparison level."""
+    if n < 2:
+        return HostOps()
+    levels = math.log2(n)
+    return HostOps(add_int32=n * levels, sram_bytes=16 * n * levels)
+
+
 def mask_ops(n_elements: int) -> HostOps:
     """Element-wise boolean AND / NOT over ``n_elements`` bytes."""
     return HostOps(op_int8=n_elements, sram_bytes=2 * n_elements)

@@ -134,18 +134,26 @@ def time_each(run_one: Callable[[int], None], n_items: int, warmup: int = 5, rep
 
 
 def time_interleaved(fns: dict[str, Callable[[int], None]], n_items: int, warmup: int = 5,
-                     repeats: int = 1) -> dict[str, list[float]]:
-    """Batch-1 wall times of several models, taken in turn on each item (model A on item i, then
-    B on item i, ...), so a shared machine's changing load hits every model alike and their
-    same-run ratios stay fair. Each model gets ``warmup`` untimed calls first."""
+                     repeats: int = 1, block: int = 10) -> dict[str, list[float]]:
+    """Batch-1 wall times of several models on the same items, taken in turn in short blocks:
+    model A on items i..i+block-1, then B on the same items, ... so a shared machine's changing
+    load hits every model alike and their same-run ratios stay fair, while each model runs on
+    consecutive windows with its own working set in cache, as a deployed pipeline does (with
+    block = 1, a small model is timed right after a large one has evicted its data, a state no
+    deployment is in). Each model gets ``warmup`` untimed calls first, and one untimed call
+    before each of its blocks (the first call after another model is the cold one)."""
     for fn in fns.values():
         for i in range(warmup):
             fn(i % n_items)
+    block = max(int(block), 1)
     out: dict[str, list[float]] = {name: [] for name in fns}
     for _ in range(repeats):
-        for i in range(n_items):
+        for start in range(0, n_items, block):
+            items = range(start, min(start + block, n_items))
             for name, fn in fns.items():
-                t0 = time.perf_counter()
-                fn(i)
-                out[name].append(time.perf_counter() - t0)
+                fn(items[0])
+                for i in items:
+                    t0 = time.perf_counter()
+                    fn(i)
+                    out[name].append(time.perf_counter() - t0)
     return out

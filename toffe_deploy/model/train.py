@@ -25,6 +25,7 @@ Loss: SmoothL1(pose px / 4) + |d_pred - d_gt|^2 + |ln v_pred - ln v_gt|.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -39,6 +40,7 @@ from tqdm import tqdm
 
 from ..checkpoint import (CONFIG_FILE, load_checkpoint, random_ofpd_state, save_checkpoint, dotie_ofs)
 from ..config import ToffeConfig
+from ..errors import InputError, ToffeError
 from ..fileio import atomic_path
 from .. import ofpd_io
 from ..cascade import run_cascade
@@ -310,6 +312,8 @@ class TrainOptions:
     per_file: int = 30
     device: str = "auto"
     progress: bool = True
+    ofpd_pool: int | None = None      # OFPD cell size P; None: the checkpoint's (or OFPD_DEFAULTS')
+    ofpd_kernels: tuple[int, int] | None = None   # OFPD conv kernel sizes; None: likewise
 
 
 def _state_path(out: Path) -> Path:
@@ -343,6 +347,25 @@ def make_config(files, data: Path, dt_us: int, seed: int) -> ToffeConfig:
     return ToffeConfig(sensor_size=tuple(sensor), dt_us=int(dt_us), ofpd=dict(ofpd_io.OFPD_DEFAULTS), dataset=prov)
 
 
+def with_ofpd_settings(config: ToffeConfig, pool: int | None, kernels: tuple[int, int] | None
+                       ) -> tuple[ToffeConfig, bool]:
+    """(config with the OFPD cell size / conv kernels asked for, whether they changed)."""
+    s = ofpd_io.ofpd_settings(config)
+    new = dict(s)
+    if pool is not None:
+        crop = s["crop_px"]
+        if pool < 1 or crop % pool or (crop // pool) % 8:
+            raise ToffeError(f"--ofpd-pool {pool} must split the {crop} px crop into a multiple of 8 cells")
+        new["pool"] = int(pool)
+    if kernels is not None:
+        if len(kernels) != 2 or any(k < 1 or k % 2 == 0 for k in kernels):
+            raise ToffeError(f"--ofpd-kernels needs two odd sizes (e.g. 3,3), got {','.join(map(str, kernels))}")
+        new["conv_kernels"] = [int(k) for k in kernels]
+    if new == s:
+        return config, False
+    return dataclasses.replace(config, ofpd=new), True
+
+
 def train(opts: TrainOptions) -> Path:
     """Run the requested training stages into opts.out (a checkpoint directory)."""
     from .data import find_sequences, load_windows
@@ -357,17 +380,30 @@ def train(opts: TrainOptions) -> Path:
         config, ofs_params, ofpd_state = ck.config, ck.ofs, ck.ofpd_state
     else:
         if opts.stage == "ofpd":
-            from ..errors import InputError
             raise InputError(out, "--stage ofpd needs a checkpoint with trained OFS stages in --out (run --stage ofs first)")
         config = make_config(files, Path(opts.data), opts.dt_us, opts.seed)
         ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
         state = {}
+    config, fresh = with_ofpd_settings(config, opts.ofpd_pool, opts.ofpd_kernels)
+    if fresh:                        # a new OFPD shape: a fresh OFPD (the OFS stages are kept)
+        if opts.stage == "ofs":
+            raise ToffeError("--ofpd-pool / --ofpd-kernels change the OFPD, which --stage ofs does not train")
+        if opts.resume and state.get("ofpd_epoch"):
+            raise InputError(out, "cannot resume: the saved OFPD training has other OFPD settings than "
+                                  "--ofpd-pool / --ofpd-kernels ask for")
+        ofpd_state = random_ofpd_state(config, opts.seed)
     t_start = time.time()
     windows = load_windows(files, config, config.dt_us, opts.per_file, opts.seed, progress=opts.progress)
     if len(windows) == 0:
-        from ..errors import InputError
         raise InputError(opts.data, "no usable single-object training windows")
     log = state.setdefault("log", {})
+    if opts.stage == "ofpd" and not log and (out / "train_log.json").is_file():
+        # an OFPD-only run keeps the OFS stages, and so their training record
+        try:
+            old = json.loads((out / "train_log.json").read_text())
+        except (OSError, ValueError):
+            old = {}
+        log.update({k: v for k, v in old.items() if k.startswith("ofs_")} if isinstance(old, dict) else {})
     log["train_windows"] = len(windows)
     log["windows_per_bin"] = {str(k): int(np.sum(windows.speed_bin == k)) for k in range(1, config.n_speed_bins + 1)}
 
@@ -397,8 +433,8 @@ def train(opts: TrainOptions) -> Path:
         stages = quantize_stages(ofs_params)
         ds = build_ofpd_set(windows, stages, config, progress=opts.progress)
         log["ofpd_samples"] = int(ds.planes.shape[0])
+        torch.manual_seed(opts.seed)             # before the init: the same OFPD for a seed, however we got here
         model = OFPD.from_config(config).to(device)
-        torch.manual_seed(opts.seed)
         opt = torch.optim.Adam(model.parameters(), lr=2e-3)
         sched_total = max(opts.ofpd_epochs, 1)
         ep0 = 0
