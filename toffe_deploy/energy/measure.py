@@ -13,6 +13,7 @@ sigma_idle) is the noise floor: a dynamic energy not above n_sigma * sigma_idle 
 """
 from __future__ import annotations
 
+import gc
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -141,19 +142,28 @@ def time_interleaved(fns: dict[str, Callable[[int], None]], n_items: int, warmup
     consecutive windows with its own working set in cache, as a deployed pipeline does (with
     block = 1, a small model is timed right after a large one has evicted its data, a state no
     deployment is in). Each model gets ``warmup`` untimed calls first, and one untimed call
-    before each of its blocks (the first call after another model is the cold one)."""
+    before each of its blocks (the first call after another model is the cold one). The garbage
+    collector runs between blocks, not inside timed calls (as in ``timeit``)."""
     for fn in fns.values():
         for i in range(warmup):
             fn(i % n_items)
     block = max(int(block), 1)
     out: dict[str, list[float]] = {name: [] for name in fns}
-    for _ in range(repeats):
-        for start in range(0, n_items, block):
-            items = range(start, min(start + block, n_items))
-            for name, fn in fns.items():
-                fn(items[0])
-                for i in items:
-                    t0 = time.perf_counter()
-                    fn(i)
-                    out[name].append(time.perf_counter() - t0)
+    gc.collect()
+    was_enabled = gc.isenabled()
+    gc.disable()                 # as timeit does: no collector pauses inside the timed calls
+    try:
+        for _ in range(repeats):
+            for start in range(0, n_items, block):
+                items = range(start, min(start + block, n_items))
+                for name, fn in fns.items():
+                    fn(items[0])
+                    for i in items:
+                        t0 = time.perf_counter()
+                        fn(i)
+                        out[name].append(time.perf_counter() - t0)
+                gc.collect()     # between blocks, untimed
+    finally:
+        if was_enabled:
+            gc.enable()
     return out

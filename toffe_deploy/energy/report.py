@@ -113,9 +113,13 @@ def markdown_table(rows: list[dict], machine_name: str) -> str:
         e, l = PAPER_TABLE2[m][col]
         return f"{fmt(e)} / {fmt(l)}"
 
+    def ours(m, t):              # comparison rows (no paper figure) are run on cpu only
+        r = idx.get((m, t))
+        return "-" if r is None and m not in PAPER_TABLE2 else cell(r)
+
     for m in MODELS:
-        cells = [MODEL_NAMES[m], paper(m, "cpu"), cell(idx.get((m, "cpu"))), paper(m, "cuda"), cell(idx.get((m, "cuda"))),
-                 paper(m, "loihi"), cell(idx.get((m, "loihi-sim"))), cell(idx.get((m, "loihi2")))]
+        cells = [MODEL_NAMES[m], paper(m, "cpu"), ours(m, "cpu"), paper(m, "cuda"), ours(m, "cuda"),
+                 paper(m, "loihi"), ours(m, "loihi-sim"), ours(m, "loihi2")]
         lines.append("| " + " | ".join(cells) + " |")
     r = ratios(rows)
 
