@@ -167,7 +167,7 @@ def test_run_cli_writes_jsonl_and_summary_with_ground_truth(env, capsys, tmp_pat
                                      "direction_deg", "n_events"}
     assert all(1 <= o["speed_bin"] <= 4 for o in objs)
     assert all(abs(np.degrees(o["direction_rad"]) - o["direction_deg"]) < 1e-2 for o in objs)
-    assert "24 windows" in stdout and "windows/s" in stdout and "pixE" in stdout
+    assert "24 windows" in stdout and "windows/s" in stdout and "pixE" in stdout and "latency per window" in stdout
     s = json.loads(summ.read_text())
     assert s["windows"] == 24 and s["objects"] == len(objs) and s["errors"]["n_gt"] > 0
 
@@ -364,3 +364,12 @@ def test_unwritable_outputs_are_one_line_errors(env, capsys, tmp_path):
 def test_missing_ofpd_variant_is_one_line_error(env, capsys):
     rc, _, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--ofpd", "int8")
     assert rc == 2 and "no int8 OFPD variant" in err and err.count("\n") == 1
+
+
+def test_simulator_timing_is_never_called_latency():
+    from toffe_deploy.runtime.output import RunSummary
+
+    sim = RunSummary("loihi-sim", windows=2, wall_s=0.1, latencies_s=[0.05, 0.06]).lines()[1]
+    cpu = RunSummary("cpu", windows=2, wall_s=0.1, latencies_s=[0.002, 0.003]).lines()[1]
+    assert "simulator wall time per window (not Loihi 2 latency)" in sim and "latency per window" not in sim
+    assert "latency per window p50 2.50 ms" in cpu

@@ -93,9 +93,12 @@ class RunSummary:
     def lines(self) -> list[str]:
         lat = percentiles_ms(self.latencies_s)
         bins = ", ".join(f"bin {k}: {v}" for k, v in sorted(self.objects_per_bin.items())) or "none"
+        # on the simulator this is host wall time through a pipelined Lava run, not Loihi latency
+        what = ("simulator wall time per window (not Loihi 2 latency)" if self.target == "loihi-sim"
+                else "latency per window")
         out = [f"target {self.target}: {self.windows} windows, {self.objects} objects ({bins})",
                f"{self.windows_per_s:.1f} windows/s over {self.wall_s:.2f} s (start-up {self.startup_s:.2f} s); "
-               f"latency per window p50 {lat['p50']:.2f} ms, p90 {lat['p90']:.2f} ms, p99 {lat['p99']:.2f} ms"]
+               f"{what} p50 {lat['p50']:.2f} ms, p90 {lat['p90']:.2f} ms, p99 {lat['p99']:.2f} ms"]
         if self.errors is not None:
             e = self.errors
             if e.get("n_matched"):
