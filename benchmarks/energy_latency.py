@@ -228,7 +228,8 @@ def preload_lava() -> None:
 def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack: contextlib.ExitStack) -> int:
     from tqdm import tqdm
 
-    from toffe_deploy.baselines.dotie import DotieParams, dotie_cluster, dotie_frames, dotie_separate_x
+    from toffe_deploy.baselines.dotie import (DotieParams, dotie_detect_window, dotie_detect_x, dotie_frames,
+                                              dotie_separate_x)
     from toffe_deploy.runtime.spikes import SpikeVolume
     from toffe_deploy.energy import cost_model as cm
     from toffe_deploy.energy import report
@@ -323,10 +324,10 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         return dotie_separate_x(dotie_frames(events[i], t0s[i], dt, nb, size), p)
 
     def run_cl(i):              # DBSCAN on every step's separated events, as DOTIE's public code
-        return [dotie_cluster(o, p) for o in run_plain(i)[1]]
+        return dotie_detect_x(dotie_frames(events[i], t0s[i], dt, nb, size), p)
 
     def run_cl_window(i):       # one DBSCAN on the union of the steps (not DOTIE's code; for comparison)
-        return dotie_cluster(run_plain(i)[1].any(axis=0), p)
+        return dotie_detect_window(dotie_frames(events[i], t0s[i], dt, nb, size), p)
 
     def toffe_input(i):
         return [(t0s[i], SpikeVolume.from_events(events[i], t0s[i], dt, nb, size))]
@@ -438,7 +439,7 @@ def loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts,
                cpu_pipe, loihi_model, host_model, p):
     """Rows of the hybrid column: Loihi 2 side modelled, host side measured (latency) and
     modelled (energy) on this machine, and the Lava simulator's wall time where it runs."""
-    from toffe_deploy.baselines.dotie import dotie_cluster, dotie_input, dotie_postprocess
+    from toffe_deploy.baselines.dotie import dotie_cluster_steps, dotie_input, dotie_postprocess
     from toffe_deploy.energy import cost_model as cm
     from toffe_deploy.energy.measure import latency_percentiles
     from toffe_deploy.runtime.spikes import SpikeVolume
@@ -516,7 +517,7 @@ def loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts,
     for i in range(n_count):
         x = dotie_input(windows[i][1])
         spikes = dotie_spikes[i]
-        cl_lat.append(timed(lambda x=x, spikes=spikes: [dotie_cluster(o, p) for o in dotie_postprocess(x, spikes, p)]))
+        cl_lat.append(timed(lambda x=x, spikes=spikes: dotie_cluster_steps(dotie_postprocess(x, spikes, p), p)))
     _, cl_mj = host_model(dotie_cl_counts, "host_hybrid")
     cl_host_ms = latency_percentiles(cl_lat)["p50_ms"]
     rows.append({"model": "dotie_cluster", "target": "loihi-sim", "status": "ok", "loihi": lo_d,

@@ -88,3 +88,21 @@ def test_ofpd_pool_retrains_only_the_ofpd(data, tmp_path, capsys):
     assert main(["train", "--data", str(data), "--out", str(ck), "--stage", "ofpd", "--ofpd-kernels", "4,3",
                  "--epochs", "1", "--no-progress"]) == 2
     assert "two odd sizes" in capsys.readouterr().err
+
+
+def test_resume_goes_on_with_the_interrupted_ofpd_settings():
+    from toffe_deploy.config import ToffeConfig
+    from toffe_deploy.model.train import resolve_ofpd_settings
+    from toffe_deploy.ofpd_io import ofpd_settings
+
+    ck = ToffeConfig(ofpd={"pool": 2, "conv_kernels": [5, 3]})     # on disk until the OFPD run ends
+    cfg, fresh = resolve_ofpd_settings(ck, 4, (3, 3))
+    assert fresh and ofpd_settings(cfg)["pool"] == 4
+    saved = ofpd_settings(cfg)                                       # the interrupted run's settings
+    for pool, kernels in ((None, None), (4, (3, 3))):               # --resume, with or without the options
+        again, fresh = resolve_ofpd_settings(ck, pool, kernels, saved)
+        assert fresh and ofpd_settings(again) == saved
+    with pytest.raises(ValueError, match="cannot resume"):
+        resolve_ofpd_settings(ck, 8, None, saved)
+    same, fresh = resolve_ofpd_settings(cfg, None, None, saved)     # finished run: nothing changes
+    assert not fresh and same is cfg

@@ -206,9 +206,14 @@ def dotie_cluster(out: np.ndarray, p: DotieParams = DotieParams()) -> list[Detec
     return boxes_from_labels(points, cluster_points(points, p), p)
 
 
+def dotie_cluster_steps(out: np.ndarray, p: DotieParams = DotieParams()) -> list[list[Detection]]:
+    """``dotie_cluster`` of every step's separated events out (B, H, W): DOTIE's per-step boxes."""
+    return [dotie_cluster(o, p) for o in out]
+
+
 def dotie_detect_x(x: np.ndarray, p: DotieParams = DotieParams()) -> list[list[Detection]]:
     """DOTIE with clustering on its (B, H, W) input: the boxes of every step."""
-    return [dotie_cluster(o, p) for o in dotie_separate_x(x, p)[1]]
+    return dotie_cluster_steps(dotie_separate_x(x, p)[1], p)
 
 
 def dotie_detect(binned: np.ndarray, p: DotieParams = DotieParams()) -> list[list[Detection]]:

@@ -366,6 +366,22 @@ def with_ofpd_settings(config: ToffeConfig, pool: int | None, kernels: tuple[int
     return dataclasses.replace(config, ofpd=new), True
 
 
+def resolve_ofpd_settings(config: ToffeConfig, pool: int | None, kernels: tuple[int, int] | None,
+                          interrupted: dict | None = None) -> tuple[ToffeConfig, bool]:
+    """The OFPD settings a run trains with, and whether they differ from the checkpoint's.
+
+    ``interrupted``: the settings of the OFPD training that --resume continues (saved in the
+    training state; the checkpoint on disk still has the old ones until that run ends). A resume
+    goes on with them; asking for other ones is a ValueError."""
+    config, fresh = with_ofpd_settings(config, pool, kernels)
+    if interrupted is not None and dict(interrupted) != ofpd_io.ofpd_settings(config):
+        if fresh:
+            raise ValueError("cannot resume: the interrupted OFPD training used other settings than "
+                             "--ofpd-pool / --ofpd-kernels ask for (drop them, or start without --resume)")
+        config, fresh = dataclasses.replace(config, ofpd=dict(interrupted)), True
+    return config, fresh
+
+
 def train(opts: TrainOptions) -> Path:
     """Run the requested training stages into opts.out (a checkpoint directory)."""
     from .data import find_sequences, load_windows
@@ -384,13 +400,14 @@ def train(opts: TrainOptions) -> Path:
         config = make_config(files, Path(opts.data), opts.dt_us, opts.seed)
         ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
         state = {}
-    config, fresh = with_ofpd_settings(config, opts.ofpd_pool, opts.ofpd_kernels)
+    try:
+        config, fresh = resolve_ofpd_settings(config, opts.ofpd_pool, opts.ofpd_kernels,
+                                              state.get("ofpd_settings") if opts.resume else None)
+    except ValueError as exc:
+        raise InputError(out, str(exc)) from None
     if fresh:                        # a new OFPD shape: a fresh OFPD (the OFS stages are kept)
         if opts.stage == "ofs":
             raise ToffeError("--ofpd-pool / --ofpd-kernels change the OFPD, which --stage ofs does not train")
-        if opts.resume and state.get("ofpd_epoch"):
-            raise InputError(out, "cannot resume: the saved OFPD training has other OFPD settings than "
-                                  "--ofpd-pool / --ofpd-kernels ask for")
         ofpd_state = random_ofpd_state(config, opts.seed)
     t_start = time.time()
     windows = load_windows(files, config, config.dt_us, opts.per_file, opts.seed, progress=opts.progress)
@@ -445,6 +462,7 @@ def train(opts: TrainOptions) -> Path:
             opt.load_state_dict(blob["opt"])
             ep0 = int(state["ofpd_epoch"])
         rng = np.random.default_rng(opts.seed + ep0)
+        state["ofpd_settings"] = ofpd_io.ofpd_settings(config)      # what a --resume must go on with
         n = ds.planes.shape[0]
         for ep in range(ep0, opts.ofpd_epochs):
             for gp in opt.param_groups:      # cosine decay, a function of the epoch so resume agrees
