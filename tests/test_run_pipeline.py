@@ -18,6 +18,7 @@ from toffe_deploy.cli import main
 from toffe_deploy.config import ToffeConfig
 from toffe_deploy.fixed_point import run_ofs_fixed
 from toffe_deploy.runtime import ofpd_input
+from toffe_deploy.runtime.compiled import new_scratch
 from toffe_deploy.runtime.spikes import SpikeVolume
 
 SENSOR = (64, 48)
@@ -107,7 +108,7 @@ def test_sparse_ofpd_input_equals_ofpd_io(rng, ofpd):
     for t in range(16):
         vol, masks, dense = _random_window(rng, cfg)
         ks_ref, merged_ref = ofpd_io.merge_frames(dense, cfg)
-        lookup = np.empty(SENSOR[0] * SENSOR[1], np.int64) if t % 2 else None   # both pixel-set paths
+        lookup = new_scratch(SENSOR[0] * SENSOR[1]) if t % 2 else None   # both pixel-set paths
         ks, merged = ofpd_input.merge_objects(vol, masks, cfg, lookup)
         assert ks.dtype == ks_ref.dtype and ks.tolist() == ks_ref.tolist()
         assert len(merged) == len(merged_ref)

@@ -1,4 +1,5 @@
 """The cpu target's event-driven cascade against the dense fixed-point reference, bit for bit."""
+import cv2
 import numpy as np
 import pytest
 
@@ -7,7 +8,8 @@ from toffe_deploy.events.binning import bin_window
 from toffe_deploy.fixed_point import quantize_ofs, run_ofs_fixed
 from toffe_deploy.runtime.cpu import CpuCascade
 from toffe_deploy.runtime.morph import CompactClosing
-from toffe_deploy.runtime.ofs_sparse import dedupe, run_ofs_sparse
+from toffe_deploy.runtime.compiled import dedupe, lif_window, new_scratch
+from toffe_deploy.runtime.ofs_sparse import run_ofs_sparse
 from toffe_deploy.runtime.spikes import SpikeVolume
 
 
@@ -36,9 +38,13 @@ def _blobby(rng, shape=(5, 2, 24, 32), n_blobs=3, p=0.5):
 
 def test_dedupe_gives_unique_values_and_inverse(rng):
     v = rng.integers(0, 50, 300)
-    uniq, inv = dedupe(v, np.empty(50, np.int64))
-    assert sorted(uniq.tolist()) == sorted(set(v.tolist()))
-    assert np.array_equal(uniq[inv], v)
+    scratch = new_scratch(50)
+    for _ in range(2):                           # the scratch is left clean for the next call
+        uniq, inv = dedupe(v, scratch)
+        assert uniq.tolist() == list(dict.fromkeys(v.tolist()))     # order of first appearance
+        assert np.array_equal(uniq[inv], v)
+        assert np.all(scratch == -1)
+        v = rng.integers(0, 50, 300)
 
 
 def test_spike_volume_from_events_matches_bin_window(random_events):
@@ -100,7 +106,6 @@ def test_cpu_cascade_rejects_wrong_window_shape(rng):
 @pytest.mark.parametrize("dv", [0, 1, 1094, 2048, 4095])
 def test_lif_window_equals_lif_step_including_saturation(rng, dv):
     from toffe_deploy.fixed_point import LoihiOFSParams, lif_step
-    from toffe_deploy.runtime.ofs_sparse import lif_window
 
     p = LoihiOFSParams(weight=np.ones((1, 1, 1, 1), np.int32), vth_mant=int(rng.integers(1, 3000)), dv=dv,
                        weight_scale=1.0)
@@ -112,4 +117,43 @@ def test_lif_window_equals_lif_step_including_saturation(rng, dv):
     for t in range(7):
         v, o = lif_step(v, o, a[t], p)
         ref.append(o)
-    assert np.array_equal(lif_window(a.astype(np.float64), p), np.stack(ref))
+    assert np.array_equal(lif_window(a.astype(np.int64), p.dv, p.vth_mant), np.stack(ref))
+
+
+def test_warm_up_compiles_every_kernel_the_cascade_uses(rng):
+    """After warm_up, a cascade (spikes, closings, masks) and the OFPD pixel sets compile
+    nothing new: the first window of a stream does not pay for compilation."""
+    from toffe_deploy.runtime import compiled
+
+    compiled.warm_up()
+    before = {k.__name__: len(k.signatures) for k in compiled.KERNELS}
+    assert all(before.values())
+    x = _blobby(rng)
+    cas = CpuCascade(_stage_params(rng), 5, 5, (32, 24))
+    res = cas.cascade_sparse(SpikeVolume.from_dense(x))
+    assert any(c.empty is False for c in res.closings)       # the closing kernels ran
+    res.closings[0].at(np.arange(10))
+    SpikeVolume.from_dense(x).pixel_index(new_scratch(32 * 24))
+    assert {k.__name__: len(k.signatures) for k in compiled.KERNELS} == before
+
+
+def test_active_set_is_the_dilated_input_and_leaves_scratch_clean(rng):
+    from toffe_deploy.runtime.compiled import active_set
+
+    w, h = 13, 9
+    scratch = new_scratch(w * h)
+    for k in (1, 3, 5):
+        pix = rng.choice(w * h, 12, replace=False).astype(np.int64)
+        active, taps = active_set(pix, w, h, k, scratch)
+        img = np.zeros((h, w), np.uint8)
+        img.reshape(-1)[pix] = 1
+        want = np.flatnonzero(cv2.dilate(img, np.ones((k, k), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0))
+        assert sorted(active.tolist()) == want.tolist()
+        assert np.all(scratch == -1)
+        r = k // 2
+        for q, p in enumerate(pix):                           # tap (i, j) of pixel p drives p + (r - i, r - j)
+            y, x = divmod(int(p), w)
+            for t, s in enumerate(taps[q]):
+                ty, tx = y + r - t // k, x + r - t % k
+                inside = 0 <= ty < h and 0 <= tx < w
+                assert (s >= 0) == inside and (not inside or active[s] == ty * w + tx)

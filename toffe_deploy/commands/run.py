@@ -29,7 +29,7 @@ def register(sub) -> None:
     p.add_argument("bundle", nargs="?", default="export/",
                    help="deploy bundle directory written by `toffe-deploy export` (default: export/)")
     p.add_argument("--target", choices=TARGETS, default="cpu",
-                   help="where the OFS cascade runs: cpu (numpy fixed point, no torch/Lava), cuda (OFPD on "
+                   help="where the OFS cascade runs: cpu (compiled fixed point, no torch/Lava), cuda (OFPD on "
                         "onnxruntime's CUDA/TensorRT provider), loihi-sim (Lava simulator), loihi2 (Loihi 2 "
                         "hardware through lava-loihi); default: cpu")
     src = p.add_mutually_exclusive_group()

@@ -1,12 +1,13 @@
-"""The ``cpu`` target's OFS cascade: numpy fixed point, event driven, no torch and no Lava.
+"""The ``cpu`` target's OFS cascade: fixed point, event driven (numba-compiled loops over the
+window's ones, runtime/compiled.py), no torch and no Lava.
 
 Same results as ``run_cascade(x, lambda k, inp: run_ofs_fixed(inp, params[k-1]), N, mask_kernel)``
 (eq. 3-4), bit exact, but each window is kept as the coordinates of its ones (``SpikeVolume``):
 
     inp_N      = the window's ones
     out_k      = OFS_k(inp_k)                          on the window's active set (ofs_sparse)
-    closed_k   = Close(any_t out_k)                    on the compacted frame (morph.WindowCompaction,
-                                                       laid out once per window for all stages)
+    closed_k   = Close(any_t out_k)                    on the frame compacted around the spikes
+                                                       (morph.CompactClosing)
     frame_k    = inp_k & closed_k,   inp_k-1 = inp_k & ~closed_k   (masks over the window's ones)
 
 ``cascade_stream`` offers the interface of the Lava adapter (``LavaCascade``): dense (B, 2, H, W)
@@ -22,8 +23,9 @@ import numpy as np
 
 from ..cascade import CascadeResult
 from ..fixed_point import LoihiOFSParams
-from .morph import CompactClosing, WindowCompaction
-from .ofs_sparse import SparseOFSWindow, StageConstants, padded_lookup
+from .morph import CompactClosing
+from .compiled import new_scratch, split_closed, warm_up
+from .ofs_sparse import SparseOFSWindow
 from .spikes import SpikeVolume
 
 
@@ -62,7 +64,8 @@ class SparseCascadeResult:
 class CpuCascade:
     """The OFS cascade (eq. 3-4) of fixed-point stages ``params`` (index k - 1) on the host CPU.
 
-    A context manager like ``LavaCascade`` (nothing to start or stop here).
+    A context manager like ``LavaCascade``: entering compiles (or loads) the compiled kernels;
+    there is nothing to stop.
     """
 
     def __init__(self, params: Sequence[LoihiOFSParams], n_bins: int, mask_kernel: int,
@@ -77,10 +80,10 @@ class CpuCascade:
         self.mask_kernel = int(mask_kernel)
         self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
         self.kernel_size = kernels.pop()
-        self._lookup = padded_lookup(self.sensor_size, self.kernel_size)
-        self._consts = [StageConstants(p, self.n_bins) for p in self.params]
+        self._scratch = new_scratch(self.sensor_size[0] * self.sensor_size[1])
 
     def __enter__(self) -> "CpuCascade":
+        warm_up()                      # compile or load the kernels now, not in the first window
         return self
 
     def __exit__(self, *exc) -> None:
@@ -99,25 +102,21 @@ class CpuCascade:
         """Run all stages, k = N..1, on one window given as its ones."""
         self._check(volume.shape)
         _b, _c, h, w = volume.shape
-        win = SparseOFSWindow(volume, self.kernel_size, self._lookup)
-        in_pix = win.input_pixels            # the closing is looked up per pixel, not per one
+        win = SparseOFSWindow(volume, self.kernel_size, self._scratch)
         n = self.n_stages
         res = SparseCascadeResult(volume, win, [None] * n, [None] * n, [None] * n, [None] * n)
-        compaction = WindowCompaction(win.active, in_pix, h, w, self.mask_kernel)
         alive = np.ones(len(volume), dtype=bool)
         for k in range(n, 0, -1):
-            spikes = win.run_stage(alive, self.params[k - 1], self._consts[k - 1])
-            closing, closed_at_pix = compaction.close(spikes.any(axis=0))
-            if closed_at_pix is None:
-                in_closed = np.zeros_like(alive)
-            else:
-                in_closed = closed_at_pix[win.pix_inverse]
-                in_closed &= alive
+            spikes, fired = win.run_stage(alive, self.params[k - 1])
+            closing = CompactClosing(win.active[fired], h, w, self.mask_kernel)
             res.inputs[k - 1] = alive
             res.spikes[k - 1] = spikes
             res.closings[k - 1] = closing
-            res.frames[k - 1] = in_closed                 # inp_k & closed_k
-            alive = alive ^ in_closed                     # inp_k & ~closed_k (in_closed lies in alive)
+            if closing.empty:
+                res.frames[k - 1] = np.zeros_like(alive)
+            else:                                 # inp_k & closed_k, and inp_k-1 = inp_k & ~closed_k
+                # the closing is read per input pixel, not per one
+                res.frames[k - 1], alive = split_closed(alive, win.pix_inverse, closing.at(win.input_pixels))
         return res
 
     def cascade_stream(self, windows: Iterable[np.ndarray]) -> Iterator[CascadeResult]:

@@ -13,7 +13,7 @@ evaluation and export are thin wrappers over the same functions):
     input     = ofpd_io.prepare_xy(ones of merged_j, crop_origin_xy(pixels of merged_j))
 
 This module only converts between SpikeVolume and coordinates, with O(n) de-duplication through
-a scratch ``lookup`` (no sort) when the caller has one.
+an all -1 ``scratch`` array (``compiled.new_scratch``; no sort) when the caller has one.
 """
 from __future__ import annotations
 
@@ -23,31 +23,31 @@ import numpy as np
 
 from ..config import ToffeConfig
 from ..ofpd_io import crop_origin_xy, input_shape, object_masks_xy, prepare_xy, report_objects_xy
-from .ofs_sparse import dedupe
+from .compiled import dedupe
 from .spikes import SpikeVolume
 
 
-def unique_xy(pix: np.ndarray, width: int, lookup: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def unique_xy(pix: np.ndarray, width: int, scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(xs, ys) of the unique linear pixel ids y * W + x in ``pix``.
 
-    Sorted (row-major) without ``lookup``; with a scratch ``lookup`` of >= H * W entries, in
-    O(n) and in no particular order (the ofpd_io core does not depend on the order).
+    Sorted (row-major) without ``scratch``; with an all -1 ``scratch`` of >= H * W entries, in
+    O(n) and in order of first appearance (the ofpd_io core does not depend on the order).
     """
-    u = np.unique(pix) if lookup is None else dedupe(pix, lookup)[0]
+    u = np.unique(pix) if scratch is None else dedupe(pix, scratch)[0]
     ys, xs = np.divmod(u, width)
     return xs, ys
 
 
 def merge_objects(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig,
-                  lookup: np.ndarray | None = None) -> tuple[np.ndarray, list[SpikeVolume]]:
+                  scratch: np.ndarray | None = None) -> tuple[np.ndarray, list[SpikeVolume]]:
     """``ofpd_io.merge_frames`` on coordinates: (stage_k (G,) 1-based, merged frames), fastest first.
 
     volume: the window's ones; frames[k-1]: bool mask over volume.idx of stage k's frame.
-    lookup: optional scratch memory (>= H * W int64) that makes the pixel sets O(n).
+    scratch: optional all -1 int64 array (>= H * W entries) that makes the pixel sets O(n).
     """
     _b, _c, h, w = volume.shape
     pix = volume.pix
-    objs = report_objects_xy([unique_xy(pix[m], w, lookup) for m in frames], (w, h), config)
+    objs = report_objects_xy([unique_xy(pix[m], w, scratch) for m in frames], (w, h), config)
     if not objs:
         return np.zeros(0, dtype=np.int64), []
     every = np.flatnonzero(np.logical_or.reduce(list(frames)))     # the ones of every frame
@@ -57,7 +57,7 @@ def merge_objects(volume: SpikeVolume, frames: Sequence[np.ndarray], config: Tof
 
 
 def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig,
-          lookup: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``prepare(*merge_objects(...))`` in one pass: (stage_k (G,), OFPD input (G, 2B+2, S/P,
     S/P) float32, n_events (G,) = the number of ones of each merged frame).
 
@@ -69,7 +69,7 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     are the window pixels of those ones inside the box.
     """
     _b, nc, h, w = volume.shape
-    upix, pinv = volume.pixel_index(lookup)
+    upix, pinv = volume.pixel_index(scratch)
     uy, ux = np.divmod(upix, w)
     n_u = upix.shape[0]
 
@@ -95,24 +95,24 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
         origins.append(crop_origin_xy(ux[mu], uy[mu], (w, h), config))
         ones.append((fx[m], fy[m], ch[m]))
         n_ev.append(ones[-1][0].shape[0])
-    x = prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 2), config, _counter(config, len(ones), lookup))
+    x = prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 2), config, _counter(config, len(ones), scratch))
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, np.asarray(n_ev, dtype=np.int64)
 
 
-def _counter(config: ToffeConfig, n: int, lookup: np.ndarray | None):
+def _counter(config: ToffeConfig, n: int, scratch: np.ndarray | None):
     """An O(n) replacement of np.unique(keys, return_counts=True) for prepare_xy, when the
-    scratch ``lookup`` covers every cell key of n frames (else None: prepare_xy's default)."""
+    ``scratch`` covers every cell key of n frames (else None: prepare_xy's default)."""
     c, g, _ = input_shape(config)
-    if lookup is None or lookup.shape[0] < n * c * g * g:
+    if scratch is None or scratch.shape[0] < n * c * g * g:
         return None
 
     def counts(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        cells, inv = dedupe(keys, lookup)
+        cells, inv = dedupe(keys, scratch)
         return cells, np.bincount(inv, minlength=cells.shape[0])
     return counts
 
 
-def prepare(frames: Sequence[SpikeVolume], config: ToffeConfig, lookup: np.ndarray | None = None) -> np.ndarray:
+def prepare(frames: Sequence[SpikeVolume], config: ToffeConfig, scratch: np.ndarray | None = None) -> np.ndarray:
     """(N, 2B+2, S/P, S/P) float32, equal to ``ofpd_io.prepare`` of the dense frames."""
     b = config.n_bins
     ones, origins = [], []
@@ -120,13 +120,7 @@ def prepare(frames: Sequence[SpikeVolume], config: ToffeConfig, lookup: np.ndarr
         nb, nc, h, w = f.shape
         if nc != 2 or nb != b or f.shape != frames[0].shape:
             raise ValueError(f"frames must all be ({b}, 2, H, W), got {f.shape}")
-        origins.append(crop_origin_xy(*unique_xy(f.pix, w, lookup), (w, h), config))
+        origins.append(crop_origin_xy(*unique_xy(f.pix, w, scratch), (w, h), config))
         ys, xs = np.divmod(f.pix, w)
         ones.append((xs, ys, f.b * 2 + f.c))
-    counts = None
-    c, g, _ = input_shape(config)
-    if lookup is not None and lookup.shape[0] >= len(frames) * c * g * g:    # O(n) cell counts
-        def counts(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            cells, inv = dedupe(keys, lookup)
-            return cells, np.bincount(inv, minlength=cells.shape[0])
-    return prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 2), config, counts)
+    return prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 2), config, _counter(config, len(frames), scratch))

@@ -12,7 +12,7 @@ Per window [t0, t0 + dt) and speed bin k = N..1 (paper section "TOFFE Inference"
 
 with all objects of a window prepared and sent to OFPD in one batched session run.
 
-Targets: ``cpu`` (numpy fixed point, event driven; onnxruntime CPU; imports neither torch nor
+Targets: ``cpu`` (fixed point, event driven, compiled loops; onnxruntime CPU; imports neither torch nor
 Lava), ``cuda`` (the same cascade, OFPD on the CUDA/TensorRT provider), ``loihi-sim`` (the Lava
 engineer's ``LavaCascade`` in Loihi2SimCfg) and ``loihi2`` (the same on Loihi2HwCfg). Every
 backend's cascade result goes through the same frame -> OFPD code, so targets whose cascades are
@@ -30,6 +30,7 @@ import numpy as np
 from ..errors import InputError
 from ..ofpd_io import decode
 from . import ofpd_input
+from .compiled import new_scratch, warm_up
 from .cpu import CpuCascade
 from .ofpd_runner import OFPDRunner
 from .spikes import SpikeVolume
@@ -120,10 +121,11 @@ class Pipeline:
         self.ofpd = OFPDRunner(ofpd_model(bundle, ofpd_variant), "cuda" if target == "cuda" else "cpu",
                                threads=ofpd_threads)
         self.cascade = _make_cascade(bundle, target, tag)
-        self._lookup = np.empty(self.config.width * self.config.height, dtype=np.int64)   # scratch
+        self._scratch = new_scratch(self.config.width * self.config.height)   # for ofpd_input's O(n) de-duplication
         self._entered = False
 
     def __enter__(self) -> "Pipeline":
+        warm_up()                    # the compiled kernels (every target de-duplicates pixels with them)
         self.cascade.__enter__()
         self._entered = True
         return self
@@ -150,7 +152,7 @@ class Pipeline:
     def objects_of(self, volume: SpikeVolume, frames: list[np.ndarray]) -> list[ObjectFlow]:
         """Object flow of one window from its ones and its stage frames (bool masks over
         volume.idx, index k - 1): ofpd_io's object grouping, then one batched OFPD call."""
-        ks, x, n_events = ofpd_input.batch(volume, frames, self.config, self._lookup)
+        ks, x, n_events = ofpd_input.batch(volume, frames, self.config, self._scratch)
         if not ks.size:
             return []
         pose, direction, speed = self.ofpd.run(x)

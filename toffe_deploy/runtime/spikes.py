@@ -60,19 +60,19 @@ class SpikeVolume:
         _ = self.bc
         return self.__dict__["pix"]
 
-    def pixel_index(self, lookup: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def pixel_index(self, scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(unique pixels, inverse) of ``pix``: pix = unique[inverse]. Computed once per volume
-        (the OFS window and the OFPD grouping share it); with a scratch ``lookup`` (>= H * W
-        entries, contents irrelevant) in O(n) and in no particular order, else sorted."""
+        (the OFS window and the OFPD grouping share it); with an all -1 ``scratch`` of >= H * W
+        entries (``compiled.new_scratch``) in O(n), in order of first appearance, else sorted."""
         got = self.__dict__.get("_pixel_index")
         if got is None:
-            if lookup is None:
+            if scratch is None:
                 u, inv = np.unique(self.pix, return_inverse=True)
                 got = (u, inv.reshape(-1))
             else:
-                from .ofs_sparse import dedupe
+                from .compiled import dedupe
 
-                got = dedupe(self.pix, lookup)
+                got = dedupe(self.pix, scratch)
             self.__dict__["_pixel_index"] = got
         return got
 

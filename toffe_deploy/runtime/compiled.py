@@ -1,0 +1,225 @@
+"""The cpu cascade's per-window loops, compiled (numba): indexing, OFS stage, mask split.
+
+Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
+(~25 calls per stage on arrays of ~2,000 values, plus the window's de-duplication and scatter
+maps) spent most of its time in per-call overhead, not arithmetic. Each kernel here is one pass
+over the window's ones or its active pixels, in int64: the same integers as
+``toffe_deploy.fixed_point.lif_step`` (tested bit exact, saturation included, in
+tests/test_run_sparse.py).
+
+Kernels are compiled on first use and cached on disk (numba ``cache=True``), so only the first
+run on a machine pays the compile (a few seconds); ``warm_up()`` does it eagerly.
+
+Scratch: ``slot_of`` arrays are (H * W,) int64 filled with -1; every kernel that marks entries
+clears them again before it returns, so one scratch array serves every window.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..fixed_point import DECAY_BITS, DECAY_UNITY, STATE_MAX, STATE_SHIFT
+
+
+def new_scratch(n_pixels: int) -> np.ndarray:
+    """A (n_pixels,) int64 scratch array in the state the kernels expect (all -1)."""
+    return np.full(int(n_pixels), -1, dtype=np.int64)
+
+
+@njit(inline="always")
+def _slot(slot_of, key, keys, n):
+    """The slot of ``key``: its existing one, or slot n (then keys[n] = key, and the caller
+    counts n + 1 slots)."""
+    s = slot_of[key]
+    if s < 0:
+        s = n
+        slot_of[key] = n
+        keys[n] = key
+    return s
+
+
+@njit(cache=True, nogil=True)
+def dedupe(values, slot_of):
+    """(unique values in order of first appearance, inverse) of non-negative ints below
+    len(slot_of), in O(n) without sorting: values = unique[inverse]."""
+    n = values.shape[0]
+    uniq = np.empty(n, np.int64)
+    inverse = np.empty(n, np.int64)
+    u = 0
+    for i in range(n):
+        inverse[i] = s = _slot(slot_of, values[i], uniq, u)
+        u += s == u
+    for q in range(u):
+        slot_of[uniq[q]] = -1
+    return uniq[:u], inverse
+
+
+@njit(cache=True, nogil=True)
+def active_set(in_pix, width, height, kernel, slot_of):
+    """The pixels an input at ``in_pix`` can drive through a kernel x kernel cross-correlation.
+
+    Returns (active (M,) linear ids in order of first reach, tap_target (U, K*K)): input pixel q
+    feeds active slot tap_target[q, i*K + j] through weight tap (i, j), or -1 where that target
+    lies off the sensor (zero padding: no neuron there).
+    """
+    r = kernel // 2
+    u = in_pix.shape[0]
+    kk = kernel * kernel
+    tap_target = np.empty((u, kk), np.int64)
+    active = np.empty(u * kk, np.int64)
+    m = 0
+    for q in range(u):
+        y = in_pix[q] // width
+        x = in_pix[q] - y * width
+        for i in range(kernel):
+            ty = y + r - i                      # out[ty, tx] += w[i, j] * in[ty + i - r, tx + j - r]
+            for j in range(kernel):
+                tx = x + r - j
+                if ty < 0 or ty >= height or tx < 0 or tx >= width:
+                    tap_target[q, i * kernel + j] = -1
+                    continue
+                tap_target[q, i * kernel + j] = s = _slot(slot_of, ty * width + tx, active, m)
+                m += s == m
+    for s in range(m):
+        slot_of[active[s]] = -1
+    return active[:m].copy(), tap_target
+
+
+@njit(cache=True, nogil=True)
+def lif_window(a_in, dv, vth_mant):
+    """Spikes (B, M) of fixed_point.lif_step iterated over a window of a_in (B, M) int64 from
+    v = 0, o = 0 (the neuron of ofs_stage).
+
+    Branch free and time-step outer, so the M neurons of a step are independent iterations the
+    compiler vectorizes: trunc0(x / 4096) = (x + (4095 if x < 0 else 0)) >> 12 (arithmetic
+    shift), the reset subtracts vth * o, and the clip is a min and a max.
+    """
+    n_bins, m = a_in.shape
+    spikes = np.empty((n_bins, m), np.bool_)
+    v = np.zeros(m, np.int64)
+    o = np.zeros(m, np.int64)
+    vth = np.int64(vth_mant) << STATE_SHIFT
+    keep = np.int64(DECAY_UNITY - dv)
+    bias = np.int64(DECAY_UNITY - 1)
+    for t in range(n_bins):
+        for s in range(m):
+            x = v[s] * keep
+            x = (x + ((x >> 63) & bias)) >> DECAY_BITS            # trunc0(x / 4096)
+            x += (a_in[t, s] << STATE_SHIFT) - vth * o[s]
+            x = min(max(x, -STATE_MAX), STATE_MAX)
+            v[s] = x
+            o[s] = x > vth
+            spikes[t, s] = x > vth
+    return spikes
+
+
+@njit(cache=True, nogil=True)
+def ofs_stage(alive, b, c, pix_inverse, tap_target, weight, n_bins, n_active, dv, vth_mant):
+    """One OFS stage on a window's active set: (spikes (B, M) bool, fired (M,) bool = any over t).
+
+    a_in[t, slot] = sum of weight[c, tap] over the alive ones (b = t, channel c) that reach the
+    slot through the tap; then per slot, from v = 0, o = 0 (fixed_point.lif_step):
+        v = clip24(trunc0(v * (4096 - dv) / 4096) + (a_in << 6) - (vth_mant << 6) * o);  o = v > vth
+    """
+    kk = tap_target.shape[1]
+    a_in = np.zeros((n_bins, n_active), np.int64)
+    for i in range(alive.shape[0]):
+        if alive[i]:
+            q = pix_inverse[i]
+            t = b[i]
+            ch = c[i]
+            for k in range(kk):
+                s = tap_target[q, k]
+                if s >= 0:
+                    a_in[t, s] += weight[ch, k]
+    spikes = lif_window(a_in, dv, vth_mant)
+    fired = np.zeros(n_active, np.bool_)
+    for t in range(n_bins):
+        for s in range(n_active):
+            if spikes[t, s]:
+                fired[s] = True
+    return spikes, fired
+
+
+@njit(cache=True, nogil=True)
+def split_closed(alive, pix_inverse, closed_at_pixel):
+    """(in_closed, rest) over a window's ones: in_closed = alive & closed at the one's pixel
+    (the stage's frame, inp_k & closed_k), rest = alive & ~closed (the next stage's input)."""
+    n = alive.shape[0]
+    in_closed = np.zeros(n, np.bool_)
+    rest = np.zeros(n, np.bool_)
+    for i in range(n):
+        if alive[i]:
+            if closed_at_pixel[pix_inverse[i]]:
+                in_closed[i] = True
+            else:
+                rest[i] = True
+    return in_closed, rest
+
+
+@njit(cache=True, nogil=True)
+def _kept(pos, n, radius):
+    """((n,) bool: within ``radius`` of any of ``pos``, (n,) int64: index among the kept, count)."""
+    diff = np.zeros(n + 1, np.int64)
+    for p in pos:
+        diff[max(p - radius, 0)] += 1
+        diff[min(p + radius + 1, n)] -= 1
+    keep = np.zeros(n, np.bool_)
+    index = np.empty(n, np.int64)
+    run = 0
+    kept = 0
+    for i in range(n):
+        run += diff[i]
+        keep[i] = run > 0
+        kept += keep[i]
+        index[i] = kept - 1
+    return keep, index, kept
+
+
+@njit(cache=True, nogil=True)
+def compact_image(pix, height, width, radius):
+    """The pixels ``pix`` (linear ids, non-empty) on the sensor compacted to the rows and columns
+    within ``radius`` of one of them (morph.CompactClosing): (keep_r, keep_c, map_r, map_c,
+    image (kept rows, kept columns) uint8 with 1 at each pixel)."""
+    rows = pix // width
+    cols = pix - rows * width
+    keep_r, map_r, n_r = _kept(rows, height, radius)
+    keep_c, map_c, n_c = _kept(cols, width, radius)
+    image = np.zeros((n_r, n_c), np.uint8)
+    for i in range(pix.shape[0]):
+        image[map_r[rows[i]], map_c[cols[i]]] = 1
+    return keep_r, keep_c, map_r, map_c, image
+
+
+@njit(cache=True, nogil=True)
+def compact_lookup(pix, width, keep_r, keep_c, map_r, map_c, image):
+    """image at the compacted position of each pixel of ``pix``, False outside the kept rows
+    and columns: (n,) bool."""
+    out = np.zeros(pix.shape[0], np.bool_)
+    for i in range(pix.shape[0]):
+        y = pix[i] // width
+        x = pix[i] - y * width
+        if keep_r[y] and keep_c[x]:
+            out[i] = image[map_r[y], map_c[x]] != 0
+    return out
+
+
+# the kernels called from Python (the others are compiled into their callers)
+KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup)
+
+
+def warm_up() -> None:
+    """Compile (first run on a machine, a few seconds) or load from the on-disk cache (~0.1 s)
+    every kernel for the argument types the cpu cascade passes, so that the first window of a
+    stream is not the one that pays for it. tests/test_run_sparse.py checks that a cascade
+    after warm_up compiles nothing new."""
+    i64 = np.zeros(1, np.int64)
+    scratch = new_scratch(4)
+    uniq, inverse = dedupe(i64, scratch)
+    active, tap_target = active_set(uniq, 2, 2, 1, scratch)
+    weight = np.ones((1, 1), np.int64)
+    alive = np.ones(1, np.bool_)
+    spikes, fired = ofs_stage(alive, i64, i64, inverse, tap_target, weight, 1, active.shape[0], 0, 1)
+    keep_r, keep_c, map_r, map_c, image = compact_image(active, 2, 2, 1)
+    closed = compact_lookup(uniq, 2, keep_r, keep_c, map_r, map_c, image.view(np.bool_))
+    split_closed(alive, inverse, closed)
