@@ -18,6 +18,17 @@ def dense_seed(mask, r):
     return int(sx), int(sy)
 
 
+def dense_centroid(xs, ys, half, w, h):
+    """Mean of the pixels, then mean of those within ``half`` of it; sensor centre when empty."""
+    if xs.size == 0:
+        return (w - 1) / 2.0, (h - 1) / 2.0
+    cx, cy = float(xs.mean()), float(ys.mean())
+    near = (np.abs(xs - cx) < half) & (np.abs(ys - cy) < half)
+    if near.any():
+        cx, cy = float(xs[near].mean()), float(ys[near].mean())
+    return cx, cy
+
+
 def dense_box(cx, cy, r, h, w):
     ys, xs = np.ogrid[:h, :w]
     return (np.abs(xs - cx) < r) & (np.abs(ys - cy) < r)
@@ -31,7 +42,7 @@ def dense_mode_centroid(mask, r, half):
     for _ in range(2):
         near = (np.abs(xs - cx) < r) & (np.abs(ys - cy) < r)
         if not near.any():
-            return ofpd_io.centroid_of_pixels(xs, ys, half, w, h)
+            return dense_centroid(xs, ys, half, w, h)
         cx, cy = float(xs[near].mean()), float(ys[near].mean())
     return cx, cy
 
@@ -77,7 +88,7 @@ def dense_prepare(frames, cfg):
     px = ofpd_io.event_pixels(frames)
     for i in range(n):
         ys, xs = np.nonzero(px[i])
-        cx, cy = ofpd_io.centroid_of_pixels(xs, ys, size // 2, w, h)
+        cx, cy = dense_centroid(xs, ys, size // 2, w, h)
         x0, y0 = int(np.floor(cx - (size - 1) / 2 + 0.5)), int(np.floor(cy - (size - 1) / 2 + 0.5))
         sx0, sy0, sx1, sy1 = max(x0, 0), max(y0, 0), min(x0 + size, w), min(y0 + size, h)
         crop = np.zeros((b * 2, size, size), dtype=np.float32)

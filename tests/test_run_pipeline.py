@@ -18,7 +18,7 @@ from toffe_deploy.cli import main
 from toffe_deploy.config import ToffeConfig
 from toffe_deploy.fixed_point import run_ofs_fixed
 from toffe_deploy.runtime import ofpd_input
-from toffe_deploy.runtime.compiled import new_scratch
+from toffe_deploy.compiled import new_scratch
 from toffe_deploy.runtime.spikes import SpikeVolume
 
 SENSOR = (64, 48)

@@ -8,7 +8,7 @@ from toffe_deploy.events.binning import bin_window
 from toffe_deploy.fixed_point import quantize_ofs, run_ofs_fixed
 from toffe_deploy.runtime.cpu import CpuCascade
 from toffe_deploy.runtime.morph import CompactClosing
-from toffe_deploy.runtime.compiled import dedupe, lif_window, new_scratch
+from toffe_deploy.compiled import dedupe, lif_window, new_scratch
 from toffe_deploy.runtime.ofs_sparse import run_ofs_sparse
 from toffe_deploy.runtime.spikes import SpikeVolume
 
@@ -123,7 +123,7 @@ def test_lif_window_equals_lif_step_including_saturation(rng, dv):
 def test_warm_up_compiles_every_kernel_the_cascade_uses(rng):
     """After warm_up, a cascade (spikes, closings, masks) and the OFPD pixel sets compile
     nothing new: the first window of a stream does not pay for compilation."""
-    from toffe_deploy.runtime import compiled
+    from toffe_deploy import compiled
 
     compiled.warm_up()
     before = {k.__name__: len(k.signatures) for k in compiled.KERNELS}
@@ -138,7 +138,7 @@ def test_warm_up_compiles_every_kernel_the_cascade_uses(rng):
 
 
 def test_active_set_is_the_dilated_input_and_leaves_scratch_clean(rng):
-    from toffe_deploy.runtime.compiled import active_set
+    from toffe_deploy.compiled import active_set
 
     w, h = 13, 9
     scratch = new_scratch(w * h)

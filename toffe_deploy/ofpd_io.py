@@ -35,6 +35,7 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
+from .compiled import box_mean, count_cells
 from .config import ToffeConfig
 
 COORD_SCALE = 1000.0       # coordinate planes hold px / 1000 (keeps inputs O(1))
@@ -103,11 +104,12 @@ def event_pixels(frames: np.ndarray) -> np.ndarray:
 # so results do not depend on the order of the pixels.
 # ---------------------------------------------------------------------------------------------
 
-def _mean(a: np.ndarray) -> float:
-    """a.mean() of a non-empty integer coordinate array, bit for bit, without np.mean's overhead:
-    the integer sum is exact (as is np.mean's float64 sum of integers < 2^53), and both divide
-    that same number by the count with one IEEE division."""
-    return float(np.add.reduce(a)) / a.shape[0]
+def _box_mean(xs: np.ndarray, ys: np.ndarray, cx: float, cy: float, r: float) -> tuple[int, float, float]:
+    """(count, mean x, mean y) of the pixels with max(|x - cx|, |y - cy|) < r (``in_box``), in
+    one compiled pass (compiled.box_mean). Each mean is the exact integer sum divided once by
+    the count, bit for bit np.mean's result on these integer coordinates (r = inf: all pixels)."""
+    return box_mean(np.ascontiguousarray(xs, dtype=np.int64), np.ascontiguousarray(ys, dtype=np.int64),
+                    float(cx), float(cy), float(r))
 
 
 def centroid_of_pixels(xs: np.ndarray, ys: np.ndarray, half: int, width: int, height: int) -> tuple[float, float]:
@@ -115,11 +117,9 @@ def centroid_of_pixels(xs: np.ndarray, ys: np.ndarray, half: int, width: int, he
     within ``half`` of it (stray events far away barely move it); sensor centre when empty."""
     if xs.size == 0:
         return (width - 1) / 2.0, (height - 1) / 2.0
-    cx, cy = _mean(xs), _mean(ys)
-    near = in_box(xs, ys, cx, cy, half)
-    if near.any():
-        cx, cy = _mean(xs[near]), _mean(ys[near])
-    return cx, cy
+    _n, cx, cy = _box_mean(xs, ys, 0.0, 0.0, np.inf)
+    n, nx, ny = _box_mean(xs, ys, cx, cy, half)
+    return (nx, ny) if n else (cx, cy)
 
 
 def in_box(xs: np.ndarray, ys: np.ndarray, cx, cy, r: float) -> np.ndarray:
@@ -223,10 +223,10 @@ def mode_centroid_xy(xs: np.ndarray, ys: np.ndarray, r: int, half: int, width: i
     sx, sy = density_seed(xs, ys, r, width, height)
     cx, cy = float(sx), float(sy)
     for _ in range(2):
-        near = in_box(xs, ys, cx, cy, r)
-        if not near.any():
+        n, nx, ny = _box_mean(xs, ys, cx, cy, r)
+        if not n:
             return centroid_of_pixels(xs, ys, half, width, height)
-        cx, cy = _mean(xs[near]), _mean(ys[near])
+        cx, cy = nx, ny
     return cx, cy
 
 
@@ -288,14 +288,14 @@ def crop_origin_xy(xs: np.ndarray, ys: np.ndarray, sensor_size: tuple[int, int],
 
 
 def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origins: np.ndarray,
-               config: ToffeConfig, unique_counts=None) -> np.ndarray:
+               config: ToffeConfig) -> np.ndarray:
     """The OFPD input (N, 2B+2, S/P, S/P) float32 of N frames given as their ones.
 
     ones[i] = (xs, ys, ch): the (unique) ones of frame i, ch = 2 b + polarity; origins[i] =
     crop_origin_xy of its event pixels. x[2b+p, cell] = #ones of channel 2b+p in the crop cell /
-    P^2 (the mean of P x P binary pixels, exact in float32), zero elsewhere; the coordinate planes
-    as in the module doc. ``unique_counts(keys) -> (unique keys, counts)`` may replace
-    np.unique(keys, return_counts=True) (the runtime passes an O(n) one).
+    P^2 (the mean of P x P binary pixels: one float32 division of an exact count), zero
+    elsewhere; the coordinate planes as in the module doc. The counts are one compiled pass over
+    the ones (compiled.count_cells).
     """
     s = ofpd_settings(config)
     size, pool = s["crop_px"], s["pool"]
@@ -305,26 +305,15 @@ def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origin
     out = np.zeros((n, 2 * b + 2, g, g), dtype=np.float32)
     if n == 0:
         return out
-    origins = np.asarray(origins, dtype=np.int64).reshape(n, 2)
+    origins = np.ascontiguousarray(np.asarray(origins, dtype=np.int64).reshape(n, 2))
     centres = (np.arange(g) + 0.5) * pool - 0.5          # cell centre in crop pixel units
     out[:, 2 * b] = ((origins[:, 0, None] + centres[None, :]) / COORD_SCALE)[:, None, :]
     out[:, 2 * b + 1] = ((origins[:, 1, None] + centres[None, :]) / COORD_SCALE)[:, :, None]
-    counts = [len(o[0]) for o in ones]
-    obj = np.repeat(np.arange(n), counts)
-    fx = np.concatenate([o[0] for o in ones]).astype(np.int64) - np.repeat(origins[:, 0], counts)
-    fy = np.concatenate([o[1] for o in ones]).astype(np.int64) - np.repeat(origins[:, 1], counts)
-    ch = np.concatenate([o[2] for o in ones]).astype(np.int64)
-    inside = (fx >= 0) & (fx < size) & (fy >= 0) & (fy < size)
-    keys = (((obj * (2 * b + 2) + ch) * g + fy // pool) * g + fx // pool)[inside]
-    if keys.size:
-        area = pool * pool
-        if area & (area - 1) == 0:
-            # P^2 a power of two: adding 1/P^2 once per one gives hits/P^2 exactly in float32
-            # (multiples of 2^-m up to 1), the same numbers as the division below, in O(n)
-            np.add.at(out.reshape(-1), keys, np.float32(1.0 / area))
-        else:
-            cells, hits = (unique_counts or (lambda k: np.unique(k, return_counts=True)))(keys)
-            out.reshape(-1)[cells] = hits.astype(np.float32) / np.float32(area)
+    obj = np.repeat(np.arange(n, dtype=np.int64), [len(o[0]) for o in ones])
+    xs, ys, ch = (np.concatenate([o[i] for o in ones]).astype(np.int64, copy=False) for i in range(3))
+    count_cells(out, obj, xs, ys, ch, origins, 2 * b, size, pool)
+    cells = out[:, :2 * b]
+    np.divide(cells, np.float32(pool * pool), out=cells)
     return out
 
 

@@ -1,5 +1,5 @@
 """The ``cpu`` target's OFS cascade: fixed point, event driven (numba-compiled loops over the
-window's ones, runtime/compiled.py), no torch and no Lava.
+window's ones, toffe_deploy/compiled.py), no torch and no Lava.
 
 Same results as ``run_cascade(x, lambda k, inp: run_ofs_fixed(inp, params[k-1]), N, mask_kernel)``
 (eq. 3-4), bit exact, but each window is kept as the coordinates of its ones (``SpikeVolume``):
@@ -24,7 +24,7 @@ import numpy as np
 from ..cascade import CascadeResult
 from ..fixed_point import LoihiOFSParams
 from .morph import CompactClosing
-from .compiled import new_scratch, split_closed, warm_up
+from ..compiled import new_scratch, split_closed, warm_up
 from .ofs_sparse import SparseOFSWindow
 from .spikes import SpikeVolume
 

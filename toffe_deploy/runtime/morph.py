@@ -19,7 +19,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from . import compiled
+from .. import compiled
 
 
 class CompactClosing:

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..config import ToffeConfig
 from ..ofpd_io import crop_origin_xy, input_shape, object_masks_xy, prepare_xy, report_objects_xy
-from .compiled import dedupe
+from ..compiled import dedupe
 from .spikes import SpikeVolume
 
 
@@ -43,7 +43,7 @@ def merge_objects(volume: SpikeVolume, frames: Sequence[np.ndarray], config: Tof
     """``ofpd_io.merge_frames`` on coordinates: (stage_k (G,) 1-based, merged frames), fastest first.
 
     volume: the window's ones; frames[k-1]: bool mask over volume.idx of stage k's frame.
-    scratch: optional all -1 int64 array (>= H * W entries) that makes the pixel sets O(n).
+    scratch: optional all -1 array (>= H * W entries, ``compiled.new_scratch``) that makes the pixel sets O(n).
     """
     _b, _c, h, w = volume.shape
     pix = volume.pix
@@ -95,21 +95,8 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
         origins.append(crop_origin_xy(ux[mu], uy[mu], (w, h), config))
         ones.append((fx[m], fy[m], ch[m]))
         n_ev.append(ones[-1][0].shape[0])
-    x = prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 2), config, _counter(config, len(ones), scratch))
+    x = prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 2), config)
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, np.asarray(n_ev, dtype=np.int64)
-
-
-def _counter(config: ToffeConfig, n: int, scratch: np.ndarray | None):
-    """An O(n) replacement of np.unique(keys, return_counts=True) for prepare_xy, when the
-    ``scratch`` covers every cell key of n frames (else None: prepare_xy's default)."""
-    c, g, _ = input_shape(config)
-    if scratch is None or scratch.shape[0] < n * c * g * g:
-        return None
-
-    def counts(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        cells, inv = dedupe(keys, scratch)
-        return cells, np.bincount(inv, minlength=cells.shape[0])
-    return counts
 
 
 def prepare(frames: Sequence[SpikeVolume], config: ToffeConfig, scratch: np.ndarray | None = None) -> np.ndarray:
@@ -123,4 +110,4 @@ def prepare(frames: Sequence[SpikeVolume], config: ToffeConfig, scratch: np.ndar
         origins.append(crop_origin_xy(*unique_xy(f.pix, w, scratch), (w, h), config))
         ys, xs = np.divmod(f.pix, w)
         ones.append((xs, ys, f.b * 2 + f.c))
-    return prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 2), config, _counter(config, len(frames), scratch))
+    return prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 2), config)

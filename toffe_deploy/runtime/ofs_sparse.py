@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fixed_point import LoihiOFSParams
-from . import compiled
+from .. import compiled
 from .spikes import SpikeVolume
 
 
@@ -30,7 +30,7 @@ class SparseOFSWindow:
     active: (M,) linear pixel ids y * W + x of the active set (unspecified order).
     tap_target[q, i*K + j]: slot in ``active`` of the pixel that input pixel q (``input_pixels``)
     feeds through weight tap (i, j), -1 where that pixel lies off the sensor (zero padding).
-    ``scratch``: an all -1 (H * W,) int64 array (``compiled.new_scratch``) the caller keeps
+    ``scratch``: an all -1 (H * W,) array (``compiled.new_scratch``) the caller keeps
     across windows; made here when not given.
     """
 

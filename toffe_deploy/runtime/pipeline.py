@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import InputError
 from ..ofpd_io import decode
 from . import ofpd_input
-from .compiled import new_scratch, warm_up
+from ..compiled import new_scratch, warm_up
 from .cpu import CpuCascade
 from .ofpd_runner import OFPDRunner
 from .spikes import SpikeVolume

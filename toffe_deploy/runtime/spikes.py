@@ -70,7 +70,7 @@ class SpikeVolume:
                 u, inv = np.unique(self.pix, return_inverse=True)
                 got = (u, inv.reshape(-1))
             else:
-                from .compiled import dedupe
+                from ..compiled import dedupe
 
                 got = dedupe(self.pix, scratch)
             self.__dict__["_pixel_index"] = got

@@ -1,16 +1,17 @@
-"""The cpu cascade's per-window loops, compiled (numba): indexing, OFS stage, mask split.
+"""The per-window loops of the hot path, compiled (numba): the cpu cascade's indexing, OFS
+stage, closing compaction and mask split, and ofpd_io's box means and cell counts.
 
 Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
 (~25 calls per stage on arrays of ~2,000 values, plus the window's de-duplication and scatter
 maps) spent most of its time in per-call overhead, not arithmetic. Each kernel here is one pass
-over the window's ones or its active pixels, in int64: the same integers as
-``toffe_deploy.fixed_point.lif_step`` (tested bit exact, saturation included, in
-tests/test_run_sparse.py).
+over the window's ones, its active pixels or an object's pixels. The OFS runs in int64: the
+same integers as ``toffe_deploy.fixed_point.lif_step`` (tested bit exact, saturation included,
+in tests/test_run_sparse.py); the means are exact integer sums divided once, as numpy's.
 
 Kernels are compiled on first use and cached on disk (numba ``cache=True``), so only the first
 run on a machine pays the compile (a few seconds); ``warm_up()`` does it eagerly.
 
-Scratch: ``slot_of`` arrays are (H * W,) int64 filled with -1; every kernel that marks entries
+Scratch: ``slot_of`` arrays are (H * W,) int32 filled with -1 (``new_scratch``); every kernel that marks entries
 clears them again before it returns, so one scratch array serves every window.
 """
 from __future__ import annotations
@@ -18,18 +19,20 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..fixed_point import DECAY_BITS, DECAY_UNITY, STATE_MAX, STATE_SHIFT
+from .fixed_point import DECAY_BITS, DECAY_UNITY, STATE_MAX, STATE_SHIFT
 
 
 def new_scratch(n_pixels: int) -> np.ndarray:
-    """A (n_pixels,) int64 scratch array in the state the kernels expect (all -1)."""
-    return np.full(int(n_pixels), -1, dtype=np.int64)
+    """A (n_pixels,) scratch array in the state the kernels expect (all -1); int32 (slots are
+    below H * W), half the cache footprint of int64 for the random lookups."""
+    return np.full(int(n_pixels), -1, dtype=np.int32)
 
 
-@njit(inline="always")
+@njit(cache=True, nogil=True)
 def _slot(slot_of, key, keys, n):
     """The slot of ``key``: its existing one, or slot n (then keys[n] = key, and the caller
-    counts n + 1 slots)."""
+    counts n + 1 slots). A plain call that LLVM inlines: numba's IR-level inline="always" made
+    the loops below three times slower (measured)."""
     s = slot_of[key]
     if s < 0:
         s = n
@@ -48,7 +51,8 @@ def dedupe(values, slot_of):
     u = 0
     for i in range(n):
         inverse[i] = s = _slot(slot_of, values[i], uniq, u)
-        u += s == u
+        if s == u:
+            u += 1
     for q in range(u):
         slot_of[uniq[q]] = -1
     return uniq[:u], inverse
@@ -79,7 +83,8 @@ def active_set(in_pix, width, height, kernel, slot_of):
                     tap_target[q, i * kernel + j] = -1
                     continue
                 tap_target[q, i * kernel + j] = s = _slot(slot_of, ty * width + tx, active, m)
-                m += s == m
+                if s == m:
+                    m += 1
     for s in range(m):
         slot_of[active[s]] = -1
     return active[:m].copy(), tap_target
@@ -204,8 +209,38 @@ def compact_lookup(pix, width, keep_r, keep_c, map_r, map_c, image):
     return out
 
 
+@njit(cache=True, nogil=True)
+def box_mean(xs, ys, cx, cy, r):
+    """(count, mean x, mean y) of the pixels in the box max(|x - cx|, |y - cy|) < r (ofpd_io.in_box);
+    the means are the exact integer sums divided by the count (nan when the box is empty)."""
+    sx = np.int64(0)
+    sy = np.int64(0)
+    n = 0
+    for i in range(xs.shape[0]):
+        if max(abs(xs[i] - cx), abs(ys[i] - cy)) < r:
+            sx += xs[i]
+            sy += ys[i]
+            n += 1
+    if n == 0:
+        return 0, np.nan, np.nan
+    return n, sx / n, sy / n
+
+
+@njit(cache=True, nogil=True)
+def count_cells(out, obj, xs, ys, ch, origins, n_channels, size, pool):
+    """Adds 1 to out[obj, ch, y // P, x // P] for every one (object obj, pixel (x, y), channel
+    ch < n_channels) inside its object's S x S crop at origins[obj] (crop coordinates x, y);
+    ones outside are dropped. ``out`` float32 holds exact integer counts (< 2**24)."""
+    for i in range(xs.shape[0]):
+        o = obj[i]
+        x = xs[i] - origins[o, 0]
+        y = ys[i] - origins[o, 1]
+        if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < n_channels:
+            out[o, ch[i], y // pool, x // pool] += 1
+
+
 # the kernels called from Python (the others are compiled into their callers)
-KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup)
+KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, box_mean, count_cells)
 
 
 def warm_up() -> None:
@@ -223,3 +258,6 @@ def warm_up() -> None:
     keep_r, keep_c, map_r, map_c, image = compact_image(active, 2, 2, 1)
     closed = compact_lookup(uniq, 2, keep_r, keep_c, map_r, map_c, image.view(np.bool_))
     split_closed(alive, inverse, closed)
+    box_mean(i64, i64, 0.0, 0.0, 1)
+    box_mean(i64, i64, 0.0, 0.0, 1.0)
+    count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.zeros((1, 2), np.int64), 1, 1, 1)
