@@ -1,4 +1,5 @@
-"""OFPD input/output in numpy, shared by training, export and every runtime target (no torch).
+"""OFPD input/output in numpy (two inner loops compiled: toffe_deploy/compiled.py), shared by
+training, export and every runtime target (no torch).
 
 Input (``prepare``): a speed-separated frame (B, 2, H, W) of one stage is cut to an
 object-centric crop and pooled:
