@@ -22,9 +22,9 @@ from typing import Iterable, Iterator, Sequence
 import numpy as np
 
 from ..cascade import CascadeResult
+from ..compiled import new_scratch, split_closed, warm_up
 from ..fixed_point import LoihiOFSParams
 from .morph import CompactClosing
-from ..compiled import new_scratch, split_closed, warm_up
 from .ofs_sparse import SparseOFSWindow
 from .spikes import SpikeVolume
 

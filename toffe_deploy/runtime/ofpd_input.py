@@ -21,9 +21,9 @@ from typing import Sequence
 
 import numpy as np
 
+from ..compiled import dedupe
 from ..config import ToffeConfig
 from ..ofpd_io import crop_origin_xy, input_shape, object_masks_xy, prepare_xy, report_objects_xy
-from ..compiled import dedupe
 from .spikes import SpikeVolume
 
 
