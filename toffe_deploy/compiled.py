@@ -210,20 +210,102 @@ def compact_lookup(pix, width, keep_r, keep_c, map_r, map_c, image):
 
 
 @njit(cache=True, nogil=True)
+def _inside(x, y, cx, cy, r):
+    """The box of an object at (cx, cy): |x - cx| < r and |y - cy| < r."""
+    return max(abs(x - cx), abs(y - cy)) < r
+
+
+@njit(cache=True, nogil=True)
+def in_boxes(xs, ys, centres, r):
+    """(G, n) bool: pixel i inside the box of object g at centres[g] = (cx, cy)."""
+    out = np.empty((centres.shape[0], xs.shape[0]), np.bool_)
+    for g in range(centres.shape[0]):
+        cx = centres[g, 0]
+        cy = centres[g, 1]
+        for i in range(xs.shape[0]):
+            out[g, i] = _inside(xs[i], ys[i], cx, cy, r)
+    return out
+
+
+@njit(cache=True, nogil=True)
 def box_mean(xs, ys, cx, cy, r):
-    """(count, mean x, mean y) of the pixels in the box max(|x - cx|, |y - cy|) < r (ofpd_io.in_box);
+    """(count, mean x, mean y) of the pixels in the box of an object at (cx, cy) (``_inside``);
     the means are the exact integer sums divided by the count (nan when the box is empty)."""
     sx = np.int64(0)
     sy = np.int64(0)
     n = 0
     for i in range(xs.shape[0]):
-        if max(abs(xs[i] - cx), abs(ys[i] - cy)) < r:
+        if _inside(xs[i], ys[i], cx, cy, r):
             sx += xs[i]
             sy += ys[i]
             n += 1
     if n == 0:
         return 0, np.nan, np.nan
     return n, sx / n, sy / n
+
+
+@njit(cache=True, nogil=True)
+def density_groups(xs, ys, r, width):
+    """ofpd_io.density_seed's splitting of (non-empty) pixels into groups separated by gaps > 2r
+    along x, then y, then x...: (best count n and smallest key y * W + x over the groups that fit
+    in one box, order (n,) a permutation of the pixels, hard (k, 2) [start, end) ranges of
+    ``order``: the groups with no gap left on either axis, which need a box filter)."""
+    n = xs.shape[0]
+    r2 = 2 * r
+    order = np.arange(n)
+    hard = np.empty((n, 2), np.int64)
+    n_hard = 0
+    x_lo, x_hi, y_lo, y_hi = xs.min(), xs.max(), ys.min(), ys.max()
+    if x_hi - x_lo <= r2 and y_hi - y_lo <= r2:                  # one box holds them all
+        return n, max(y_hi - r, 0) * width + max(x_hi - r, 0), order, hard[:0]
+    best_n = 0
+    best_key = 0
+    # work stack of (start, end, axis, other axis tried): live segments are disjoint, so <= n + 1
+    stack = np.empty((n + 2, 4), np.int64)
+    stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3] = 0, n, 0 if x_hi - x_lo > r2 else 1, 0
+    top = 1
+    while top > 0:
+        top -= 1
+        s, e, axis, tried = stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3]
+        seg = order[s:e].copy()
+        a = xs[seg] if axis == 0 else ys[seg]
+        by = np.argsort(a)
+        sa = a[by]
+        order[s:e] = seg[by]
+        cut = False
+        for j in range(1, e - s):
+            if sa[j] - sa[j - 1] > r2:
+                cut = True
+                break
+        if not cut:                              # no gap on this axis: the other, else box filter
+            if tried:
+                hard[n_hard, 0], hard[n_hard, 1] = s, e
+                n_hard += 1
+            else:
+                stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3] = s, e, 1 - axis, 1
+                top += 1
+            continue
+        g0 = 0
+        for j in range(1, e - s + 1):
+            if j < e - s and sa[j] - sa[j - 1] <= r2:
+                continue
+            xmin = xmax = xs[order[s + g0]]
+            ymin = ymax = ys[order[s + g0]]
+            for q in range(s + g0 + 1, s + j):
+                xmin = min(xmin, xs[order[q]])
+                xmax = max(xmax, xs[order[q]])
+                ymin = min(ymin, ys[order[q]])
+                ymax = max(ymax, ys[order[q]])
+            if xmax - xmin <= r2 and ymax - ymin <= r2:
+                m = j - g0
+                key = max(ymax - r, 0) * width + max(xmax - r, 0)
+                if m > best_n or (m == best_n and key < best_key):
+                    best_n, best_key = m, key
+            else:                                # no gap left on this axis: try the other
+                stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3] = s + g0, s + j, 1 - axis, 1
+                top += 1
+            g0 = j
+    return best_n, best_key, order, hard[:n_hard]
 
 
 @njit(cache=True, nogil=True)
@@ -240,7 +322,8 @@ def count_cells(out, obj, xs, ys, ch, origins, n_channels, size, pool):
 
 
 # the kernels called from Python (the others are compiled into their callers)
-KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, box_mean, count_cells)
+KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, in_boxes, box_mean, density_groups,
+           count_cells)
 
 
 def warm_up() -> None:
@@ -258,6 +341,7 @@ def warm_up() -> None:
     keep_r, keep_c, map_r, map_c, image = compact_image(active, 2, 2, 1)
     closed = compact_lookup(uniq, 2, keep_r, keep_c, map_r, map_c, image.view(np.bool_))
     split_closed(alive, inverse, closed)
-    box_mean(i64, i64, 0.0, 0.0, 1)
     box_mean(i64, i64, 0.0, 0.0, 1.0)
+    in_boxes(i64, i64, np.zeros((1, 2)), 1.0)
+    density_groups(i64, i64, 1, 2)
     count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.zeros((1, 2), np.int64), 1, 1, 1)

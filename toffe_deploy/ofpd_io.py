@@ -36,7 +36,8 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from .compiled import box_mean, count_cells
+from .compiled import box_mean, count_cells, density_groups
+from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
 
 COORD_SCALE = 1000.0       # coordinate planes hold px / 1000 (keeps inputs O(1))
@@ -106,11 +107,10 @@ def event_pixels(frames: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 
 def _box_mean(xs: np.ndarray, ys: np.ndarray, cx: float, cy: float, r: float) -> tuple[int, float, float]:
-    """(count, mean x, mean y) of the pixels with max(|x - cx|, |y - cy|) < r (``in_box``), in
+    """(count, mean x, mean y) of the pixels with |x - cx| < r and |y - cy| < r (``in_boxes``), in
     one compiled pass (compiled.box_mean). Each mean is the exact integer sum divided once by
     the count, bit for bit np.mean's result on these integer coordinates (r = inf: all pixels)."""
-    return box_mean(np.ascontiguousarray(xs, dtype=np.int64), np.ascontiguousarray(ys, dtype=np.int64),
-                    float(cx), float(cy), float(r))
+    return box_mean(_int64(xs), _int64(ys), float(cx), float(cy), float(r))
 
 
 def centroid_of_pixels(xs: np.ndarray, ys: np.ndarray, half: int, width: int, height: int) -> tuple[float, float]:
@@ -123,16 +123,16 @@ def centroid_of_pixels(xs: np.ndarray, ys: np.ndarray, half: int, width: int, he
     return (nx, ny) if n else (cx, cy)
 
 
-def in_box(xs: np.ndarray, ys: np.ndarray, cx, cy, r: float) -> np.ndarray:
-    """The box of an object at (cx, cy): |x - cx| < r and |y - cy| < r, at the given coordinates
-    (broadcasting: several boxes at once). Computed as max(|x - cx|, |y - cy|) < r, the same
-    comparisons with fewer temporaries (this is the hot loop of report_objects_xy)."""
-    dx = np.subtract(xs, cx)
-    np.abs(dx, out=dx)
-    dy = np.subtract(ys, cy)
-    np.abs(dy, out=dy)
-    np.maximum(dx, dy, out=dx)
-    return np.less(dx, r)
+def in_boxes(xs: np.ndarray, ys: np.ndarray, centres, r: float) -> np.ndarray:
+    """(G, n) bool: the pixels (xs, ys) inside the box |x - cx| < r and |y - cy| < r of each of
+    G objects at centres (G, 2) = (cx, cy), in one compiled pass (compiled.in_boxes)."""
+    return in_boxes_compiled(_int64(xs), _int64(ys), np.ascontiguousarray(centres, dtype=np.float64).reshape(-1, 2),
+                             float(r))
+
+
+def _int64(a: np.ndarray) -> np.ndarray:
+    """A contiguous int64 view or copy of a coordinate array (what the compiled kernels take)."""
+    return np.ascontiguousarray(a, dtype=np.int64)
 
 
 def _box_count_seed(xs: np.ndarray, ys: np.ndarray, r: int, width: int, height: int) -> tuple[int, int, int]:
@@ -167,47 +167,13 @@ def density_seed(xs: np.ndarray, ys: np.ndarray, r: int, width: int, height: int
     """
     if xs.size == 0:
         return 0, 0
-    xs = np.asarray(xs, dtype=np.int64)
-    ys = np.asarray(ys, dtype=np.int64)
-    r2 = 2 * r
-    x_lo, x_hi, y_lo, y_hi = int(xs.min()), int(xs.max()), int(ys.min()), int(ys.max())
-    if x_hi - x_lo <= r2 and y_hi - y_lo <= r2:                 # one box holds them all
-        return max(x_hi - r, 0), max(y_hi - r, 0)
-    best_n, best_key = 0, 0                       # most pixels, then smallest y * W + x
-    hard: list[tuple[np.ndarray, np.ndarray]] = []
-    work = [(xs, ys, 0 if x_hi - x_lo > r2 else 1, False)]   # (pixels, axis, other axis tried)
-    while work:
-        gx, gy, axis, tried = work.pop()
-        a = gx if axis == 0 else gy
-        order = np.argsort(a)
-        cut = np.flatnonzero(np.diff(a[order]) > r2) + 1
-        if cut.size == 0:                        # no gap on this axis: the other, else box filter
-            if tried:
-                hard.append((gx, gy))
-            else:
-                work.append((gx, gy, 1 - axis, True))
-            continue
-        sx, sy = gx[order], gy[order]
-        starts = np.concatenate(([0], cut))
-        ends = np.concatenate((cut, [sx.size]))
-        xmax, ymax = np.maximum.reduceat(sx, starts), np.maximum.reduceat(sy, starts)
-        compact = ((xmax - np.minimum.reduceat(sx, starts)) <= r2) & ((ymax - np.minimum.reduceat(sy, starts)) <= r2)
-        if compact.any():
-            n = (ends - starts)[compact]
-            m = int(n.max())
-            if m >= best_n:
-                sel = n == m
-                key = np.maximum(ymax[compact][sel] - r, 0) * width + np.maximum(xmax[compact][sel] - r, 0)
-                k = int(key.min())
-                if m > best_n or k < best_key:
-                    best_n, best_key = m, k
-        if not compact.all():
-            for g in np.flatnonzero(~compact):    # no gap left on this axis: try the other
-                work.append((sx[starts[g]:ends[g]], sy[starts[g]:ends[g]], 1 - axis, True))
-    for gx, gy in sorted(hard, key=lambda p: -p[0].size):
-        if gx.size < best_n:
+    xs, ys = _int64(xs), _int64(ys)
+    best_n, best_key, order, hard = density_groups(xs, ys, int(r), int(width))   # most pixels, smallest y * W + x
+    for start, end in sorted(hard.tolist(), key=lambda se: se[0] - se[1]):        # biggest group first
+        if end - start < best_n:
             break
-        n, y, x = _box_count_seed(gx, gy, r, width, height)
+        sel = order[start:end]
+        n, y, x = _box_count_seed(xs[sel], ys[sel], r, width, height)
         if n > best_n or (n == best_n and y * width + x < best_key):
             best_n, best_key = n, y * width + x
     y, x = divmod(best_key, width)
@@ -255,12 +221,11 @@ def report_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sen
     for i in range(len(stage_pixels) - 1, -1, -1):          # fastest stage first; N is tiny
         xs, ys = (np.asarray(a, dtype=np.int64) for a in stage_pixels[i])
         if out and xs.size:                                 # drop the claimed boxes, all at once
-            c = np.array([o[1:] for o in out])
-            free = ~in_box(xs[None, :], ys[None, :], c[:, :1], c[:, 1:], r).any(axis=0)   # (boxes, pixels)
+            free = ~in_boxes(xs, ys, [o[1:] for o in out], r).any(axis=0)
             xs, ys = xs[free], ys[free]
         while xs.size >= need:                              # one pass per object found
             cx, cy = mode_centroid_xy(xs, ys, r, half, w, h)
-            box = in_box(xs, ys, cx, cy, r)
+            box = in_boxes(xs, ys, (cx, cy), r)[0]
             if np.count_nonzero(box) < need:
                 break
             out.append((i, cx, cy))
@@ -276,8 +241,7 @@ def object_masks_xy(xs: np.ndarray, ys: np.ndarray, objects: Sequence[tuple[int,
     r = ofpd_settings(config)["dedupe_px"]
     if not objects:
         return []
-    c = np.array([o[1:] for o in objects], dtype=np.float64)
-    return list(in_box(xs[None, :], ys[None, :], c[:, :1], c[:, 1:], r))
+    return list(in_boxes(xs, ys, [o[1:] for o in objects], r))
 
 
 def crop_origin_xy(xs: np.ndarray, ys: np.ndarray, sensor_size: tuple[int, int], config: ToffeConfig) -> tuple[int, int]:
