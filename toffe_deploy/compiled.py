@@ -1,5 +1,6 @@
 """The per-window loops of the hot path, compiled (numba): the cpu cascade's indexing, OFS
-stage, closing compaction and mask split, and ofpd_io's box means and cell counts.
+stage, closing compaction and mask split, and ofpd_io's box tests, box means, density-seed
+grouping and cell counts.
 
 Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
 (~25 calls per stage on arrays of ~2,000 values, plus the window's de-duplication and scatter
@@ -11,8 +12,8 @@ in tests/test_run_sparse.py); the means are exact integer sums divided once, as 
 Kernels are compiled on first use and cached on disk (numba ``cache=True``), so only the first
 run on a machine pays the compile (a few seconds); ``warm_up()`` does it eagerly.
 
-Scratch: ``slot_of`` arrays are (H * W,) int32 filled with -1 (``new_scratch``); every kernel that marks entries
-clears them again before it returns, so one scratch array serves every window.
+Scratch: ``slot_of`` arrays are (H * W,) int32 filled with -1 (``new_scratch``); every kernel
+that marks entries clears them again before it returns, so one scratch array serves every window.
 """
 from __future__ import annotations
 
@@ -322,8 +323,8 @@ def count_cells(out, obj, xs, ys, ch, origins, n_channels, size, pool):
 
 
 # the kernels called from Python (the others are compiled into their callers)
-KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, in_boxes, box_mean, density_groups,
-           count_cells)
+KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
+           in_boxes, box_mean, density_groups, count_cells)
 
 
 def warm_up() -> None:

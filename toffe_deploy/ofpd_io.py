@@ -1,4 +1,4 @@
-"""OFPD input/output in numpy (two inner loops compiled: toffe_deploy/compiled.py), shared by
+"""OFPD input/output in numpy (inner loops compiled: toffe_deploy/compiled.py), shared by
 training, export and every runtime target (no torch).
 
 Input (``prepare``): a speed-separated frame (B, 2, H, W) of one stage is cut to an
