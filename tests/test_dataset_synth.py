@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from toffe_deploy.dataset.camera import PinholeCamera
+from toffe_deploy.camera import PinholeCamera
 from toffe_deploy.dataset.dvs import DVSEmulator
 from toffe_deploy.dataset.groundtruth import window_truth
 from toffe_deploy.dataset.splits import PROGRAMMED_SPEEDS, split_specs

@@ -142,7 +142,7 @@ def test_heldout_windows_from_a_data_set(tmp_path):
     """--data DIR: windows come from the held-out 'test' sequences, with their ground truth."""
     import dataclasses
 
-    from toffe_deploy.dataset.camera import PinholeCamera
+    from toffe_deploy.camera import PinholeCamera
     from toffe_deploy.dataset.splits import split_specs
     from toffe_deploy.dataset.build import build_dataset
     from toffe_deploy.deploy.windows import heldout_windows

@@ -48,7 +48,7 @@ def make_bundle(root, sensor=SENSOR, ofpd=None):
 
 
 def make_recording(path, sensor=SENSOR, duration=0.012, index=0, seed=0):
-    from toffe_deploy.dataset.camera import PinholeCamera
+    from toffe_deploy.camera import PinholeCamera
     from toffe_deploy.dataset.splits import split_specs
     from toffe_deploy.dataset.synth import generate_sequence
     from toffe_deploy.events.io import write_events_h5

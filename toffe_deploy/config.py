@@ -2,6 +2,9 @@
 
 Speed bins follow the paper's Table "Speed ranges for the four speed bins" (m/s):
 1: 1-18, 2: 18-42, 3: 42-84, 4: 84-500 (max programmed object speed 144 m/s).
+What the network separates is image-plane speed: the bins in m/s hold for an object at
+``depth_m`` seen with ``focal_px`` (camera.SpeedScale); ``speed_bins_px_ms`` are the same bins
+in px/ms, the camera-independent statement.
 """
 from __future__ import annotations
 
@@ -11,11 +14,15 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
+from .camera import REFERENCE_DEPTH_M, REFERENCE_FOCAL_PX, SpeedScale
 from .errors import InputError
 from .fileio import read_json
 
 SPEED_BINS_MPS: tuple[tuple[float, float], ...] = ((1.0, 18.0), (18.0, 42.0), (42.0, 84.0), (84.0, 500.0))
 CONFIG_FORMAT_VERSION = 1
+#: OFS/OFPD input front ends (events/frontend.py): "none" = binary spike per (bin, polarity,
+#: pixel); "first" = each pixel's first spike per polarity in the window only.
+INPUT_NORMS = ("none", "first")
 
 
 @dataclass(frozen=True)
@@ -35,6 +42,9 @@ class ToffeConfig:
     ofs_kernel: int = 3
     ofs_in_channels: int = 2
     mask_kernel: int = 5
+    focal_px: float = REFERENCE_FOCAL_PX   # the camera the speed bins in m/s are stated for
+    depth_m: float = REFERENCE_DEPTH_M     # ... and the object depth
+    input_norm: str = "none"               # OFS/OFPD input front end (events/frontend.py)
     ofpd: dict[str, Any] = field(default_factory=dict)
     dataset: dict[str, Any] = field(default_factory=dict)
     format_version: int = CONFIG_FORMAT_VERSION
@@ -42,6 +52,21 @@ class ToffeConfig:
     @property
     def n_speed_bins(self) -> int:
         return len(self.speed_bins)
+
+    @property
+    def speed_scale(self) -> SpeedScale:
+        """m/s <-> px/ms at the depth and focal length the bins are stated for."""
+        return SpeedScale(self.focal_px, self.depth_m)
+
+    @property
+    def speed_bins_px_ms(self) -> tuple[tuple[float, float], ...]:
+        """The speed bins as image-plane speeds (px/ms): what the OFS stages separate."""
+        sc = self.speed_scale
+        return tuple((sc.to_px_ms(lo), sc.to_px_ms(hi)) for lo, hi in self.speed_bins)
+
+    def speed_bin_of_px_ms(self, speed_px_ms: float) -> int:
+        """1-based speed bin of an image-plane speed (px/ms); 0 below the first bin, N above the last."""
+        return self.speed_bin_of(self.speed_scale.to_mps(speed_px_ms))
 
     @property
     def width(self) -> int:
@@ -77,6 +102,9 @@ class ToffeConfig:
             for k in ("n_bins", "dt_us", "ofs_kernel", "ofs_in_channels", "mask_kernel", "format_version"):
                 if k in kw:
                     kw[k] = int(kw[k])
+            for k in ("focal_px", "depth_m"):
+                if k in kw:
+                    kw[k] = float(kw[k])
             cfg = cls(**kw)
         except (TypeError, ValueError) as exc:
             raise InputError(path, f"malformed config: {exc}") from None
@@ -108,6 +136,12 @@ class ToffeConfig:
             bad(f"ofs_kernel must be odd, got {self.ofs_kernel}")
         if self.mask_kernel < 1:
             bad(f"mask_kernel must be >= 1, got {self.mask_kernel}")
+        if not (self.focal_px > 0 and math.isfinite(self.focal_px)):
+            bad(f"focal_px must be > 0, got {self.focal_px}")
+        if not (self.depth_m > 0 and math.isfinite(self.depth_m)):
+            bad(f"depth_m must be > 0, got {self.depth_m}")
+        if self.input_norm not in INPUT_NORMS:
+            bad(f"input_norm must be one of {', '.join(INPUT_NORMS)}, got {self.input_norm!r}")
 
     def speed_bin_of(self, speed_mps: float) -> int:
         """1-based speed bin of a speed; 0 below the first bin, N above the last."""

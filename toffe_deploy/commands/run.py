@@ -91,7 +91,7 @@ def parse_synthetic(spec: str) -> dict:
 
 def synthetic_source(spec: str, sensor_size: tuple[int, int]):
     """An in-memory EventSource with ground truth from the data-set generator."""
-    from ..dataset.camera import PinholeCamera
+    from ..camera import PinholeCamera
     from ..dataset.splits import split_specs
     from ..dataset.synth import generate_sequence
     from ..events.source import ArraySource

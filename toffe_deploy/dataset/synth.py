@@ -27,7 +27,7 @@ import numpy as np
 
 from ..config import ToffeConfig
 from ..events.core import EVENT_DTYPE
-from .camera import PinholeCamera
+from ..camera import PinholeCamera
 from .dvs import DVSEmulator, DVSParams, noise_events
 from .shapes import SHAPES, coverage
 from .trajectories import Trajectory

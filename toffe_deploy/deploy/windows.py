@@ -63,7 +63,7 @@ def _windows_of(events: np.ndarray, gt: dict | None, config: ToffeConfig, t_lo: 
 
 
 def _from_generator(config: ToffeConfig, seed: int, n_windows: int, progress: bool) -> HeldOut:
-    from ..dataset.camera import PinholeCamera
+    from ..camera import PinholeCamera
     from ..dataset.splits import split_specs
     from ..dataset.synth import generate_sequence
 
