@@ -16,13 +16,12 @@ from typing import Any
 
 from .camera import REFERENCE_DEPTH_M, REFERENCE_FOCAL_PX, SpeedScale
 from .errors import InputError
+from .events.frontend import INPUT_NORMS
 from .fileio import read_json
 
 SPEED_BINS_MPS: tuple[tuple[float, float], ...] = ((1.0, 18.0), (18.0, 42.0), (42.0, 84.0), (84.0, 500.0))
 CONFIG_FORMAT_VERSION = 1
-#: OFS/OFPD input front ends (events/frontend.py): "none" = binary spike per (bin, polarity,
-#: pixel); "first" = each pixel's first spike per polarity in the window only.
-INPUT_NORMS = ("none", "first")
+
 
 
 @dataclass(frozen=True)

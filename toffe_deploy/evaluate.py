@@ -23,6 +23,7 @@ import numpy as np
 from .cascade import close_binary
 from .checkpoint import load_checkpoint
 from .events.binning import bin_window
+from .events.frontend import apply_dense
 from .metrics import FlowErrors, SeparationCounts
 from . import ofpd_io
 
@@ -97,7 +98,8 @@ def evaluate(opts: EvalOptions) -> dict:
                     truth = window_truth(gt, int(t0), dt)
                     if not truth:
                         continue
-                    binned = bin_window(src.read(int(t0), int(t0) + dt), int(t0), dt, cfg.n_bins, sensor, dtype=np.uint8)
+                    binned = apply_dense(bin_window(src.read(int(t0), int(t0) + dt), int(t0), dt, cfg.n_bins, sensor,
+                                                    dtype=np.uint8), cfg.input_norm)
                     preds, res = predict_window(binned, run_stage, ofpd, cfg)
                     errs.add_window(preds, truth)
                     if len(truth) == 1:

@@ -25,6 +25,12 @@ def register(sub) -> None:
                         "(default: the checkpoint's setting, else 4); a new value trains a fresh OFPD")
     p.add_argument("--ofpd-kernels", default=None, metavar="K1,K2",
                    help="OFPD conv kernel sizes (default: the checkpoint's, else 3,3); a new value trains a fresh OFPD")
+    p.add_argument("--input-norm", choices=("first", "none"), default="first",
+                   help="input front end of a new checkpoint: 'first' keeps each pixel's first spike per polarity "
+                        "in a window (speed from swept area, not event density; default), 'none' every spike "
+                        "(the paper's input)")
+    p.add_argument("--ofs-kernel", type=int, default=3, metavar="K",
+                   help="OFS conv kernel size of a new checkpoint (odd; default 3)")
     p.add_argument("--resume", action="store_true", help="continue from the training state saved in --out")
     p.add_argument("--device", default="auto", help="torch device: auto (CUDA when present, else CPU), cpu, cuda")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -42,6 +48,8 @@ def run(args) -> int:
             kernels = tuple(int(k) for k in args.ofpd_kernels.split(","))
         except ValueError:
             raise ToffeError(f"--ofpd-kernels needs two odd sizes like 3,3, got {args.ofpd_kernels!r}") from None
+    if args.ofs_kernel < 1 or args.ofs_kernel % 2 == 0:
+        raise ToffeError(f"--ofs-kernel must be an odd positive size, got {args.ofs_kernel}")
     for name in ("dt", "ofs_epochs", "epochs", "windows_per_seq"):
         if getattr(args, name) < (0 if "epochs" in name else 1):
             raise ToffeError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
@@ -57,6 +65,7 @@ def run(args) -> int:
     out = train(TrainOptions(data=args.data, out=args.out, stage=args.stage, ofs_epochs=args.ofs_epochs,
                              ofpd_epochs=args.epochs, seed=args.seed, resume=args.resume, dt_us=args.dt,
                              per_file=args.windows_per_seq, device=args.device, ofpd_pool=args.ofpd_pool,
-                             ofpd_kernels=kernels, progress=not args.no_progress))
+                             ofpd_kernels=kernels, progress=not args.no_progress, input_norm=args.input_norm,
+                             ofs_kernel=args.ofs_kernel))
     print(f"checkpoint written to {out}")
     return 0

@@ -22,6 +22,7 @@ import numpy as np
 from ..config import ToffeConfig
 from ..errors import InputError
 from ..events.binning import bin_window
+from ..events.frontend import apply_dense
 
 GEN_SEQUENCES = 2          # multi-object scenes generated when no data set is given
 
@@ -57,7 +58,7 @@ def _windows_of(events: np.ndarray, gt: dict | None, config: ToffeConfig, t_lo: 
     starts = starts[counts > 0]
     out = []
     for t0 in _pick(starts, n):
-        b = bin_window(events, int(t0), dt, config.n_bins, config.sensor_size)
+        b = apply_dense(bin_window(events, int(t0), dt, config.n_bins, config.sensor_size), config.input_norm)
         out.append((int(t0), b, window_truth(gt, int(t0), dt) if gt is not None else None))
     return out
 

@@ -22,6 +22,7 @@ import numpy as np
 from ..config import ToffeConfig
 from ..errors import InputError
 from ..events.binning import bin_window
+from ..events.frontend import apply_dense
 
 CROP_PX = 160   # R: crop side for training windows (covers the 128 px OFPD crop around the centroid)
 
@@ -78,8 +79,9 @@ class WindowSet:
 
 
 def crop_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, centre_xy: tuple[float, float],
-                crop: int) -> tuple[np.ndarray, np.ndarray]:
-    """Bin the events of [t0, t0 + dt) inside the crop centred on centre_xy.
+                crop: int, input_norm: str = "none") -> tuple[np.ndarray, np.ndarray]:
+    """Bin the events of [t0, t0 + dt) inside the crop centred on centre_xy, through the input
+    front end (events/frontend.py), as deployment sees them.
 
     Returns (linear indices of active (bin, p, y, x) cells int32, origin (x0, y0)).
     """
@@ -91,7 +93,7 @@ def crop_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, centre_xy:
     sub = events[inside].copy()
     sub["x"] = ex[inside]
     sub["y"] = ey[inside]
-    vol = bin_window(sub, t0, dt_us, n_bins, (crop, crop), dtype=np.uint8)
+    vol = apply_dense(bin_window(sub, t0, dt_us, n_bins, (crop, crop), dtype=np.uint8), input_norm)
     return np.flatnonzero(vol.reshape(-1)).astype(np.int32), np.array([x0, y0], dtype=np.int64)
 
 
@@ -140,7 +142,7 @@ def load_windows(files: list[Path], config: ToffeConfig, dt_us: int | None = Non
                     continue
                 o = truth[0]
                 ev = src.read(int(t0), int(t0) + dt)
-                idx, org = crop_window(ev, int(t0), dt, config.n_bins, (o.x, o.y), crop)
+                idx, org = crop_window(ev, int(t0), dt, config.n_bins, (o.x, o.y), crop, config.input_norm)
                 if idx.size < min_events:
                     continue
                 cells.append(idx)

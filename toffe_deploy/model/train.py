@@ -41,6 +41,7 @@ from tqdm import tqdm
 from ..checkpoint import (CONFIG_FILE, load_checkpoint, random_ofpd_state, save_checkpoint, dotie_ofs)
 from ..config import ToffeConfig
 from ..errors import InputError, ToffeError
+from ..events.frontend import apply_dense
 from ..fileio import atomic_path
 from .. import ofpd_io
 from ..cascade import run_cascade
@@ -85,9 +86,11 @@ def noise_crops(n: int, n_bins: int, crop: int, rng: np.random.Generator) -> np.
     return rng.random((n, n_bins, 2, crop, crop)) < dens
 
 
-def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: bool = True):
-    """Sparse rows of all training crops plus n/8 noise-only crops; returns (SparseWindows, speed_bin)
-    with speed_bin 0 for the noise crops (a negative for every stage)."""
+def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: bool = True,
+                          input_norm: str = "none"):
+    """Sparse rows of all training crops plus n/8 noise-only crops (through the same input front
+    end as the crops); returns (SparseWindows, speed_bin) with speed_bin 0 for the noise crops (a
+    negative for every stage)."""
     from .ofs_sparse import pack_windows
 
     rng = np.random.default_rng(seed)
@@ -97,7 +100,7 @@ def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: 
         for i in tqdm(range(len(windows)), desc="packing OFS windows", leave=False, disable=not progress):
             yield windows.dense([i])[0]
         for _ in range(n_noise):
-            yield noise_crops(1, windows.n_bins, windows.crop, rng)[0]
+            yield apply_dense(noise_crops(1, windows.n_bins, windows.crop, rng)[0], input_norm)
 
     sw = pack_windows(vols(), kernel)
     return sw, np.concatenate([windows.speed_bin, np.zeros(n_noise, np.int64)])
@@ -314,6 +317,8 @@ class TrainOptions:
     progress: bool = True
     ofpd_pool: int | None = None      # OFPD cell size P; None: the checkpoint's (or OFPD_DEFAULTS')
     ofpd_kernels: tuple[int, int] | None = None   # OFPD conv kernel sizes; None: likewise
+    input_norm: str = "first"         # input front end of a new checkpoint (events/frontend.py)
+    ofs_kernel: int = 3               # OFS conv kernel of a new checkpoint
 
 
 def _state_path(out: Path) -> Path:
@@ -335,7 +340,7 @@ def _save_state(out: Path, state: dict, ofpd_model=None, opt=None) -> None:
         tmp.write_text(json.dumps(state, indent=1))
 
 
-def make_config(files, data: Path, dt_us: int, seed: int) -> ToffeConfig:
+def make_config(files, data: Path, dt_us: int, seed: int, input_norm: str = "first", ofs_kernel: int = 3) -> ToffeConfig:
     """Config from the data set's sensor size and provenance."""
     from ..events.io import open_events
 
@@ -344,7 +349,8 @@ def make_config(files, data: Path, dt_us: int, seed: int) -> ToffeConfig:
         attrs = dict(src.attrs)
     prov = {"data_dir": os.fspath(data), "train_sequences": len(files), "train_seed": seed,
             "generator": attrs.get("generator"), "first_sequence": files[0].name}
-    return ToffeConfig(sensor_size=tuple(sensor), dt_us=int(dt_us), ofpd=dict(ofpd_io.OFPD_DEFAULTS), dataset=prov)
+    return ToffeConfig(sensor_size=tuple(sensor), dt_us=int(dt_us), ofpd=dict(ofpd_io.OFPD_DEFAULTS), dataset=prov,
+                       input_norm=input_norm, ofs_kernel=int(ofs_kernel))
 
 
 def with_ofpd_settings(config: ToffeConfig, pool: int | None, kernels: tuple[int, int] | None
@@ -397,7 +403,7 @@ def train(opts: TrainOptions) -> Path:
     else:
         if opts.stage == "ofpd":
             raise InputError(out, "--stage ofpd needs a checkpoint with trained OFS stages in --out (run --stage ofs first)")
-        config = make_config(files, Path(opts.data), opts.dt_us, opts.seed)
+        config = make_config(files, Path(opts.data), opts.dt_us, opts.seed, opts.input_norm, opts.ofs_kernel)
         ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
         state = {}
     try:
@@ -427,7 +433,7 @@ def train(opts: TrainOptions) -> Path:
     if opts.stage in ("ofs", "all"):
         done = set(state.get("ofs_done", []))
         if len(done) < config.n_speed_bins:
-            packed, bins = pack_training_windows(windows, config.ofs_kernel, opts.seed, opts.progress)
+            packed, bins = pack_training_windows(windows, config.ofs_kernel, opts.seed, opts.progress, config.input_norm)
         for k in range(1, config.n_speed_bins + 1):
             if k in done:
                 continue

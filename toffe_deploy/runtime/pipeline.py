@@ -28,6 +28,7 @@ from typing import Iterable, Iterator, Union
 import numpy as np
 
 from ..errors import InputError
+from ..events.frontend import apply_dense
 from ..ofpd_io import decode
 from . import ofpd_input
 from ..compiled import new_scratch, warm_up
@@ -171,10 +172,12 @@ class Pipeline:
             return
         dt = self.config.dt_us
         n = self.config.n_speed_bins
+        norm = self.config.input_norm
         if self.sparse:
             for t0, x in windows:
                 self._check(x)
                 vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(np.asarray(x) > 0)
+                vol = vol.front_end(norm)
                 res = self.cascade.cascade_sparse(vol)
                 yield WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, res.frames))
             return
@@ -185,7 +188,8 @@ class Pipeline:
             for t0, x in windows:
                 self._check(x)
                 starts.append(int(t0))
-                yield x.to_dense(np.uint8) if isinstance(x, SpikeVolume) else np.asarray(x)
+                x = x.front_end(norm).to_dense(np.uint8) if isinstance(x, SpikeVolume) else apply_dense(x, norm)
+                yield x.astype(np.uint8, copy=False)
 
         for res in self.cascade.cascade_stream(dense()):
             t0 = starts.popleft()

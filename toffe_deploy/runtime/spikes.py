@@ -17,6 +17,7 @@ from functools import cached_property
 import numpy as np
 
 from ..events.binning import event_bin_index
+from ..events.frontend import apply_index
 
 
 @dataclass(frozen=True)
@@ -97,6 +98,13 @@ class SpikeVolume:
         width, height = int(sensor_size[0]), int(sensor_size[1])
         idx = event_bin_index(events, t0, dt_us, n_bins, sensor_size)
         return cls(np.unique(idx), (int(n_bins), 2, height, width))
+
+    def front_end(self, norm: str) -> "SpikeVolume":
+        """The ones the network sees through the input front end (events/frontend.py); self
+        when it keeps them all. Idempotent, so a caller may apply it again."""
+        if norm == "none":
+            return self
+        return SpikeVolume(apply_index(self.idx, self.shape, norm), self.shape)
 
     def to_dense(self, dtype=bool) -> np.ndarray:
         out = np.zeros(int(np.prod(self.shape)), dtype=dtype)
