@@ -26,9 +26,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
+from typing import TYPE_CHECKING, Iterable, Sequence
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .camera import SpeedScale
 
 #: The headline gate: a prediction farther than this from an object's centre does not find it.
 GATE_PX = 20.0
@@ -117,31 +120,34 @@ def match_gated(pred_xy: np.ndarray, true_xy: np.ndarray, gate_px: float = GATE_
         return []
     d = np.linalg.norm(true_xy[:, None, :] - pred_xy[None, :, :], axis=2)
     ok = d <= gate_px
+    ti, pj = np.nonzero(ok)
+    n = len(true_xy)
+    parent = list(range(n + len(pred_xy)))          # union-find over objects 0..n-1, predictions n..
+
+    def root(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for i, j in zip(ti.tolist(), pj.tolist()):
+        parent[root(i)] = root(n + j)
+    comps: dict[int, list[tuple[int, int]]] = {}
+    for i, j in zip(ti.tolist(), pj.tolist()):
+        comps.setdefault(root(i), []).append((i, j))
     pairs = []
-    seen_t = np.zeros(len(true_xy), dtype=bool)
-    for t0 in np.flatnonzero(ok.any(axis=1)):
-        if seen_t[t0]:
+    for edges in comps.values():
+        if len(edges) == 1:                           # the common case: one object, one prediction
+            pairs.append(edges[0])
             continue
-        rows, cols = np.zeros(len(true_xy), bool), np.zeros(len(pred_xy), bool)
-        rows[t0] = True
-        while True:                                   # grow the component to a fixed point
-            new_cols = ok[rows].any(axis=0)
-            new_rows = ok[:, new_cols].any(axis=1) | rows
-            if (new_cols == cols).all() and (new_rows == rows).all():
-                break
-            rows, cols = new_rows, new_cols
-        seen_t |= rows
-        ri, ci = np.flatnonzero(rows), np.flatnonzero(cols)
-        sub, sub_ok = d[np.ix_(ri, ci)], ok[np.ix_(ri, ci)]
+        ri = sorted({i for i, _j in edges})
+        ci = sorted({j for _i, j in edges})
         if len(ri) == 1 or len(ci) == 1:
-            flat = int(np.argmin(np.where(sub_ok, sub, np.inf)))
-            i, j = divmod(flat, len(ci))
-            pairs.append((int(ri[i]), int(ci[j])))
+            pairs.append(min(edges, key=lambda e: d[e]))
             continue
+        sub, sub_ok = d[np.ix_(ri, ci)], ok[np.ix_(ri, ci)]
         big = float(sub[sub_ok].sum()) + 1.0
-        for i, j in min_cost_assignment(np.where(sub_ok, sub, big)):
-            if sub_ok[i, j]:
-                pairs.append((int(ri[i]), int(ci[j])))
+        pairs += [(ri[a], ci[b]) for a, b in min_cost_assignment(np.where(sub_ok, sub, big)) if sub_ok[a, b]]
     return sorted(pairs)
 
 
@@ -173,7 +179,7 @@ class FlowErrors:
 
     gate_px: float = GATE_PX
     n_bins: int = 4
-    pred_scale: object | None = None
+    pred_scale: "SpeedScale | None" = None
     pix: list = field(default_factory=list)
     dir: list = field(default_factory=list)
     speed: list = field(default_factory=list)
@@ -187,7 +193,7 @@ class FlowErrors:
 
     def _px_ms(self, v_mps: float) -> float:
         """A predicted m/s speed back in px/ms (NaN without pred_scale)."""
-        return float(self.pred_scale.to_px_ms(v_mps)) if self.pred_scale is not None else math.nan
+        return float(v_mps) * self.pred_scale.px_ms_per_mps if self.pred_scale is not None else math.nan
 
     def add_window(self, preds: Sequence[Prediction], truths: Iterable, focal_px: float | None = None) -> None:
         """truths: objects with x, y, direction, speed, speed_bin and optionally speed_px_ms,

@@ -111,12 +111,13 @@ def truth_lines(e: dict) -> list[str]:
     c = e["confusion"]
     cells = ", ".join(f"{t}->{p}: {n}" for t, row in zip(c["labels"], c["matrix"])
                       for p, n in zip(c["labels"], row) if n) or "none"
+    fp = (f"{e['fp_per_window']:.3f} false positives per window "
+          f"({e['false_positives']} in {e['n_windows']} windows)")
+    if not e["n_gt"]:
+        return [f"vs ground truth: no object in the truth, {fp}"]
+    acc = f"{e['bin_accuracy']:.3f}" if e["n_matched"] else "- (nothing matched)"
     out = [f"vs ground truth (one-to-one within {e['gate_px']:g} px): recall {100 * e['recall']:.1f}% "
-           f"({e['n_matched']}/{e['n_gt']} objects), {e['fp_per_window']:.3f} false positives per window "
-           f"({e['false_positives']} in {e['n_windows']} windows), bin accuracy {e['bin_accuracy']:.3f}"
-           if e["n_gt"] else
-           f"vs ground truth: no object in the truth, {e['fp_per_window']:.3f} false positives per window "
-           f"({e['false_positives']} in {e['n_windows']} windows)"]
+           f"({e['n_matched']}/{e['n_gt']} objects), {fp}, bin accuracy {acc}"]
     if e["n_matched"]:
         px_ms = "" if math.isnan(e["speedE_px_ms"]) else f", {e['speedE_px_ms']:.3f} px/ms"
         out += [f"matched objects: pixE {e['pixE']:.3f} px, dirE {e['dirE']:.3f} deg, speedE {e['speedE']:.3f} m/s"
