@@ -165,3 +165,21 @@ def test_eval_unknown_split_names_the_splits_there(eval_env, capsys):
                  "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "split 'pairs'" in err and "appearance" in err
+
+
+def test_sequence_focal_length_from_attrs_and_summary_lines():
+    from toffe_deploy.runtime.output import truth_lines
+    from toffe_deploy.runtime.truth import sequence_focal_px
+
+    spec = {"generator": {"spec": {"camera": {"width": 640, "height": 480, "hfov_deg": 60.0}}}}
+    assert sequence_focal_px(spec) == pytest.approx(554.256, abs=1e-3)
+    assert sequence_focal_px({"focal_px": 1000.0, **spec}) == 1000.0
+    assert sequence_focal_px({"generator": "dv"}) is None and sequence_focal_px({}) is None
+    e = FlowErrors(gate_px=20)
+    e.add_window([P(500, 500)], [T(10, 10)])
+    (line,) = truth_lines(e.summary())                    # nothing matched: no error line, no "nan"
+    assert "recall 0.0% (0/1 objects)" in line and "1.000 false positives per window" in line and "nan" not in line
+    e = FlowErrors(gate_px=20)
+    e.add_window([P(500, 500)], [])
+    assert truth_lines(e.summary()) == ["vs ground truth: no object in the truth, 1.000 false positives per window "
+                                        "(1 in 1 windows)"]
