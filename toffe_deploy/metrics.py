@@ -26,12 +26,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Iterable, Sequence
+from typing import Iterable, Sequence
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from .camera import SpeedScale
+from .camera import SpeedScale
 
 #: The headline gate: a prediction farther than this from an object's centre does not find it.
 GATE_PX = 20.0
@@ -179,7 +178,7 @@ class FlowErrors:
 
     gate_px: float = GATE_PX
     n_bins: int = 4
-    pred_scale: "SpeedScale | None" = None
+    pred_scale: SpeedScale | None = None
     pix: list = field(default_factory=list)
     dir: list = field(default_factory=list)
     speed: list = field(default_factory=list)
@@ -213,12 +212,12 @@ class FlowErrors:
             pred_px = float(p.speed_px_ms) if _finite(p.speed_px_ms) else self._px_ms(p.speed_mps)
             bin_px = self._px_ms(p.speed_bin_mps)
             self.speed_px_ms.append(abs(pred_px - true_px) if _finite(true_px) and _finite(pred_px) else math.nan)
-            # m/s per px/ms at the object's true depth seen by the sequence's camera (SpeedScale.to_mps)
-            to_mps = 1000.0 * depth / float(focal_px) if _finite(depth) and _finite(focal_px) and focal_px > 0 else math.nan
-            ok = _finite(true_px) and _finite(to_mps)
-            self.speed.append(abs(pred_px - true_px) * to_mps if ok and _finite(pred_px)
+            # the error in m/s at the object's true depth seen by the sequence's camera
+            truth_scale = SpeedScale(float(focal_px), depth) if _finite(true_px) and _finite(depth) and depth > 0 \
+                and _finite(focal_px) and focal_px > 0 else None
+            self.speed.append(truth_scale.to_mps(abs(pred_px - true_px)) if truth_scale and _finite(pred_px)
                               else abs(p.speed_mps - float(t.speed)))
-            self.speed_bin.append(abs(bin_px - true_px) * to_mps if ok and _finite(bin_px)
+            self.speed_bin.append(truth_scale.to_mps(abs(bin_px - true_px)) if truth_scale and _finite(bin_px)
                                   else abs(p.speed_bin_mps - float(t.speed)))
             self.gt_bin.append(int(t.speed_bin))
             self.pred_bin.append(int(p.stage))
