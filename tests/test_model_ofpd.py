@@ -78,11 +78,11 @@ def test_matching_counts_misses_and_false_positives():
         def __init__(self, x, y, b):
             self.x, self.y, self.direction, self.speed, self.speed_bin = x, y, 0.0, 30.0, b
 
-    e = FlowErrors(max_dist_px=20)
+    e = FlowErrors(gate_px=20)
     preds = [Prediction(2, 11, 10, 0.1, 31.0, 30.0), Prediction(3, 100, 100, 0.0, 60.0, 63.0)]
     e.add_window(preds, [T(10, 10, 2), T(50, 50, 1)])
     s = e.summary()
-    assert s["n_matched"] == 1 and s["n_gt"] == 2 and s["detection_rate"] == 0.5 and s["false_positives"] == 1
+    assert s["n_matched"] == 1 and s["n_gt"] == 2 and s["recall"] == 0.5 and s["false_positives"] == 1
     assert s["pixE"] == pytest.approx(1.0) and s["speedE"] == pytest.approx(1.0) and s["speedE_bin_only"] == 0.0
     assert match_nearest([[0, 0], [5, 5]], [[4, 4], [1, 1]]) == [(0, 1), (1, 0)] or \
         sorted(match_nearest([[0, 0], [5, 5]], [[4, 4], [1, 1]])) == [(0, 1), (1, 0)]

@@ -173,6 +173,19 @@ def test_run_cli_writes_jsonl_and_summary_with_ground_truth(env, capsys, tmp_pat
     assert s["windows"] == 24 and s["objects"] == len(objs) and s["errors"]["n_gt"] > 0
 
 
+def test_run_summary_reports_recall_false_positives_per_window_and_bin_accuracy(env, capsys, tmp_path):
+    summ = tmp_path / "summary.json"
+    rc, stdout, stderr = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--max-windows", "8",
+                                 "--summary-json", summ)
+    assert rc == 0, stderr
+    e = json.loads(summ.read_text())["errors"]
+    assert e["n_windows"] == 8 and e["n_gt"] > 0 and e["gate_px"] == 20.0
+    assert e["n_pred"] == sum(len(json.loads(s)["objects"]) for s in stdout.splitlines())
+    assert f"recall {100 * e['recall']:.1f}% ({e['n_matched']}/{e['n_gt']} objects)" in stderr
+    assert f"{e['fp_per_window']:.3f} false positives per window ({e['false_positives']} in 8 windows)" in stderr
+    assert f"bin accuracy {e['bin_accuracy']:.3f}" in stderr
+
+
 def test_run_cli_stdout_is_pure_jsonl_and_max_windows(env, capsys):
     rc, stdout, stderr = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--max-windows", "3")
     assert rc == 0

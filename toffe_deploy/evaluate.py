@@ -3,14 +3,17 @@
 Per dt: windows [t0, t0 + dt) are sampled evenly from each sequence, binned at full sensor
 resolution, run through the reference cascade (OFS stages in Loihi fixed point by default, the
 arithmetic the deployment runs; ``ofs="float"`` uses the float weights) and OFPD on every stage
-frame holding an object. Ground truth is the window's midpoint truth (window_truth). Windows
-with no visible object are skipped; a visible object without a matching prediction is a miss.
+frame holding an object. Ground truth is the window's midpoint truth (window_truth). Every
+sampled window counts, those with no visible object too (a prediction there is a false
+positive); predictions and objects are matched one-to-one within a 20 px gate (metrics).
 
-Reported: pixE, dirE, speedE (regressed within the bin) and speedE of the paper's bin-only
-estimate, all as means over matched objects; detection rate and false positives; the same per
-ground-truth speed bin; and for single-object windows the speed separation of every OFS stage
-run alone on the window: fires (its closed output keeps >= min_events event pixels) vs should
-fire (object speed bin >= k), as precision / recall.
+Reported: recall, false positives per window, bin accuracy with the confusion matrix (true x
+predicted bin); pixE, dirE, speedE (regressed within the bin; also in px/ms) and speedE of the
+paper's bin-only estimate, as means over matched objects; the same per ground-truth speed bin;
+optionally the same per bucket of a per-sequence attribute (``by``: breakdown.py); and for
+single-object windows the speed separation of every OFS stage run alone on the window: fires
+(its closed output keeps >= min_events event pixels) vs should fire (object speed bin >= k), as
+precision / recall.
 """
 from __future__ import annotations
 
@@ -20,11 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .breakdown import Breakdown, attr_value, bucket_labels, bucket_order
 from .cascade import close_binary
 from .checkpoint import load_checkpoint
+from .errors import InputError
 from .events.binning import bin_window
 from .events.frontend import apply_dense
-from .metrics import FlowErrors, SeparationCounts
+from .metrics import GATE_PX, FlowErrors, SeparationCounts
 from . import ofpd_io
 
 PAPER_TABLE1 = {5000: (14.135, 25.842, 19.948), 2000: (8.406, 14.345, 16.677), 1000: (6.626, 13.817, 11.867),
@@ -39,7 +44,8 @@ class EvalOptions:
     split: str = "test"
     max_windows: int = 20
     ofs: str = "fixed"
-    max_dist_px: float = 64.0
+    gate_px: float = GATE_PX
+    by: tuple[Breakdown, ...] = ()
     progress: bool = True
 
 
@@ -50,6 +56,24 @@ def _sample_starts(t_start: int, t_end: int, dt: int, n: int) -> np.ndarray:
     return starts
 
 
+def split_files(data: Path, split: str) -> list[Path]:
+    """The sequence files of a split: those index.json lists, else DIR/SPLIT/*.h5 (a split
+    directory the index does not list); InputError naming the splits there otherwise."""
+    from .dataset.build import iter_split_files
+    from .model.data import find_sequences
+
+    root = Path(data)
+    if not root.is_dir():
+        raise InputError(root, "data directory does not exist")
+    if (root / "index.json").exists() and any(True for _ in iter_split_files(root, split)):
+        return find_sequences(root, split)
+    files = sorted((root / split).glob("*.h5"))
+    if not files:
+        have = sorted(d.name for d in root.iterdir() if d.is_dir() and any(d.glob("*.h5")))
+        raise InputError(root, f"no sequences in split '{split}' (splits here: {', '.join(have) or 'none'})")
+    return files
+
+
 def evaluate(opts: EvalOptions) -> dict:
     """Run the evaluation; returns a JSON-able dict (see ``format_markdown``)."""
     import torch
@@ -57,14 +81,14 @@ def evaluate(opts: EvalOptions) -> dict:
 
     from .dataset.groundtruth import window_truth
     from .events.io import open_events
-    from .model.data import find_sequences
     from .model.ofpd import OFPD
     from .model.ofs import OFS
     from .model.reference import fixed_stage_fn, float_stage_fn, ofpd_torch_fn, predict_window, quantize_stages
+    from .runtime.truth import sequence_focal_px
 
     ck = load_checkpoint(opts.ckpt)
     cfg = ck.config
-    files = find_sequences(opts.data, opts.split)
+    files = split_files(opts.data, opts.split)
     if opts.ofs == "fixed":
         run_stage = fixed_stage_fn(quantize_stages(ck.ofs))
     else:
@@ -79,29 +103,45 @@ def evaluate(opts: EvalOptions) -> dict:
     model.load_state_dict({k: torch.from_numpy(v) for k, v in ck.ofpd_state.items()})
     ofpd = ofpd_torch_fn(model.eval())
 
+    attrs = []
+    for path in files:
+        with open_events(path) as src:
+            attrs.append(src.attrs)
+    groups = []                                           # per --by: (found paths, bucket of each file, order)
+    for b in opts.by:
+        found = [attr_value(a, b.name) for a in attrs]
+        values = [f[1] if f else None for f in found]
+        labels = bucket_labels(values, b.edges)
+        groups.append((sorted({f[0] for f in found if f}), labels, bucket_order(labels, values)))
+
     results = {"checkpoint": str(opts.ckpt), "trained_dt_us": cfg.dt_us, "split": opts.split, "ofs": opts.ofs,
-               "sequences": len(files), "max_windows_per_sequence": opts.max_windows, "per_dt": []}
+               "sequences": len(files), "max_windows_per_sequence": opts.max_windows, "gate_px": opts.gate_px,
+               "per_dt": []}
+
+    def new_errors():
+        return FlowErrors(gate_px=opts.gate_px, n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
+
     for dt in opts.dts:
-        errs = FlowErrors(max_dist_px=opts.max_dist_px)
+        errs = new_errors()
+        by_errs = [{lab: new_errors() for lab in order} for _paths, _labels, order in groups]
         sep = [SeparationCounts() for _ in range(cfg.n_speed_bins)]
-        for path in tqdm(files, desc=f"eval dt={dt}us", unit="seq", disable=not opts.progress):
+        for fi, path in enumerate(tqdm(files, desc=f"eval dt={dt}us", unit="seq", disable=not opts.progress)):
             with open_events(path) as src:
                 gt = src.ground_truth
                 if gt is None:
-                    from .errors import InputError
                     raise InputError(path, "has no ground truth (needed for evaluation)")
                 sensor = src.sensor_size
                 if tuple(sensor) != tuple(cfg.sensor_size):
-                    from .errors import InputError
                     raise InputError(path, f"sensor size {list(sensor)} differs from the checkpoint's {list(cfg.sensor_size)}")
+                focal = sequence_focal_px(attrs[fi])
                 for t0 in _sample_starts(src.t_start_us, src.t_end_us, dt, opts.max_windows):
                     truth = window_truth(gt, int(t0), dt)
-                    if not truth:
-                        continue
                     binned = apply_dense(bin_window(src.read(int(t0), int(t0) + dt), int(t0), dt, cfg.n_bins, sensor,
                                                     dtype=np.uint8), cfg.input_norm)
                     preds, res = predict_window(binned, run_stage, ofpd, cfg)
-                    errs.add_window(preds, truth)
+                    errs.add_window(preds, truth, focal)
+                    for g, (_paths, labels, _order) in enumerate(groups):
+                        by_errs[g][labels[fi]].add_window(preds, truth, focal)
                     if len(truth) == 1:
                         inp = binned > 0
                         for k in range(1, cfg.n_speed_bins + 1):
@@ -110,7 +150,11 @@ def evaluate(opts: EvalOptions) -> dict:
                             sep[k - 1].add(ofpd_io.has_object(frame[None], cfg), truth[0].speed_bin >= k)
         row = {"dt_us": dt, "same_dt_as_training": dt == cfg.dt_us, "all": errs.summary(),
                "per_bin": {str(k): errs.summary(k) for k in range(1, cfg.n_speed_bins + 1)},
-               "separation": {str(k): sep[k - 1].as_dict() for k in range(1, cfg.n_speed_bins + 1)}}
+               "separation": {str(k): sep[k - 1].as_dict() for k in range(1, cfg.n_speed_bins + 1)},
+               "by": [{"name": b.name, "attribute": paths,
+                       "buckets": [{"bucket": lab, "sequences": labels.count(lab), **by_errs[g][lab].summary()}
+                                   for lab in order]}
+                      for g, (b, (paths, labels, order)) in enumerate(zip(opts.by, groups))]}
         results["per_dt"].append(row)
     return results
 
@@ -120,31 +164,53 @@ def _f(v: float, nd: int = 2) -> str:
 
 
 def format_markdown(r: dict) -> str:
-    """Table 1 style markdown: ours beside the paper's, then per-bin rows and OFS separation."""
+    """Table 1 style markdown: detection (recall, FP per window, bin accuracy) and errors beside the
+    paper's, then per-bin rows, the bin confusion matrix, the breakdowns and the OFS separation."""
+    rows = sorted(r["per_dt"], key=lambda x: -x["dt_us"])
     lines = [f"Checkpoint `{r['checkpoint']}` (trained at dt = {r['trained_dt_us']} us), split `{r['split']}`, "
-             f"{r['sequences']} sequences, <= {r['max_windows_per_sequence']} windows each, OFS {r['ofs']}.", "",
-             "| dt (us) | pixE (px) | dirE (deg) | speedE (m/s) | speedE bin-only (m/s) | detected | false pos. | paper pixE | paper dirE | paper speedE |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
-    for row in sorted(r["per_dt"], key=lambda x: -x["dt_us"]):
+             f"{r['sequences']} sequences, <= {r['max_windows_per_sequence']} windows each, OFS {r['ofs']}; "
+             f"one-to-one matching within {r['gate_px']:g} px.", "",
+             "| dt (us) | recall | FP / window | bin acc. | pixE (px) | dirE (deg) | speedE (m/s) | speedE (px/ms) "
+             "| speedE bin-only (m/s) | paper pixE | paper dirE | paper speedE |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
         a = row["all"]
         p = PAPER_TABLE1.get(row["dt_us"], (float("nan"),) * 3)
         star = "" if row["same_dt_as_training"] else "*"
-        lines.append(f"| {row['dt_us']}{star} | {_f(a['pixE'], 3)} | {_f(a['dirE'], 3)} | {_f(a['speedE'], 3)} | "
-                     f"{_f(a['speedE_bin_only'], 3)} | {a['n_matched']}/{a['n_gt']} ({_f(100 * a['detection_rate'], 1)}%) | "
-                     f"{a['false_positives']} | {_f(p[0], 3)} | {_f(p[1], 3)} | {_f(p[2], 3)} |")
-    if any(not row["same_dt_as_training"] for row in r["per_dt"]):
+        lines.append(f"| {row['dt_us']}{star} | {a['n_matched']}/{a['n_gt']} ({_f(100 * a['recall'], 1)}%) | "
+                     f"{_f(a['fp_per_window'], 3)} ({a['false_positives']}/{a['n_windows']}) | {_f(a['bin_accuracy'], 3)} | "
+                     f"{_f(a['pixE'], 3)} | {_f(a['dirE'], 3)} | {_f(a['speedE'], 3)} | {_f(a['speedE_px_ms'], 3)} | "
+                     f"{_f(a['speedE_bin_only'], 3)} | {_f(p[0], 3)} | {_f(p[1], 3)} | {_f(p[2], 3)} |")
+    if any(not row["same_dt_as_training"] for row in rows):
         lines.append(f"\n\\* evaluated with the weights trained at dt = {r['trained_dt_us']} us.")
-    lines += ["", "Per ground-truth speed bin (matched objects; bin acc. = cascade put it in its true bin):", "",
-              "| dt (us) | bin | matched | pixE (px) | dirE (deg) | speedE (m/s) | speedE bin-only (m/s) | bin acc. |",
-              "|---|---|---|---|---|---|---|---|"]
-    for row in sorted(r["per_dt"], key=lambda x: -x["dt_us"]):
+    lines += ["", "Per ground-truth speed bin (errors over matched objects; bin acc. = cascade put it in its true bin; "
+              "FP = unmatched predictions reported in that bin):", "",
+              "| dt (us) | bin | objects | recall | FP | pixE (px) | dirE (deg) | speedE (m/s) | speedE bin-only (m/s) | bin acc. |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
         for k, b in row["per_bin"].items():
-            lines.append(f"| {row['dt_us']} | {k} | {b['n_matched']} | {_f(b['pixE'])} | {_f(b['dirE'])} | {_f(b['speedE'])} | "
-                         f"{_f(b['speedE_bin_only'])} | {_f(b['bin_accuracy'])} |")
+            lines.append(f"| {row['dt_us']} | {k} | {b['n_gt']} | {_f(b['recall'])} | {b['false_positives']} | "
+                         f"{_f(b['pixE'])} | {_f(b['dirE'])} | {_f(b['speedE'])} | {_f(b['speedE_bin_only'])} | "
+                         f"{_f(b['bin_accuracy'])} |")
+    lines += ["", "Bin confusion over matched objects (rows: true bin, columns: predicted bin):"]
+    for row in rows:
+        c = row["all"]["confusion"]
+        lines += ["", f"| dt = {row['dt_us']} us | " + " | ".join(f"pred {k}" for k in c["labels"]) + " |",
+                  "|---|" + "---|" * len(c["labels"])]
+        lines += [f"| true {k} | " + " | ".join(str(v) for v in m) + " |" for k, m in zip(c["labels"], c["matrix"])]
+    for g, by in enumerate(rows[0]["by"] if rows else []):
+        found = ", ".join(by["attribute"]) or "not found in any sequence"
+        lines += ["", f"By `{by['name']}` (sequence attribute: {found}):", "",
+                  f"| dt (us) | {by['name']} | sequences | objects | recall | FP / window | bin acc. | pixE (px) |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for row in rows:
+            for b in row["by"][g]["buckets"]:
+                lines.append(f"| {row['dt_us']} | {b['bucket']} | {b['sequences']} | {b['n_gt']} | {_f(b['recall'])} | "
+                             f"{_f(b['fp_per_window'], 3)} | {_f(b['bin_accuracy'])} | {_f(b['pixE'])} |")
     lines += ["", "OFS speed separation (single-object windows, each stage alone: fires vs object bin >= k):", "",
               "| dt (us) | " + " | ".join(f"OFS{k} P / R" for k in sorted(r["per_dt"][0]["separation"])) + " |",
               "|---|" + "---|" * len(r["per_dt"][0]["separation"])]
-    for row in sorted(r["per_dt"], key=lambda x: -x["dt_us"]):
+    for row in rows:
         cells = [f"{_f(s['precision'])} / {_f(s['recall'])}" for _k, s in sorted(row["separation"].items())]
         lines.append(f"| {row['dt_us']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)

@@ -1,22 +1,39 @@
-"""Object flow metrics (torch-free): the paper's pixE, dirE, speedE plus detection bookkeeping.
+"""Object flow metrics (torch-free): the paper's pixE, dirE, speedE plus honest detection counts.
 
     pixE   = mean |(x, y)_pred - (x, y)_gt|_2                (px, full sensor resolution)
     dirE   = mean wrap(|theta_pred - theta_gt|) in [0, 180]    (deg)
     speedE = mean |v_pred - v_gt|                              (m/s)
 
 The paper calls them mean absolute errors; for pose we take the Euclidean distance (the
-absolute error of a 2-D position). Errors are averaged over *matched* ground-truth objects:
-each ground-truth object of a window is matched to its nearest prediction (greedy by distance,
-one-to-one, within ``max_dist_px``); a ground-truth object left without a prediction is a miss
-and lowers the detection rate instead of being silently dropped, a prediction left without an
-object is a false positive.
+absolute error of a 2-D position). Each window's predictions are matched one-to-one to its
+ground-truth objects by an optimal assignment on centre distance with a gate (``match_gated``:
+the most pairs within ``gate_px``, then the least total distance). Errors are averaged over
+matched objects only, so the detection counts say the rest:
+
+    recall            = matched objects / ground-truth objects
+    FP per window     = (predictions - matched) / windows         (windows with no object count)
+    bin accuracy      = matched objects whose predicted bin is the true bin / matched objects
+    confusion[t][p]   = matched objects of true bin t reported in bin p
+
+speedE compares image-plane speeds when both sides have one (ground-truth column
+``speed_px_ms``; a prediction's px/ms speed, or its m/s speed at the config's reference scale):
+speedE_px_ms = |pred - true| px/ms, and speedE = the same converted to m/s at the object's true
+depth (``depth_m``) and the sequence's focal length, the error a user gets with the right
+``run --depth-m``. Without those it is the m/s difference (the paper's protocol, where the two
+agree).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
 import numpy as np
+
+from .camera import SpeedScale
+
+#: The headline gate: a prediction farther than this from an object's centre does not find it.
+GATE_PX = 20.0
 
 
 def angle_error_deg(pred_rad, true_rad) -> np.ndarray:
@@ -27,7 +44,8 @@ def angle_error_deg(pred_rad, true_rad) -> np.ndarray:
 
 
 def match_nearest(pred_xy: np.ndarray, true_xy: np.ndarray, max_dist_px: float = np.inf) -> list[tuple[int, int]]:
-    """Greedy one-to-one matching by distance: list of (true_index, pred_index) pairs."""
+    """Greedy one-to-one matching by distance: list of (true_index, pred_index) pairs (used to pair
+    two pipelines' objects, where nearest-first is the intent)."""
     pred_xy = np.asarray(pred_xy, dtype=np.float64).reshape(-1, 2)
     true_xy = np.asarray(true_xy, dtype=np.float64).reshape(-1, 2)
     if not len(pred_xy) or not len(true_xy):
@@ -47,9 +65,95 @@ def match_nearest(pred_xy: np.ndarray, true_xy: np.ndarray, max_dist_px: float =
     return pairs
 
 
+def min_cost_assignment(cost: np.ndarray) -> list[tuple[int, int]]:
+    """Exact minimum-cost assignment of a (n, m) matrix: min(n, m) (row, col) pairs, each row and
+    column at most once (Hungarian method with potentials, O(n^2 m); scipy's
+    linear_sum_assignment without scipy, which the lean runtime does not ship)."""
+    cost = np.asarray(cost, dtype=np.float64)
+    flip = cost.shape[0] > cost.shape[1]
+    a = cost.T if flip else cost                      # n <= m
+    n, m = a.shape
+    u, v = np.zeros(n + 1), np.zeros(m + 1)
+    owner = np.zeros(m + 1, dtype=np.int64)           # owner[j] = 1-based row assigned to column j
+    way = np.zeros(m + 1, dtype=np.int64)
+    for i in range(1, n + 1):
+        owner[0], j0 = i, 0
+        minv = np.full(m + 1, np.inf)
+        used = np.zeros(m + 1, dtype=bool)
+        while True:
+            used[j0] = True
+            i0 = owner[j0]
+            free = ~used[1:]
+            red = a[i0 - 1] - u[i0] - v[1:]
+            better = free & (red < minv[1:])
+            minv[1:][better] = red[better]
+            way[1:][better] = j0
+            cand = np.where(free, minv[1:], np.inf)
+            j1 = int(np.argmin(cand)) + 1
+            delta = cand[j1 - 1]
+            u[owner[used]] += delta
+            v[used] -= delta
+            minv[1:][free] -= delta
+            j0 = j1
+            if owner[j0] == 0:
+                break
+        while j0:
+            j1 = way[j0]
+            owner[j0] = owner[j1]
+            j0 = j1
+    pairs = [(int(owner[j]) - 1, j - 1) for j in range(1, m + 1) if owner[j]]
+    return sorted((c, r) for r, c in pairs) if flip else sorted(pairs)
+
+
+def match_gated(pred_xy: np.ndarray, true_xy: np.ndarray, gate_px: float = GATE_PX) -> list[tuple[int, int]]:
+    """Optimal one-to-one matching within a gate: (true_index, pred_index) pairs, as many as
+    possible with every pair closer than ``gate_px``, and among those the least total distance.
+
+    Pairs beyond the gate cost a constant larger than any sum of in-gate distances, so the
+    assignment first maximizes the in-gate pairs; the bipartite "within the gate" graph is split
+    into connected components first, so a window of well separated objects costs no more than
+    nearest-neighbour search."""
+    pred_xy = np.asarray(pred_xy, dtype=np.float64).reshape(-1, 2)
+    true_xy = np.asarray(true_xy, dtype=np.float64).reshape(-1, 2)
+    if not len(pred_xy) or not len(true_xy):
+        return []
+    d = np.linalg.norm(true_xy[:, None, :] - pred_xy[None, :, :], axis=2)
+    ok = d <= gate_px
+    ti, pj = np.nonzero(ok)
+    n = len(true_xy)
+    parent = list(range(n + len(pred_xy)))          # union-find over objects 0..n-1, predictions n..
+
+    def root(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for i, j in zip(ti.tolist(), pj.tolist()):
+        parent[root(i)] = root(n + j)
+    comps: dict[int, list[tuple[int, int]]] = {}
+    for i, j in zip(ti.tolist(), pj.tolist()):
+        comps.setdefault(root(i), []).append((i, j))
+    pairs = []
+    for edges in comps.values():
+        if len(edges) == 1:                           # the common case: one object, one prediction
+            pairs.append(edges[0])
+            continue
+        ri = sorted({i for i, _j in edges})
+        ci = sorted({j for _i, j in edges})
+        if len(ri) == 1 or len(ci) == 1:
+            pairs.append(min(edges, key=lambda e: d[e]))
+            continue
+        sub, sub_ok = d[np.ix_(ri, ci)], ok[np.ix_(ri, ci)]
+        big = float(sub[sub_ok].sum()) + 1.0
+        pairs += [(ri[a], ci[b]) for a, b in min_cost_assignment(np.where(sub_ok, sub, big)) if sub_ok[a, b]]
+    return sorted(pairs)
+
+
 @dataclass
 class Prediction:
-    """One reported object: stage (1-based speed bin) and its decoded object flow."""
+    """One reported object: stage (1-based speed bin) and its decoded object flow; ``speed_px_ms``
+    is its image-plane speed when the producer has it (NaN: derive it from ``speed_mps``)."""
 
     stage: int
     x: float
@@ -57,54 +161,105 @@ class Prediction:
     direction_rad: float
     speed_mps: float
     speed_bin_mps: float
+    speed_px_ms: float = math.nan
+
+
+def _finite(v) -> bool:
+    return v is not None and math.isfinite(float(v))
 
 
 @dataclass
 class FlowErrors:
-    """Accumulates matched errors and detection counts; ``summary()`` gives the table row."""
+    """Accumulates one window at a time (``add_window``); ``summary()`` gives the table row.
 
-    max_dist_px: float = 64.0
+    gate_px: matching gate (``match_gated``); n_bins: speed bins of the cascade (confusion matrix
+    size); pred_scale: the SpeedScale that turned predicted px/ms into m/s (the config's reference
+    scale), used to recover a prediction's px/ms speed when it carries none."""
+
+    gate_px: float = GATE_PX
+    n_bins: int = 4
+    pred_scale: SpeedScale | None = None
     pix: list = field(default_factory=list)
     dir: list = field(default_factory=list)
     speed: list = field(default_factory=list)
     speed_bin: list = field(default_factory=list)
-    gt_bin: list = field(default_factory=list)
-    pred_bin: list = field(default_factory=list)
-    n_gt: int = 0
-    n_pred: int = 0
+    speed_px_ms: list = field(default_factory=list)
+    gt_bin: list = field(default_factory=list)       # matched objects: true bin
+    pred_bin: list = field(default_factory=list)     # matched objects: predicted bin
+    all_gt_bin: list = field(default_factory=list)   # every ground-truth object
+    fp_bin: list = field(default_factory=list)       # every unmatched prediction: its bin
     n_windows: int = 0
 
-    def add_window(self, preds: Sequence[Prediction], truths: Iterable) -> None:
-        """truths: objects with x, y, direction, speed, speed_bin (dataset ObjectTruth)."""
+    def _px_ms(self, v_mps: float) -> float:
+        """A predicted m/s speed back in px/ms (NaN without pred_scale)."""
+        return float(v_mps) * self.pred_scale.px_ms_per_mps if self.pred_scale is not None else math.nan
+
+    def add_window(self, preds: Sequence[Prediction], truths: Iterable, focal_px: float | None = None) -> None:
+        """truths: objects with x, y, direction, speed, speed_bin and optionally speed_px_ms,
+        depth_m (dataset ObjectTruth); focal_px: the sequence's camera (None: unknown)."""
         truths = list(truths)
         self.n_windows += 1
-        self.n_gt += len(truths)
-        self.n_pred += len(preds)
-        pairs = match_nearest([(p.x, p.y) for p in preds], [(t.x, t.y) for t in truths], self.max_dist_px)
+        self.all_gt_bin.extend(int(t.speed_bin) for t in truths)
+        pairs = match_gated([(p.x, p.y) for p in preds], [(t.x, t.y) for t in truths], self.gate_px)
+        matched_p = {j for _i, j in pairs}
+        self.fp_bin.extend(int(p.stage) for j, p in enumerate(preds) if j not in matched_p)
         for i, j in pairs:
             t, p = truths[i], preds[j]
             self.pix.append(float(np.hypot(p.x - t.x, p.y - t.y)))
             self.dir.append(float(angle_error_deg(p.direction_rad, t.direction)))
-            self.speed.append(abs(p.speed_mps - float(t.speed)))
-            self.speed_bin.append(abs(p.speed_bin_mps - float(t.speed)))
+            true_px = float(getattr(t, "speed_px_ms", math.nan))
+            depth = float(getattr(t, "depth_m", math.nan))
+            pred_px = float(p.speed_px_ms) if _finite(p.speed_px_ms) else self._px_ms(p.speed_mps)
+            bin_px = self._px_ms(p.speed_bin_mps)
+            self.speed_px_ms.append(abs(pred_px - true_px) if _finite(true_px) and _finite(pred_px) else math.nan)
+            # the error in m/s at the object's true depth seen by the sequence's camera
+            truth_scale = SpeedScale(float(focal_px), depth) if _finite(true_px) and _finite(depth) and depth > 0 \
+                and _finite(focal_px) and focal_px > 0 else None
+            self.speed.append(truth_scale.to_mps(abs(pred_px - true_px)) if truth_scale and _finite(pred_px)
+                              else abs(p.speed_mps - float(t.speed)))
+            self.speed_bin.append(truth_scale.to_mps(abs(bin_px - true_px)) if truth_scale and _finite(bin_px)
+                                  else abs(p.speed_bin_mps - float(t.speed)))
             self.gt_bin.append(int(t.speed_bin))
             self.pred_bin.append(int(p.stage))
 
+    @property
+    def labels(self) -> list[int]:
+        """Bins of the confusion matrix: 1..n_bins, plus any other bin the truth holds (0: slower
+        than the first bin)."""
+        return sorted(set(range(1, self.n_bins + 1)) | set(self.gt_bin) | set(self.pred_bin))
+
+    def confusion(self) -> dict:
+        """{"labels": bins, "matrix": rows = true bin, columns = predicted bin} over matched objects."""
+        labels = self.labels
+        pos = {b: i for i, b in enumerate(labels)}
+        m = np.zeros((len(labels), len(labels)), dtype=np.int64)
+        for t, p in zip(self.gt_bin, self.pred_bin):
+            m[pos[t], pos[p]] += 1
+        return {"labels": labels, "matrix": m.tolist()}
+
     def summary(self, bin_k: int | None = None) -> dict:
-        """Means over matched objects (all, or those whose ground truth is in speed bin k)."""
-        sel = np.ones(len(self.pix), dtype=bool) if bin_k is None else (np.asarray(self.gt_bin) == bin_k)
+        """Means over matched objects and detection counts: all, or the ground truth of bin k
+        (its recall, errors and bin accuracy; false positives are those reported in bin k)."""
+        gt_bin = np.asarray(self.gt_bin, dtype=np.int64)
+        sel = np.ones(gt_bin.size, dtype=bool) if bin_k is None else (gt_bin == bin_k)
         n = int(sel.sum())
+        all_gt = np.asarray(self.all_gt_bin, dtype=np.int64)
+        n_gt = int(all_gt.size if bin_k is None else np.sum(all_gt == bin_k))
+        fp = len(self.fp_bin) if bin_k is None else sum(1 for b in self.fp_bin if b == bin_k)
 
         def mean(v):
-            return float(np.mean(np.asarray(v)[sel])) if n else float("nan")
+            a = np.asarray(v, dtype=np.float64)[sel]
+            a = a[np.isfinite(a)]
+            return float(a.mean()) if a.size else float("nan")
 
-        out = {"n_matched": n, "pixE": mean(self.pix), "dirE": mean(self.dir), "speedE": mean(self.speed),
-               "speedE_bin_only": mean(self.speed_bin),
-               "bin_accuracy": float(np.mean((np.asarray(self.gt_bin) == np.asarray(self.pred_bin))[sel])) if n else float("nan")}
+        hit = gt_bin == np.asarray(self.pred_bin, dtype=np.int64)
+        out = {"n_matched": n, "n_gt": n_gt, "recall": n / n_gt if n_gt else float("nan"),
+               "false_positives": fp, "fp_per_window": fp / self.n_windows if self.n_windows else float("nan"),
+               "pixE": mean(self.pix), "dirE": mean(self.dir), "speedE": mean(self.speed),
+               "speedE_bin_only": mean(self.speed_bin), "speedE_px_ms": mean(self.speed_px_ms),
+               "bin_accuracy": float(hit[sel].mean()) if n else float("nan")}
         if bin_k is None:
-            out.update(n_gt=self.n_gt, n_pred=self.n_pred, n_windows=self.n_windows,
-                       detection_rate=(n / self.n_gt) if self.n_gt else float("nan"),
-                       false_positives=self.n_pred - n)
+            out.update(n_pred=n + fp, n_windows=self.n_windows, gate_px=self.gate_px, confusion=self.confusion())
         return out
 
 

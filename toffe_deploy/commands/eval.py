@@ -1,4 +1,5 @@
-"""`toffe-deploy eval`: Table 1 of the paper (pixE, dirE, speedE per dt) for a checkpoint."""
+"""`toffe-deploy eval`: Table 1 of the paper (pixE, dirE, speedE per dt) for a checkpoint, with
+recall, false positives per window and bin accuracy, optionally broken down by a sequence attribute."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -16,23 +17,44 @@ def _dts(text: str) -> tuple[int, ...]:
     return vals
 
 
+def _by(text: str):
+    import argparse
+
+    from ..breakdown import Breakdown
+
+    try:
+        return Breakdown.parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def register(sub) -> None:
+    from ..metrics import GATE_PX
+
     p = sub.add_parser(
-        "eval", help="evaluate a checkpoint: pixE, dirE, speedE per dt (the paper's Table 1)",
-        description="Evaluate a checkpoint on held-out sequences: object flow errors per window length, "
-        "per speed bin, detection rate and the OFS speed separation per stage, as a markdown table (stdout) "
-        "and optionally JSON.")
+        "eval", help="evaluate a checkpoint: recall, false positives, bin accuracy, pixE, dirE, speedE per dt",
+        description="Evaluate a checkpoint on held-out sequences: recall, false positives per window, bin "
+        "accuracy and its confusion matrix, and object flow errors over matched objects, per window length and "
+        "per speed bin, the OFS speed separation per stage, optionally per bucket of a sequence attribute "
+        "(--by); markdown tables on stdout and optionally JSON.")
     p.add_argument("ckpt", type=Path, help="checkpoint directory")
     p.add_argument("--data", required=True, type=Path, help="data-set directory (holds index.json)")
-    p.add_argument("--split", default="test", help="data-set split to evaluate: test (default), multi, train")
+    p.add_argument("--split", default="test",
+                   help="data-set split to evaluate: any split the index lists or any DIR/NAME/ holding .h5 files "
+                   "(test (default), multi, train, appearance, pairs, ...)")
     p.add_argument("--dt", type=_dts, default=(200, 500, 1000, 2000, 5000),
                    help="window lengths in us, comma separated (default 200,500,1000,2000,5000)")
     p.add_argument("--max-windows", type=int, default=20,
                    help="windows per sequence and dt, evenly spaced (default 20)")
     p.add_argument("--ofs", choices=("fixed", "float"), default="fixed",
                    help="OFS arithmetic: Loihi fixed point as deployed (default) or the float weights")
-    p.add_argument("--max-dist", type=float, default=64.0,
-                   help="a prediction farther than this (px) from an object does not match it (default 64)")
+    p.add_argument("--gate", type=float, default=GATE_PX,
+                   help=f"matching gate: a prediction farther than this (px) from an object's centre does not find it "
+                   f"(default {GATE_PX:g})")
+    p.add_argument("--by", type=_by, action="append", default=[], metavar="NAME[=EDGES]",
+                   help="also break recall / FP / bin accuracy / pixE down by a numeric sequence attribute, e.g. "
+                   "size, spacing, noise, contrast, bucketed at the given comma-separated edges (default: one bucket "
+                   "per value); repeatable")
     p.add_argument("--json", type=Path, help="also write the results as JSON to this file")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
@@ -46,6 +68,8 @@ def run(args) -> int:
 
     if args.max_windows < 1:
         raise ToffeError(f"--max-windows must be >= 1, got {args.max_windows}")
+    if not args.gate > 0:
+        raise ToffeError(f"--gate must be > 0 px, got {args.gate}")
     load_checkpoint(args.ckpt)          # fail fast on a bad checkpoint, before reading data
     import torch
 
@@ -54,8 +78,8 @@ def run(args) -> int:
 
     torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
     res = evaluate(EvalOptions(ckpt=args.ckpt, data=args.data, dts=args.dt, split=args.split,
-                               max_windows=args.max_windows, ofs=args.ofs, max_dist_px=args.max_dist,
-                               progress=not args.no_progress))
+                               max_windows=args.max_windows, ofs=args.ofs, gate_px=args.gate,
+                               by=tuple(args.by), progress=not args.no_progress))
     print(format_markdown(res))
     if args.json:
         with atomic_path(args.json) as tmp:

@@ -148,10 +148,11 @@ def run_command(args) -> int:
         errors = None
         if truth:
             from ..metrics import FlowErrors, Prediction
-            from ..runtime.truth import TruthIndex
+            from ..runtime.truth import TruthIndex, sequence_focal_px
 
             truth = TruthIndex(truth)
-            errors = FlowErrors()
+            errors = FlowErrors(n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
+            focal_px = sequence_focal_px(src.attrs)
         renderer = None
         if args.render:
             from ..runtime.render import FrameRenderer
@@ -189,7 +190,7 @@ def run_command(args) -> int:
                         if errors is not None:
                             errors.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps,
                                                           o.speed_bin_mps) for o in res.objects],
-                                              truth.window(res.t0_us, cfg.dt_us))
+                                              truth.window(res.t0_us, cfg.dt_us), focal_px)
                         if renderer is not None:
                             renderer.add(vol, res.objects, res.t0_us)
                         bar.update(1)

@@ -62,7 +62,8 @@ def percentiles_ms(seconds: list[float]) -> dict[str, float]:
 
 @dataclass
 class RunSummary:
-    """Counts and timings of one run; ``errors`` holds pixE/dirE/speedE when truth was present."""
+    """Counts and timings of one run; ``errors`` holds metrics.FlowErrors.summary() (recall, false
+    positives per window, bin accuracy and confusion, pixE/dirE/speedE) when truth was present."""
 
     target: str
     windows: int = 0
@@ -100,11 +101,25 @@ class RunSummary:
                f"{self.windows_per_s:.1f} windows/s over {self.wall_s:.2f} s (start-up {self.startup_s:.2f} s); "
                f"{what} p50 {lat['p50']:.2f} ms, p90 {lat['p90']:.2f} ms, p99 {lat['p99']:.2f} ms"]
         if self.errors is not None:
-            e = self.errors
-            if e.get("n_matched"):
-                out.append(f"vs ground truth: pixE {e['pixE']:.3f} px, dirE {e['dirE']:.3f} deg, "
-                           f"speedE {e['speedE']:.3f} m/s (bin-only {e['speedE_bin_only']:.3f} m/s); "
-                           f"{e['n_matched']}/{e['n_gt']} objects detected, {e['false_positives']} false positives")
-            else:
-                out.append(f"vs ground truth: no object matched ({e.get('n_gt', 0)} in the truth)")
+            out += truth_lines(self.errors)
         return out
+
+
+def truth_lines(e: dict) -> list[str]:
+    """The summary's ground-truth lines from a FlowErrors.summary(): detection first (recall, false
+    positives per window, bin accuracy and the non-zero confusion cells), then the errors."""
+    c = e["confusion"]
+    cells = ", ".join(f"{t}->{p}: {n}" for t, row in zip(c["labels"], c["matrix"])
+                      for p, n in zip(c["labels"], row) if n) or "none"
+    fp = (f"{e['fp_per_window']:.3f} false positives per window "
+          f"({e['false_positives']} in {e['n_windows']} windows)")
+    if not e["n_gt"]:
+        return [f"vs ground truth: no object in the truth, {fp}"]
+    acc = f"{e['bin_accuracy']:.3f}" if e["n_matched"] else "- (nothing matched)"
+    out = [f"vs ground truth (one-to-one within {e['gate_px']:g} px): recall {100 * e['recall']:.1f}% "
+           f"({e['n_matched']}/{e['n_gt']} objects), {fp}, bin accuracy {acc}"]
+    if e["n_matched"]:
+        px_ms = "" if math.isnan(e["speedE_px_ms"]) else f", {e['speedE_px_ms']:.3f} px/ms"
+        out += [f"matched objects: pixE {e['pixE']:.3f} px, dirE {e['dirE']:.3f} deg, speedE {e['speedE']:.3f} m/s"
+                f"{px_ms} (bin-only {e['speedE_bin_only']:.3f} m/s); bins true->predicted: {cells}"]
+    return out

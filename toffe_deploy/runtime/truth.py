@@ -29,3 +29,22 @@ class TruthIndex:
         margin = self.gap + dt_us
         i0, i1 = np.searchsorted(self.t, [tm - margin, tm + margin], side="left")
         return window_truth({k: v[i0:i1] for k, v in self.gt.items()}, t0, dt_us)
+
+
+def sequence_focal_px(attrs: dict) -> float | None:
+    """The focal length (px) of the camera that recorded a sequence, from its file attrs: a
+    top-level ``focal_px``, else the generator spec's camera (width, hfov_deg); None if neither
+    (eval then compares speeds in m/s, metrics module doc)."""
+    from ..camera import focal_px_from_hfov
+
+    def num(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0
+
+    if num(attrs.get("focal_px")):
+        return float(attrs["focal_px"])
+    gen = attrs.get("generator")
+    spec = gen.get("spec") if isinstance(gen, dict) else None
+    cam = spec.get("camera") if isinstance(spec, dict) else None
+    if isinstance(cam, dict) and num(cam.get("width")) and num(cam.get("hfov_deg")):
+        return focal_px_from_hfov(cam["width"], cam["hfov_deg"])
+    return None
