@@ -168,6 +168,17 @@ def open_source(args, bundle_sensor: tuple[int, int]):
     return open_events(path, sensor_size=args.sensor_size)
 
 
+def sensor_origin(args, src) -> str:
+    """Where the run's sensor size came from, for the summary (an inferred one is worth a warning)."""
+    if args.sensor_size:
+        return "--sensor-size"
+    if args.synthetic:
+        return "the synthetic camera's"
+    if src.attrs.get("sensor_size_inferred"):
+        return "inferred from the largest event coordinates: pass --sensor-size WxH"
+    return "the recording's"
+
+
 def run_command(args) -> int:
     from ..deploy.bundle import load_bundle
     from ..runtime.output import RunSummary, jsonl_sink, write_window
@@ -188,7 +199,8 @@ def run_command(args) -> int:
     with src:
         sensor = tuple(src.sensor_size)
         camera = resolve_camera(cfg, sensor, depth_m=args.depth_m, focal_px=args.focal_px, hfov_deg=args.hfov_deg,
-                                synthetic_focal_px=src.attrs.get("focal_px") if args.synthetic else None)
+                                synthetic_focal_px=src.attrs.get("focal_px") if args.synthetic else None,
+                                sensor_from=sensor_origin(args, src))
         t_start = src.t_start_us if args.start_us is None else int(args.start_us)
         n_total = max(0, -(-(src.t_end_us - t_start) // cfg.dt_us))
         if args.max_windows is not None:
