@@ -106,13 +106,13 @@ def speeds_of(dec: dict, config: ToffeConfig, scale: SpeedScale) -> tuple[np.nda
 
     The image-plane speed is decode's ``speed_px_ms`` when it gives one, else its ``speed_mps``
     taken back to px/ms with the bundle's camera (``config.speed_scale``, what the m/s were
-    stated for); the bin's representative speed goes the same way."""
+    stated for); the bin's representative speed goes the same way. Scalar factors, not
+    SpeedScale calls: this runs once per window on the cpu target's hot path."""
+    k_bundle = config.focal_px / (1000.0 * config.depth_m)       # px/ms per m/s, config.speed_scale
+    k_run = scale.px_ms_per_mps
     px_ms = dec.get("speed_px_ms")
-    if px_ms is None:
-        px_ms = config.speed_scale.to_px_ms(dec["speed_mps"])
-    px_ms = np.asarray(px_ms, dtype=np.float64)
-    bin_px_ms = config.speed_scale.to_px_ms(np.asarray(dec["speed_bin_mps"], dtype=np.float64))
-    return px_ms, scale.to_mps(px_ms), scale.to_mps(bin_px_ms)
+    px_ms = dec["speed_mps"] * k_bundle if px_ms is None else np.asarray(px_ms, dtype=np.float64)
+    return px_ms, px_ms / k_run, dec["speed_bin_mps"] * (k_bundle / k_run)
 
 
 def _make_cascade(bundle, target: str, tag: str, sensor_size: tuple[int, int]):
@@ -190,9 +190,9 @@ class Pipeline:
             return []
         pose, direction, speed = self.ofpd.run(x)
         dec = decode(pose, direction, speed, ks, self.config)
-        px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
-        return [ObjectFlow(speed_bin=int(k), speed_mps=float(mps[i]), speed_bin_mps=float(bin_mps[i]),
-                           speed_px_s=float(px_ms[i]) * 1000.0, x=float(dec["x_px"][i]),
+        px_ms, mps, bin_mps = (a.tolist() for a in speeds_of(dec, self.config, self.speed_scale))
+        return [ObjectFlow(speed_bin=int(k), speed_mps=mps[i], speed_bin_mps=bin_mps[i],
+                           speed_px_s=px_ms[i] * 1000.0, x=float(dec["x_px"][i]),
                            y=float(dec["y_px"][i]), direction_rad=float(dec["direction_rad"][i]),
                            n_events=int(n_events[i]))
                 for i, k in enumerate(ks)]
