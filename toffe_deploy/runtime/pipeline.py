@@ -101,18 +101,20 @@ def ofpd_model(bundle, variant: str = "fp32"):
     return path
 
 
-def speeds_of(dec: dict, config: ToffeConfig, scale: SpeedScale) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(px/ms, m/s, bin-only m/s) of decoded OFPD rows, m/s through the run's ``scale``.
+def speeds_of(dec: dict, config: ToffeConfig, scale: SpeedScale) -> tuple[list, list, list]:
+    """(px/ms, m/s, bin-only m/s) lists of decoded OFPD rows, m/s through the run's ``scale``.
 
     The image-plane speed is decode's ``speed_px_ms`` when it gives one, else its ``speed_mps``
     taken back to px/ms with the bundle's camera (``config.speed_scale``, what the m/s were
-    stated for); the bin's representative speed goes the same way. Scalar factors, not
-    SpeedScale calls: this runs once per window on the cpu target's hot path."""
+    stated for); the bin's representative speed goes the same way. Scalar factors on lists, not
+    SpeedScale calls on arrays: a window has a handful of objects and this is the cpu hot path."""
     k_bundle = config.focal_px / (1000.0 * config.depth_m)       # px/ms per m/s, config.speed_scale
     k_run = scale.px_ms_per_mps
     px_ms = dec.get("speed_px_ms")
-    px_ms = dec["speed_mps"] * k_bundle if px_ms is None else np.asarray(px_ms, dtype=np.float64)
-    return px_ms, px_ms / k_run, dec["speed_bin_mps"] * (k_bundle / k_run)
+    px_ms = ([v * k_bundle for v in dec["speed_mps"].tolist()] if px_ms is None
+             else np.asarray(px_ms, dtype=np.float64).tolist())
+    ratio = k_bundle / k_run
+    return px_ms, [v / k_run for v in px_ms], [v * ratio for v in np.asarray(dec["speed_bin_mps"]).tolist()]
 
 
 def _make_cascade(bundle, target: str, tag: str, sensor_size: tuple[int, int]):
@@ -190,7 +192,7 @@ class Pipeline:
             return []
         pose, direction, speed = self.ofpd.run(x)
         dec = decode(pose, direction, speed, ks, self.config)
-        px_ms, mps, bin_mps = (a.tolist() for a in speeds_of(dec, self.config, self.speed_scale))
+        px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         return [ObjectFlow(speed_bin=int(k), speed_mps=mps[i], speed_bin_mps=bin_mps[i],
                            speed_px_s=px_ms[i] * 1000.0, x=float(dec["x_px"][i]),
                            y=float(dec["y_px"][i]), direction_rad=float(dec["direction_rad"][i]),
