@@ -38,6 +38,12 @@ def focal_px_from_hfov(width_px: int, hfov_deg: float) -> float:
     return (float(width_px) / 2.0) / math.tan(math.radians(float(hfov_deg)) / 2.0)
 
 
+def hfov_deg_from_focal(width_px: int, focal_px: float) -> float:
+    """Horizontal field of view (deg) of a sensor ``width_px`` wide with focal length ``focal_px``
+    (the inverse of ``focal_px_from_hfov``): hfov = 2 atan(W / (2 f))."""
+    return math.degrees(2.0 * math.atan((float(width_px) / 2.0) / float(focal_px)))
+
+
 REFERENCE_FOCAL_PX = focal_px_from_hfov(REFERENCE_WIDTH_PX, REFERENCE_HFOV_DEG)   # 554.26 px
 
 

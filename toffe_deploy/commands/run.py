@@ -5,6 +5,11 @@ OFS cascade on the target's backend and OFPD in onnxruntime, and its object flow
 one JSON line. A summary (windows, objects, windows/s, latency percentiles, and pixE/dirE/speedE
 when the recording carries ground truth) closes the run: on stderr when the JSON lines go to
 stdout, so stdout stays pure JSON lines, on stdout otherwise.
+
+Any sensor size runs (the OFS is a convolution, OFPD sees a crop): the cascade is built for the
+recording's sensor (``--sensor-size`` for files without one, or to override it). Speeds are
+reported in px/s and in m/s for the camera of ``runtime.run_camera`` (``--depth-m``,
+``--focal-px`` / ``--hfov-deg``, else the bundle's).
 """
 from __future__ import annotations
 
@@ -18,7 +23,7 @@ from ..errors import InputError, ToffeError
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
 SAMPLE = Path(__file__).resolve().parent.parent / "samples" / "sample_multi.h5"
-SYNTH_KEYS = ("split", "index", "duration", "seed")
+SYNTH_KEYS = ("split", "index", "duration", "seed", "sensor", "hfov")
 
 
 def register(sub) -> None:
@@ -38,8 +43,25 @@ def register(sub) -> None:
                           "default: the shipped multi-object sample")
     src.add_argument("--synthetic", metavar="SPEC",
                      help="generate the recording on the fly with the data-set generator: "
-                          "'SPLIT[:INDEX][,duration=S][,seed=N]', e.g. 'multi:2,duration=0.05' "
-                          "(SPLIT: train, test or multi); rendered at the bundle's sensor size")
+                          "'SPLIT[:INDEX][,duration=S][,seed=N][,sensor=WxH][,hfov=DEG]', e.g. "
+                          "'multi:2,duration=0.05,sensor=346x260' (SPLIT: train, test or multi); rendered on a "
+                          "pinhole camera of sensor WxH (default: --sensor-size, else the bundle's) and "
+                          "horizontal field of view DEG (default: 60)")
+    p.add_argument("--sensor-size", metavar="WxH", type=parse_size,
+                   help="the recording's sensor size, e.g. 346x260: for files without one (npz/npy without "
+                        "sensor_size are otherwise sized by their largest coordinate) or to override the file's; "
+                        "events outside it are an error. Any size runs (default: the file's)")
+    p.add_argument("--depth-m", type=float, metavar="D",
+                   help="object distance in metres that speeds in m/s assume (default: the bundle's, 5 m for "
+                        "the shipped one); px/s speeds do not depend on it")
+    lens = p.add_mutually_exclusive_group()
+    lens.add_argument("--focal-px", type=float, metavar="F",
+                      help="focal length of the recording's camera in pixels, for speeds in m/s (default: the "
+                           "bundle's when the sensor is as wide as the bundle's, else the bundle's horizontal "
+                           "field of view over the recording's width)")
+    lens.add_argument("--hfov-deg", type=float, metavar="DEG",
+                      help="the recording camera's horizontal field of view instead of --focal-px: "
+                           "F = (W / 2) / tan(DEG / 2)")
     p.add_argument("--out", metavar="FILE.jsonl", help="write the JSON lines to this file (atomically) "
                                                        "instead of stdout")
     p.add_argument("--render", metavar="DIR", help="also write one frame per window (events and flow arrows "
@@ -60,9 +82,25 @@ def register(sub) -> None:
     p.set_defaults(func=run_command)
 
 
+def parse_size(text: str) -> tuple[int, int]:
+    """'346x260' -> (346, 260); argparse reports a ValueError as a one-line usage error."""
+    w, sep, h = str(text).lower().partition("x")
+    try:
+        size = (int(w), int(h)) if sep else None
+    except ValueError:
+        size = None
+    if size is None or min(size) < 1:
+        raise ValueError(f"sensor size must be WIDTHxHEIGHT in pixels, e.g. 346x260, got {text!r}")
+    return size
+
+
+parse_size.__name__ = "sensor size"      # argparse names the type in its error message
+
+
 def parse_synthetic(spec: str) -> dict:
-    """'multi:2,duration=0.05,seed=1' -> {split, index, duration, seed} (ToffeError if malformed)."""
-    out = {"split": "multi", "index": 0, "duration": None, "seed": 0}
+    """'multi:2,duration=0.05,seed=1,sensor=346x260,hfov=60' -> {split, index, duration, seed,
+    sensor, hfov} (ToffeError if malformed)."""
+    out = {"split": "multi", "index": 0, "duration": None, "seed": 0, "sensor": None, "hfov": None}
     for i, tok in enumerate(t.strip() for t in spec.split(",") if t.strip()):
         if "=" not in tok:
             if i:
@@ -80,17 +118,23 @@ def parse_synthetic(spec: str) -> dict:
         out["index"] = int(out["index"])
         out["seed"] = int(out["seed"])
         out["duration"] = None if out["duration"] is None else float(out["duration"])
+        out["hfov"] = None if out["hfov"] is None else float(out["hfov"])
+        out["sensor"] = None if out["sensor"] is None else parse_size(out["sensor"])
     except ValueError as exc:
         raise ToffeError(f"--synthetic {spec!r}: {exc}") from None
     if out["split"] not in ("train", "test", "multi"):
         raise ToffeError(f"--synthetic {spec!r}: split must be train, test or multi, got {out['split']!r}")
     if out["duration"] is not None and not out["duration"] > 0:
         raise ToffeError(f"--synthetic {spec!r}: duration must be > 0 s")
+    if out["hfov"] is not None and not 0 < out["hfov"] < 180:
+        raise ToffeError(f"--synthetic {spec!r}: hfov must be in (0, 180) degrees")
     return out
 
 
-def synthetic_source(spec: str, sensor_size: tuple[int, int]):
-    """An in-memory EventSource with ground truth from the data-set generator."""
+def synthetic_source(spec: str, sensor_size: tuple[int, int], override: tuple[int, int] | None = None):
+    """An in-memory EventSource with ground truth from the data-set generator, rendered by a
+    PinholeCamera of the spec's sensor (else ``override``, i.e. --sensor-size, else ``sensor_size``)
+    and hfov (default the generator's); ``attrs["focal_px"]`` is that camera's focal length."""
     from ..camera import PinholeCamera
     from ..dataset.splits import split_specs
     from ..dataset.synth import generate_sequence
@@ -100,33 +144,46 @@ def synthetic_source(spec: str, sensor_size: tuple[int, int]):
     specs = split_specs(s["split"], seed=s["seed"], duration_s=s["duration"])
     if not 0 <= s["index"] < len(specs):
         raise ToffeError(f"--synthetic {spec!r}: index must be in 0..{len(specs) - 1} for split {s['split']}")
-    seq = dataclasses.replace(specs[s["index"]], camera=PinholeCamera(width=sensor_size[0], height=sensor_size[1]))
+    if s["sensor"] and override and tuple(s["sensor"]) != tuple(override):
+        raise ToffeError(f"--synthetic {spec!r}: sensor={s['sensor'][0]}x{s['sensor'][1]} contradicts "
+                         f"--sensor-size {override[0]}x{override[1]} (give one)")
+    w, h = s["sensor"] or override or sensor_size
+    cam = PinholeCamera(width=w, height=h) if s["hfov"] is None else PinholeCamera(width=w, height=h, hfov_deg=s["hfov"])
+    seq = dataclasses.replace(specs[s["index"]], camera=cam)
     events, gt, size = generate_sequence(seq, seed=s["seed"])
     return ArraySource(f"synthetic:{seq.name}", events, size, ground_truth=gt,
-                       attrs={"generator": "toffe-deploy synth", "sequence": seq.name},
+                       attrs={"generator": "toffe-deploy synth", "sequence": seq.name, "focal_px": cam.f},
                        t_range=(0, int(round(seq.duration_s * 1e6))), validated=True)
 
 
-def open_source(args, sensor_size: tuple[int, int]):
+def open_source(args, bundle_sensor: tuple[int, int]):
+    """The recording: its own sensor size (``--sensor-size`` overrides it), whatever the bundle's."""
     from ..events.io import open_events
 
     if args.synthetic:
-        return synthetic_source(args.synthetic, sensor_size)
+        return synthetic_source(args.synthetic, bundle_sensor, args.sensor_size)
     path = Path(args.events) if args.events else SAMPLE
     if not args.events and not SAMPLE.is_file():
         raise InputError(SAMPLE, "the shipped sample recording is missing (reinstall, or pass --events FILE)")
-    src = open_events(path)
-    if tuple(src.sensor_size) != tuple(sensor_size):
-        src.close()
-        raise InputError(path, f"sensor size {src.sensor_size[0]}x{src.sensor_size[1]} differs from the bundle's "
-                               f"{sensor_size[0]}x{sensor_size[1]} (export a checkpoint trained for this sensor)")
-    return src
+    return open_events(path, sensor_size=args.sensor_size)
+
+
+def sensor_origin(args, src) -> str:
+    """Where the run's sensor size came from, for the summary (an inferred one is worth a warning)."""
+    if args.sensor_size:
+        return "--sensor-size"
+    if args.synthetic:
+        return "the synthetic camera's"
+    if src.attrs.get("sensor_size_inferred"):
+        return "inferred from the largest event coordinates: pass --sensor-size WxH"
+    return "the recording's"
 
 
 def run_command(args) -> int:
     from ..deploy.bundle import load_bundle
     from ..runtime.output import RunSummary, jsonl_sink, write_window
     from ..runtime.pipeline import Pipeline
+    from ..runtime.run_camera import resolve_camera
     from ..runtime.spikes import SpikeVolume
 
     if args.max_windows is not None and args.max_windows < 1:
@@ -140,6 +197,10 @@ def run_command(args) -> int:
     cfg = bundle.config
     src = open_source(args, cfg.sensor_size)
     with src:
+        sensor = tuple(src.sensor_size)
+        camera = resolve_camera(cfg, sensor, depth_m=args.depth_m, focal_px=args.focal_px, hfov_deg=args.hfov_deg,
+                                synthetic_focal_px=src.attrs.get("focal_px") if args.synthetic else None,
+                                sensor_from=sensor_origin(args, src))
         t_start = src.t_start_us if args.start_us is None else int(args.start_us)
         n_total = max(0, -(-(src.t_end_us - t_start) // cfg.dt_us))
         if args.max_windows is not None:
@@ -165,13 +226,14 @@ def run_command(args) -> int:
             for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=t_start)):
                 if i >= n_total:
                     return
-                vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size)
+                vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor)
                 pending.append((t0, vol, time.perf_counter()))
                 yield t0, vol
 
-        summary = RunSummary(target=args.target)
+        summary = RunSummary(target=args.target, camera=camera.describe(cfg), camera_json=camera.to_json(cfg))
         t_setup = time.perf_counter()
-        pipe = Pipeline(bundle, args.target, tag=args.tag, ofpd_variant=args.ofpd)
+        pipe = Pipeline(bundle, args.target, tag=args.tag, ofpd_variant=args.ofpd, sensor_size=sensor,
+                        speed_scale=camera.scale)
         ok = False
         stream_out = args.out is None
         try:
@@ -189,7 +251,8 @@ def run_command(args) -> int:
                         write_window(sink, res)
                         if errors is not None:
                             errors.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps,
-                                                          o.speed_bin_mps) for o in res.objects],
+                                                          o.speed_bin_mps, o.speed_px_s / 1000.0)
+                                               for o in res.objects],
                                               truth.window(res.t0_us, cfg.dt_us), focal_px)
                         if renderer is not None:
                             renderer.add(vol, res.objects, res.t0_us)

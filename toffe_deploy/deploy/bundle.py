@@ -2,7 +2,7 @@
 
 Layout (export/README.md, written into every bundle, documents every field)::
 
-    manifest.json          format, versions, config summary, quantization report, sha256 of all files
+    manifest.json          format, versions, config summary, camera, quantization report, sha256 of all files
     config.json            the ToffeConfig (same form as a checkpoint's config.json)
     ofs_loihi.json         the quantized OFS, one entry per speed bin k = 1..N (lava_procs builds from it)
     ofpd.onnx              OFPD, input ``events`` (N, C, h, w) float32, outputs pose, direction, speed
@@ -13,6 +13,11 @@ The quantized stage k holds exactly what one Loihi 2 OFS neuron population needs
 ``toffe_deploy.fixed_point``): spike where v > vth_mant << 6 with
 
     v[t] = clip24(trunc0(v[t-1] * (4096 - dv) / 4096) + (conv(w, s_in[t]) << 6) - (vth_mant << 6) * o[t-1])
+
+The manifest's ``camera`` section states what the speed bins mean: image-plane speeds (px/ms),
+and the m/s they equal for the camera (sensor, focal length) and object depth of the config.
+Bundles written before it carry neither the section nor config.focal_px / depth_m: they load with
+the reference camera (camera.REFERENCE_FOCAL_PX, REFERENCE_DEPTH_M), what they were trained on.
 
 This module is torch- and Lava-free: the runtime on an edge device reads bundles with it.
 ``load_bundle`` refuses a bundle whose files do not match the sha256 in its manifest.
@@ -224,6 +229,24 @@ def check_output_dir(path: str | os.PathLike, force: bool = False) -> None:
 
 # ----------------------------------------------------------------------------- writer
 
+def camera_section(config: ToffeConfig) -> dict[str, Any]:
+    """The manifest's ``camera``: the sensor and lens the bundle was trained for and its speed bins
+    in px/ms and in m/s at ``depth_m`` (v_px_per_ms = v_mps * focal_px / (1000 * depth_m))."""
+    from ..camera import hfov_deg_from_focal
+
+    return {
+        "sensor_size": list(config.sensor_size),
+        "focal_px": float(config.focal_px),
+        "hfov_deg": hfov_deg_from_focal(config.width, config.focal_px),
+        "depth_m": float(config.depth_m),
+        "speed_bins_px_ms": [list(b) for b in config.speed_bins_px_ms],
+        "speed_bins_mps": [list(b) for b in config.speed_bins],
+        "note": "the OFS separates image-plane speeds (px/ms); the m/s hold for an object at depth_m seen "
+                "with focal_px. `run` works on any sensor size and re-expresses m/s with --depth-m / "
+                "--focal-px / --hfov-deg",
+    }
+
+
 def _put(dst: Path, src: FileSource) -> None:
     dst.parent.mkdir(parents=True, exist_ok=True)
     if isinstance(src, (bytes, bytearray)):
@@ -278,9 +301,12 @@ def write_bundle(path: str | os.PathLike, config: ToffeConfig, ofs: Sequence[Loi
                 "sensor_size": list(config.sensor_size), "n_bins": config.n_bins, "dt_us": config.dt_us,
                 "speed_bins_mps": [list(b) for b in config.speed_bins],
                 "representative_speeds_mps": list(config.representative_speeds),
+                "speed_bins_px_ms": [list(b) for b in config.speed_bins_px_ms],
+                "focal_px": float(config.focal_px), "depth_m": float(config.depth_m),
                 "ofs_kernel": config.ofs_kernel, "ofs_in_channels": config.ofs_in_channels,
                 "mask_kernel": config.mask_kernel,
             },
+            "camera": camera_section(config),
             "config": config.to_dict(),
             "ofs": {"file": OFS_FILE, "n_stages": len(ofs),
                     "stages": [{"stage": k, "vth_mant": int(p.vth_mant), "dv": int(p.dv), "du": int(p.du),

@@ -21,7 +21,7 @@ empty, or holds only this README), otherwise only with `--force`.
 
 ```
 export/
-  manifest.json        versions, config summary, quantization report, parity summary, sha256 of every file
+  manifest.json        versions, config summary, camera, quantization report, parity summary, sha256 of every file
   config.json          the checkpoint's ToffeConfig, unchanged
   ofs_loihi.json       quantized OFS, one entry per speed bin (the form lava_procs builds processes from)
   ofpd.onnx            OFPD, fp32, ONNX opset 17, dynamic batch
@@ -125,7 +125,8 @@ Each check has `status` (`pass`, `fail` or `skipped: reason`), its measured figu
 | `created_utc`, `tool` | when and by which toffe-deploy version |
 | `dependencies` | versions of numpy, opencv, onnx, onnxruntime, torch, lava-nc, lava-dl, nir, h5py, safetensors |
 | `source` | the checkpoint path and the sha256 of its files |
-| `config_summary` | sensor_size, n_bins (B), dt_us, speed bins, representative speeds, kernels |
+| `config_summary` | sensor_size, n_bins (B), dt_us, speed bins (m/s and px/ms), representative speeds, focal_px, depth_m, kernels |
+| `camera` | the camera the bundle was trained for and what its speed bins mean (below) |
 | `config` | the full ToffeConfig (also config.json) |
 | `ofs` | per stage vth_mant, dv, du, weight_scale, clamps, and `quantization` errors (max abs / relative weight error, threshold and leak error) |
 | `ofpd` | opset, input/output names and shapes, variants with their files |
@@ -133,6 +134,30 @@ Each check has `status` (`pass`, `fail` or `skipped: reason`), its measured figu
 | `parity` | status and headline figure of each check |
 | `warnings` | every clamp and every missed parity goal, also printed at export |
 | `files` | `{path: {sha256, bytes}}` for every file of the bundle except manifest.json |
+
+## manifest.json `camera`: what the speed bins mean
+
+An event camera sees image-plane motion only, so the OFS stages separate image-plane speeds
+(px/ms). The bins are stated in m/s for an object at `depth_m` seen with `focal_px`:
+
+```
+v_px_per_ms = v_mps * focal_px / (1000 * depth_m)
+```
+
+| field | meaning |
+|---|---|
+| `sensor_size` | [width, height] px of the training camera (`run` takes any sensor size: the OFS is a convolution, OFPD sees a crop) |
+| `focal_px`, `hfov_deg` | its focal length in pixels and horizontal field of view, hfov = 2 atan(W / (2 focal_px)) |
+| `depth_m` | the object distance the m/s bins are stated for |
+| `speed_bins_px_ms` | bin k as [lo, hi) image-plane speed, px/ms: what stage k separates on any camera |
+| `speed_bins_mps` | the same bins in m/s at `depth_m` and `focal_px` |
+| `note` | the above in one sentence |
+
+`toffe-deploy run` reports each object's speed in px/s (`speed_px_s`) and in m/s for the run's
+camera: `--depth-m` (default `depth_m`) and `--focal-px` / `--hfov-deg` (default `focal_px` when
+the recording is as wide as `sensor_size`, else the same field of view over the recording's width).
+Bundles exported before this section existed have neither it nor `focal_px` / `depth_m` in
+config.json: they load with the reference camera (640 px at 60 deg: 554.26 px; 5 m).
 """
 
 

@@ -3,8 +3,11 @@
 JSON line per window (keys in this order)::
 
     {"t0_us": 1000, "t1_us": 1500, "objects": [{"speed_bin": 2, "speed_mps": 27.1,
-      "speed_bin_mps": 30.0, "x": 120.4, "y": 88.0, "direction_rad": -1.2, "n_events": 310,
-      "direction_deg": -68.75}]}
+      "speed_bin_mps": 30.0, "speed_px_s": 3004.1, "x": 120.4, "y": 88.0, "direction_rad": -1.2,
+      "n_events": 310, "direction_deg": -68.75}]}
+
+speed_px_s is the image-plane speed the camera saw; speed_mps and speed_bin_mps are it (and the
+bin's representative speed) in m/s for the run's camera (depth and focal length, see the summary).
 
 Lines go to stdout or, with ``--out FILE.jsonl``, to a file written atomically (a temp file
 renamed into place when the run finishes; an interrupted run leaves nothing half-written).
@@ -63,7 +66,8 @@ def percentiles_ms(seconds: list[float]) -> dict[str, float]:
 @dataclass
 class RunSummary:
     """Counts and timings of one run; ``errors`` holds metrics.FlowErrors.summary() (recall, false
-    positives per window, bin accuracy and confusion, pixE/dirE/speedE) when truth was present."""
+    positives per window, bin accuracy and confusion, pixE/dirE/speedE) when truth was present;
+    ``camera`` is the run camera's summary line (runtime.run_camera), ``camera_json`` its fields."""
 
     target: str
     windows: int = 0
@@ -73,6 +77,8 @@ class RunSummary:
     latencies_s: list[float] = field(default_factory=list)
     errors: dict | None = None
     startup_s: float = 0.0
+    camera: str | None = None
+    camera_json: dict | None = None
 
     def add(self, result: WindowResult, latency_s: float) -> None:
         self.windows += 1
@@ -89,7 +95,7 @@ class RunSummary:
         return {"target": self.target, "windows": self.windows, "objects": self.objects,
                 "objects_per_bin": {str(k): v for k, v in sorted(self.objects_per_bin.items())},
                 "wall_s": self.wall_s, "startup_s": self.startup_s, "windows_per_s": self.windows_per_s,
-                "latency_ms": percentiles_ms(self.latencies_s), "errors": self.errors}
+                "latency_ms": percentiles_ms(self.latencies_s), "errors": self.errors, "camera": self.camera_json}
 
     def lines(self) -> list[str]:
         lat = percentiles_ms(self.latencies_s)
@@ -100,6 +106,8 @@ class RunSummary:
         out = [f"target {self.target}: {self.windows} windows, {self.objects} objects ({bins})",
                f"{self.windows_per_s:.1f} windows/s over {self.wall_s:.2f} s (start-up {self.startup_s:.2f} s); "
                f"{what} p50 {lat['p50']:.2f} ms, p90 {lat['p90']:.2f} ms, p99 {lat['p99']:.2f} ms"]
+        if self.camera:
+            out.append(self.camera)
         if self.errors is not None:
             out += truth_lines(self.errors)
         return out

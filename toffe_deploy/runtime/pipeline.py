@@ -12,6 +12,11 @@ Per window [t0, t0 + dt) and speed bin k = N..1 (paper section "TOFFE Inference"
 
 with all objects of a window prepared and sent to OFPD in one batched session run.
 
+Sensor size: the OFS is a convolution and OFPD sees a crop, so a bundle runs on any sensor: the
+cascade (numpy or Lava processes) is built for the recording's ``sensor_size``, not the bundle's.
+Speeds: OFPD's speed is an image-plane speed; it is reported in px/s and in m/s through the run's
+``SpeedScale`` (``speeds_of``): the bundle's camera by default, another depth / focal length on request.
+
 Targets: ``cpu`` (fixed point, event driven, compiled loops; onnxruntime CPU; imports neither torch nor
 Lava), ``cuda`` (the same cascade, OFPD on the CUDA/TensorRT provider), ``loihi-sim`` (the Lava
 engineer's ``LavaCascade`` in Loihi2SimCfg) and ``loihi2`` (the same on Loihi2HwCfg). Every
@@ -27,6 +32,8 @@ from typing import Iterable, Iterator, Union
 
 import numpy as np
 
+from ..camera import SpeedScale
+from ..config import ToffeConfig
 from ..errors import InputError
 from ..events.frontend import apply_dense
 from ..ofpd_io import decode
@@ -46,13 +53,16 @@ Window = Union[np.ndarray, SpikeVolume]
 @dataclass
 class ObjectFlow:
     """One object in one window: speed bin k (the OFS stage that separated it), speed (m/s,
-    regressed within the bin; speed_bin_mps is the paper's bin-only estimate), centre (x, y) in
-    sensor pixels, direction of motion in rad (image plane, y down: atan2(dy, dx)) and the
-    number of event ones (bin, polarity, pixel) in its speed-separated frame."""
+    regressed within the bin; speed_bin_mps is the paper's bin-only estimate; both through the
+    run's SpeedScale), the same regressed speed on the image plane (speed_px_s, px/s: what the
+    camera measured, independent of depth and focal length), centre (x, y) in sensor pixels,
+    direction of motion in rad (image plane, y down: atan2(dy, dx)) and the number of event ones
+    (bin, polarity, pixel) in its speed-separated frame."""
 
     speed_bin: int
     speed_mps: float
     speed_bin_mps: float
+    speed_px_s: float
     x: float
     y: float
     direction_rad: float
@@ -92,25 +102,45 @@ def ofpd_model(bundle, variant: str = "fp32"):
     return path
 
 
-def _make_cascade(bundle, target: str, tag: str):
+def speeds_of(dec: dict, config: ToffeConfig, scale: SpeedScale) -> tuple[list, list, list]:
+    """(px/ms, m/s, bin-only m/s) lists of decoded OFPD rows, m/s through the run's ``scale``.
+
+    The image-plane speed is decode's ``speed_px_ms`` when it gives one, else its ``speed_mps``
+    taken back to px/ms with the bundle's camera (``config.speed_scale``, what the m/s were
+    stated for); the bin's representative speed goes the same way. Scalar factors on lists, not
+    SpeedScale calls on arrays: a window has a handful of objects and this is the cpu hot path."""
+    k_bundle = config.focal_px / (1000.0 * config.depth_m)       # px/ms per m/s, config.speed_scale
+    k_run = scale.px_ms_per_mps
+    px_ms = dec.get("speed_px_ms")
+    px_ms = ([v * k_bundle for v in dec["speed_mps"].tolist()] if px_ms is None
+             else np.asarray(px_ms, dtype=np.float64).tolist())
+    ratio = k_bundle / k_run
+    return px_ms, [v / k_run for v in px_ms], [v * ratio for v in np.asarray(dec["speed_bin_mps"]).tolist()]
+
+
+def _make_cascade(bundle, target: str, tag: str, sensor_size: tuple[int, int]):
     cfg = bundle.config
     if target in ("cpu", "cuda"):
         if tag != "fixed_pt":
             raise ValueError(f"target {target} runs the fixed-point OFS only (tag fixed_pt), not {tag}")
-        return CpuCascade(bundle.ofs, cfg.n_bins, cfg.mask_kernel, cfg.sensor_size)
+        return CpuCascade(bundle.ofs, cfg.n_bins, cfg.mask_kernel, sensor_size)
     from .loihi import LavaCascade   # Lava only for the Loihi targets
 
     return LavaCascade(params=bundle.ofs, n_bins=cfg.n_bins, mask_kernel=cfg.mask_kernel,
-                       sensor_size=cfg.sensor_size, tag=tag, hardware=(target == "loihi2"))
+                       sensor_size=sensor_size, tag=tag, hardware=(target == "loihi2"))
 
 
 class Pipeline:
     """``Pipeline(bundle, target)``: a context manager whose ``process_stream`` turns
     (t0_us, window) pairs into ``WindowResult``s, in order. Entering starts the backend (the Lava
-    runtime for loihi targets); leaving stops it, also on errors and Ctrl-C."""
+    runtime for loihi targets); leaving stops it, also on errors and Ctrl-C.
+
+    ``sensor_size`` (width, height): the recording's sensor (default: the bundle's); ``speed_scale``:
+    the camera the reported m/s assume (default: the bundle's, ``config.speed_scale``)."""
 
     def __init__(self, bundle, target: str = "cpu", tag: str = "fixed_pt", ofpd_threads: int | None = 1,
-                 ofpd_variant: str = "fp32"):
+                 ofpd_variant: str = "fp32", sensor_size: tuple[int, int] | None = None,
+                 speed_scale: SpeedScale | None = None):
         if target not in TARGETS:
             raise ValueError(f"unknown target {target!r}; choose one of {', '.join(TARGETS)}")
         if tag not in TAGS:
@@ -121,8 +151,13 @@ class Pipeline:
         self.tag = tag
         self.ofpd = OFPDRunner(ofpd_model(bundle, ofpd_variant), "cuda" if target == "cuda" else "cpu",
                                threads=ofpd_threads)
-        self.cascade = _make_cascade(bundle, target, tag)
-        self._scratch = new_scratch(self.config.width * self.config.height)   # for ofpd_input's O(n) de-duplication
+        size = self.config.sensor_size if sensor_size is None else sensor_size
+        self.sensor_size = (int(size[0]), int(size[1]))
+        if min(self.sensor_size) < 1:
+            raise ValueError(f"sensor size must be positive, got {self.sensor_size}")
+        self.speed_scale = self.config.speed_scale if speed_scale is None else speed_scale
+        self.cascade = _make_cascade(bundle, target, tag, self.sensor_size)
+        self._scratch = new_scratch(self.sensor_size[0] * self.sensor_size[1])   # for ofpd_input's O(n) de-duplication
         self._entered = False
 
     def __enter__(self) -> "Pipeline":
@@ -145,7 +180,7 @@ class Pipeline:
         return isinstance(self.cascade, CpuCascade)
 
     def _check(self, x: Window) -> None:
-        w, h = self.config.sensor_size
+        w, h = self.sensor_size
         want = (self.config.n_bins, 2, h, w)
         if tuple(x.shape) != want:
             raise ValueError(f"window must be {want} (B, 2, H, W), got {tuple(x.shape)}")
@@ -158,8 +193,9 @@ class Pipeline:
             return []
         pose, direction, speed = self.ofpd.run(x)
         dec = decode(pose, direction, speed, ks, self.config)
-        return [ObjectFlow(speed_bin=int(k), speed_mps=float(dec["speed_mps"][i]),
-                           speed_bin_mps=float(dec["speed_bin_mps"][i]), x=float(dec["x_px"][i]),
+        px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
+        return [ObjectFlow(speed_bin=int(k), speed_mps=mps[i], speed_bin_mps=bin_mps[i],
+                           speed_px_s=px_ms[i] * 1000.0, x=float(dec["x_px"][i]),
                            y=float(dec["y_px"][i]), direction_rad=float(dec["direction_rad"][i]),
                            n_events=int(n_events[i]))
                 for i, k in enumerate(ks)]
