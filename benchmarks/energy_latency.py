@@ -110,6 +110,7 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
     window's events. Timed runs start from the events (each model builds its own input, as
     ``toffe-deploy run`` does); the binned copies feed the op counting and the Lava simulator."""
     from toffe_deploy.events.binning import bin_window, window_slice
+    from toffe_deploy.events.frontend import apply_dense
 
     dt, b, size = config.dt_us, config.n_bins, tuple(config.sensor_size)
     out: list[tuple[int, np.ndarray]] = []
@@ -119,7 +120,8 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
     def take(t0, ev) -> bool:
         if len(ev) < args.min_events:
             return False
-        out.append((int(t0), bin_window(ev, t0, dt, b, size)))
+        # the counts the network sees: through the bundle's input front end (events/frontend.py)
+        out.append((int(t0), apply_dense(bin_window(ev, t0, dt, b, size), config.input_norm).astype(np.uint8)))
         events.append(np.array(ev))
         counts.append(len(ev))
         return len(out) >= args.windows
