@@ -20,6 +20,7 @@ a window reads only the chunks it touches; a millisecond index so seeking is two
 """
 from __future__ import annotations
 
+import io
 import json
 import os
 
@@ -27,7 +28,7 @@ import h5py
 import numpy as np
 
 from ..errors import InputError
-from ..fileio import atomic_path
+from ..fileio import write_bytes_atomic
 from .core import EVENT_DTYPE
 from .h5util import dataset, index_via_ms
 from .source import EventSource
@@ -104,27 +105,28 @@ def write_events_h5(path: str | os.PathLike, events: np.ndarray, sensor_size: tu
     t_start, t_end = int(t_range[0]), int(t_range[1])
     if n and (t_start > t[0] or t_end <= t[-1]):
         raise ValueError(f"t_range {t_range} does not cover the events [{int(t[0])}, {int(t[-1])}]")
-    with atomic_path(path, suffix=".h5") as tmp:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = FORMAT_NAME
-            f.attrs["format_version"] = FORMAT_VERSION
-            f.attrs["sensor_width"] = w
-            f.attrs["sensor_height"] = h
-            f.attrs["num_events"] = n
-            f.attrs["t_start_us"] = t_start
-            f.attrs["t_end_us"] = t_end
-            for k, v in attrs_json.items():
-                f.attrs[k] = v
-            g = f.create_group("events")
-            for name in EVENT_DTYPE.names:
-                _column(g, name, events[name], EVENT_DTYPE[name])
-            index_t0 = int(t[0]) if n else 0
-            idx = g.create_dataset("ms_to_idx", data=ms_index(t, index_t0))
-            idx.attrs["index_t0_us"] = index_t0
-            if gt is not None:
-                gg = f.create_group("ground_truth")
-                for k, v in gt.items():
-                    _column(gg, k, v, GT_DTYPES.get(k, v.dtype))
+    buf = io.BytesIO()     # built in memory: HDF5's own writes crash the interpreter on a full disk
+    with h5py.File(buf, "w") as f:
+        f.attrs["format"] = FORMAT_NAME
+        f.attrs["format_version"] = FORMAT_VERSION
+        f.attrs["sensor_width"] = w
+        f.attrs["sensor_height"] = h
+        f.attrs["num_events"] = n
+        f.attrs["t_start_us"] = t_start
+        f.attrs["t_end_us"] = t_end
+        for k, v in attrs_json.items():
+            f.attrs[k] = v
+        g = f.create_group("events")
+        for name in EVENT_DTYPE.names:
+            _column(g, name, events[name], EVENT_DTYPE[name])
+        index_t0 = int(t[0]) if n else 0
+        idx = g.create_dataset("ms_to_idx", data=ms_index(t, index_t0))
+        idx.attrs["index_t0_us"] = index_t0
+        if gt is not None:
+            gg = f.create_group("ground_truth")
+            for k, v in gt.items():
+                _column(gg, k, v, GT_DTYPES.get(k, v.dtype))
+    write_bytes_atomic(path, buf.getbuffer(), suffix=".h5")
 
 
 class ToffeH5Source(EventSource):
