@@ -145,32 +145,30 @@ def _probe_writable(out: Path) -> None:
 
 def check_outputs(files: Sequence[tuple[str, str | os.PathLike | None]] = (),
                   dirs: Sequence[tuple[str, str | os.PathLike | None]] = (),
-                  inputs: Sequence[str | os.PathLike | None] = (),
-                  protected: Sequence[tuple[str, str | os.PathLike | None]] = ()) -> None:
+                  inputs: Sequence[tuple[str, str | os.PathLike | None]] = ()) -> None:
     """Refuse, before any work, output paths that would destroy an input or each other.
 
     files / dirs: (option name, path) of the file / directory outputs (None = not given).
-    inputs: files read by the command; no output may be one of them (same inode or same
-    resolved path: symlinks and hard links count). protected: (what, directory) pairs such as
-    ("the bundle", B) no output may lie inside. Two outputs may not resolve to the same path,
-    a file output may not be an existing directory, and every output's directory must accept
-    a new file. Each problem is an InputError naming the output (one line, exit 2).
+    inputs: (what, path) of the files and directories the command reads, e.g. ("the input
+    events", F), ("bundle file", B/ofpd.onnx), ("the bundle", B); no output may be one of them
+    (same inode or same resolved path: symlinks and hard links count). Two outputs may not
+    resolve to the same path, a file output may not be an existing directory (nor a directory
+    output a file), and every output's directory must accept a new file (read-only, full or
+    forbidden destinations fail here, before the work). Each problem is an InputError naming
+    the output: one line, exit 2.
     """
     outs = [(n, Path(p), False) for n, p in files if p is not None] + \
            [(n, Path(p), True) for n, p in dirs if p is not None]
-    ins = [Path(p) for p in inputs if p is not None]
+    ins = [(what, Path(p)) for what, p in inputs if p is not None]
     seen: dict[Path, str] = {}
     for name, out, is_dir in outs:
         if out.exists() and out.is_dir() != is_dir:
             raise InputError(out, f"{name}: " + ("exists and is not a directory" if is_dir
                                                  else "is a directory (give a file name)"))
         real = _real(out)
-        for src in ins:
-            if (src.exists() and out.exists() and _same_file(out, src)) or real == _real(src):
-                raise InputError(out, f"{name} is the input file {src}; choose another output")
-        for what, d in protected:
-            if d is not None and real.is_relative_to(_real(d)):
-                raise InputError(out, f"{name} lies inside {what} {d}; choose a path outside it")
+        for what, src in ins:
+            if real == _real(src) or (out.exists() and src.exists() and _same_file(out, src)):
+                raise InputError(out, f"{name} would overwrite {what} {src}; choose another output")
         if real in seen:
             raise InputError(out, f"given as both {seen[real]} and {name}; choose different outputs")
         seen[real] = name
