@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import InputError
 from ..fileio import write_bytes_atomic
 from .core import EVENT_DTYPE
-from .h5util import dataset, index_via_ms
+from .h5util import dataset, index_via_ms, ms_index_dataset
 from .source import EventSource
 from .validate import check_chunk, check_sensor_size
 
@@ -157,7 +157,7 @@ class ToffeH5Source(EventSource):
         if any(len(s) != 1 for s in shapes.values()) or len({s[0] for s in shapes.values()}) != 1:
             raise InputError(path, f"event fields differ in shape: {shapes}")
         self._n = shapes["t"][0]
-        self._idx = g.get("ms_to_idx")
+        self._idx = ms_index_dataset(path, g)
         self._idx_t0 = int(self._idx.attrs.get("index_t0_us", 0)) if self._idx is not None else 0
         self._span = (int(a.get("t_start_us", 0)), int(a.get("t_end_us", 0))) \
             if "t_start_us" in a and "t_end_us" in a else None
