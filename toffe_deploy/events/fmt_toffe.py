@@ -29,10 +29,11 @@ import numpy as np
 
 from ..errors import InputError
 from ..fileio import write_bytes_atomic
+from .convert import time_us, to_events
 from .core import EVENT_DTYPE
 from .h5util import dataset, index_via_ms, ms_index_dataset
 from .source import EventSource
-from .validate import check_chunk, check_sensor_size
+from .validate import check_chunk, check_ground_truth, check_sensor_size
 
 FORMAT_NAME = "toffe-events"
 FORMAT_VERSION = 1
@@ -168,18 +169,26 @@ class ToffeH5Source(EventSource):
         return self._n
 
     def _read_index(self, i0, i1):
-        out = np.empty(i1 - i0, EVENT_DTYPE)
         try:
-            for name, ds in self._cols.items():
-                out[name] = ds[i0:i1]
+            c = {name: ds[i0:i1] for name, ds in self._cols.items()}
         except (OSError, ValueError) as exc:
             raise InputError(self.path, f"cannot read events {i0}..{i1 - 1} (truncated or corrupt "
                                         f"file?): {exc}") from None
-        return out
+        if all(c[n].dtype == EVENT_DTYPE[n] for n in EVENT_DTYPE.names):   # as we write it: no cast hides anything
+            out = np.empty(i1 - i0, EVENT_DTYPE)
+            for name in EVENT_DTYPE.names:
+                out[name] = c[name]
+            bad = np.flatnonzero(out["p"] > 1)
+            if bad.size:
+                i = int(bad[0])
+                raise InputError(self.path, f"polarity p = {int(out['p'][i])} at event {i0 + i} is not 0 or 1")
+            return out
+        # other column types (float x, int8 p, ...): checked conversion, never a silent cast
+        return to_events(self.path, c["x"], c["y"], time_us(self.path, c["t"], i0), c["p"], i0)
 
     def _t_at(self, i):
         try:
-            return int(self._cols["t"][i])
+            return int(time_us(self.path, self._cols["t"][i:i + 1], i)[0])
         except (OSError, ValueError) as exc:
             raise InputError(self.path, f"cannot read timestamp {i} (truncated or corrupt file?): "
                                         f"{exc}") from None
@@ -204,9 +213,10 @@ class ToffeH5Source(EventSource):
         if self._gt_cache is None:
             g = self._h5["ground_truth"]
             try:
-                self._gt_cache = {k: g[k][()] for k in g if isinstance(g[k], h5py.Dataset)}
+                gt = {k: g[k][()] for k in g if isinstance(g[k], h5py.Dataset)}
             except (OSError, ValueError) as exc:
                 raise InputError(self.path, f"cannot read /ground_truth (corrupt file?): {exc}") from None
+            self._gt_cache = check_ground_truth(self.path, gt, required=tuple(GT_DTYPES))
         return self._gt_cache
 
     @property

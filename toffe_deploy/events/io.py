@@ -16,6 +16,7 @@ the whole file and sorts it by time (stable) instead of rejecting decreasing tim
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,7 @@ from ..errors import InputError
 from .core import Events
 from .fmt_toffe import FORMAT_NAME, ToffeH5Source, write_events_h5
 from .source import ArraySource, EventSource
+from .validate import check_time_span
 
 __all__ = ["open_events", "read_events", "write_events_h5", "write_events_npz", "EventSource",
            "detect_format", "FORMATS"]
@@ -41,6 +43,9 @@ def _sniff(path: Path) -> bytes:
         raise InputError(path, "no such file")
     if path.is_dir():
         raise InputError(path, "is a directory, not an event file")
+    if not stat.S_ISREG(path.stat().st_mode):
+        raise InputError(path, "is not a regular file (a FIFO, socket or device would block or never end; "
+                               "save the events to a file first)")
     try:
         with open(path, "rb") as fh:
             head = fh.read(16)
@@ -132,7 +137,12 @@ def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = N
         from .fmt_aedat import AedatSource
         src = AedatSource(path, sensor_size)
     if sort:
-        return _sorted_source(src)
+        src = _sorted_source(src)
+    try:
+        check_time_span(path, src.t_start_us, src.t_end_us)
+    except BaseException:
+        src.close()
+        raise
     return src
 
 
