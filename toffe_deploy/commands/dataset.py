@@ -98,13 +98,16 @@ def register(sub) -> None:
 def _synth(args) -> int:
     from ..dataset.build import build_dataset
     from ..dataset.dvs import DVSParams
-    from ..dataset.splits import SPLITS, balanced_subset, split_specs
+    from ..dataset.splits import MAX_SYNTH_DURATION_S, SPLITS, balanced_subset, split_specs
 
     if args.threshold_sigma >= args.threshold:
         raise ToffeError(f"--threshold-sigma ({args.threshold_sigma}) must be smaller than --threshold "
                          f"({args.threshold})")
     if args.duration_s is not None and args.duration_s < 100e-6:
         raise ToffeError(f"--duration-s {args.duration_s} is shorter than two samples (100 us)")
+    if args.duration_s is not None and args.duration_s > MAX_SYNTH_DURATION_S:
+        raise ToffeError(f"--duration-s {args.duration_s:g} is longer than {MAX_SYNTH_DURATION_S:g} s (each "
+                         "sequence is generated in memory)")
     dvs = DVSParams(threshold=args.threshold, threshold_sigma=args.threshold_sigma, noise_rate_hz=args.noise_hz)
     splits = SPLITS if args.split == "all" else (args.split,)
     specs = {}
