@@ -117,6 +117,9 @@ def _synth(args) -> int:
         if args.limit is not None:
             lst = balanced_subset(lst, args.limit, seed=args.seed)
         specs[split] = lst
+    from ..fileio import check_outputs
+
+    check_outputs(dirs=[("--out", args.out)])
     t = time.perf_counter()
     index = build_dataset(args.out, specs, seed=args.seed, jobs=args.jobs, force=args.force)
     el = time.perf_counter() - t
@@ -130,7 +133,10 @@ def _synth(args) -> int:
 def _show(args) -> int:
     from ..dataset.show import show_file
 
+    from ..fileio import check_outputs
+
     out = args.out or args.file.with_suffix(".png")
+    check_outputs(files=[("--out", out)], inputs=[("the input file", args.file)])
     info = show_file(args.file, out, t0_us=args.t0_us, dt_us=args.dt_us, n_frames=args.frames,
                      stride_us=args.stride_us, cols=args.cols)
     print(f"{out}: {info}", file=sys.stdout)

@@ -47,6 +47,14 @@ def run(args) -> int:
     if args.max_windows < 1:
         raise ToffeError(f"--max-windows must be >= 1, got {args.max_windows}")
     load_checkpoint(args.ckpt)          # fail fast on a bad checkpoint, before reading data
+    if args.json:
+        from ..fileio import check_outputs
+
+        inputs = [("the checkpoint", args.ckpt), ("the data set", args.data),
+                  ("the data-set index", args.data / "index.json")]
+        inputs += [("checkpoint file", f) for f in args.ckpt.iterdir()]
+        inputs += [("data-set file", f) for f in args.data.rglob("*.h5")] if args.data.is_dir() else []
+        check_outputs(files=[("--json", args.json)], inputs=inputs)
     import torch
 
     from ..evaluate import EvalOptions, evaluate, format_markdown
