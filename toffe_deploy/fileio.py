@@ -128,9 +128,9 @@ def _same_file(a: Path, b: Path) -> bool:
         return _real(a) == _real(b)
 
 
-def _probe_writable(out: Path) -> None:
+def _probe_writable(out: Path, is_dir: bool) -> None:
     """Create and drop a temp file where ``out`` will be written (EROFS, EACCES, ENOSPC up front)."""
-    d = out.parent
+    d = out if is_dir else out.parent
     while not d.exists() and d != d.parent:
         d = d.parent
     if not d.is_dir():
@@ -172,4 +172,4 @@ def check_outputs(files: Sequence[tuple[str, str | os.PathLike | None]] = (),
         if real in seen:
             raise InputError(out, f"given as both {seen[real]} and {name}; choose different outputs")
         seen[real] = name
-        _probe_writable(out / "x" if is_dir else out)
+        _probe_writable(out, is_dir)

@@ -82,6 +82,7 @@ class FrameRenderer:
 
     def __init__(self, out_dir: str | Path, video: bool = False, fps: float = 10.0):
         self.out_dir = Path(out_dir)
+        self._created = not self.out_dir.exists()
         try:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             self._stage = Path(tempfile.mkdtemp(prefix=".frames-", suffix=".tmp", dir=self.out_dir))
@@ -95,12 +96,11 @@ class FrameRenderer:
     def add(self, volume: SpikeVolume, objects: Sequence[ObjectFlow], t0_us: int | None = None) -> None:
         frame = draw_window(volume, objects, t0_us)
         if not self.video:
-            try:
-                ok = cv2.imwrite(str(self._stage / f"frame_{self.n:06d}.png"), frame)
-            except cv2.error:
-                ok = False
+            ok, png = cv2.imencode(".png", frame)   # encoded in memory: imwrite reports success on a full disk
             if not ok:
-                raise InputError(self.out_dir, "cannot write PNG frames (disk full or not writable?)")
+                raise ToffeError("this OpenCV build cannot encode PNG")
+            with write_errors(self.out_dir), open(self._stage / f"frame_{self.n:06d}.png", "wb") as fh:
+                fh.write(png.tobytes())
         else:
             if self._writer is None:
                 h, w = frame.shape[:2]
@@ -126,6 +126,8 @@ class FrameRenderer:
                         os.replace(f, self.out_dir / f.name)
         finally:
             shutil.rmtree(self._stage, ignore_errors=True)
+            if self._created and not any(self.out_dir.iterdir()):
+                self.out_dir.rmdir()       # a failed run leaves no trace, not even an empty DIR
 
     def _check_video(self, path: Path) -> None:
         cap = cv2.VideoCapture(str(path))
