@@ -22,3 +22,57 @@ def random_events(rng):
         return make_events(rng.integers(0, w, n), rng.integers(0, h, n), t, rng.integers(0, 2, n))
 
     return make
+
+
+def _make_bundle(root, sensor=(64, 48), ofpd=None):
+    """init_checkpoint -> quantize -> ONNX -> write_bundle: a real bundle without the exporter
+    (checkpoint in root/ckpt, bundle in root/bundle)."""
+    import torch
+
+    from toffe_deploy import ofpd_io
+    from toffe_deploy.checkpoint import init_checkpoint, load_checkpoint
+    from toffe_deploy.config import ToffeConfig
+    from toffe_deploy.deploy.bundle import write_bundle
+    from toffe_deploy.fixed_point import quantize_ofs
+    from toffe_deploy.model.ofpd import OFPD
+
+    cfg = ToffeConfig(sensor_size=sensor, ofpd=ofpd or {"crop_px": 32, "pool": 2, "min_events": 4})
+    ck = load_checkpoint(init_checkpoint(root / "ckpt", cfg, seed=1))
+    # Low thresholds (0.25 .. 0.55, DOTIE's are 1.0 ..) so the sparse events of a tiny sensor make spikes.
+    ofs = [quantize_ofs(p["weight"], 0.25 + 0.1 * k, 0.7) for k, p in enumerate(ck.ofs)]
+    model = OFPD.from_config(ck.config)
+    model.load_state_dict({k: torch.from_numpy(v) for k, v in ck.ofpd_state.items()})
+    model.eval()
+    onnx_path = root / "ofpd.onnx"
+    torch.onnx.export(model, torch.zeros((1,) + ofpd_io.input_shape(ck.config)), str(onnx_path),
+                      input_names=["events"], output_names=["pose", "direction", "speed"],
+                      dynamic_axes={"events": {0: "N"}}, opset_version=17)
+    return write_bundle(root / "bundle", ck.config, ofs, onnx_path)
+
+
+def _make_recording(path, sensor=(64, 48), duration=0.012, index=0, seed=0):
+    """A multi-object recording with ground truth from the data-set generator, as our HDF5."""
+    import dataclasses
+
+    from toffe_deploy.dataset.camera import PinholeCamera
+    from toffe_deploy.dataset.splits import split_specs
+    from toffe_deploy.dataset.synth import generate_sequence
+    from toffe_deploy.events.io import write_events_h5
+
+    spec = split_specs("multi", seed=seed, duration_s=duration)[index]
+    spec = dataclasses.replace(spec, camera=PinholeCamera(width=sensor[0], height=sensor[1]))
+    ev, gt, size = generate_sequence(spec, seed=seed)
+    write_events_h5(path, ev, size, ground_truth=gt, t_range=(0, int(duration * 1e6)))
+    return path
+
+
+@pytest.fixture(scope="session")
+def make_bundle():
+    """Factory: make_bundle(root, sensor=(64, 48), ofpd=None) -> a loaded real bundle."""
+    return _make_bundle
+
+
+@pytest.fixture(scope="session")
+def make_recording():
+    """Factory: make_recording(path, sensor=(64, 48), duration=0.012, index=0, seed=0) -> path."""
+    return _make_recording

@@ -24,44 +24,8 @@ from toffe_deploy.runtime.spikes import SpikeVolume
 SENSOR = (64, 48)
 
 
-def make_bundle(root, sensor=SENSOR, ofpd=None):
-    """init_checkpoint -> quantize -> ONNX -> write_bundle: a real bundle without the exporter."""
-    import torch
-
-    from toffe_deploy.checkpoint import init_checkpoint, load_checkpoint
-    from toffe_deploy.deploy.bundle import write_bundle
-    from toffe_deploy.fixed_point import quantize_ofs
-    from toffe_deploy.model.ofpd import OFPD
-
-    cfg = ToffeConfig(sensor_size=sensor, ofpd=ofpd or {"crop_px": 32, "pool": 2, "min_events": 4})
-    ck = load_checkpoint(init_checkpoint(root / "ckpt", cfg, seed=1))
-    # Low thresholds (0.25 .. 0.55, DOTIE's are 1.0 ..) so the sparse events of a tiny sensor make spikes.
-    ofs = [quantize_ofs(p["weight"], 0.25 + 0.1 * k, 0.7) for k, p in enumerate(ck.ofs)]
-    model = OFPD.from_config(ck.config)
-    model.load_state_dict({k: torch.from_numpy(v) for k, v in ck.ofpd_state.items()})
-    model.eval()
-    onnx_path = root / "ofpd.onnx"
-    torch.onnx.export(model, torch.zeros((1,) + ofpd_io.input_shape(ck.config)), str(onnx_path),
-                      input_names=["events"], output_names=["pose", "direction", "speed"],
-                      dynamic_axes={"events": {0: "N"}}, opset_version=17)
-    return write_bundle(root / "bundle", ck.config, ofs, onnx_path)
-
-
-def make_recording(path, sensor=SENSOR, duration=0.012, index=0, seed=0):
-    from toffe_deploy.dataset.camera import PinholeCamera
-    from toffe_deploy.dataset.splits import split_specs
-    from toffe_deploy.dataset.synth import generate_sequence
-    from toffe_deploy.events.io import write_events_h5
-
-    spec = split_specs("multi", seed=seed, duration_s=duration)[index]
-    spec = dataclasses.replace(spec, camera=PinholeCamera(width=sensor[0], height=sensor[1]))
-    ev, gt, size = generate_sequence(spec, seed=seed)
-    write_events_h5(path, ev, size, ground_truth=gt, t_range=(0, int(duration * 1e6)))
-    return path
-
-
 @pytest.fixture(scope="module")
-def env(tmp_path_factory):
+def env(tmp_path_factory, make_bundle, make_recording):
     root = tmp_path_factory.mktemp("run")
     bundle = make_bundle(root)
     rec = make_recording(root / "rec.h5")
@@ -234,7 +198,7 @@ def test_bad_synthetic_spec_is_one_line_error(env, capsys, spec):
     assert rc == 2 and err.startswith("toffe-deploy: error: --synthetic") and err.count("\n") == 1
 
 
-def test_sensor_size_mismatch_is_one_line_error(env, capsys, tmp_path):
+def test_sensor_size_mismatch_is_one_line_error(env, capsys, tmp_path, make_recording):
     rec = make_recording(tmp_path / "small.h5", sensor=(32, 24), duration=0.002)
     rc, out, err = run_cli(capsys, env["bundle"].root, "--events", rec)
     assert rc == 2 and out == ""
@@ -298,7 +262,7 @@ def test_loihi_sim_and_cpu_give_identical_object_flow(env, capsys, tmp_path):
     assert sum(len(json.loads(s)["objects"]) for s in out["cpu"].splitlines()) > 0
 
 
-def test_loihi_sim_and_cpu_agree_on_the_shipped_sample(tmp_path):
+def test_loihi_sim_and_cpu_agree_on_the_shipped_sample(tmp_path, make_bundle):
     """Full 640x480 on the shipped recording: first windows through both backends."""
     pytest.importorskip("lava")
     from toffe_deploy.commands.run import SAMPLE
