@@ -9,11 +9,12 @@ a window reads only the chunks it touches; a millisecond index so seeking is two
                                   t_start_us, t_end_us (covered span, end exclusive),
                                   plus user attrs, each stored as JSON text under its own name
     /events/x, y           uint16  (N,)  pixel column / row, 0 <= x < width, 0 <= y < height
-    /events/t              int64   (N,)  microseconds, non-decreasing, >= 0
-    /events/p              uint8   (N,)  1 = ON, 0 = OFF
+    /events/t              int64   (N,)  microseconds, non-decreasing, 0 .. 2**53
+    /events/p              uint8   (N,)  1 = ON, 0 = OFF (any other value is refused)
     /events/ms_to_idx      int64   (M,)  ms_to_idx[m] = first i with t[i] >= index_t0_us + 1000 m
-                                         (attr index_t0_us), M = ceil((t[-1]+1 - index_t0_us)/1000)
-    /ground_truth/<col>    1-D columns, one row per object per sample (optional):
+                                         (attr index_t0_us), M = ceil((t[-1]+1 - index_t0_us)/1000);
+                                         a hint only: every lookup is checked against /events/t
+    /ground_truth/<col>    1-D columns of one length, one row per object per sample (optional):
                            t i8 (us), object_id i4, x f4, y f4 (px, image-plane centre),
                            direction f4 (rad, atan2(dy, dx), y down), speed f4 (m/s),
                            speed_bin i1 (1..4, 0 below bin 1), visible bool; other columns kept as given.

@@ -10,7 +10,11 @@ HDF5 is reported as corrupt, not guessed at):
   N x 4: x, y, t, p); written by ``write_events_npz``;
 - AEDAT4 (iniVation DV) through the ``aedat`` package.
 
-A ``sensor_size`` argument overrides the file's (or the format's default). ``sort=True`` loads
+Refused for every format: a path that is not a regular file (a FIFO or device would block or
+never end), timestamps beyond 2**53 us or a span over 7 days (validate.MAX_TIME_US,
+MAX_DURATION_US: a corrupt timestamp, which would otherwise make window loops run for ever),
+polarities other than 0/1, -1/+1 or bool. A ``sensor_size`` argument overrides the file's (or
+the format's default). ``sort=True`` loads
 the whole file and sorts it by time (stable) instead of rejecting decreasing timestamps.
 """
 from __future__ import annotations
