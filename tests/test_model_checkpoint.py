@@ -83,10 +83,13 @@ def test_nan_or_inf_weight(ckpt, bad):
 
 
 def test_bad_config_json(ckpt):
+    good = json.loads((ckpt / "config.json").read_text())
     (ckpt / "config.json").write_text('{"sensor_size": [48, 32],')
     _expect(ckpt, r"config.json: not valid JSON")
-    (ckpt / "config.json").write_text('{"n_bins": 0}')
+    (ckpt / "config.json").write_text(json.dumps({**good, "n_bins": 0}))
     _expect(ckpt, r"config.json: n_bins must be >= 1")
+    (ckpt / "config.json").write_text(json.dumps({k: v for k, v in good.items() if k not in ("n_bins", "speed_bins")}))
+    _expect(ckpt, r"config.json: config lacks n_bins, speed_bins")
 
 
 def test_cli_reports_bad_checkpoint_in_one_line(ckpt, tmp_path, capsys):

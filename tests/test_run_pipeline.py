@@ -326,7 +326,7 @@ def test_unwritable_outputs_are_one_line_errors(env, capsys, tmp_path):
     assert rc == 2 and err.startswith(f"toffe-deploy: error: {blocker / 'o.jsonl'}: cannot write") and err.count("\n") == 1
     rc, _, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--render", blocker, "--out",
                          tmp_path / "o.jsonl")
-    assert rc == 2 and "cannot create the render directory" in err and err.count("\n") == 1
+    assert rc == 2 and "--render: exists and is not a directory" in err and err.count("\n") == 1
     assert not (tmp_path / "o.jsonl").exists()           # nothing half-written
 
 

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from . import __version__
@@ -23,6 +24,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def os_error_line(exc: OSError) -> str:
+    """``PATH: reason`` for an OSError, without the library noise some wrappers add."""
+    reason = os.strerror(exc.errno) if exc.errno else (str(exc).splitlines() or ["I/O error"])[0]
+    return f"{exc.filename}: {reason}" if exc.filename else reason
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -39,6 +46,11 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    except OSError as exc:
+        # A write (or read) the system refused: full disk (ENOSPC, EDQUOT), read-only file
+        # system (EROFS), permissions (EACCES). Writers are atomic, so nothing partial is left.
+        print(f"toffe-deploy: error: {os_error_line(exc)}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

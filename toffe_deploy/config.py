@@ -19,6 +19,10 @@ from .errors import InputError
 from .events.frontend import INPUT_NORMS
 from .fileio import read_json
 
+#: Keys a config.json on disk (checkpoint or bundle) must state: a trained network is only valid
+#: for the values it was trained with, so a missing one is an error, never a default.
+REQUIRED_KEYS = ("sensor_size", "n_bins", "dt_us", "speed_bins", "representative_speeds", "ofs_kernel",
+                 "ofs_in_channels", "mask_kernel")
 SPEED_BINS_MPS: tuple[tuple[float, float], ...] = ((1.0, 18.0), (18.0, 42.0), (42.0, 84.0), (84.0, 500.0))
 CONFIG_FORMAT_VERSION = 1
 
@@ -153,4 +157,10 @@ class ToffeConfig:
 
 
 def load_config(path: str | os.PathLike) -> ToffeConfig:
-    return ToffeConfig.from_dict(read_json(path), path)
+    """config.json of a checkpoint or bundle; every key of REQUIRED_KEYS must be present."""
+    d = read_json(path)
+    missing = [k for k in REQUIRED_KEYS if isinstance(d, dict) and k not in d]
+    if missing:
+        raise InputError(path, f"config lacks {', '.join(missing)} (a trained checkpoint's config states "
+                               "every one; defaults would not match the weights)")
+    return ToffeConfig.from_dict(d, path)

@@ -7,12 +7,13 @@ and renamed into place.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Sequence
 
 from .errors import InputError
 
@@ -23,26 +24,44 @@ def _umask() -> int:
     return mask
 
 
+#: errno values that mean "this destination cannot take the write": reported as PATH: reason.
+WRITE_ERRNOS = frozenset(getattr(errno, n) for n in ("ENOSPC", "EDQUOT", "EROFS", "EACCES", "EPERM", "EFBIG")
+                         if hasattr(errno, n))
+
+
+@contextlib.contextmanager
+def write_errors(path: str | os.PathLike) -> Iterator[None]:
+    """Turn a refused write (full disk, read-only, no permission) into InputError(path, ...)."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno not in WRITE_ERRNOS:
+            raise
+        raise InputError(path, f"cannot write: {os.strerror(exc.errno)}") from None
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds.
 
     The caller writes the file at the yielded path (any library). On an exception the
-    temporary file is removed and ``path`` is untouched.
+    temporary file is removed and ``path`` is untouched; a refused write (WRITE_ERRNOS) is
+    reported as InputError naming ``path``.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or ".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
-        yield tmp
-        if tmp.exists():
-            os.chmod(tmp, 0o666 & ~_umask())   # mkstemp makes 0600; give the usual mode
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with write_errors(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or ".tmp", dir=path.parent)
+        os.close(fd)
+        tmp = Path(tmp)
+        try:
+            yield tmp
+            if tmp.exists():
+                os.chmod(tmp, 0o666 & ~_umask())   # mkstemp makes 0600; give the usual mode
+            os.replace(tmp, path)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
 
 
 @contextlib.contextmanager
@@ -50,23 +69,25 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a fresh temporary directory beside ``path``; on success it replaces ``path``.
 
     An existing ``path`` is moved aside first and deleted only after the rename succeeded.
+    A refused write (WRITE_ERRNOS) is reported as InputError naming ``path``.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
-    old = None
-    try:
-        yield tmp
-        os.chmod(tmp, 0o777 & ~_umask())       # mkdtemp makes 0700
-        if path.exists():
-            old = path.with_name(f".{path.name}.old-{os.getpid()}")
-            os.replace(path, old)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+    with write_errors(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+        old = None
+        try:
+            yield tmp
+            os.chmod(tmp, 0o777 & ~_umask())       # mkdtemp makes 0700
+            if path.exists():
+                old = path.with_name(f".{path.name}.old-{os.getpid()}")
+                os.replace(path, old)
+            os.replace(tmp, path)
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
 
 
 def read_json(path: str | os.PathLike) -> Any:
@@ -80,3 +101,75 @@ def read_json(path: str | os.PathLike) -> Any:
         raise InputError(path, f"cannot read: {exc}") from None
     except json.JSONDecodeError as exc:
         raise InputError(path, f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
+
+
+def write_bytes_atomic(path: str | os.PathLike, data, suffix: str = "") -> None:
+    """Write an in-memory file image (bytes, bytearray, memoryview) to ``path`` atomically.
+
+    Why: libraries that write through their own C I/O (HDF5) can crash the interpreter when the
+    disk fills up; building the file in memory and writing it with Python's I/O turns a full or
+    read-only disk into an ordinary OSError, and atomic_path removes the partial temp file.
+    """
+    with atomic_path(path, suffix=suffix) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+
+def _real(path: str | os.PathLike) -> Path:
+    return Path(os.path.realpath(os.fspath(path)))
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return _real(a) == _real(b)
+
+
+def _probe_writable(out: Path, is_dir: bool) -> None:
+    """Create and drop a temp file where ``out`` will be written (EROFS, EACCES, ENOSPC up front)."""
+    d = out if is_dir else out.parent
+    while not d.exists() and d != d.parent:
+        d = d.parent
+    if not d.is_dir():
+        raise InputError(out, f"cannot write: {d} is not a directory")
+    try:
+        with tempfile.TemporaryFile(dir=d) as fh:
+            fh.write(b"\0")
+            fh.flush()
+    except OSError as exc:
+        raise InputError(out, f"cannot write in {d}: {exc.strerror or exc}") from None
+
+
+def check_outputs(files: Sequence[tuple[str, str | os.PathLike | None]] = (),
+                  dirs: Sequence[tuple[str, str | os.PathLike | None]] = (),
+                  inputs: Sequence[tuple[str, str | os.PathLike | None]] = ()) -> None:
+    """Refuse, before any work, output paths that would destroy an input or each other.
+
+    files / dirs: (option name, path) of the file / directory outputs (None = not given).
+    inputs: (what, path) of the files and directories the command reads, e.g. ("the input
+    events", F), ("bundle file", B/ofpd.onnx), ("the bundle", B); no output may be one of them
+    (same inode or same resolved path: symlinks and hard links count). Two outputs may not
+    resolve to the same path, a file output may not be an existing directory (nor a directory
+    output a file), and every output's directory must accept a new file (read-only, full or
+    forbidden destinations fail here, before the work). Each problem is an InputError naming
+    the output: one line, exit 2.
+    """
+    outs = [(n, Path(p), False) for n, p in files if p is not None] + \
+           [(n, Path(p), True) for n, p in dirs if p is not None]
+    ins = [(what, Path(p)) for what, p in inputs if p is not None]
+    seen: dict[Path, str] = {}
+    for name, out, is_dir in outs:
+        if out.exists() and out.is_dir() != is_dir:
+            raise InputError(out, f"{name}: " + ("exists and is not a directory" if is_dir
+                                                 else "is a directory (give a file name)"))
+        real = _real(out)
+        for what, src in ins:
+            if real == _real(src) or (out.exists() and src.exists() and _same_file(out, src)):
+                raise InputError(out, f"{name} would overwrite {what} {src}; choose another output")
+        if real in seen:
+            raise InputError(out, f"given as both {seen[real]} and {name}; choose different outputs")
+        seen[real] = name
+        _probe_writable(out, is_dir)

@@ -98,13 +98,16 @@ def register(sub) -> None:
 def _synth(args) -> int:
     from ..dataset.build import build_dataset
     from ..dataset.dvs import DVSParams
-    from ..dataset.splits import SPLITS, balanced_subset, split_specs
+    from ..dataset.splits import MAX_SYNTH_DURATION_S, SPLITS, balanced_subset, split_specs
 
     if args.threshold_sigma >= args.threshold:
         raise ToffeError(f"--threshold-sigma ({args.threshold_sigma}) must be smaller than --threshold "
                          f"({args.threshold})")
     if args.duration_s is not None and args.duration_s < 100e-6:
         raise ToffeError(f"--duration-s {args.duration_s} is shorter than two samples (100 us)")
+    if args.duration_s is not None and args.duration_s > MAX_SYNTH_DURATION_S:
+        raise ToffeError(f"--duration-s {args.duration_s:g} is longer than {MAX_SYNTH_DURATION_S:g} s (each "
+                         "sequence is generated in memory)")
     dvs = DVSParams(threshold=args.threshold, threshold_sigma=args.threshold_sigma, noise_rate_hz=args.noise_hz)
     splits = SPLITS if args.split == "all" else (args.split,)
     specs = {}
@@ -114,6 +117,9 @@ def _synth(args) -> int:
         if args.limit is not None:
             lst = balanced_subset(lst, args.limit, seed=args.seed)
         specs[split] = lst
+    from ..fileio import check_outputs
+
+    check_outputs(dirs=[("--out", args.out)])
     t = time.perf_counter()
     index = build_dataset(args.out, specs, seed=args.seed, jobs=args.jobs, force=args.force)
     el = time.perf_counter() - t
@@ -127,7 +133,10 @@ def _synth(args) -> int:
 def _show(args) -> int:
     from ..dataset.show import show_file
 
+    from ..fileio import check_outputs
+
     out = args.out or args.file.with_suffix(".png")
+    check_outputs(files=[("--out", out)], inputs=[("the input file", args.file)])
     info = show_file(args.file, out, t0_us=args.t0_us, dt_us=args.dt_us, n_frames=args.frames,
                      stride_us=args.stride_us, cols=args.cols)
     print(f"{out}: {info}", file=sys.stdout)

@@ -71,6 +71,14 @@ def run(args) -> int:
     if not args.gate > 0:
         raise ToffeError(f"--gate must be > 0 px, got {args.gate}")
     load_checkpoint(args.ckpt)          # fail fast on a bad checkpoint, before reading data
+    if args.json:
+        from ..fileio import check_outputs
+
+        inputs = [("the checkpoint", args.ckpt), ("the data set", args.data),
+                  ("the data-set index", args.data / "index.json")]
+        inputs += [("checkpoint file", f) for f in args.ckpt.iterdir()]
+        inputs += [("data-set file", f) for f in args.data.rglob("*.h5")] if args.data.is_dir() else []
+        check_outputs(files=[("--json", args.json)], inputs=inputs)
     import torch
 
     from ..evaluate import EvalOptions, evaluate, format_markdown

@@ -68,6 +68,7 @@ def _convert(args) -> int:
 
     from ..errors import InputError
     from ..events.io import open_events, write_events_h5, write_events_npz
+    from ..fileio import check_outputs
 
     out = Path(args.output)
     suffix = out.suffix.lower()
@@ -75,8 +76,7 @@ def _convert(args) -> int:
         raise InputError(out, "output must end in .h5, .hdf5 (our HDF5 layout) or .npz")
     if out.exists() and not args.force:
         raise InputError(out, "exists (use --force to overwrite)")
-    if out.resolve() == Path(args.input).resolve():
-        raise InputError(out, "is the input file; choose another output")
+    check_outputs(files=[("OUT", out)], inputs=[("the input file", args.input)])
     with open_events(args.input, sensor_size=_size(args), sort=args.sort) as src:
         ev = src.read_all()
         if suffix == ".npz":

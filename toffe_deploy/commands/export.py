@@ -40,6 +40,25 @@ def _list(s: str) -> list[str]:
     return [x.strip() for x in s.split(",") if x.strip()]
 
 
+def check_export_output(args) -> None:
+    """-o is replaced as a whole: it may not be, hold or lie inside the checkpoint or --data."""
+    import os
+    from pathlib import Path
+
+    from ..errors import InputError
+    from ..fileio import check_outputs
+
+    out = Path(os.path.realpath(args.out))
+    for what, p in (("the checkpoint", args.checkpoint), ("the --data set", args.data)):
+        if p is None:
+            continue
+        real = Path(os.path.realpath(p))
+        if real.is_relative_to(out) or out.is_relative_to(real):
+            raise InputError(args.out, f"-o overlaps {what} {p} (export replaces the whole -o directory); "
+                                       "choose another -o")
+    check_outputs(dirs=[("-o", args.out)])
+
+
 def run(args) -> int:
     import sys
 
@@ -53,6 +72,7 @@ def run(args) -> int:
         raise ToffeError(f"unknown parity check(s) {', '.join(bad)} (choose from {', '.join(CHECK_NAMES)} or none)")
     if args.windows < 1 or args.lava_windows < 1:
         raise ToffeError("--windows and --lava-windows must be >= 1")
+    check_export_output(args)
     res = export_bundle(args.checkpoint, args.out, force=args.force, variants=_list(args.variants), checks=checks,
                         data=args.data, seed=args.seed, n_windows=args.windows, lava_windows=args.lava_windows,
                         progress=not args.quiet)

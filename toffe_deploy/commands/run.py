@@ -24,6 +24,8 @@ from ..errors import InputError, ToffeError
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
 SAMPLE = Path(__file__).resolve().parent.parent / "samples" / "sample_multi.h5"
 SYNTH_KEYS = ("split", "index", "duration", "seed", "sensor", "hfov")
+#: Default of --skip-empty-after: 1000 windows (0.5 s at dt = 500 us) of nothing before a jump.
+SKIP_EMPTY_AFTER = 1000
 
 
 def register(sub) -> None:
@@ -70,7 +72,11 @@ def register(sub) -> None:
                                                         "instead of PNG frames")
     p.add_argument("--fps", type=float, default=10.0, help="frame rate of the --video file (default: 10)")
     p.add_argument("--max-windows", type=int, metavar="N", help="stop after N windows")
-    p.add_argument("--start-us", type=int, metavar="T", help="first window starts at T (default: recording start)")
+    p.add_argument("--start-us", type=int, metavar="T", help="first window starts at T >= 0 (default: recording start)")
+    p.add_argument("--skip-empty-after", type=int, default=SKIP_EMPTY_AFTER, metavar="N",
+                   help=f"after N consecutive empty windows jump to the window of the next event (a long gap "
+                        f"in the recording costs N windows, not millions); the summary counts the skipped "
+                        f"windows; 0 = never skip (default: {SKIP_EMPTY_AFTER})")
     p.add_argument("--tag", choices=("fixed_pt", "floating_pt"), default="fixed_pt",
                    help="Lava process models for the loihi targets: fixed_pt (bit-accurate Loihi 2, default) "
                         "or floating_pt")
@@ -100,6 +106,8 @@ parse_size.__name__ = "sensor size"      # argparse names the type in its error 
 def parse_synthetic(spec: str) -> dict:
     """'multi:2,duration=0.05,seed=1,sensor=346x260,hfov=60' -> {split, index, duration, seed,
     sensor, hfov} (ToffeError if malformed)."""
+    from ..dataset.splits import MAX_SYNTH_DURATION_S
+
     out = {"split": "multi", "index": 0, "duration": None, "seed": 0, "sensor": None, "hfov": None}
     for i, tok in enumerate(t.strip() for t in spec.split(",") if t.strip()):
         if "=" not in tok:
@@ -124,8 +132,9 @@ def parse_synthetic(spec: str) -> dict:
         raise ToffeError(f"--synthetic {spec!r}: {exc}") from None
     if out["split"] not in ("train", "test", "multi"):
         raise ToffeError(f"--synthetic {spec!r}: split must be train, test or multi, got {out['split']!r}")
-    if out["duration"] is not None and not out["duration"] > 0:
-        raise ToffeError(f"--synthetic {spec!r}: duration must be > 0 s")
+    if out["duration"] is not None and not 0 < out["duration"] <= MAX_SYNTH_DURATION_S:
+        raise ToffeError(f"--synthetic {spec!r}: duration must be in (0, {MAX_SYNTH_DURATION_S:g}] s "
+                         "(the generator holds the whole recording in memory)")
     if out["hfov"] is not None and not 0 < out["hfov"] < 180:
         raise ToffeError(f"--synthetic {spec!r}: hfov must be in (0, 180) degrees")
     return out
@@ -154,6 +163,19 @@ def synthetic_source(spec: str, sensor_size: tuple[int, int], override: tuple[in
     return ArraySource(f"synthetic:{seq.name}", events, size, ground_truth=gt,
                        attrs={"generator": "toffe-deploy synth", "sequence": seq.name, "focal_px": cam.f},
                        t_range=(0, int(round(seq.duration_s * 1e6))), validated=True)
+
+
+def check_run_outputs(args, bundle) -> None:
+    """--out, --summary-json and --render may not overwrite the events, the bundle or a bundle file,
+    nor each other; checked before any work (see fileio.check_outputs)."""
+    from ..fileio import check_outputs
+
+    inputs = [("the input events", args.events), ("the bundle directory", bundle.root),
+              ("the bundle manifest", bundle.root / "manifest.json")]
+    inputs += [("bundle file", bundle.root / rel) for rel in bundle.manifest["files"]]
+    inputs += [("bundle file", p) for p in bundle.ofpd_variants.values()]
+    check_outputs(files=[("--out", args.out), ("--summary-json", args.summary_json)],
+                  dirs=[("--render", args.render)], inputs=inputs)
 
 
 def open_source(args, bundle_sensor: tuple[int, int]):
@@ -188,12 +210,19 @@ def run_command(args) -> int:
 
     if args.max_windows is not None and args.max_windows < 1:
         raise ToffeError("--max-windows must be >= 1")
+    from ..events.validate import MAX_TIME_US
+
+    if args.start_us is not None and not 0 <= args.start_us <= MAX_TIME_US:
+        raise ToffeError(f"--start-us must be in 0..2**53 us, got {args.start_us}")
+    if args.skip_empty_after < 0:
+        raise ToffeError("--skip-empty-after must be >= 0 (0: never skip)")
     if args.video and not args.render:
         raise ToffeError("--video needs --render DIR")
     if args.tag != "fixed_pt" and args.target in ("cpu", "cuda"):
         raise ToffeError(f"--tag {args.tag} selects Lava process models: it applies to --target loihi-sim or loihi2; "
                          f"the {args.target} target runs the fixed-point OFS")
     bundle = load_bundle(args.bundle)
+    check_run_outputs(args, bundle)
     cfg = bundle.config
     src = open_source(args, cfg.sensor_size)
     with src:
@@ -223,9 +252,14 @@ def run_command(args) -> int:
         pending: collections.deque = collections.deque()   # (t0, volume, time the window was ready)
 
         def windows():
-            for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=t_start)):
+            t_next = t_start
+            skip = args.skip_empty_after or None
+            for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=t_start, skip_empty_after=skip)):
                 if i >= n_total:
                     return
+                if t0 > t_next:
+                    summary.skip((t0 - t_next) // cfg.dt_us, cfg.dt_us)
+                t_next = t0 + cfg.dt_us
                 vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor)
                 pending.append((t0, vol, time.perf_counter()))
                 yield t0, vol

@@ -41,6 +41,9 @@ DEPTH_M, DEPTH_AMP_M, SIZE_M, SCALE_M = 5.0, 0.3, 0.4, 1.6
 #: Multi-object scenes: smaller objects on smaller curves, one per quadrant centre.
 MULTI_SIZE_M, MULTI_SCALE_M, MULTI_DEPTH_AMP_M = 0.35, 0.55, 0.2
 MULTI_QUADRANTS_M = ((-1.35, -0.95), (1.35, -0.95), (-1.35, 0.95), (1.35, 0.95))
+#: Longest generated sequence (s): the generator holds a whole sequence in memory (events of a
+#: 640x480 scene run to ~70 MB per second), so a typo like 1e9 must not try to allocate it.
+MAX_SYNTH_DURATION_S = 10.0
 DEFAULT_DURATION_S = {"train": 0.1, "test": 0.1, "multi": 0.25}
 DEFAULT_MULTI_COUNT = 16
 

@@ -30,7 +30,7 @@ import json
 import os
 import shutil
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any, Mapping, Sequence, Union
 
 import numpy as np
@@ -81,7 +81,7 @@ class Bundle:
         p = self.root / "parity.json"
         if not p.is_file():
             return None
-        return json.loads(p.read_text(encoding="utf-8"))
+        return read_json(p)
 
 
 # ----------------------------------------------------------------------------- hashing
@@ -151,6 +151,9 @@ def ofs_from_json(d: Any, path: str | os.PathLike, expect_channels: int | None =
     if d.get("format_version") != OFS_FORMAT_VERSION:
         raise InputError(path, f"OFS format_version {d.get('format_version')} is not supported "
                                f"(expected {OFS_FORMAT_VERSION})")
+    if d.get("state_shift", STATE_SHIFT) != STATE_SHIFT:
+        raise InputError(path, f"state_shift = {d.get('state_shift')!r} is not supported: every runtime "
+                               f"(cpu fixed point, Lava) scales by 2**{STATE_SHIFT} (state_shift {STATE_SHIFT})")
     stages = d.get("stages")
     if not isinstance(stages, list) or not stages:
         raise InputError(path, "no OFS stages")
@@ -181,6 +184,9 @@ def ofs_from_json(d: Any, path: str | os.PathLike, expect_channels: int | None =
                                   ("du", du, 0, DECAY_UNITY - 1)):
             if not isinstance(val, int) or isinstance(val, bool) or not lo <= val <= hi:
                 raise InputError(path, f"{where}: {name} = {val!r} is not an integer in [{lo}, {hi}]")
+        if du != DECAY_UNITY - 1:
+            raise InputError(path, f"{where}: du = {du} is not supported: the OFS current is memoryless "
+                                   f"(du = {DECAY_UNITY - 1}), which is what every runtime implements")
         if not np.isfinite(scale) or scale <= 0:
             raise InputError(path, f"{where}: weight_scale {scale!r} must be finite and > 0")
         out.append(LoihiOFSParams(weight=w.astype(np.int32), vth_mant=vth, dv=dv, du=du, weight_scale=scale,
@@ -349,16 +355,42 @@ def read_manifest(root: str | os.PathLike) -> dict:
     return m
 
 
+def bundle_file(root: str | os.PathLike, rel: Any, what: str) -> Path:
+    """``root / rel`` for a path named in the manifest, refused unless it stays inside the bundle.
+
+    Refused: non-strings, empty names, absolute paths, '..' components, backslashes, and paths
+    whose resolved location (symlinks followed) leaves the bundle directory. Nothing outside the
+    bundle is ever opened, so an error can never reveal anything about such a file.
+    """
+    root = Path(root)
+    mpath = root / MANIFEST
+    if not isinstance(rel, str) or not rel.strip() or "\\" in rel or "\0" in rel:
+        raise InputError(mpath, f"{what}: {rel!r} is not a relative file name")
+    p = PurePosixPath(rel)
+    if p.is_absolute() or ".." in p.parts:
+        raise InputError(mpath, f"{what}: {rel!r} points outside the bundle (absolute or '..' path)")
+    f = root / p
+    if not Path(os.path.realpath(f)).is_relative_to(Path(os.path.realpath(root))):
+        raise InputError(mpath, f"{what}: {rel!r} resolves outside the bundle (symbolic link)")
+    return f
+
+
+def _listed(rel: str) -> str:
+    return PurePosixPath(rel).as_posix()
+
+
 def verify_bundle(root: str | os.PathLike, manifest: dict | None = None) -> None:
-    """Check every file listed in the manifest exists and matches its sha256 (InputError if not)."""
+    """Check every file listed in the manifest lies inside the bundle, exists and matches its
+    sha256 (InputError if not)."""
     root = Path(root)
     m = manifest if manifest is not None else read_manifest(root)
     files = m["files"]
+    listed = {_listed(k) for k in files if isinstance(k, str)}
     for req in REQUIRED_FILES:
-        if req not in files:
+        if req not in listed:
             raise InputError(root / MANIFEST, f"manifest does not list required file {req}")
     for rel, entry in sorted(files.items()):
-        f = root / rel
+        f = bundle_file(root, rel, "files")
         if not isinstance(entry, dict) or not isinstance(entry.get("sha256"), str):
             raise InputError(root / MANIFEST, f"malformed files entry for {rel}")
         if not f.is_file():
@@ -369,8 +401,34 @@ def verify_bundle(root: str | os.PathLike, manifest: dict | None = None) -> None
                                 f"{entry['sha256'][:12]}..., file {got[:12]}...); re-export the bundle")
 
 
+def ofpd_variant_files(root: str | os.PathLike, manifest: dict, verify: bool = True) -> dict[str, Path]:
+    """manifest.ofpd.variants as {precision: path}, each path inside the bundle and (verify)
+    listed in manifest.files, hence hash-checked by verify_bundle; variants whose file is
+    absent are left out (``run --ofpd`` then says the bundle has no such variant)."""
+    root = Path(root)
+    mpath = root / MANIFEST
+    ofpd = manifest.get("ofpd", {})
+    if not isinstance(ofpd, dict):
+        raise InputError(mpath, "manifest 'ofpd' section must be an object")
+    variants = ofpd.get("variants") or {}
+    if not isinstance(variants, dict):
+        raise InputError(mpath, "manifest ofpd.variants must be an object {precision: {\"file\": NAME}}")
+    listed = {_listed(k) for k in manifest.get("files", {}) if isinstance(k, str)}
+    out = {}
+    for name, entry in variants.items():
+        rel = entry.get("file") if isinstance(entry, dict) else entry
+        fp = bundle_file(root, rel, f"ofpd.variants.{name}")
+        if verify and _listed(rel) not in listed:
+            raise InputError(mpath, f"ofpd.variants.{name}: {rel} is not listed in 'files' with a sha256, "
+                                    "so it cannot be verified; re-export the bundle")
+        if fp.is_file():
+            out[str(name)] = fp
+    return out
+
+
 def load_bundle(path: str | os.PathLike, verify: bool = True) -> Bundle:
-    """Read a bundle directory; with verify (default) refuse any file whose sha256 differs."""
+    """Read a bundle directory; with verify (default) refuse any file whose sha256 differs,
+    and any file the runtime would open that the manifest does not list."""
     root = Path(path)
     m = read_manifest(root)
     if verify:
@@ -383,9 +441,5 @@ def load_bundle(path: str | os.PathLike, verify: bool = True) -> Bundle:
     onnx_path = root / OFPD_ONNX
     if not onnx_path.is_file():
         raise InputError(onnx_path, "missing file")
-    variants = {}
-    for name, entry in (m.get("ofpd", {}).get("variants") or {}).items():
-        fp = root / (entry["file"] if isinstance(entry, dict) else str(entry))
-        if fp.is_file():
-            variants[name] = fp
+    variants = ofpd_variant_files(root, m, verify)
     return Bundle(root=root, config=config, ofs=ofs, ofpd_onnx=onnx_path, manifest=m, ofpd_variants=variants)

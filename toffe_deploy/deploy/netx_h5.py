@@ -14,6 +14,7 @@ cascade's masking between stages is not a netx layer.
 """
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
@@ -33,7 +34,8 @@ def write_stage_netx(path: str | os.PathLike, config: ToffeConfig, p: LoihiOFSPa
     c, h, w = config.ofs_in_channels, config.height, config.width
     k = p.kernel_size
     path = Path(path)
-    with h5py.File(path, "w") as f:
+    buf = io.BytesIO()     # in memory: HDF5's own writes crash the interpreter on a full disk
+    with h5py.File(buf, "w") as f:
         f.attrs["producer"] = "toffe-deploy export"
         f.attrs["stage"] = stage
         f.attrs["reset_note"] = RESET_NOTE
@@ -58,6 +60,8 @@ def write_stage_netx(path: str | os.PathLike, config: ToffeConfig, p: LoihiOFSPa
         neuron.create_dataset("vThMant", data=int(p.vth_mant))
         neuron.create_dataset("refDelay", data=1)
         neuron.create_dataset("gradedSpike", data=False)
+    with open(path, "wb") as fh:
+        fh.write(buf.getbuffer())
     return path
 
 

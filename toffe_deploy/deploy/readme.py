@@ -59,13 +59,13 @@ over the window, are closed with a `mask_kernel` square and inverted to mask the
 |---|---|
 | `format`, `format_version` | `"toffe-ofs-loihi"`, 1 |
 | `weight_layout` | `(1, C_in, K, K)`, cross-correlation (torch Conv2d layout) |
-| `state_shift` | 6: a_in and vth are shifted left by 6 bits into the 24-bit state |
+| `state_shift` | 6: a_in and vth are shifted left by 6 bits into the 24-bit state (any other value is refused) |
 | `reset`, `input` | the reset rule and input encoding above, in words |
 | `stages[k-1].stage` | k (1 = slowest speed bin) |
 | `stages[k-1].weight` | int weights in [-127, 127], nested lists (1, C_in, K, K) |
 | `stages[k-1].vth_mant` | threshold mantissa, 1 .. 2^17 - 1 |
 | `stages[k-1].dv` | voltage decay, 0 .. 4095 (lambda = 1 - dv / 4096) |
-| `stages[k-1].du` | current decay, 4095 (memoryless input current) |
+| `stages[k-1].du` | current decay, 4095 (memoryless input current; the only value the runtimes implement, others are refused) |
 | `stages[k-1].weight_scale` | s: float weight = weight / s, float threshold = vth_mant / s |
 | `stages[k-1].notes` | every clamp the quantizer applied (empty when none) |
 | `stages[k-1].float` | the checkpoint's float threshold and leak, for reference |
@@ -129,11 +129,11 @@ Each check has `status` (`pass`, `fail` or `skipped: reason`), its measured figu
 | `camera` | the camera the bundle was trained for and what its speed bins mean (below) |
 | `config` | the full ToffeConfig (also config.json) |
 | `ofs` | per stage vth_mant, dv, du, weight_scale, clamps, and `quantization` errors (max abs / relative weight error, threshold and leak error) |
-| `ofpd` | opset, input/output names and shapes, variants with their files |
+| `ofpd` | opset, input/output names and shapes, `variants` with their files (each must also be listed in `files`) |
 | `netx`, `nir` | their files and the reset caveat |
 | `parity` | status and headline figure of each check |
 | `warnings` | every clamp and every missed parity goal, also printed at export |
-| `files` | `{path: {sha256, bytes}}` for every file of the bundle except manifest.json |
+| `files` | `{path: {sha256, bytes}}` for every file of the bundle except manifest.json; paths are relative, stay inside the bundle (no `..`, no absolute path, no symbolic link leading out) and are all verified on load |
 
 ## manifest.json `camera`: what the speed bins mean
 

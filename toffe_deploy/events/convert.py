@@ -13,9 +13,19 @@ from .core import EVENT_DTYPE
 from .validate import coordinates_in_range
 
 
-def polarity01(p: np.ndarray) -> np.ndarray:
-    """Polarity as 1 = ON, 0 = OFF from any common encoding: bool, 0/1, -1/+1 (p > 0 is ON)."""
-    return (np.asarray(p) > 0).astype(np.uint8)
+def polarity01(path, p: np.ndarray, offset: int = 0) -> np.ndarray:
+    """Polarity as 1 = ON, 0 = OFF from any common encoding: bool, 0/1, -1/+1 (p > 0 is ON).
+
+    Any other value (7, -3, NaN, 0.5) is an InputError: it means a wrong column or a corrupt
+    file, which ``p > 0`` would silently turn into ON/OFF events.
+    """
+    p = np.asarray(p)
+    if p.dtype != np.bool_ and p.size:
+        bad = np.flatnonzero(~((p == 0) | (p == 1) | (p == -1)))
+        if bad.size:
+            i = int(bad[0])
+            raise InputError(path, f"polarity p = {p[i]!r} at event {offset + i} is not 0/1, -1/+1 or a bool")
+    return (p > 0).astype(np.uint8)
 
 
 def time_us(path, t: np.ndarray, offset: int = 0, scale: float = 1.0, what: str = "t") -> np.ndarray:
@@ -51,5 +61,5 @@ def to_events(path, x, y, t_us: np.ndarray, p, offset: int = 0) -> np.ndarray:
     out["x"] = x
     out["y"] = y
     out["t"] = t_us
-    out["p"] = polarity01(p)
+    out["p"] = polarity01(path, p, offset)
     return out

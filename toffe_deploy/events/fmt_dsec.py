@@ -12,7 +12,7 @@ import numpy as np
 from ..errors import InputError
 from .convert import time_us, to_events
 from .core import EVENT_DTYPE
-from .h5util import dataset, index_via_ms, read_slice
+from .h5util import dataset, index_via_ms, ms_index_dataset, read_slice
 from .source import EventSource
 from .validate import check_sensor_size
 
@@ -37,7 +37,7 @@ class DsecSource(EventSource):
             self._t_offset = int(off)
         else:
             self._t_offset = 0
-        self._idx = dataset(path, h5, "ms_to_idx") if "ms_to_idx" in h5 else None
+        self._idx = ms_index_dataset(path, h5)
 
     @property
     def num_events(self):

@@ -9,12 +9,13 @@ Never unpickles (allow_pickle=False): an object array is reported, not executed.
 """
 from __future__ import annotations
 
+import io
 import zipfile
 
 import numpy as np
 
 from ..errors import InputError
-from ..fileio import atomic_path
+from ..fileio import write_bytes_atomic
 from .convert import time_us, to_events
 from .core import EVENT_DTYPE
 from .source import ArraySource, EventSource
@@ -114,7 +115,7 @@ def write_npz(path, events: np.ndarray, sensor_size) -> None:
         check_chunk(path, events, (w, h))
     except InputError as exc:
         raise ValueError(f"refusing to write bad events: {exc.problem}") from None
-    with atomic_path(path, suffix=".npz") as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, sensor_size=np.array([w, h], np.int64),
-                                **{n: np.ascontiguousarray(events[n]) for n in EVENT_DTYPE.names})
+    buf = io.BytesIO()     # built in memory so a full disk is one OSError, not a broken zip writer
+    np.savez_compressed(buf, sensor_size=np.array([w, h], np.int64),
+                        **{n: np.ascontiguousarray(events[n]) for n in EVENT_DTYPE.names})
+    write_bytes_atomic(path, buf.getbuffer(), suffix=".npz")

@@ -9,17 +9,19 @@ a window reads only the chunks it touches; a millisecond index so seeking is two
                                   t_start_us, t_end_us (covered span, end exclusive),
                                   plus user attrs, each stored as JSON text under its own name
     /events/x, y           uint16  (N,)  pixel column / row, 0 <= x < width, 0 <= y < height
-    /events/t              int64   (N,)  microseconds, non-decreasing, >= 0
-    /events/p              uint8   (N,)  1 = ON, 0 = OFF
+    /events/t              int64   (N,)  microseconds, non-decreasing, 0 .. 2**53
+    /events/p              uint8   (N,)  1 = ON, 0 = OFF (any other value is refused)
     /events/ms_to_idx      int64   (M,)  ms_to_idx[m] = first i with t[i] >= index_t0_us + 1000 m
-                                         (attr index_t0_us), M = ceil((t[-1]+1 - index_t0_us)/1000)
-    /ground_truth/<col>    1-D columns, one row per object per sample (optional):
+                                         (attr index_t0_us), M = ceil((t[-1]+1 - index_t0_us)/1000);
+                                         a hint only: every lookup is checked against /events/t
+    /ground_truth/<col>    1-D columns of one length, one row per object per sample (optional):
                            t i8 (us), object_id i4, x f4, y f4 (px, image-plane centre),
                            direction f4 (rad, atan2(dy, dx), y down), speed f4 (m/s),
                            speed_bin i1 (1..4, 0 below bin 1), visible bool; other columns kept as given.
 """
 from __future__ import annotations
 
+import io
 import json
 import os
 
@@ -27,11 +29,12 @@ import h5py
 import numpy as np
 
 from ..errors import InputError
-from ..fileio import atomic_path
+from ..fileio import write_bytes_atomic
+from .convert import time_us, to_events
 from .core import EVENT_DTYPE
-from .h5util import dataset, index_via_ms
+from .h5util import dataset, index_via_ms, ms_index_dataset
 from .source import EventSource
-from .validate import check_chunk, check_sensor_size
+from .validate import check_chunk, check_ground_truth, check_sensor_size
 
 FORMAT_NAME = "toffe-events"
 FORMAT_VERSION = 1
@@ -104,27 +107,28 @@ def write_events_h5(path: str | os.PathLike, events: np.ndarray, sensor_size: tu
     t_start, t_end = int(t_range[0]), int(t_range[1])
     if n and (t_start > t[0] or t_end <= t[-1]):
         raise ValueError(f"t_range {t_range} does not cover the events [{int(t[0])}, {int(t[-1])}]")
-    with atomic_path(path, suffix=".h5") as tmp:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = FORMAT_NAME
-            f.attrs["format_version"] = FORMAT_VERSION
-            f.attrs["sensor_width"] = w
-            f.attrs["sensor_height"] = h
-            f.attrs["num_events"] = n
-            f.attrs["t_start_us"] = t_start
-            f.attrs["t_end_us"] = t_end
-            for k, v in attrs_json.items():
-                f.attrs[k] = v
-            g = f.create_group("events")
-            for name in EVENT_DTYPE.names:
-                _column(g, name, events[name], EVENT_DTYPE[name])
-            index_t0 = int(t[0]) if n else 0
-            idx = g.create_dataset("ms_to_idx", data=ms_index(t, index_t0))
-            idx.attrs["index_t0_us"] = index_t0
-            if gt is not None:
-                gg = f.create_group("ground_truth")
-                for k, v in gt.items():
-                    _column(gg, k, v, GT_DTYPES.get(k, v.dtype))
+    buf = io.BytesIO()     # built in memory: HDF5's own writes crash the interpreter on a full disk
+    with h5py.File(buf, "w") as f:
+        f.attrs["format"] = FORMAT_NAME
+        f.attrs["format_version"] = FORMAT_VERSION
+        f.attrs["sensor_width"] = w
+        f.attrs["sensor_height"] = h
+        f.attrs["num_events"] = n
+        f.attrs["t_start_us"] = t_start
+        f.attrs["t_end_us"] = t_end
+        for k, v in attrs_json.items():
+            f.attrs[k] = v
+        g = f.create_group("events")
+        for name in EVENT_DTYPE.names:
+            _column(g, name, events[name], EVENT_DTYPE[name])
+        index_t0 = int(t[0]) if n else 0
+        idx = g.create_dataset("ms_to_idx", data=ms_index(t, index_t0))
+        idx.attrs["index_t0_us"] = index_t0
+        if gt is not None:
+            gg = f.create_group("ground_truth")
+            for k, v in gt.items():
+                _column(gg, k, v, GT_DTYPES.get(k, v.dtype))
+    write_bytes_atomic(path, buf.getbuffer(), suffix=".h5")
 
 
 class ToffeH5Source(EventSource):
@@ -155,7 +159,7 @@ class ToffeH5Source(EventSource):
         if any(len(s) != 1 for s in shapes.values()) or len({s[0] for s in shapes.values()}) != 1:
             raise InputError(path, f"event fields differ in shape: {shapes}")
         self._n = shapes["t"][0]
-        self._idx = g.get("ms_to_idx")
+        self._idx = ms_index_dataset(path, g)
         self._idx_t0 = int(self._idx.attrs.get("index_t0_us", 0)) if self._idx is not None else 0
         self._span = (int(a.get("t_start_us", 0)), int(a.get("t_end_us", 0))) \
             if "t_start_us" in a and "t_end_us" in a else None
@@ -166,18 +170,26 @@ class ToffeH5Source(EventSource):
         return self._n
 
     def _read_index(self, i0, i1):
-        out = np.empty(i1 - i0, EVENT_DTYPE)
         try:
-            for name, ds in self._cols.items():
-                out[name] = ds[i0:i1]
+            c = {name: ds[i0:i1] for name, ds in self._cols.items()}
         except (OSError, ValueError) as exc:
             raise InputError(self.path, f"cannot read events {i0}..{i1 - 1} (truncated or corrupt "
                                         f"file?): {exc}") from None
-        return out
+        if all(c[n].dtype == EVENT_DTYPE[n] for n in EVENT_DTYPE.names):   # as we write it: no cast hides anything
+            out = np.empty(i1 - i0, EVENT_DTYPE)
+            for name in EVENT_DTYPE.names:
+                out[name] = c[name]
+            bad = np.flatnonzero(out["p"] > 1)
+            if bad.size:
+                i = int(bad[0])
+                raise InputError(self.path, f"polarity p = {int(out['p'][i])} at event {i0 + i} is not 0 or 1")
+            return out
+        # other column types (float x, int8 p, ...): checked conversion, never a silent cast
+        return to_events(self.path, c["x"], c["y"], time_us(self.path, c["t"], i0), c["p"], i0)
 
     def _t_at(self, i):
         try:
-            return int(self._cols["t"][i])
+            return int(time_us(self.path, self._cols["t"][i:i + 1], i)[0])
         except (OSError, ValueError) as exc:
             raise InputError(self.path, f"cannot read timestamp {i} (truncated or corrupt file?): "
                                         f"{exc}") from None
@@ -202,9 +214,10 @@ class ToffeH5Source(EventSource):
         if self._gt_cache is None:
             g = self._h5["ground_truth"]
             try:
-                self._gt_cache = {k: g[k][()] for k in g if isinstance(g[k], h5py.Dataset)}
+                gt = {k: g[k][()] for k in g if isinstance(g[k], h5py.Dataset)}
             except (OSError, ValueError) as exc:
                 raise InputError(self.path, f"cannot read /ground_truth (corrupt file?): {exc}") from None
+            self._gt_cache = check_ground_truth(self.path, gt, required=tuple(GT_DTYPES))
         return self._gt_cache
 
     @property

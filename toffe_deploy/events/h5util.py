@@ -36,6 +36,16 @@ def dataset(path, h5: h5py.File, name: str) -> h5py.Dataset:
     return obj
 
 
+def ms_index_dataset(path, group: h5py.Group, name: str = "ms_to_idx") -> h5py.Dataset | None:
+    """The optional millisecond seek index of a group: None when absent, else a 1-D integer dataset."""
+    if name not in group:
+        return None
+    ds = dataset(path, group, name)
+    if ds.ndim != 1 or ds.dtype.kind not in "iu":
+        raise InputError(path, f"{ds.name} must be a 1-D integer seek index, got {ds.dtype} {ds.shape}")
+    return ds
+
+
 def read_slice(path, ds: h5py.Dataset, sl) -> np.ndarray:
     """``ds[sl]``, with a corrupt/truncated file turned into InputError."""
     try:
@@ -48,18 +58,42 @@ def index_via_ms(path, t: int, ms_to_idx: h5py.Dataset, index_t0_us: int, t_col:
                  n: int, t_offset: int = 0) -> int:
     """First event index with time >= t, using a DSEC-style millisecond index.
 
-    ms_to_idx[m] = first i with t_col[i] + t_offset >= index_t0_us + 1000 m. Two reads: the two
-    index entries around t and the timestamps of that one millisecond.
+    ms_to_idx[m] = first i with t_col[i] + t_offset >= index_t0_us + 1000 m. Three small reads:
+    the two index entries around t, the timestamps of that one millisecond, and the two
+    timestamps around the answer, which prove it right. The index is never trusted: an entry out
+    of range, decreasing, or an answer the timestamps contradict is an InputError (a corrupt or
+    foreign index would otherwise silently drop or repeat events).
     """
     m = (int(t) - index_t0_us) // 1000
     if m < 0:
-        return 0
-    if m >= ms_to_idx.shape[0]:
-        return n
-    bounds = read_slice(path, ms_to_idx, slice(m, m + 2)).astype(np.int64)
-    lo = min(max(int(bounds[0]), 0), n)
-    hi = min(max(int(bounds[1]), 0), n) if bounds.shape[0] > 1 else n
-    if hi <= lo:
-        return lo
-    ts = read_slice(path, t_col, slice(lo, hi)).astype(np.int64) + t_offset
-    return lo + int(np.searchsorted(ts, t, side="left"))
+        i = 0
+    elif m >= ms_to_idx.shape[0]:
+        i = n
+    else:
+        bounds = read_slice(path, ms_to_idx, slice(m, m + 2)).astype(np.int64)
+        lo = int(bounds[0])
+        hi = int(bounds[1]) if bounds.shape[0] > 1 else n
+        if not 0 <= lo <= hi <= n:
+            raise InputError(path, f"{ms_to_idx.name}[{m}:{m + 2}] = {bounds.tolist()} is not a non-decreasing "
+                                   f"index into the {n} events: {_CORRUPT}")
+        ts = read_slice(path, t_col, slice(lo, hi)).astype(np.int64) + t_offset
+        i = lo + int(np.searchsorted(ts, t, side="left"))
+    _check_first_at(path, ms_to_idx, t, i, t_col, n, t_offset)
+    return i
+
+
+_CORRUPT = "corrupt seek index (delete it to read the file by binary search, or rewrite the file)"
+
+
+def _check_first_at(path, ms_to_idx: h5py.Dataset, t: int, i: int, t_col: h5py.Dataset, n: int,
+                    t_offset: int) -> None:
+    """InputError unless i is the first event with time >= t (t_col[i-1] < t <= t_col[i])."""
+    a, b = max(i - 1, 0), min(i + 1, n)
+    if b <= a:
+        return
+    ts = read_slice(path, t_col, slice(a, b)).astype(np.int64) + t_offset
+    before_ok = i == 0 or ts[0] < t
+    after_ok = i == n or ts[-1] >= t
+    if not (before_ok and after_ok):
+        raise InputError(path, f"{ms_to_idx.name} disagrees with the timestamps (it puts the first event at "
+                               f"t >= {t} us at index {i}): {_CORRUPT}")

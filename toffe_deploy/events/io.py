@@ -10,12 +10,17 @@ HDF5 is reported as corrupt, not guessed at):
   N x 4: x, y, t, p); written by ``write_events_npz``;
 - AEDAT4 (iniVation DV) through the ``aedat`` package.
 
-A ``sensor_size`` argument overrides the file's (or the format's default). ``sort=True`` loads
+Refused for every format: a path that is not a regular file (a FIFO or device would block or
+never end), timestamps beyond 2**53 us or a span over 7 days (validate.MAX_TIME_US,
+MAX_DURATION_US: a corrupt timestamp, which would otherwise make window loops run for ever),
+polarities other than 0/1, -1/+1 or bool. A ``sensor_size`` argument overrides the file's (or
+the format's default). ``sort=True`` loads
 the whole file and sorts it by time (stable) instead of rejecting decreasing timestamps.
 """
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +29,7 @@ from ..errors import InputError
 from .core import Events
 from .fmt_toffe import FORMAT_NAME, ToffeH5Source, write_events_h5
 from .source import ArraySource, EventSource
+from .validate import check_time_span
 
 __all__ = ["open_events", "read_events", "write_events_h5", "write_events_npz", "EventSource",
            "detect_format", "FORMATS"]
@@ -41,6 +47,9 @@ def _sniff(path: Path) -> bytes:
         raise InputError(path, "no such file")
     if path.is_dir():
         raise InputError(path, "is a directory, not an event file")
+    if not stat.S_ISREG(path.stat().st_mode):
+        raise InputError(path, "is not a regular file (a FIFO, socket or device would block or never end; "
+                               "save the events to a file first)")
     try:
         with open(path, "rb") as fh:
             head = fh.read(16)
@@ -132,7 +141,12 @@ def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = N
         from .fmt_aedat import AedatSource
         src = AedatSource(path, sensor_size)
     if sort:
-        return _sorted_source(src)
+        src = _sorted_source(src)
+    try:
+        check_time_span(path, src.t_start_us, src.t_end_us)
+    except BaseException:
+        src.close()
+        raise
     return src
 
 

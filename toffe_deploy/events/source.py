@@ -125,12 +125,15 @@ class EventSource(abc.ABC):
             yield ev
             i = j
 
-    def iter_windows(self, dt_us: int, t_start: int | None = None,
-                     t_end: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    def iter_windows(self, dt_us: int, t_start: int | None = None, t_end: int | None = None,
+                     skip_empty_after: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
         """Yield (t0, events with t0 <= t < t0 + dt_us) for t0 = t_start, t_start + dt, ...
 
         Windows up to and including the one holding t_end - 1; an empty window is an empty array,
         not an error. Reads the file chunk by chunk: memory is one chunk plus one window.
+        ``skip_empty_after`` = N: after N consecutive empty windows, jump straight to the window
+        holding the next event (or past the end), so an hours-long gap costs N windows, not
+        millions; callers see the jump as a t0 step larger than dt_us.
         """
         dt_us = int(dt_us)
         if dt_us <= 0:
@@ -143,7 +146,8 @@ class EventSource(abc.ABC):
         chunks = self.iter_chunks(t_start, t_start + n_windows * dt_us)
         buf = np.empty(0, EVENT_DTYPE)
         exhausted = False
-        for w in range(n_windows):
+        w = n_empty = 0
+        while w < n_windows:
             t0 = t_start + w * dt_us
             t1 = t0 + dt_us
             while not exhausted and (buf.shape[0] == 0 or buf["t"][-1] < t1):
@@ -155,6 +159,12 @@ class EventSource(abc.ABC):
             cut = int(np.searchsorted(buf["t"], t1, side="left"))
             yield t0, buf[:cut].copy()
             buf = buf[cut:]
+            w += 1
+            n_empty = 0 if cut else n_empty + 1
+            if skip_empty_after is not None and n_empty >= skip_empty_after:
+                # the fill loop above left the next event (if any) at buf[0]
+                w = max(w, (int(buf["t"][0]) - t_start) // dt_us) if buf.shape[0] else n_windows
+                n_empty = 0
 
     def read_unordered(self) -> np.ndarray:
         """Every event, checked for coordinates and negative times but not for order (sorting)."""

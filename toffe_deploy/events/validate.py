@@ -14,6 +14,24 @@ from .core import EVENT_DTYPE
 
 #: Fields every event array must carry (EVENT_DTYPE's names).
 REQUIRED_FIELDS = tuple(EVENT_DTYPE.names)
+#: Largest timestamp accepted (us): 2**53, ~285 years, covers Unix-epoch microseconds and stays
+#: exact in float64; larger values are corrupt (int64 max would make every window loop overflow).
+MAX_TIME_US = 2 ** 53
+#: Longest recording accepted (us): one week. Longer spans are a corrupt timestamp, not a recording.
+MAX_DURATION_US = 7 * 24 * 3600 * 10 ** 6
+
+
+def check_time_span(path: str | os.PathLike, t_start_us: int, t_end_us: int) -> None:
+    """The span a file covers ends by MAX_TIME_US and lasts at most MAX_DURATION_US.
+
+    (Negative or decreasing timestamps are reported by check_chunk, with the event index.)
+    """
+    if max(t_start_us, t_end_us) > MAX_TIME_US:
+        raise InputError(path, f"time span [{t_start_us}, {t_end_us}) us goes beyond 2**53 us "
+                               "(corrupt timestamps?)")
+    if t_end_us - t_start_us > MAX_DURATION_US:
+        raise InputError(path, f"spans {(t_end_us - t_start_us) / 86400e6:,.1f} days, more than the 7 days "
+                               "toffe-deploy accepts (a corrupt timestamp?)")
 
 
 def check_sensor_size(path: str | os.PathLike, sensor_size) -> tuple[int, int]:
@@ -45,10 +63,11 @@ def check_chunk(path: str | os.PathLike, ev: np.ndarray, sensor_size: tuple[int,
             raise InputError(path, f"{name} = {int(ev[name][i])} outside the {w}x{h} sensor at event "
                                    f"{offset + i} (give the right sensor size?)")
     t = ev["t"]
-    bad = np.flatnonzero(t < 0)
+    bad = np.flatnonzero((t < 0) | (t > MAX_TIME_US))
     if bad.size:
         i = int(bad[0])
-        raise InputError(path, f"negative timestamp t = {int(t[i])} us at event {offset + i}")
+        what = "negative timestamp" if t[i] < 0 else "timestamp beyond 2**53 us (corrupt?)"
+        raise InputError(path, f"{what} t = {int(t[i])} us at event {offset + i}")
     if not check_order:
         return
     if prev_t is not None and t[0] < prev_t:
@@ -75,3 +94,19 @@ def coordinates_in_range(path, name: str, values: np.ndarray, offset: int = 0) -
     if idx.size:
         i = int(idx[0])
         raise InputError(path, f"{name} = {v[i]!r} at event {offset + i} is not a pixel coordinate")
+
+
+def check_ground_truth(path, gt: dict, required=()) -> dict:
+    """Ground-truth columns: the ``required`` names present, every column 1-D and of one length.
+
+    A short or missing column would otherwise surface as an IndexError / KeyError deep in the
+    per-window truth lookup.
+    """
+    missing = [k for k in required if k not in gt]
+    if missing:
+        raise InputError(path, f"/ground_truth lacks columns {', '.join(missing)}")
+    shapes = {k: np.shape(v) for k, v in gt.items()}
+    if any(len(s) != 1 for s in shapes.values()) or len({s[0] for s in shapes.values()}) > 1:
+        desc = ", ".join(f"{k} {list(s)}" for k, s in shapes.items())
+        raise InputError(path, f"/ground_truth columns must be 1-D and of one length, got {desc}")
+    return gt

@@ -79,6 +79,15 @@ class RunSummary:
     startup_s: float = 0.0
     camera: str | None = None
     camera_json: dict | None = None
+    skipped_windows: int = 0
+    skipped_gaps: int = 0
+    longest_gap_us: int = 0
+
+    def skip(self, n_windows: int, dt_us: int) -> None:
+        """Record a stretch of ``n_windows`` empty windows the run jumped over (see --skip-empty-after)."""
+        self.skipped_windows += n_windows
+        self.skipped_gaps += 1
+        self.longest_gap_us = max(self.longest_gap_us, n_windows * dt_us)
 
     def add(self, result: WindowResult, latency_s: float) -> None:
         self.windows += 1
@@ -95,7 +104,9 @@ class RunSummary:
         return {"target": self.target, "windows": self.windows, "objects": self.objects,
                 "objects_per_bin": {str(k): v for k, v in sorted(self.objects_per_bin.items())},
                 "wall_s": self.wall_s, "startup_s": self.startup_s, "windows_per_s": self.windows_per_s,
-                "latency_ms": percentiles_ms(self.latencies_s), "errors": self.errors, "camera": self.camera_json}
+                "latency_ms": percentiles_ms(self.latencies_s), "errors": self.errors, "camera": self.camera_json,
+                "skipped": {"windows": self.skipped_windows, "gaps": self.skipped_gaps,
+                            "longest_gap_s": self.longest_gap_us / 1e6}}
 
     def lines(self) -> list[str]:
         lat = percentiles_ms(self.latencies_s)
@@ -108,6 +119,9 @@ class RunSummary:
                f"{what} p50 {lat['p50']:.2f} ms, p90 {lat['p90']:.2f} ms, p99 {lat['p99']:.2f} ms"]
         if self.camera:
             out.append(self.camera)
+        if self.skipped_windows:
+            out.append(f"skipped {self.skipped_windows} empty windows in {self.skipped_gaps} gap(s) without events "
+                       f"(longest {self.longest_gap_us / 1e6:.3f} s); no JSON line for them")
         if self.errors is not None:
             out += truth_lines(self.errors)
         return out

@@ -10,6 +10,9 @@ is the legend. Events: ON white, OFF grey, on black. Frames go to DIR/frame_NNNN
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Sequence
 
@@ -17,12 +20,13 @@ import cv2
 import numpy as np
 
 from ..errors import InputError, ToffeError
-from ..fileio import atomic_path
+from ..fileio import write_errors
 from .pipeline import ObjectFlow
 from .spikes import SpikeVolume
 
 ARROW_PX_PER_BIN = 20
 WHEEL_RADIUS = 24
+VIDEO_NAME = "object_flow.mp4"
 
 
 def flow_color(direction_rad: np.ndarray | float) -> np.ndarray:
@@ -68,46 +72,69 @@ def draw_window(volume: SpikeVolume, objects: Sequence[ObjectFlow], t0_us: int |
 
 
 class FrameRenderer:
-    """Writes one frame per window to ``out_dir`` (PNG files, or one MP4 with ``video``)."""
+    """Writes one frame per window to ``out_dir`` (PNG files, or one MP4 with ``video``).
+
+    Nothing partial is left: PNG frames go to a hidden temp directory inside ``out_dir`` and are
+    moved into place by ``close(ok=True)``; the MP4 is written to a temp file, re-opened to check
+    it holds every frame (OpenCV's writer drops frames silently on a full disk), then renamed.
+    On failure (``close(ok=False)``, or an exception here) the temp files are removed.
+    """
 
     def __init__(self, out_dir: str | Path, video: bool = False, fps: float = 10.0):
         self.out_dir = Path(out_dir)
+        self._created = not self.out_dir.exists()
         try:
             self.out_dir.mkdir(parents=True, exist_ok=True)
+            self._stage = Path(tempfile.mkdtemp(prefix=".frames-", suffix=".tmp", dir=self.out_dir))
         except OSError as exc:
             raise InputError(self.out_dir, f"cannot create the render directory: {exc.strerror or exc}") from None
         self.video = video
         self.fps = fps
         self.n = 0
         self._writer = None
-        self._tmp_ctx = None
-        self._tmp = None
 
     def add(self, volume: SpikeVolume, objects: Sequence[ObjectFlow], t0_us: int | None = None) -> None:
         frame = draw_window(volume, objects, t0_us)
         if not self.video:
-            with atomic_path(self.out_dir / f"frame_{self.n:06d}.png", suffix=".png") as tmp:
-                if not cv2.imwrite(str(tmp), frame):
-                    raise ToffeError(f"cannot write PNG frames to {self.out_dir}")
+            ok, png = cv2.imencode(".png", frame)   # encoded in memory: imwrite reports success on a full disk
+            if not ok:
+                raise ToffeError("this OpenCV build cannot encode PNG")
+            with write_errors(self.out_dir), open(self._stage / f"frame_{self.n:06d}.png", "wb") as fh:
+                fh.write(png.tobytes())
         else:
             if self._writer is None:
-                self._tmp_ctx = atomic_path(self.out_dir / "object_flow.mp4", suffix=".mp4")
-                self._tmp = self._tmp_ctx.__enter__()
                 h, w = frame.shape[:2]
-                self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, (w, h))
+                self._writer = cv2.VideoWriter(str(self._stage / VIDEO_NAME), cv2.VideoWriter_fourcc(*"mp4v"),
+                                               self.fps, (w, h))
                 if not self._writer.isOpened():
-                    self._tmp_ctx.__exit__(None, None, None)
                     self._writer = None
                     raise ToffeError("this OpenCV build cannot write MP4 (mp4v); drop --video to write PNG frames")
             self._writer.write(frame)
         self.n += 1
 
     def close(self, ok: bool = True) -> None:
-        """Finish the video (renamed into place only when ``ok``)."""
-        if self._writer is not None:
-            self._writer.release()
-            self._writer = None
+        """Move the frames (or the checked video) into ``out_dir`` when ``ok``; always drop the temp dir."""
+        try:
+            if self._writer is not None:
+                self._writer.release()
+                self._writer = None
+                if ok:
+                    self._check_video(self._stage / VIDEO_NAME)
             if ok:
-                self._tmp_ctx.__exit__(None, None, None)
-            else:
-                self._tmp_ctx.__exit__(RuntimeError, RuntimeError("run failed"), None)
+                with write_errors(self.out_dir):
+                    for f in sorted(self._stage.iterdir()):
+                        os.replace(f, self.out_dir / f.name)
+        finally:
+            shutil.rmtree(self._stage, ignore_errors=True)
+            if self._created and not any(self.out_dir.iterdir()):
+                self.out_dir.rmdir()       # a failed run leaves no trace, not even an empty DIR
+
+    def _check_video(self, path: Path) -> None:
+        cap = cv2.VideoCapture(str(path))
+        try:
+            frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+        finally:
+            cap.release()
+        if frames != self.n:
+            raise InputError(self.out_dir / VIDEO_NAME, f"the video writer stored {frames} of {self.n} frames "
+                                                         "(disk full?); nothing written")

@@ -1,0 +1,414 @@
+"""Fault injection: inputs that used to give wrong results with exit 0, destroy a file, bypass the
+bundle check, crash on a full disk, hang, or end in a traceback.
+
+Every case asserts the guarantee README.md ("Guarantees") states: exit code 2, one line on
+stderr without a traceback, and every input file and bundle file byte-identical afterwards.
+Real files in tmp dirs, a real small bundle (64x48), real onnxruntime; the full and read-only
+disks are real tmpfs mounts (skipped where this process cannot mount).
+"""
+import contextlib
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from toffe_deploy.cli import main
+from toffe_deploy.events.fmt_toffe import ms_index
+from toffe_deploy.events.io import read_events, write_events_npz
+
+SENSOR = (64, 48)
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory, make_bundle, make_recording):
+    root = tmp_path_factory.mktemp("faults")
+    bundle = make_bundle(root)
+    rec = make_recording(root / "rec.h5", duration=0.006)
+    return {"root": root, "bundle": bundle.root, "ckpt": root / "ckpt", "rec": rec}
+
+
+def cli(capsys, *argv):
+    rc = main([str(a) for a in argv])
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def one_line_error(rc, err, *needles):
+    """Exit 2, exactly one stderr line 'toffe-deploy: error: ...' holding every needle."""
+    assert rc == 2, err
+    assert err.startswith("toffe-deploy: error: ") and err.count("\n") == 1 and "Traceback" not in err, err
+    for n in needles:
+        assert n in err, err
+    return err
+
+
+def digest(*paths):
+    """sha256 of every file under the given files / directories (what must stay unchanged)."""
+    out = {}
+    for p in paths:
+        files = sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p]
+        for f in files:
+            out[str(f)] = hashlib.sha256(f.read_bytes()).hexdigest()
+    return out
+
+
+@contextlib.contextmanager
+def unchanged(*paths):
+    before = digest(*paths)
+    yield
+    assert digest(*paths) == before
+
+
+def copy_bundle(env, tmp_path):
+    b = tmp_path / "b"
+    shutil.copytree(env["bundle"], b)
+    return b
+
+
+def edit_manifest(b, fn):
+    m = json.loads((b / "manifest.json").read_text())
+    fn(m)
+    (b / "manifest.json").write_text(json.dumps(m))
+
+
+def rehash(b, rel):
+    """Make manifest.json agree with an edited bundle file (so the file's own checks are reached)."""
+    def fn(m):
+        m["files"][rel] = {"sha256": hashlib.sha256((b / rel).read_bytes()).hexdigest(),
+                           "bytes": (b / rel).stat().st_size}
+    edit_manifest(b, fn)
+
+
+def run_args(env, *extra, bundle=None, events=None):
+    return ["run", bundle or env["bundle"], "--events", events or env["rec"], "--no-progress", *extra]
+
+
+# ------------------------------------------------------------------ 1. a seek index that lies
+
+def _dsec_copy(env, path):
+    ev = read_events(env["rec"]).events
+    with h5py.File(path, "w") as f:
+        for n in ("x", "y", "t", "p"):
+            f[f"events/{n}"] = ev[n]
+        f["ms_to_idx"] = ms_index(ev["t"], 0)
+        f["t_offset"] = np.int64(0)
+    return path
+
+
+def test_reversed_ms_to_idx_is_refused_not_miscounted(env, capsys, tmp_path):
+    n = len(read_events(env["rec"]))
+    good = tmp_path / "good.h5"
+    shutil.copy(env["rec"], good)
+    rc, out, _ = cli(capsys, "events", "info", good, "--json", "--no-progress")
+    assert rc == 0 and json.loads(out)["events"] == n                 # control: the intact index
+    for path, key in ((tmp_path / "rev.h5", "events/ms_to_idx"), (tmp_path / "dsec.h5", "ms_to_idx")):
+        if key == "ms_to_idx":
+            _dsec_copy(env, path)
+        else:
+            shutil.copy(env["rec"], path)
+        with h5py.File(path, "r+") as f:
+            f[key][...] = f[key][()][::-1]
+        with unchanged(path, env["bundle"]):
+            one_line_error(*cli(capsys, "events", "info", path, "--no-progress")[::2], "seek index")
+            one_line_error(*cli(capsys, *run_args(env, events=path))[::2], "ms_to_idx")
+
+
+def test_ms_to_idx_off_by_some_events_is_refused(env, capsys, tmp_path):
+    """Entries shifted past the answer (still monotone, in range): only the check against t catches them."""
+    path = tmp_path / "shift.h5"
+    shutil.copy(env["rec"], path)
+    with h5py.File(path, "r+") as f:
+        idx = f["events/ms_to_idx"]
+        idx[...] = np.minimum(idx[()] + 100, f["events/t"].shape[0])
+    with unchanged(path):
+        rc, _, err = cli(capsys, *run_args(env, "--start-us", 2000, events=path))   # a seek through the index
+        one_line_error(rc, err, "disagrees with the timestamps")
+
+
+# ------------------------------------------------------------------ 2. outputs that would destroy inputs
+
+@pytest.mark.parametrize("case", ["out=events", "summary=events", "out=bundle-onnx", "out=manifest",
+                                  "out=summary", "render=bundle", "out=bundle-dir", "out=hardlink", "out=dir"])
+def test_run_never_overwrites_its_inputs(env, capsys, tmp_path, case):
+    ev = tmp_path / "rec.npz"
+    write_events_npz(ev, read_events(env["rec"]).events, SENSOR)
+    b = copy_bundle(env, tmp_path)
+    os.link(ev, tmp_path / "link.npz")
+    (tmp_path / "d").mkdir()
+    extra = {"out=events": ["--out", ev], "summary=events": ["--summary-json", ev],
+             "out=bundle-onnx": ["--out", b / "ofpd.onnx"], "out=manifest": ["--out", b / "manifest.json"],
+             "out=summary": ["--out", tmp_path / "o.json", "--summary-json", tmp_path / "o.json"],
+             "render=bundle": ["--render", b], "out=bundle-dir": ["--out", b],
+             "out=hardlink": ["--out", tmp_path / "link.npz"], "out=dir": ["--out", tmp_path / "d"]}[case]
+    with unchanged(ev, b):
+        rc, out, err = cli(capsys, *run_args(env, *extra, bundle=b, events=ev))
+        one_line_error(rc, err)
+    assert out == "" and not (tmp_path / "o.json").exists()
+
+
+def test_other_commands_never_overwrite_their_inputs(env, capsys, tmp_path):
+    ev = tmp_path / "rec.npz"
+    write_events_npz(ev, read_events(env["rec"]).events, SENSOR)
+    ck = tmp_path / "ck"
+    shutil.copytree(env["ckpt"], ck)
+    h5 = tmp_path / "rec.h5"
+    shutil.copy(env["rec"], h5)
+    with unchanged(ev, ck, h5):
+        one_line_error(*cli(capsys, "events", "convert", ev, ev, "--force")[::2], "input file")
+        one_line_error(*cli(capsys, "export", ck, "-o", ck, "--force", "--checks", "none", "--quiet")[::2],
+                       "overlaps the checkpoint")
+        one_line_error(*cli(capsys, "export", ck, "-o", tmp_path, "--force", "--checks", "none", "--quiet")[::2],
+                       "overlaps the checkpoint")
+        one_line_error(*cli(capsys, "eval", ck, "--data", tmp_path, "--json", ck / "config.json")[::2],
+                       "checkpoint file")
+        one_line_error(*cli(capsys, "dataset", "show", h5, "--out", h5)[::2], "input file")
+        one_line_error(*cli(capsys, "dataset", "synth", "--out", h5, "--split", "test", "--limit", "1")[::2],
+                       "not a directory")
+
+
+# ------------------------------------------------------------------ 3. bundle paths and unverified files
+
+def test_variant_not_in_files_is_refused_even_untampered(env, capsys, tmp_path):
+    b = copy_bundle(env, tmp_path)
+    shutil.copy(b / "ofpd.onnx", b / "ofpd_fp16.onnx")
+    with open(b / "ofpd_fp16.onnx", "ab") as f:
+        f.write(b"tampered")
+    edit_manifest(b, lambda m: m["ofpd"].update(variants={"fp16": {"file": "ofpd_fp16.onnx"}}))
+    with unchanged(b):
+        one_line_error(*cli(capsys, *run_args(env, "--ofpd", "fp16", bundle=b))[::2], "not listed in 'files'")
+        one_line_error(*cli(capsys, *run_args(env, bundle=b))[::2], "not listed in 'files'")
+
+
+@pytest.mark.parametrize("where", ["variant-dotdot", "variant-abs", "files-dotdot", "files-abs", "files-symlink"])
+def test_paths_leaving_the_bundle_are_refused_without_leaking(env, capsys, tmp_path, where):
+    b = copy_bundle(env, tmp_path)
+    secret = tmp_path / "secret.onnx"
+    secret.write_bytes(b"not yours " * 100)
+    leak = hashlib.sha256(secret.read_bytes()).hexdigest()[:12]
+    rel = {"variant-dotdot": "../secret.onnx", "variant-abs": str(secret), "files-dotdot": "../secret.onnx",
+           "files-abs": str(secret), "files-symlink": "link.onnx"}[where]
+    if where == "files-symlink":
+        (b / "link.onnx").symlink_to(secret)
+    if where.startswith("variant"):
+        edit_manifest(b, lambda m: m["ofpd"].update(variants={"fp16": {"file": rel}}))
+    else:
+        edit_manifest(b, lambda m: m["files"].update({rel: {"sha256": "0" * 64, "bytes": 1}}))
+    with unchanged(b, secret):
+        err = one_line_error(*cli(capsys, *run_args(env, "--ofpd", "fp16", bundle=b))[::2], "outside the bundle")
+    assert leak not in err
+
+
+@pytest.mark.parametrize("section", [{"ofpd": "x"}, {"ofpd": {"variants": [1, 2]}},
+                                     {"ofpd": {"variants": {"fp16": {"nofile": 1}}}}])
+def test_malformed_manifest_sections_are_one_line_errors(env, capsys, tmp_path, section):
+    b = copy_bundle(env, tmp_path)
+    edit_manifest(b, lambda m: m.update(section))
+    with unchanged(b):
+        one_line_error(*cli(capsys, *run_args(env, bundle=b))[::2], "manifest.json")
+
+
+# ------------------------------------------------------------------ 8. full and read-only disks
+
+@contextlib.contextmanager
+def tmpfs(path, opts):
+    path.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", opts, "tmpfs", str(path)], capture_output=True)
+    if r.returncode:
+        pytest.skip(f"cannot mount a tmpfs here ({r.stderr.decode().strip() or 'not root'})")
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", "-l", str(path)], check=False)
+
+
+def fill(disk, leave=0):
+    """Fill a tmpfs, leaving ``leave`` bytes (page-rounded) free."""
+    free = shutil.disk_usage(disk).free - leave
+    with open(disk / "filler", "ab") as f:
+        with contextlib.suppress(OSError):
+            f.write(b"\0" * free)
+
+
+@pytest.fixture
+def full_disk(tmp_path):
+    with tmpfs(tmp_path / "full", "size=1m") as d:
+        yield d
+
+
+def test_full_disk_is_one_line_error_and_leaves_nothing(env, capsys, tmp_path, full_disk):
+    sample = tmp_path / "in.h5"
+    shutil.copy(os.path.join(os.path.dirname(__import__("toffe_deploy").__file__), "samples", "sample_multi.h5"),
+                sample)
+    fill(full_disk, leave=300_000)                   # the sample's HDF5 (~600 kB) cannot fit
+    with unchanged(sample, env["bundle"]):
+        one_line_error(*cli(capsys, "events", "convert", sample, full_disk / "x.h5")[::2],
+                       "x.h5: cannot write: No space left on device")
+        fill(full_disk, leave=8192)
+        one_line_error(*cli(capsys, "events", "convert", sample, full_disk / "x.npz")[::2], "No space left")
+        rc, _, err = cli(capsys, "dataset", "synth", "--out", full_disk / "ds", "--split", "test", "--limit", "2",
+                         "--duration-s", "0.02")
+        one_line_error(rc, err.split("\r")[-1].split("\n", 1)[-1] if "\r" in err else err, "No space left")
+        one_line_error(*cli(capsys, *run_args(env, "--render", full_disk / "r"))[::2], "No space left")
+        one_line_error(*cli(capsys, *run_args(env, "--render", full_disk / "v", "--video"))[::2], "disk full")
+        fill(full_disk)
+        one_line_error(*cli(capsys, *run_args(env, "--out", full_disk / "o.jsonl"))[::2], "o.jsonl: cannot write")
+    assert sorted(p.name for p in full_disk.iterdir()) == ["filler"] or \
+        sorted(p.name for p in full_disk.iterdir()) == ["ds", "filler"] and not any((full_disk / "ds").rglob("*.*"))
+
+
+def test_read_only_destination_is_one_line_error(env, capsys, tmp_path):
+    with tmpfs(tmp_path / "ro", "ro,size=1m") as ro, unchanged(env["rec"], env["bundle"]):
+        one_line_error(*cli(capsys, *run_args(env, "--out", ro / "o.jsonl"))[::2], "Read-only file system")
+        one_line_error(*cli(capsys, *run_args(env, "--summary-json", ro / "s.json"))[::2], "Read-only file system")
+        one_line_error(*cli(capsys, "events", "convert", env["rec"], ro / "x.npz")[::2], "Read-only file system")
+
+
+def test_full_stdout_is_one_line_error():
+    """JSON lines to a full stdout (/dev/full): a subprocess, since the stream is the process's own."""
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full here")
+    sample = os.path.join(os.path.dirname(__import__("toffe_deploy").__file__), "samples", "sample_multi.h5")
+    with open("/dev/full", "w") as full:
+        r = subprocess.run([sys.executable, "-m", "toffe_deploy.cli", "events", "info", sample, "--json",
+                            "--no-progress"], stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "No space left on device" in r.stderr, r.stderr
+
+
+# ------------------------------------------------------------------ 9. odd recordings
+
+def _events(env):
+    return read_events(env["rec"]).events.copy()
+
+
+def test_three_hour_gap_is_skipped_quickly_and_reported(env, capsys, tmp_path):
+    ev = _events(env)
+    ev["t"][len(ev) // 2:] += 3 * 3600 * 10 ** 6
+    path = tmp_path / "gap.npz"
+    write_events_npz(path, ev, SENSOR)
+    t = time.perf_counter()
+    with unchanged(path, env["bundle"]):
+        rc, out, err = cli(capsys, *run_args(env, "--out", tmp_path / "o.jsonl", "--summary-json",
+                                             tmp_path / "s.json", "--skip-empty-after", "50", events=path))
+    assert rc == 0, err
+    assert time.perf_counter() - t < 60
+    lines = (tmp_path / "o.jsonl").read_text().splitlines()
+    s = json.loads((tmp_path / "s.json").read_text())["skipped"]
+    dt = 500
+    assert s["gaps"] == 1 and s["windows"] > 3 * 3600 * 10 ** 6 // dt - 100 and s["longest_gap_s"] > 10_000
+    assert len(lines) + s["windows"] == -(-(int(ev["t"][-1]) + 1 - int(ev["t"][0])) // dt)
+    assert "skipped" in out and "empty windows" in out
+
+
+@pytest.mark.parametrize("t_last", [np.iinfo(np.int64).max, 2 ** 53 + 1, 8 * 24 * 3600 * 10 ** 6])
+def test_absurd_timestamps_are_refused(env, capsys, tmp_path, t_last):
+    ev = _events(env)
+    path = tmp_path / "big.npz"
+    np.savez(path, x=ev["x"], y=ev["y"], t=np.append(ev["t"][:-1], t_last), p=ev["p"],
+             sensor_size=np.array(SENSOR))
+    with unchanged(path):
+        one_line_error(*cli(capsys, "events", "info", path, "--no-progress")[::2], str(path))
+        one_line_error(*cli(capsys, *run_args(env, events=path))[::2], str(path))
+
+
+def test_fifo_as_events_is_refused_not_waited_on(env, capsys, tmp_path):
+    fifo = tmp_path / "ev.fifo"
+    os.mkfifo(fifo)
+    fd = os.open(fifo, os.O_RDWR | os.O_NONBLOCK)     # a writer with data: a regression errors, never hangs
+    try:
+        os.write(fd, b"\x93NUMPY" + b"\0" * 64)
+        one_line_error(*cli(capsys, *run_args(env, events=fifo))[::2], "not a regular file")
+        one_line_error(*cli(capsys, "events", "info", fifo)[::2], "not a regular file")
+    finally:
+        os.close(fd)
+
+
+# ------------------------------------------------------------------ 10. validation gaps
+
+def test_nan_coordinate_in_float_hdf5_column(env, capsys, tmp_path):
+    path = tmp_path / "nan.h5"
+    shutil.copy(env["rec"], path)
+    with h5py.File(path, "r+") as f:
+        x = f["events/x"][()].astype("f4")
+        x[7] = np.nan
+        del f["events/x"]
+        f["events/x"] = x
+    with unchanged(path):
+        one_line_error(*cli(capsys, "events", "info", path, "--no-progress")[::2], "x = nan at event 7")
+        one_line_error(*cli(capsys, *run_args(env, events=path))[::2], "x = nan at event 7")
+
+
+@pytest.mark.parametrize("fmt", ["npz", "h5"])
+def test_polarities_other_than_on_off_are_refused(env, capsys, tmp_path, fmt):
+    ev = _events(env)
+    p = ev["p"].astype(np.int8)
+    p[3], p[5] = 7, -3
+    path = tmp_path / f"pol.{fmt}"
+    if fmt == "npz":
+        np.savez(path, x=ev["x"], y=ev["y"], t=ev["t"], p=p, sensor_size=np.array(SENSOR))
+    else:
+        shutil.copy(env["rec"], path)
+        with h5py.File(path, "r+") as f:
+            del f["events/p"]
+            f["events/p"] = p.astype(np.uint8)         # 7 and 253 in our uint8 column
+    with unchanged(path):
+        one_line_error(*cli(capsys, "events", "info", path, "--no-progress")[::2], "polarity p = 7 at event 3")
+
+
+def test_short_ground_truth_column(env, capsys, tmp_path):
+    path = tmp_path / "gt.h5"
+    shutil.copy(env["rec"], path)
+    with h5py.File(path, "r+") as f:
+        v = f["ground_truth/x"][()][:-5]
+        del f["ground_truth/x"]
+        f["ground_truth/x"] = v
+    with unchanged(path):
+        one_line_error(*cli(capsys, *run_args(env, events=path))[::2], "/ground_truth columns")
+
+
+@pytest.mark.parametrize("edit, needle", [
+    (lambda c: [c.pop("n_bins"), c.pop("speed_bins")], "config lacks n_bins, speed_bins"),
+])
+def test_config_missing_trained_keys(env, capsys, tmp_path, edit, needle):
+    b = copy_bundle(env, tmp_path)
+    c = json.loads((b / "config.json").read_text())
+    edit(c)
+    (b / "config.json").write_text(json.dumps(c))
+    rehash(b, "config.json")
+    one_line_error(*cli(capsys, *run_args(env, bundle=b))[::2], needle)
+
+
+@pytest.mark.parametrize("key, value, needle", [("du", 0, "du = 0 is not supported"),
+                                                ("state_shift", 60, "state_shift = 60 is not supported")])
+def test_unsupported_ofs_arithmetic_is_refused(env, capsys, tmp_path, key, value, needle):
+    b = copy_bundle(env, tmp_path)
+    o = json.loads((b / "ofs_loihi.json").read_text())
+    if key == "du":
+        o["stages"][0]["du"] = value
+    else:
+        o[key] = value
+    (b / "ofs_loihi.json").write_text(json.dumps(o))
+    rehash(b, "ofs_loihi.json")
+    one_line_error(*cli(capsys, *run_args(env, bundle=b))[::2], needle)
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["--start-us", "-1"], "--start-us"),
+    (["--skip-empty-after", "-1"], "--skip-empty-after"),
+])
+def test_bad_run_numbers(env, capsys, extra, needle):
+    one_line_error(*cli(capsys, *run_args(env, *extra))[::2], needle)
+
+
+def test_huge_synthetic_duration_is_bounded(env, capsys, tmp_path):
+    one_line_error(*cli(capsys, "run", env["bundle"], "--synthetic", "multi,duration=1e9", "--no-progress")[::2],
+                   "duration must be in (0, 10] s")
+    one_line_error(*cli(capsys, "dataset", "synth", "--out", tmp_path / "ds", "--duration-s", "1e9")[::2],
+                   "longer than 10 s")
+    assert not (tmp_path / "ds").exists()
