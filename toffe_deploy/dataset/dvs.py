@@ -8,12 +8,24 @@ log intensity L the pixel fires as many events as threshold crossings since its 
     x = (L - L0) / C,   m' = clamp(m, floor(x), ceil(x)),   events = m' - m  (ON if > 0)
 
 i.e. |L - ref| >= C fires floor(|L - ref| / C) events and moves the reference by that many C
-(the usual DVS model, ESIM/v2e style, without refractory period or bandwidth limits), all
-time-stamped at the sample. Written as a clamp, one sample costs one numpy call over the pixels
-being rendered, and a chunk of samples is rendered at once.
+(the usual DVS model, ESIM/v2e style), all time-stamped at the sample. Written as a clamp, one
+sample costs one numpy call over the pixels being rendered, and a chunk of samples is rendered
+at once.
+
+Refractory period (``refractory_us`` > 0, a real pixel's reset and bandwidth limit): a pixel
+fires at most one event per sample, only if its last event is at least ``refractory_us`` old,
+and firing resets its reference to the current log intensity (m = x, no longer an integer):
+
+    n = trunc(x - m),   fire = n != 0 and t - t_last >= refractory_us,   m' = x if fire
+
+so crossings beyond the first at one sample, or inside the refractory period, are lost, as on a
+sensor whose pixel is held in reset. With ``refractory_us`` = 0 the ideal model above is used.
 
 Background activity (optional): each pixel fires independent Poisson noise events at
-``noise_rate_hz`` with random polarity, also on the sample grid.
+``noise_rate_hz`` with random polarity, also on the sample grid. Hot pixels (optional): a
+fraction ``hot_pixel_fraction`` of the pixels (drawn per sequence) fire Poisson events at
+``hot_pixel_rate_hz`` (1 kHz by default: a leaky pixel, one polarity each, drawn). Noise and hot
+pixel events are added after the emulator, so the refractory period does not thin them.
 """
 from __future__ import annotations
 
@@ -26,13 +38,17 @@ from ..events.core import EVENT_DTYPE
 
 @dataclass(frozen=True)
 class DVSParams:
-    """Contrast threshold C (log units) with per-pixel mismatch, and background noise."""
+    """Contrast threshold C (log units) with per-pixel mismatch, refractory period, background
+    noise and hot pixels (module doc)."""
 
     threshold: float = 0.25
     threshold_sigma: float = 0.03
     threshold_min: float = 0.05
     noise_rate_hz: float = 0.0
     log_eps: float = 1e-3
+    refractory_us: float = 0.0
+    hot_pixel_fraction: float = 0.0
+    hot_pixel_rate_hz: float = 1000.0
 
     def log(self, intensity: np.ndarray) -> np.ndarray:
         """The sensor's log intensity, log(I + eps) (eps keeps black pixels finite)."""
@@ -49,6 +65,7 @@ class DVSEmulator:
         thr = rng.normal(params.threshold, params.threshold_sigma, size=(h, w))
         self.inv_c = 1.0 / np.maximum(thr, params.threshold_min)
         self.m = np.zeros((h, w), dtype=np.float64)  # integers, kept float to clamp in place
+        self.t_last = np.full((h, w), -np.inf) if params.refractory_us > 0 else None
 
     def process(self, y0: int, x0: int, log_i: np.ndarray, t_us: np.ndarray) -> np.ndarray:
         """Events of the rectangle at (y0, x0) for samples log_i (K, h, w) taken at t_us (K,).
@@ -59,13 +76,16 @@ class DVSEmulator:
         k, h, w = log_i.shape
         sl = (slice(y0, y0 + h), slice(x0, x0 + w))
         x = (log_i - self.l0[sl]) * self.inv_c[sl]
-        lo, hi = np.floor(x), np.ceil(x)
-        levels = np.empty((k + 1, h, w), dtype=np.float64)
-        levels[0] = self.m[sl]
-        for i in range(k):  # the reference depends on the past: one clamp per sample
-            np.clip(levels[i], lo[i], hi[i], out=levels[i + 1])
-        self.m[sl] = levels[k]
-        d = np.diff(levels, axis=0)
+        if self.t_last is not None:
+            d = self._refractory(sl, x, np.asarray(t_us, dtype=np.float64))
+        else:
+            lo, hi = np.floor(x), np.ceil(x)
+            levels = np.empty((k + 1, h, w), dtype=np.float64)
+            levels[0] = self.m[sl]
+            for i in range(k):  # the reference depends on the past: one clamp per sample
+                np.clip(levels[i], lo[i], hi[i], out=levels[i + 1])
+            self.m[sl] = levels[k]
+            d = np.diff(levels, axis=0)
         ks, ys, xs = np.nonzero(d)
         dv = d[ks, ys, xs]
         n = np.abs(dv).astype(np.int64)
@@ -75,6 +95,20 @@ class DVSEmulator:
         out["y"] = np.repeat(ys + y0, n)
         out["p"] = np.repeat(dv > 0, n)
         return out
+
+    def _refractory(self, sl, x: np.ndarray, t_us: np.ndarray) -> np.ndarray:
+        """(K, h, w) int8 events (+1 ON, -1 OFF, 0) of the refractory model (module doc)."""
+        m, last = self.m[sl].copy(), self.t_last[sl].copy()
+        refr = float(self.params.refractory_us)
+        d = np.zeros(x.shape, dtype=np.int8)
+        for i in range(x.shape[0]):
+            n = np.trunc(x[i] - m)
+            fire = (n != 0) & (t_us[i] - last >= refr)
+            d[i] = np.sign(n) * fire
+            np.copyto(m, x[i], where=fire)
+            last[fire] = t_us[i]
+        self.m[sl], self.t_last[sl] = m, last
+        return d
 
 
 def noise_events(rate_hz: float, n_samples: int, sample_us: int, sensor_size: tuple[int, int],
@@ -91,3 +125,23 @@ def noise_events(rate_hz: float, n_samples: int, sample_us: int, sensor_size: tu
     out["y"] = rng.integers(0, h, n)
     out["p"] = rng.integers(0, 2, n)
     return out
+
+
+def hot_pixel_events(fraction: float, rate_hz: float, n_samples: int, sample_us: int,
+                     sensor_size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+    """Hot pixels: round(fraction * W * H) distinct pixels, one polarity each, each firing
+    Poisson(rate * duration) events uniform over samples 1..n_samples-1; sorted by t."""
+    w, h = sensor_size
+    n_hot = int(round(fraction * w * h))
+    if n_hot <= 0 or rate_hz <= 0 or n_samples < 2:
+        return np.empty(0, dtype=EVENT_DTYPE)
+    pix = rng.choice(w * h, size=n_hot, replace=False)
+    pol = rng.integers(0, 2, n_hot)
+    counts = rng.poisson(rate_hz * (n_samples - 1) * sample_us * 1e-6, n_hot)
+    which = np.repeat(np.arange(n_hot), counts)
+    out = np.empty(which.shape[0], dtype=EVENT_DTYPE)
+    out["t"] = rng.integers(1, n_samples, which.shape[0]) * sample_us
+    out["x"] = pix[which] % w
+    out["y"] = pix[which] // w
+    out["p"] = pol[which]
+    return out[np.argsort(out["t"], kind="stable")]

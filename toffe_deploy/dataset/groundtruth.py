@@ -5,7 +5,8 @@ interpolated between the two samples around tm (for the direction: the interpola
 (cos, sin), then atan2, so it never wraps through +-pi the long way). An object counts when both
 samples around tm are visible; tm outside an object's sampled span gives no truth for it.
 The speed bin is the bin of the nearer sample (bins are stored, not recomputed, so the file's
-own bin edges are used).
+own bin edges are used). speed_px_ms and depth_m are interpolated like speed when the ground
+truth has them (files from before those columns give None).
 """
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ REQUIRED = ("t", "object_id", "x", "y", "direction", "speed", "speed_bin", "visi
 
 @dataclass(frozen=True)
 class ObjectTruth:
-    """One object at a window's midpoint: centre (px), direction (rad, y down), speed (m/s)."""
+    """One object at a window's midpoint: centre (px), direction (rad, y down), speed (m/s, 3-D),
+    image-plane speed (px/ms) and depth (m) when known."""
 
     object_id: int
     x: float
@@ -26,6 +28,8 @@ class ObjectTruth:
     direction: float
     speed: float
     speed_bin: int
+    speed_px_ms: float | None = None
+    depth_m: float | None = None
 
 
 def _check(gt: dict) -> None:
@@ -60,5 +64,6 @@ def window_truth(gt: dict[str, np.ndarray], t0: int, dt_us: int) -> list[ObjectT
         s = (1.0 - w) * np.sin(da) + w * np.sin(db)
         near = a if w < 0.5 else b
         out.append(ObjectTruth(int(oid), lerp("x"), lerp("y"), float(np.arctan2(s, c)), lerp("speed"),
-                               int(gt["speed_bin"][near])))
+                               int(gt["speed_bin"][near]),
+                               *(lerp(k) if k in gt else None for k in ("speed_px_ms", "depth_m"))))
     return out

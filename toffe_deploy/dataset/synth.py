@@ -12,7 +12,11 @@ with object size, not sensor size. Overlapping boxes are merged and rendered tog
 
 Ground truth per object per sample (the interface of events/fmt_toffe): t, object_id, x, y
 (projected centre, px), direction = atan2(dv/dt, du/dt) (rad, y down), speed = |dP/dt| (m/s,
-3-D), speed_bin (ToffeConfig.speed_bin_of), visible (centre inside the sensor and in front).
+3-D), speed_bin, visible (centre inside the sensor and in front), speed_px_ms = hypot(du/dt,
+dv/dt) / 1000 (image-plane speed of the projected centre, px/ms) and depth_m (object Z, m).
+speed_bin is the bin of the image-plane speed under the *reference* configuration
+(``ToffeConfig().speed_bin_of_px_ms``: bins stated in m/s at 5 m with 554.26 px): an event
+camera sees image-plane motion only, so that is what the OFS can separate.
 """
 from __future__ import annotations
 
@@ -28,12 +32,12 @@ import numpy as np
 from ..config import ToffeConfig
 from ..events.core import EVENT_DTYPE
 from ..camera import PinholeCamera
-from .dvs import DVSEmulator, DVSParams, noise_events
+from .dvs import DVSEmulator, DVSParams, hot_pixel_events, noise_events
 from .shapes import SHAPES, coverage
 from .trajectories import Trajectory
 
 GENERATOR_NAME = "toffe-deploy synth"
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 #: Intensity (linear, 0..1) of the background; objects are brighter or darker by a factor 2
 #: (log contrast +-0.69, about three events per pixel per edge at C = 0.25).
 BACKGROUND = 0.4
@@ -74,6 +78,7 @@ class SequenceSpec:
     sample_us: int = 50
     background: float = BACKGROUND
     texture: float = 0.0  # relative amplitude of a smooth multiplicative background texture
+    meta: dict = field(default_factory=dict)  # split labels (e.g. pair spacing), recorded as given
 
     @property
     def n_samples(self) -> int:
@@ -84,7 +89,7 @@ class SequenceSpec:
             "name": self.name, "split": self.split, "duration_s": self.duration_s,
             "sample_us": self.sample_us, "background": self.background, "texture": self.texture,
             "camera": dataclasses.asdict(self.camera), "dvs": dataclasses.asdict(self.dvs),
-            "objects": [o.to_dict() for o in self.objects],
+            "objects": [o.to_dict() for o in self.objects], "meta": dict(self.meta),
         }
 
     def digest(self, seed: int) -> str:
@@ -117,32 +122,56 @@ class _Track:
     z_mean: float
 
 
+#: Ground-truth columns, in file order (module doc).
+GT_COLUMNS = ("t", "object_id", "x", "y", "direction", "speed", "speed_bin", "visible", "speed_px_ms", "depth_m")
+
+
 def object_tracks(spec: SequenceSpec, t_s: np.ndarray) -> tuple[list[_Track], dict[str, np.ndarray]]:
     """Projected tracks for rendering and the ground-truth columns (time-major rows)."""
     cam = spec.camera
-    cfg = ToffeConfig(sensor_size=cam.sensor_size)
-    bin_of = np.vectorize(cfg.speed_bin_of, otypes=[np.int8])
-    tracks, cols = [], {k: [] for k in ("x", "y", "direction", "speed", "speed_bin", "visible")}
+    bin_of = np.vectorize(ToffeConfig().speed_bin_of_px_ms, otypes=[np.int8])  # reference bins
+    tracks, cols = [], {k: [] for k in GT_COLUMNS[2:]}
     for obj in spec.objects:
         p = obj.trajectory.position(t_s)
         vel = obj.trajectory.velocity(t_s)
         u, v = cam.project(p)
         du, dv = cam.project_velocity(p, vel)
-        speed = np.linalg.norm(vel, axis=-1)
+        speed_px_ms = np.hypot(du, dv) / 1000.0
         r = cam.f * (obj.size_m / 2.0) / p[:, 2]
         tracks.append(_Track(obj, u, v, r, float(p[:, 2].mean())))
         cols["x"].append(u)
         cols["y"].append(v)
         cols["direction"].append(np.arctan2(dv, du))
-        cols["speed"].append(speed)
-        cols["speed_bin"].append(bin_of(speed))
+        cols["speed"].append(np.linalg.norm(vel, axis=-1))
+        cols["speed_bin"].append(bin_of(speed_px_ms))
         cols["visible"].append((p[:, 2] > 0) & (u >= 0) & (u <= cam.width - 1) & (v >= 0) & (v <= cam.height - 1))
+        cols["speed_px_ms"].append(speed_px_ms)
+        cols["depth_m"].append(p[:, 2])
     n, j = t_s.shape[0], len(spec.objects)
     gt = {k: np.stack(v, axis=1).reshape(-1) for k, v in cols.items()}  # rows: sample-major
     gt["t"] = np.repeat(np.round(t_s * 1e6).astype(np.int64), j)
     gt["object_id"] = np.tile(np.arange(j, dtype=np.int32), n)
-    gt = {k: gt[k] for k in ("t", "object_id", "x", "y", "direction", "speed", "speed_bin", "visible")}
-    return tracks, gt
+    return tracks, {k: gt[k] for k in GT_COLUMNS}
+
+
+def appearance_summary(spec: SequenceSpec) -> dict[str, Any]:
+    """The drawn appearance of a sequence in the units it was drawn in (recorded in the file's
+    attrs and index.json): camera, sensor, background and per object size_px (apparent diameter
+    at the trajectory's mean depth), log contrast log((I + eps) / (B + eps)) and events per edge
+    |log contrast| / threshold (what the OFS reads speed from)."""
+    cam, d = spec.camera, spec.dvs
+    objs = []
+    for o in spec.objects:
+        z = o.trajectory.depth_m
+        c = float(np.log((o.intensity + d.log_eps) / (spec.background + d.log_eps)))
+        objs.append({"size_px": round(cam.f * o.size_m / z, 3), "size_m": o.size_m, "depth_m": z,
+                     "log_contrast": round(c, 4), "events_per_edge": round(abs(c) / d.threshold, 3),
+                     "polarity": "bright" if c > 0 else "dark"})
+    return {"sensor_size": list(cam.sensor_size), "hfov_deg": cam.hfov_deg, "focal_px": round(cam.f, 3),
+            "background": spec.background, "texture": spec.texture, "threshold": d.threshold,
+            "threshold_sigma": d.threshold_sigma, "refractory_us": d.refractory_us,
+            "noise_hz": d.noise_rate_hz, "hot_pixels": d.hot_pixel_fraction,
+            "hot_pixel_rate_hz": d.hot_pixel_rate_hz, "objects": objs, **spec.meta}
 
 
 def _box(tr: _Track, k0: int, k1: int, w: int, h: int) -> tuple[int, int, int, int] | None:
@@ -243,6 +272,8 @@ def generate_sequence(spec: SequenceSpec, seed: int, progress: bool = False
             img = _render(bg, box, [tracks[i] for i in idx], ks)
             pieces.append(dvs.process(box[1], box[0], spec.dvs.log(img), t_us[ks]))
     pieces.append(noise_events(spec.dvs.noise_rate_hz, n, spec.sample_us, (w, h), rng))
+    pieces.append(hot_pixel_events(spec.dvs.hot_pixel_fraction, spec.dvs.hot_pixel_rate_hz, n, spec.sample_us,
+                                   (w, h), rng))
     events = np.concatenate(pieces) if pieces else np.empty(0, EVENT_DTYPE)
     events = events[np.argsort(events["t"], kind="stable")]
     return events, gt, (w, h)
