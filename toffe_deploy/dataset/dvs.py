@@ -56,16 +56,22 @@ class DVSParams:
 
 
 class DVSEmulator:
-    """Per-pixel DVS state over a (height, width) sensor; feed it rectangles of samples."""
+    """Per-pixel DVS state over a (height, width) sensor; feed it rectangles or lists of pixels
+    with their samples."""
 
     def __init__(self, initial_log: np.ndarray, params: DVSParams, rng: np.random.Generator):
         h, w = initial_log.shape
         self.params = params
+        self.width = w
         self.l0 = np.asarray(initial_log, dtype=np.float64).copy()
         thr = rng.normal(params.threshold, params.threshold_sigma, size=(h, w))
         self.inv_c = 1.0 / np.maximum(thr, params.threshold_min)
         self.m = np.zeros((h, w), dtype=np.float64)  # integers, kept float to clamp in place
-        self.t_last = np.full((h, w), -np.inf) if params.refractory_us > 0 else None
+        refractory = params.refractory_us > 0
+        self.t_last = np.full((h, w), -np.inf) if refractory else None
+        #: pixels holding a crossing the refractory period kept from firing: they may fire later
+        #: with no change of input, so a caller feeding only changing pixels must feed these too.
+        self.pending = np.zeros((h, w), dtype=bool) if refractory else None
 
     def process(self, y0: int, x0: int, log_i: np.ndarray, t_us: np.ndarray) -> np.ndarray:
         """Events of the rectangle at (y0, x0) for samples log_i (K, h, w) taken at t_us (K,).
@@ -74,31 +80,41 @@ class DVSEmulator:
         that covered it; pixels outside it keep their state. Returns EVENT_DTYPE sorted by t.
         """
         k, h, w = log_i.shape
-        sl = (slice(y0, y0 + h), slice(x0, x0 + w))
-        x = (log_i - self.l0[sl]) * self.inv_c[sl]
+        ys, xs = np.mgrid[y0:y0 + h, x0:x0 + w]
+        return self.process_pixels((ys * self.width + xs).reshape(-1), log_i.reshape(k, h * w), t_us)
+
+    def process_pixels(self, idx: np.ndarray, log_i: np.ndarray, t_us: np.ndarray) -> np.ndarray:
+        """Events of the pixels at flat indices idx (N,) (y * width + x) for samples log_i (K, N)
+        taken at t_us (K,). Every pixel whose intensity changed since its last call (and every
+        pending one) must be fed; the others keep their state. EVENT_DTYPE sorted by t."""
+        k = log_i.shape[0]
+        m_flat = self.m.reshape(-1)
+        x = (log_i - self.l0.reshape(-1)[idx]) * self.inv_c.reshape(-1)[idx]
         if self.t_last is not None:
-            d = self._refractory(sl, x, np.asarray(t_us, dtype=np.float64))
+            d = self._refractory(idx, x, np.asarray(t_us, dtype=np.float64))
         else:
             lo, hi = np.floor(x), np.ceil(x)
-            levels = np.empty((k + 1, h, w), dtype=np.float64)
-            levels[0] = self.m[sl]
+            levels = np.empty((k + 1, idx.shape[0]), dtype=np.float64)
+            levels[0] = m_flat[idx]
             for i in range(k):  # the reference depends on the past: one clamp per sample
                 np.clip(levels[i], lo[i], hi[i], out=levels[i + 1])
-            self.m[sl] = levels[k]
+            m_flat[idx] = levels[k]
             d = np.diff(levels, axis=0)
-        ks, ys, xs = np.nonzero(d)
-        dv = d[ks, ys, xs]
+        ks, js = np.nonzero(d)
+        dv = d[ks, js]
         n = np.abs(dv).astype(np.int64)
+        pix = idx[js]
         out = np.empty(int(n.sum()), dtype=EVENT_DTYPE)
         out["t"] = np.repeat(np.asarray(t_us, dtype=np.int64)[ks], n)
-        out["x"] = np.repeat(xs + x0, n)
-        out["y"] = np.repeat(ys + y0, n)
+        out["x"] = np.repeat(pix % self.width, n)
+        out["y"] = np.repeat(pix // self.width, n)
         out["p"] = np.repeat(dv > 0, n)
         return out
 
-    def _refractory(self, sl, x: np.ndarray, t_us: np.ndarray) -> np.ndarray:
-        """(K, h, w) int8 events (+1 ON, -1 OFF, 0) of the refractory model (module doc)."""
-        m, last = self.m[sl].copy(), self.t_last[sl].copy()
+    def _refractory(self, idx: np.ndarray, x: np.ndarray, t_us: np.ndarray) -> np.ndarray:
+        """(K, N) int8 events (+1 ON, -1 OFF, 0) of the refractory model (module doc)."""
+        m_flat, last_flat = self.m.reshape(-1), self.t_last.reshape(-1)
+        m, last = m_flat[idx], last_flat[idx]
         refr = float(self.params.refractory_us)
         d = np.zeros(x.shape, dtype=np.int8)
         for i in range(x.shape[0]):
@@ -107,7 +123,8 @@ class DVSEmulator:
             d[i] = np.sign(n) * fire
             np.copyto(m, x[i], where=fire)
             last[fire] = t_us[i]
-        self.m[sl], self.t_last[sl] = m, last
+        m_flat[idx], last_flat[idx] = m, last
+        self.pending.reshape(-1)[idx] = np.trunc(x[-1] - m) != 0
         return d
 
 
