@@ -32,6 +32,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..events.core import EVENT_DTYPE
 
@@ -69,9 +70,11 @@ class DVSEmulator:
         self.m = np.zeros((h, w), dtype=np.float64)  # integers, kept float to clamp in place
         refractory = params.refractory_us > 0
         self.t_last = np.full((h, w), -np.inf) if refractory else None
-        #: pixels holding a crossing the refractory period kept from firing: they may fire later
-        #: with no change of input, so a caller feeding only changing pixels must feed these too.
-        self.pending = np.zeros((h, w), dtype=bool) if refractory else None
+        #: flat indices of pixels holding a crossing the refractory period kept from firing: they
+        #: may fire later with no change of input, so a caller feeding only changing pixels must
+        #: feed these too (None without a refractory period).
+        self.pending = np.zeros(0, dtype=np.int64) if refractory else None
+        self._fed = np.zeros(h * w, dtype=bool) if refractory else None   # scratch, all False
 
     def process(self, y0: int, x0: int, log_i: np.ndarray, t_us: np.ndarray) -> np.ndarray:
         """Events of the rectangle at (y0, x0) for samples log_i (K, h, w) taken at t_us (K,).
@@ -115,17 +118,34 @@ class DVSEmulator:
         """(K, N) int8 events (+1 ON, -1 OFF, 0) of the refractory model (module doc)."""
         m_flat, last_flat = self.m.reshape(-1), self.t_last.reshape(-1)
         m, last = m_flat[idx], last_flat[idx]
-        refr = float(self.params.refractory_us)
         d = np.zeros(x.shape, dtype=np.int8)
-        for i in range(x.shape[0]):
-            n = np.trunc(x[i] - m)
-            fire = (n != 0) & (t_us[i] - last >= refr)
-            d[i] = np.sign(n) * fire
-            np.copyto(m, x[i], where=fire)
-            last[fire] = t_us[i]
+        still = np.zeros(idx.shape[0], dtype=bool)
+        _refractory_kernel(np.ascontiguousarray(x), m, last, t_us, float(self.params.refractory_us), d, still)
         m_flat[idx], last_flat[idx] = m, last
-        self.pending.reshape(-1)[idx] = np.trunc(x[-1] - m) != 0
+        fed = self._fed
+        fed[idx] = True
+        old = self.pending[~fed[self.pending]]
+        fed[idx] = False
+        self.pending = np.concatenate([old, idx[still]])
         return d
+
+
+@njit(cache=True, nogil=True)
+def _refractory_kernel(x, m, last, t_us, refr, d, still):
+    """The refractory model (module doc) per pixel j over samples i, in place on m, last (N,),
+    d (K, N); still[j] = the pixel holds a crossing at the end (pending). Compiled: one pass
+    per pixel instead of six numpy calls per sample."""
+    k, n = x.shape
+    for j in range(n):
+        mj, lj = m[j], last[j]
+        for i in range(k):
+            c = np.trunc(x[i, j] - mj)
+            if c != 0 and t_us[i] - lj >= refr:
+                d[i, j] = 1 if c > 0 else -1
+                mj = x[i, j]
+                lj = t_us[i]
+        m[j], last[j] = mj, lj
+        still[j] = np.trunc(x[k - 1, j] - mj) != 0
 
 
 def noise_events(rate_hz: float, n_samples: int, sample_us: int, sensor_size: tuple[int, int],

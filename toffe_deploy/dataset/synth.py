@@ -301,16 +301,19 @@ def generate_sequence(spec: SequenceSpec, seed: int, progress: bool = False
             if box is not None:
                 boxes.append((box, [i]))
         groups = []
-        pending = dvs.pending.copy() if dvs.pending is not None else None
+        left = dvs.pending   # pending pixels fire without a change of input: feed them too
         for box, idx in _merge_boxes(boxes):
+            x0, y0, x1, y1 = box
             band = _band(box, [tracks[i] for i in idx], k0 - 1, k1)
-            if pending is not None:   # pending pixels fire without a change of input
-                band |= pending[box[1]:box[3], box[0]:box[2]]
-                pending[box[1]:box[3], box[0]:box[2]] = False
+            if left is not None and left.shape[0]:
+                py, px = left // w, left % w
+                inside = (px >= x0) & (px < x1) & (py >= y0) & (py < y1)
+                band[py[inside] - y0, px[inside] - x0] = True
+                left = left[~inside]
             by, bx = np.nonzero(band)
-            groups.append((by + box[1], bx + box[0], [tracks[i] for i in idx]))
-        if pending is not None and pending.any():   # pending outside every box: all objects
-            groups.append((*np.nonzero(pending), tracks))
+            groups.append((by + y0, bx + x0, [tracks[i] for i in idx]))
+        if left is not None and left.shape[0]:   # pending outside every box: all objects
+            groups.append((left // w, left % w, tracks))
         for by, bx, group in groups:
             if by.shape[0]:
                 img = _render_pixels(bg[by, bx], bx.astype(np.float32), by.astype(np.float32), group, ks)
