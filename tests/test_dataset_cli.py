@@ -23,7 +23,7 @@ def synth_dir(tmp_path_factory):
 def test_synth_writes_files_and_index(synth_dir):
     index = json.loads((synth_dir / "index.json").read_text())
     rows = index["sequences"]
-    assert index["splits"] == {"train": 0, "test": 4, "multi": 0}
+    assert index["splits"] == {"train": 0, "test": 4, "multi": 0, "appearance": 0, "pairs": 0}
     assert sorted(r["speed_bin"] for r in rows) == [1, 2, 3, 4]  # --limit keeps every bin
     for r in rows:
         assert {"shape", "trajectory", "orientation_deg", "direction", "sensor_size"} <= set(r)
@@ -46,7 +46,7 @@ def test_synth_resumes_and_adds_splits(synth_dir, capsys):
     assert main(["dataset", "synth", "--out", str(synth_dir), "--split", "multi", "--multi-count", "1",
                  "--duration-s", "0.005", "--seed", "3"]) == 0
     index = json.loads((synth_dir / "index.json").read_text())
-    assert index["splits"] == {"train": 0, "test": 4, "multi": 1}  # test rows kept
+    assert index["splits"] == {"train": 0, "test": 4, "multi": 1, "appearance": 0, "pairs": 0}  # test rows kept
     assert index["sequences"][-1]["n_objects"] >= 2
     assert "5 sequences" in capsys.readouterr().out
 
@@ -76,6 +76,10 @@ def test_show_file_without_ground_truth(tmp_path, random_events):
     (["dataset", "synth", "--out", "{tmp}/afile"], "not a directory"),
     (["dataset", "synth", "--out", "{tmp}/brokenidx", "--split", "test", "--limit", "1"], "index.json"),
     (["dataset", "synth", "--out", "{tmp}/o", "--threshold", "0.1", "--threshold-sigma", "0.2"], "threshold-sigma"),
+    (["dataset", "synth", "--out", "{tmp}/o", "--hfov-deg", "60", "--focal-px", "500"], "exclude each other"),
+    (["dataset", "synth", "--out", "{tmp}/o", "--split", "test", "--size-px", "20"], "--appearance random"),
+    (["dataset", "synth", "--out", "{tmp}/o", "--split", "train", "--limit", "1", "--object-contrast", "0.3",
+      "--threshold", "0.1", "--threshold-sigma", "0", "--size-px", "20", "--noise-hz", "0"], "held-out region"),
 ])
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, needle, random_events):
     (tmp_path / "bad.h5").write_bytes(b"not hdf5 at all")
@@ -90,7 +94,35 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, needle, random_eve
 
 
 def test_bad_option_values_exit_2(tmp_path, capsys):
-    for argv in (["--duration-s", "-1"], ["--limit", "0"], ["--noise-hz", "nan"]):
+    for argv in (["--duration-s", "-1"], ["--limit", "0"], ["--noise-hz", "nan"], ["--size-px", "5,2"],
+                 ["--sensor-size", "640"], ["--dark-fraction", "1.5"], ["--hot-pixels", "0,2"],
+                 ["--threshold", "0.1,0.2,0.3"]):
         with pytest.raises(SystemExit) as exc:
             main(["dataset", "synth", "--out", str(tmp_path), *argv])
         assert exc.value.code == 2
+
+
+def test_synth_records_every_drawn_option(tmp_path):
+    out = tmp_path / "r"
+    argv = ["dataset", "synth", "--out", str(out), "--split", "test", "--appearance", "random", "--limit", "2",
+            "--duration-s", "0.005", "--sensor-size", "96x72", "--hfov-deg", "50,70", "--depth-m", "3",
+            "--size-px", "8,12", "--object-contrast", "-1", "--dark-fraction", "0", "--background", "0.3",
+            "--threshold", "0.2,0.3", "--threshold-sigma", "0.01", "--refractory-us", "100", "--noise-hz", "5",
+            "--hot-pixels", "1e-3", "--texture", "0.1", "--seed", "2"]
+    assert main(argv) == 0
+    rows = json.loads((out / "index.json").read_text())["sequences"]
+    assert len(rows) == 2
+    for r in rows:
+        a = r["appearance"]
+        assert a["sensor_size"] == [96, 72] and 50 <= a["hfov_deg"] <= 70 and a["appearance"] == "random"
+        assert 0.2 <= a["threshold"] <= 0.3 and a["threshold_sigma"] == 0.01 and a["refractory_us"] == 100
+        assert a["noise_hz"] == 5 and a["hot_pixels"] == 1e-3 and a["texture"] == 0.1 and a["background"] == 0.3
+        (o,) = a["objects"]
+        assert o["depth_m"] == 3 and 8 <= o["size_px"] <= 12 and o["polarity"] == "dark"
+        assert o["log_contrast"] == pytest.approx(-1.0, abs=1e-3)
+        with open_events(out / r["file"]) as src:
+            assert src.sensor_size == (96, 72) and src.attrs["appearance"] == a
+            gt = src.ground_truth
+            assert {"speed_px_ms", "depth_m"} <= set(gt) and np.abs(gt["depth_m"] - 3).max() < 0.5
+    assert main(argv) == 0   # reproducible: same digests, nothing rewritten
+    assert json.loads((out / "index.json").read_text())["sequences"] == rows

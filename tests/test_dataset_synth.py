@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from toffe_deploy.camera import PinholeCamera
-from toffe_deploy.dataset.dvs import DVSEmulator
+from toffe_deploy.dataset.dvs import DVSEmulator, DVSParams
 from toffe_deploy.dataset.groundtruth import window_truth
 from toffe_deploy.dataset.splits import PROGRAMMED_SPEEDS, split_specs
 from toffe_deploy.dataset.synth import (ObjectSpec, SequenceSpec, _background, _render, object_tracks,
@@ -87,13 +87,16 @@ def test_deterministic_for_a_seed():
     assert 0.4 < a["p"].mean() < 0.6  # both polarities
 
 
-def test_rendering_boxes_equals_rendering_whole_frames():
-    """Two objects (overlapping boxes merge) on a small sensor: box rendering loses nothing."""
+@pytest.mark.parametrize("refractory_us", [0.0, 400.0])
+def test_rendering_boxes_equals_rendering_whole_frames(refractory_us):
+    """Two objects (overlapping boxes merge) on a small sensor: rendering only the edge bands
+    of boxes (and the pixels a refractory period holds pending) loses nothing."""
     cam = PinholeCamera(96, 72)
     objs = (ObjectSpec("square", Trajectory("lemniscate", 0.05, scale_m=1.2, phase0=1.0), size_m=1.0),
             ObjectSpec("star", Trajectory("limacon", 0.08, scale_m=1.2, clockwise=False), size_m=1.2,
                        intensity=0.2))
-    spec = SequenceSpec("two", objs, duration_s=0.01, camera=cam, texture=0.2)
+    spec = SequenceSpec("two", objs, duration_s=0.01, camera=cam, texture=0.2,
+                        dvs=DVSParams(refractory_us=refractory_us))
     ev, gt, size = generate_sequence(spec, seed=11)
     # reference: whole frames, sample by sample, same seed order (texture, thresholds)
     rng = np.random.default_rng(11)

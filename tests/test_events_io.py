@@ -33,7 +33,7 @@ def test_h5_round_trip_with_ground_truth_and_attrs(tmp_path, random_events):
         assert src.t_end_us == max(int(ev["t"][-1]) + 1, int(gt["t"].max()) + 1)
         assert src.attrs == attrs
         got = src.ground_truth
-        assert set(got) == set(gt)
+        assert set(got) == set(gt) | {"speed_px_ms"}   # derived: the file predates the column
         assert got["t"].dtype == np.int64 and got["object_id"].dtype == np.int32
         assert got["x"].dtype == np.float32 and got["speed_bin"].dtype == np.int8
         assert got["visible"].dtype == np.bool_

@@ -1,6 +1,7 @@
 """`toffe-deploy dataset`: generate the synthetic high-speed data set and look at it.
 
-    toffe-deploy dataset synth --out data/synth [--split all] [--duration-s S] [--seed 0]
+    toffe-deploy dataset synth --out data/synth [--split all] [--appearance paper|random] [--duration-s S]
+                               [--seed 0] [camera / scene / appearance / sensor ranges, see --help]
     toffe-deploy dataset show FILE [--out PNG] [--t0-us T] [--dt-us 5000] [--frames 4]
 """
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 
 from ..errors import ToffeError
 
-SPLIT_CHOICES = ("train", "test", "multi", "all")
+SPLIT_CHOICES = ("train", "test", "multi", "appearance", "pairs", "all")
 
 
 def _number(cast, low: float, strict: bool):
@@ -30,6 +31,41 @@ def _number(cast, low: float, strict: bool):
             raise argparse.ArgumentTypeError(f"must be {bound}, got {text}")
         return v
     return parse
+
+
+def _range(low: float, strict: bool, high: float | None = None):
+    """An argparse type for ``LO,HI`` or a single value V (= V,V): both finite, > low (strict) or
+    >= low, <= high when given, and LO <= HI; returns (lo, hi)."""
+    one = _number(float, low, strict)
+
+    def parse(text: str):
+        parts = text.split(",")
+        if len(parts) not in (1, 2):
+            raise argparse.ArgumentTypeError(f"expected LO,HI or one value, got {text!r}")
+        lo, hi = one(parts[0]), one(parts[-1])
+        if high is not None and hi > high:
+            raise argparse.ArgumentTypeError(f"must be <= {high:g}, got {text}")
+        if lo > hi:
+            raise argparse.ArgumentTypeError(f"LO must not exceed HI, got {text}")
+        return (lo, hi)
+    return parse
+
+
+def _sensor_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 640x480, got {text!r}") from None
+    if not (8 <= w <= 4096 and 8 <= h <= 4096):
+        raise argparse.ArgumentTypeError(f"width and height must be in 8..4096, got {text}")
+    return (w, h)
+
+
+def _fraction(text: str) -> float:
+    v = _number(float, 0, strict=False)(text)
+    if v > 1:
+        raise argparse.ArgumentTypeError(f"must be <= 1, got {text}")
+    return v
 
 
 _positive_float = _number(float, 0, strict=True)
@@ -53,7 +89,14 @@ def register(sub) -> None:
                    help="output directory (default: data/synth)")
     s.add_argument("--split", choices=SPLIT_CHOICES, default="all",
                    help="which split to generate: train (384 sequences), test (64), multi "
-                   "(--multi-count sequences of 2-4 objects) or all (default: all)")
+                   "(--multi-count sequences of 2-4 objects), appearance (40: held-out appearance "
+                   "combinations, single and multi-object), pairs (32: two objects of one bin 3-8 radii "
+                   "apart) or all five (default: all)")
+    s.add_argument("--appearance", choices=("paper", "random"), default=None,
+                   help="appearance of train/test/multi: paper (the paper protocol: 640x480, 60 deg, 5 m, "
+                   "0.4 m, bright, C=0.25+-0.03, no noise) or random (camera, scene, object and sensor "
+                   "drawn per sequence from the ranges below; train skips the held-out region). Default: "
+                   "random for train, paper for test and multi. appearance and pairs are always random")
     s.add_argument("--duration-s", type=_positive_float, default=None,
                    help="sensor time per sequence in seconds (default: 0.1 for train/test, 0.25 for multi)")
     s.add_argument("--seed", type=_nonneg_int, default=0, help="data-set seed (default: 0)")
@@ -62,17 +105,47 @@ def register(sub) -> None:
     s.add_argument("--limit", type=_positive_int, default=None,
                    help="at most this many sequences per split, drawn round-robin over the speed bins "
                    "(a quick, still balanced subset; default: all)")
-    s.add_argument("--threshold", type=_positive_float, default=0.25,
-                   help="mean DVS contrast threshold, log-intensity units (default: 0.25)")
-    s.add_argument("--threshold-sigma", type=_nonneg_float, default=0.03,
-                   help="per-pixel threshold mismatch, standard deviation (default: 0.03)")
-    s.add_argument("--noise-hz", type=_nonneg_float, default=0.0,
-                   help="background-activity noise rate per pixel in Hz (default: 0, off)")
+    r = s.add_argument_group("ranges", "LO,HI draws per sequence (log-uniform for scales: focal, depth, sizes, "
+                             "background, noise, hot pixels, when LO > 0; else uniform); one value fixes it. "
+                             "Defaults: random / paper appearance. Camera, scene and appearance options apply to "
+                             "random splits only; sensor options to all")
+    r.add_argument("--sensor-size", type=_sensor_size, default=None, metavar="WxH",
+                   help="sensor size in pixels (default: 640x480)")
+    r.add_argument("--hfov-deg", type=_range(0, True, 170.0), default=None, metavar="LO,HI",
+                   help="horizontal field of view, degrees (random: 40,90; paper: 60)")
+    r.add_argument("--focal-px", type=_range(0, True), default=None, metavar="LO,HI",
+                   help="focal length in pixels, instead of --hfov-deg")
+    r.add_argument("--depth-m", type=_range(0, True), default=None, metavar="LO,HI",
+                   help="object depth, metres, per object (random: 2,12)")
+    r.add_argument("--size-px", type=_range(0, True), default=None, metavar="LO,HI",
+                   help="apparent object diameter in pixels at its depth, per object (random: 15,200; "
+                   "size_m = size_px * depth / f)")
+    r.add_argument("--size-m", type=_range(0, True), default=None, metavar="LO,HI",
+                   help="physical object size in metres, instead of --size-px")
+    r.add_argument("--object-contrast", type=_range(-10, False, 10.0), default=None, metavar="LO,HI",
+                   help="signed log contrast of object vs background, per object; negative = dark object "
+                   "(random: 0.3,2.0)")
+    r.add_argument("--dark-fraction", type=_fraction, default=None, metavar="F",
+                   help="probability that an object's drawn contrast changes sign (random: 0.3)")
+    r.add_argument("--background", type=_range(0, True, 1.0), default=None, metavar="LO,HI",
+                   help="background linear intensity (random: 0.1,0.6; paper: 0.4)")
+    r.add_argument("--threshold", type=_range(0, True), default=None, metavar="LO,HI",
+                   help="mean DVS contrast threshold, log-intensity units (random: 0.1,0.5; paper: 0.25)")
+    r.add_argument("--threshold-sigma", type=_range(0, False), default=None, metavar="LO,HI",
+                   help="per-pixel threshold mismatch, standard deviation (random: 0,0.06; paper: 0.03)")
+    r.add_argument("--refractory-us", type=_range(0, False), default=None, metavar="LO,HI",
+                   help="refractory period in microseconds: a pixel that fired cannot fire again within it "
+                   "(random: 0,500; paper: 0)")
+    r.add_argument("--noise-hz", type=_range(0, False), default=None, metavar="LO,HI",
+                   help="background-activity noise rate per pixel in Hz (random: 0.1,50; paper: 0)")
+    r.add_argument("--hot-pixels", type=_range(0, False, 1.0), default=None, metavar="LO,HI",
+                   help="fraction of pixels that are hot, firing 1 kHz of one polarity (random: 0,1e-4; paper: 0)")
+    r.add_argument("--texture", type=_range(0, False), default=None, metavar="LO,HI",
+                   help="relative amplitude of a smooth background texture (random: 0,0.3; paper: 0)")
     s.add_argument("--contrast", choices=("bright", "dark", "mixed"), default="bright",
-                   help="objects brighter than the background (default), darker, or either per object "
-                        "(mixed makes the direction of slow objects ambiguous within one window; see data/README.md)")
-    s.add_argument("--texture", type=_nonneg_float, default=0.0,
-                   help="relative amplitude of a smooth background texture, e.g. 0.1 (default: 0, uniform)")
+                   help="paper splits: objects brighter than the background (default), darker, or either per "
+                        "object (mixed makes the direction of slow objects ambiguous within one window; see "
+                        "data/README.md)")
     s.add_argument("--jobs", type=_positive_int, default=1,
                    help="worker processes (default: 1)")
     s.add_argument("--force", action="store_true", help="regenerate files even when up to date")
@@ -95,25 +168,68 @@ def register(sub) -> None:
     w.set_defaults(func=_show)
 
 
+#: Options that only the random appearance honours (the paper geometry is fixed in metres).
+RANDOM_ONLY = ("hfov_deg", "focal_px", "depth_m", "size_px", "size_m", "object_contrast", "dark_fraction",
+               "background")
+
+
+def _split_appearance(split: str, appearance: str | None) -> str:
+    """The appearance a split is generated with (see --appearance)."""
+    if split in ("appearance", "pairs"):
+        return "random"
+    return appearance or ("random" if split == "train" else "paper")
+
+
+def _ranges(args, splits):
+    """(random ranges, paper ranges) from the presets and the options given; ToffeError on
+    contradictory or inapplicable options."""
+    import dataclasses
+
+    from ..dataset.appearance import PAPER, RANDOM, SENSOR_FIELDS
+
+    for a, b in (("hfov_deg", "focal_px"), ("size_px", "size_m")):
+        if getattr(args, a) is not None and getattr(args, b) is not None:
+            raise ToffeError(f"--{a.replace('_', '-')} and --{b.replace('_', '-')} exclude each other")
+    given = {k: getattr(args, k) for k in RANDOM_ONLY + SENSOR_FIELDS + ("sensor_size",)
+             if getattr(args, k) is not None}
+    randoms = [s for s in splits if _split_appearance(s, args.appearance) == "random"]
+    unused = [k for k in RANDOM_ONLY if k in given]
+    if unused and not randoms:
+        raise ToffeError(f"--{unused[0].replace('_', '-')} applies to random-appearance splits only "
+                         f"(add --appearance random)")
+    rnd = dataclasses.replace(RANDOM, **given)
+    if "focal_px" in given:
+        rnd = dataclasses.replace(rnd, hfov_deg=RANDOM.hfov_deg)
+    if "size_m" in given:
+        rnd = dataclasses.replace(rnd, size_px=RANDOM.size_px)
+    paper = dataclasses.replace(PAPER, **{k: v for k, v in given.items() if k in SENSOR_FIELDS + ("sensor_size",)})
+    papers = [s for s in splits if s not in randoms]
+    for name, rr, used in (("random", rnd, randoms), ("paper", paper, papers)):
+        if used and rr.threshold_sigma[1] >= rr.threshold[0]:
+            raise ToffeError(f"--threshold-sigma ({rr.threshold_sigma[1]:g}) must be smaller than --threshold "
+                             f"({rr.threshold[0]:g}) ({name} appearance)")
+    return rnd, paper
+
+
 def _synth(args) -> int:
     from ..dataset.build import build_dataset
-    from ..dataset.dvs import DVSParams
     from ..dataset.splits import MAX_SYNTH_DURATION_S, SPLITS, balanced_subset, split_specs
 
-    if args.threshold_sigma >= args.threshold:
-        raise ToffeError(f"--threshold-sigma ({args.threshold_sigma}) must be smaller than --threshold "
-                         f"({args.threshold})")
     if args.duration_s is not None and args.duration_s < 100e-6:
         raise ToffeError(f"--duration-s {args.duration_s} is shorter than two samples (100 us)")
     if args.duration_s is not None and args.duration_s > MAX_SYNTH_DURATION_S:
         raise ToffeError(f"--duration-s {args.duration_s:g} is longer than {MAX_SYNTH_DURATION_S:g} s (each "
                          "sequence is generated in memory)")
-    dvs = DVSParams(threshold=args.threshold, threshold_sigma=args.threshold_sigma, noise_rate_hz=args.noise_hz)
     splits = SPLITS if args.split == "all" else (args.split,)
+    rnd, paper = _ranges(args, splits)
     specs = {}
     for split in splits:
-        lst = split_specs(split, seed=args.seed, duration_s=args.duration_s, dvs=dvs, texture=args.texture,
-                          multi_count=args.multi_count, contrast=args.contrast)
+        app = _split_appearance(split, args.appearance)
+        try:
+            lst = split_specs(split, seed=args.seed, duration_s=args.duration_s, multi_count=args.multi_count,
+                              contrast=args.contrast, appearance=app, ranges=rnd if app == "random" else paper)
+        except ValueError as exc:
+            raise ToffeError(f"split {split}: {exc}") from None
         if args.limit is not None:
             lst = balanced_subset(lst, args.limit, seed=args.seed)
         specs[split] = lst

@@ -6,7 +6,8 @@ Layout::
     DIR/index.json              {"format": "toffe-synth-index", "version": 1, "seed": ...,
                                  "sequences": [{file, name, split, sensor_size, duration_s,
                                  n_events, seed, digest, shape, trajectory, speed_bin,
-                                 orientation_deg, direction, objects: [...]}, ...]}
+                                 orientation_deg, direction, objects: [...],
+                                 appearance: {...}}, ...]}
     DIR/<split>/<name>.h5       one sequence
 
 Re-running skips files whose stored digest (generator version + spec + seed) matches, so an
@@ -26,7 +27,8 @@ import numpy as np
 from ..errors import InputError, ToffeError
 from ..fileio import atomic_path, read_json
 from .splits import SPLITS, sequence_seed
-from .synth import GENERATOR_NAME, GENERATOR_VERSION, SequenceSpec, object_tracks, generate_sequence
+from .synth import (GENERATOR_NAME, GENERATOR_VERSION, SequenceSpec, appearance_summary, generate_sequence,
+                    object_tracks)
 
 INDEX_FORMAT = "toffe-synth-index"
 INDEX_VERSION = 1
@@ -41,6 +43,7 @@ def sequence_attrs(spec: SequenceSpec, seed: int) -> dict[str, Any]:
         "digest": spec.digest(seed),
         "split": spec.split,
         "name": spec.name,
+        "appearance": appearance_summary(spec),
     }
 
 
@@ -50,19 +53,21 @@ def index_entry(spec: SequenceSpec, seed: int, file: str, n_events: int) -> dict
     _, gt = object_tracks(spec, t_s)
     objs = []
     for i, o in enumerate(spec.objects):
-        sp = gt["speed"][gt["object_id"] == i]
+        sel = gt["object_id"] == i
+        sp, spx = gt["speed"][sel], gt["speed_px_ms"][sel]
         tr = o.trajectory
         objs.append({"object_id": i, "shape": o.shape, "trajectory": tr.curve, "speed_bin": o.target_bin,
                      "orientation_deg": tr.orientation_deg, "direction": "cw" if tr.clockwise else "ccw",
                      "lap_time_s": tr.lap_time_s, "speed_min_mps": round(float(sp.min()), 3),
-                     "speed_max_mps": round(float(sp.max()), 3), "size_m": o.size_m,
+                     "speed_max_mps": round(float(sp.max()), 3), "speed_min_px_ms": round(float(spx.min()), 4),
+                     "speed_max_px_ms": round(float(spx.max()), 4), "size_m": o.size_m,
                      "polarity": "bright" if o.intensity > spec.background else "dark"})
     first = objs[0]
     return {"file": file, "name": spec.name, "split": spec.split, "sensor_size": list(spec.camera.sensor_size),
             "duration_s": spec.duration_s, "n_events": int(n_events), "seed": int(seed),
             "digest": spec.digest(seed), "n_objects": len(objs),
             **{k: first[k] for k in ("shape", "trajectory", "speed_bin", "orientation_deg", "direction")},
-            "objects": objs}
+            "objects": objs, "appearance": appearance_summary(spec)}
 
 
 def _existing_events(path: Path, digest: str) -> int | None:

@@ -5,8 +5,8 @@ interpolated between the two samples around tm (for the direction: the interpola
 (cos, sin), then atan2, so it never wraps through +-pi the long way). An object counts when both
 samples around tm are visible; tm outside an object's sampled span gives no truth for it.
 The speed bin is the bin of the nearer sample (bins are stored, not recomputed, so the file's
-own bin edges are used). The optional columns ``speed_px_ms`` (image-plane speed) and
-``depth_m`` (object Z) are interpolated like x, y when the file has them, NaN otherwise.
+own bin edges are used). speed_px_ms and depth_m are interpolated like speed when the ground
+truth has them (files from before those columns give None).
 """
 from __future__ import annotations
 
@@ -14,14 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-REQUIRED = ("t", "object_id", "x", "y", "direction", "speed", "speed_bin", "visible")
-OPTIONAL = ("speed_px_ms", "depth_m")
+from ..events.fmt_toffe import GT_OPTIONAL as OPTIONAL, GT_REQUIRED as REQUIRED
 
 
 @dataclass(frozen=True)
 class ObjectTruth:
-    """One object at a window's midpoint: centre (px), direction (rad, y down), speed (m/s, 3-D);
-    image-plane speed (px/ms) and depth (m) when the file has them (NaN otherwise)."""
+    """One object at a window's midpoint: centre (px), direction (rad, y down), speed (m/s, 3-D),
+    image-plane speed (px/ms) and depth (m) when known."""
 
     object_id: int
     x: float
@@ -29,8 +28,8 @@ class ObjectTruth:
     direction: float
     speed: float
     speed_bin: int
-    speed_px_ms: float = float("nan")
-    depth_m: float = float("nan")
+    speed_px_ms: float | None = None
+    depth_m: float | None = None
 
 
 def _check(gt: dict) -> None:
@@ -64,7 +63,7 @@ def window_truth(gt: dict[str, np.ndarray], t0: int, dt_us: int) -> list[ObjectT
         c = (1.0 - w) * np.cos(da) + w * np.cos(db)
         s = (1.0 - w) * np.sin(da) + w * np.sin(db)
         near = a if w < 0.5 else b
-        extra = {k: lerp(k) for k in OPTIONAL if k in gt}
         out.append(ObjectTruth(int(oid), lerp("x"), lerp("y"), float(np.arctan2(s, c)), lerp("speed"),
-                               int(gt["speed_bin"][near]), **extra))
+                               int(gt["speed_bin"][near]),
+                               *(lerp(k) if k in gt else None for k in OPTIONAL)))
     return out

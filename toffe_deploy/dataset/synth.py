@@ -5,14 +5,23 @@ pinhole camera (camera.py), with one or more planar objects (shapes.py) facing t
 moving on closed trajectories (trajectories.py). The scene is sampled every ``sample_us``
 (50 us = 20,000 samples/s, as the paper's simulated DAVIS) and fed to the DVS emulator (dvs.py).
 
-Only a rectangle around each object is rendered: for a chunk of samples, the box covering the
-object at the sample before the chunk and at every sample in it. Pixels outside it did not
-change, so the emulation is exact (identical to rendering whole frames) while the cost scales
-with object size, not sensor size. Overlapping boxes are merged and rendered together.
+Only the pixels that can change are rendered: for a chunk of samples, the box covering the
+object at the sample before the chunk and at every sample in it, and within it only the band
+around the object's edge that the edge can sweep during the chunk. The signed distances of
+the shapes are 1-Lipschitz in the centre, so a pixel whose distance d0 at the sample before the
+chunk has |d0| > 0.5 + (path of the centre during the chunk) + K |radius change| keeps its
+coverage (0 or 1) all chunk; K bounds |d sdf / d radius| near the object (module code). Pixels
+the refractory period holds pending are rendered too (DVSEmulator.pending). So the emulation is
+exact (identical to rendering whole frames, tested) while the cost scales with the object's
+perimeter, not the sensor or the object's area. Overlapping boxes are merged.
 
 Ground truth per object per sample (the interface of events/fmt_toffe): t, object_id, x, y
 (projected centre, px), direction = atan2(dv/dt, du/dt) (rad, y down), speed = |dP/dt| (m/s,
-3-D), speed_bin (ToffeConfig.speed_bin_of), visible (centre inside the sensor and in front).
+3-D), speed_bin, visible (centre inside the sensor and in front), speed_px_ms = hypot(du/dt,
+dv/dt) / 1000 (image-plane speed of the projected centre, px/ms) and depth_m (object Z, m).
+speed_bin is the bin of the image-plane speed under the *reference* configuration
+(``ToffeConfig().speed_bin_of_px_ms``: bins stated in m/s at 5 m with 554.26 px): an event
+camera sees image-plane motion only, so that is what the OFS can separate.
 """
 from __future__ import annotations
 
@@ -28,12 +37,12 @@ import numpy as np
 from ..config import ToffeConfig
 from ..events.core import EVENT_DTYPE
 from ..camera import PinholeCamera
-from .dvs import DVSEmulator, DVSParams, noise_events
-from .shapes import SHAPES, coverage
+from .dvs import DVSEmulator, DVSParams, hot_pixel_events, noise_events
+from .shapes import SHAPES, coverage, sdf
 from .trajectories import Trajectory
 
 GENERATOR_NAME = "toffe-deploy synth"
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 #: Intensity (linear, 0..1) of the background; objects are brighter or darker by a factor 2
 #: (log contrast +-0.69, about three events per pixel per edge at C = 0.25).
 BACKGROUND = 0.4
@@ -74,6 +83,7 @@ class SequenceSpec:
     sample_us: int = 50
     background: float = BACKGROUND
     texture: float = 0.0  # relative amplitude of a smooth multiplicative background texture
+    meta: dict = field(default_factory=dict)  # split labels (e.g. pair spacing), recorded as given
 
     @property
     def n_samples(self) -> int:
@@ -84,7 +94,7 @@ class SequenceSpec:
             "name": self.name, "split": self.split, "duration_s": self.duration_s,
             "sample_us": self.sample_us, "background": self.background, "texture": self.texture,
             "camera": dataclasses.asdict(self.camera), "dvs": dataclasses.asdict(self.dvs),
-            "objects": [o.to_dict() for o in self.objects],
+            "objects": [o.to_dict() for o in self.objects], "meta": dict(self.meta),
         }
 
     def digest(self, seed: int) -> str:
@@ -117,32 +127,56 @@ class _Track:
     z_mean: float
 
 
+#: Ground-truth columns, in file order (module doc).
+GT_COLUMNS = ("t", "object_id", "x", "y", "direction", "speed", "speed_bin", "visible", "speed_px_ms", "depth_m")
+
+
 def object_tracks(spec: SequenceSpec, t_s: np.ndarray) -> tuple[list[_Track], dict[str, np.ndarray]]:
     """Projected tracks for rendering and the ground-truth columns (time-major rows)."""
     cam = spec.camera
-    cfg = ToffeConfig(sensor_size=cam.sensor_size)
-    bin_of = np.vectorize(cfg.speed_bin_of, otypes=[np.int8])
-    tracks, cols = [], {k: [] for k in ("x", "y", "direction", "speed", "speed_bin", "visible")}
+    bin_of = np.vectorize(ToffeConfig().speed_bin_of_px_ms, otypes=[np.int8])  # reference bins
+    tracks, cols = [], {k: [] for k in GT_COLUMNS[2:]}
     for obj in spec.objects:
         p = obj.trajectory.position(t_s)
         vel = obj.trajectory.velocity(t_s)
         u, v = cam.project(p)
         du, dv = cam.project_velocity(p, vel)
-        speed = np.linalg.norm(vel, axis=-1)
+        speed_px_ms = np.hypot(du, dv) / 1000.0
         r = cam.f * (obj.size_m / 2.0) / p[:, 2]
         tracks.append(_Track(obj, u, v, r, float(p[:, 2].mean())))
         cols["x"].append(u)
         cols["y"].append(v)
         cols["direction"].append(np.arctan2(dv, du))
-        cols["speed"].append(speed)
-        cols["speed_bin"].append(bin_of(speed))
+        cols["speed"].append(np.linalg.norm(vel, axis=-1))
+        cols["speed_bin"].append(bin_of(speed_px_ms))
         cols["visible"].append((p[:, 2] > 0) & (u >= 0) & (u <= cam.width - 1) & (v >= 0) & (v <= cam.height - 1))
+        cols["speed_px_ms"].append(speed_px_ms)
+        cols["depth_m"].append(p[:, 2])
     n, j = t_s.shape[0], len(spec.objects)
     gt = {k: np.stack(v, axis=1).reshape(-1) for k, v in cols.items()}  # rows: sample-major
     gt["t"] = np.repeat(np.round(t_s * 1e6).astype(np.int64), j)
     gt["object_id"] = np.tile(np.arange(j, dtype=np.int32), n)
-    gt = {k: gt[k] for k in ("t", "object_id", "x", "y", "direction", "speed", "speed_bin", "visible")}
-    return tracks, gt
+    return tracks, {k: gt[k] for k in GT_COLUMNS}
+
+
+def appearance_summary(spec: SequenceSpec) -> dict[str, Any]:
+    """The drawn appearance of a sequence in the units it was drawn in (recorded in the file's
+    attrs and index.json): camera, sensor, background and per object size_px (apparent diameter
+    at the trajectory's mean depth), log contrast log((I + eps) / (B + eps)) and events per edge
+    |log contrast| / threshold (what the OFS reads speed from)."""
+    cam, d = spec.camera, spec.dvs
+    objs = []
+    for o in spec.objects:
+        z = o.trajectory.depth_m
+        c = float(np.log((o.intensity + d.log_eps) / (spec.background + d.log_eps)))
+        objs.append({"size_px": round(cam.f * o.size_m / z, 3), "size_m": o.size_m, "depth_m": z,
+                     "log_contrast": round(c, 4), "events_per_edge": round(abs(c) / d.threshold, 3),
+                     "polarity": "bright" if c > 0 else "dark"})
+    return {"sensor_size": list(cam.sensor_size), "hfov_deg": cam.hfov_deg, "focal_px": round(cam.f, 3),
+            "background": spec.background, "texture": spec.texture, "threshold": d.threshold,
+            "threshold_sigma": d.threshold_sigma, "refractory_us": d.refractory_us,
+            "noise_hz": d.noise_rate_hz, "hot_pixels": d.hot_pixel_fraction,
+            "hot_pixel_rate_hz": d.hot_pixel_rate_hz, "objects": objs, **spec.meta}
 
 
 def _box(tr: _Track, k0: int, k1: int, w: int, h: int) -> tuple[int, int, int, int] | None:
@@ -174,29 +208,56 @@ def _merge_boxes(boxes: list[tuple[tuple[int, int, int, int], list[int]]]):
     return boxes
 
 
-def _render(bg: np.ndarray, box, tracks: list[_Track], ks: np.ndarray) -> np.ndarray:
-    """(K, h, w) intensity of a box at samples ks: background with objects composited far to near."""
-    x0, y0, x1, y1 = box
-    xs = np.arange(x0, x1, dtype=np.float32)[None, None, :]
-    ys = np.arange(y0, y1, dtype=np.float32)[None, :, None]
-    img = np.broadcast_to(bg[y0:y1, x0:x1], (ks.shape[0], y1 - y0, x1 - x0)).copy()
+def _render_pixels(bg_px: np.ndarray, xs: np.ndarray, ys: np.ndarray, tracks: list[_Track],
+                   ks: np.ndarray) -> np.ndarray:
+    """(K, *xs.shape) intensity of pixels (xs, ys) with background bg_px at samples ks: the
+    objects composited far to near."""
+    extra = (None,) * xs.ndim
+    img = np.broadcast_to(bg_px, (ks.shape[0],) + xs.shape).copy()
     for tr in sorted(tracks, key=lambda t: -t.z_mean):
-        u = tr.u[ks].astype(np.float32)[:, None, None]
-        v = tr.v[ks].astype(np.float32)[:, None, None]
-        r = tr.r[ks].astype(np.float32)[:, None, None]
-        cov = coverage(tr.obj.shape, xs - u, ys - v, r)
+        u = tr.u[ks].astype(np.float32)[(slice(None),) + extra]
+        v = tr.v[ks].astype(np.float32)[(slice(None),) + extra]
+        r = tr.r[ks].astype(np.float32)[(slice(None),) + extra]
+        cov = coverage(tr.obj.shape, xs[None] - u, ys[None] - v, r)
         img += (np.float32(tr.obj.intensity) - img) * cov
     return img
 
 
+def _render(bg: np.ndarray, box, tracks: list[_Track], ks: np.ndarray) -> np.ndarray:
+    """(K, h, w) intensity of a box at samples ks (every pixel of it)."""
+    x0, y0, x1, y1 = box
+    ys, xs = np.mgrid[y0:y1, x0:x1].astype(np.float32)
+    return _render_pixels(bg[y0:y1, x0:x1], xs, ys, tracks, ks)
+
+
+def _band(box, tracks: list[_Track], kp: int, k1: int) -> np.ndarray:
+    """(h, w) bool: the pixels of box whose coverage by some object can change over samples
+    kp..k1-1 (module doc: distance at kp against path and radius change)."""
+    x0, y0, x1, y1 = box
+    xs = np.arange(x0, x1, dtype=np.float32)[None, :]
+    ys = np.arange(y0, y1, dtype=np.float32)[:, None]
+    band = np.zeros((y1 - y0, x1 - x0), dtype=bool)
+    for tr in tracks:
+        u, v, r = tr.u[kp:k1], tr.v[kp:k1], tr.r[kp:k1]
+        path = float(np.hypot(np.diff(u), np.diff(v)).sum())
+        dr = float(np.abs(r - r[0]).max())
+        # |d sdf / d r| <= 2 |q| + 1.5 with q = offset / r (scaled shapes); offsets in the box
+        # reach at most r + path + a few pixels
+        k_r = 2.0 * (r.max() + path + 4.0) / max(float(r.min()), 1e-3) + 1.5
+        d0 = sdf(tr.obj.shape, xs - np.float32(u[0]), ys - np.float32(v[0]), np.float32(r[0]))
+        band |= np.abs(d0) <= 0.5 + path + k_r * dr + 1e-3
+    return band
+
+
 def _chunk_len(tracks: list[_Track]) -> int:
-    """Samples per rendering chunk: the fastest object moves at most ~ half its radius per chunk
-    (boxes stay small), between 4 and 256 samples (numpy overhead vs memory)."""
+    """Samples per rendering chunk, between 4 and 256: per chunk the band costs ~ perimeter x
+    (1 + 2 path) per sample and the box ~ area once, so the best path per chunk is about
+    sqrt(r step / pi) px (r radius, step px per sample); the smallest over the objects."""
     best = 256
     for tr in tracks:
         step = float(np.hypot(np.diff(tr.u), np.diff(tr.v)).max(initial=0.0))
         if step > 0:
-            best = min(best, int(0.5 * float(tr.r.min()) / step))
+            best = min(best, int(math.sqrt(max(float(tr.r.min()), 1.0) / (math.pi * step))))
     return int(min(256, max(4, best)))
 
 
@@ -239,10 +300,27 @@ def generate_sequence(spec: SequenceSpec, seed: int, progress: bool = False
             box = _box(tr, k0 - 1, k1, w, h)
             if box is not None:
                 boxes.append((box, [i]))
+        groups = []
+        left = dvs.pending   # pending pixels fire without a change of input: feed them too
         for box, idx in _merge_boxes(boxes):
-            img = _render(bg, box, [tracks[i] for i in idx], ks)
-            pieces.append(dvs.process(box[1], box[0], spec.dvs.log(img), t_us[ks]))
+            x0, y0, x1, y1 = box
+            band = _band(box, [tracks[i] for i in idx], k0 - 1, k1)
+            if left is not None and left.shape[0]:
+                py, px = left // w, left % w
+                inside = (px >= x0) & (px < x1) & (py >= y0) & (py < y1)
+                band[py[inside] - y0, px[inside] - x0] = True
+                left = left[~inside]
+            by, bx = np.nonzero(band)
+            groups.append((by + y0, bx + x0, [tracks[i] for i in idx]))
+        if left is not None and left.shape[0]:   # pending outside every box: all objects
+            groups.append((left // w, left % w, tracks))
+        for by, bx, group in groups:
+            if by.shape[0]:
+                img = _render_pixels(bg[by, bx], bx.astype(np.float32), by.astype(np.float32), group, ks)
+                pieces.append(dvs.process_pixels(by * w + bx, spec.dvs.log(img), t_us[ks]))
     pieces.append(noise_events(spec.dvs.noise_rate_hz, n, spec.sample_us, (w, h), rng))
+    pieces.append(hot_pixel_events(spec.dvs.hot_pixel_fraction, spec.dvs.hot_pixel_rate_hz, n, spec.sample_us,
+                                   (w, h), rng))
     events = np.concatenate(pieces) if pieces else np.empty(0, EVENT_DTYPE)
     events = events[np.argsort(events["t"], kind="stable")]
     return events, gt, (w, h)

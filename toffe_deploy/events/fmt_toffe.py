@@ -16,8 +16,16 @@ a window reads only the chunks it touches; a millisecond index so seeking is two
                                          a hint only: every lookup is checked against /events/t
     /ground_truth/<col>    1-D columns of one length, one row per object per sample (optional):
                            t i8 (us), object_id i4, x f4, y f4 (px, image-plane centre),
-                           direction f4 (rad, atan2(dy, dx), y down), speed f4 (m/s),
-                           speed_bin i1 (1..4, 0 below bin 1), visible bool; other columns kept as given.
+                           direction f4 (rad, atan2(dy, dx), y down), speed f4 (m/s, 3-D),
+                           speed_bin i1 (1..4, 0 below bin 1), visible bool,
+                           speed_px_ms f4 (image-plane speed of the centre, px/ms),
+                           depth_m f4 (object Z, m); other columns kept as given.
+
+speed_bin: files from generator version 3 on hold the bin of the image-plane speed speed_px_ms
+under the reference configuration (ToffeConfig(): m/s bins at 5 m, 554.26 px); older files hold
+the bin of the 3-D speed. Files written before speed_px_ms and depth_m existed read without
+them in the file: speed_px_ms is derived on reading from the x, y track (central differences
+per object, ``derive_speed_px_ms``), depth_m stays absent (it cannot be recovered).
 """
 from __future__ import annotations
 
@@ -44,7 +52,27 @@ RESERVED_ATTRS = ("format", "format_version", "sensor_width", "sensor_height", "
                   "t_start_us", "t_end_us")
 #: Ground-truth columns we know and the dtype they are stored as.
 GT_DTYPES = {"t": "<i8", "object_id": "<i4", "x": "<f4", "y": "<f4", "direction": "<f4",
-             "speed": "<f4", "speed_bin": "i1", "visible": "?"}
+             "speed": "<f4", "speed_bin": "i1", "visible": "?", "speed_px_ms": "<f4", "depth_m": "<f4"}
+#: Columns every ground truth has; speed_px_ms is derived for files from before it, depth_m optional.
+GT_REQUIRED = ("t", "object_id", "x", "y", "direction", "speed", "speed_bin", "visible")
+GT_OPTIONAL = ("speed_px_ms", "depth_m")
+
+
+def derive_speed_px_ms(gt: dict[str, np.ndarray]) -> np.ndarray:
+    """Image-plane speed (px/ms) of each ground-truth row from its object's x, y over t (us):
+    hypot(dx/dt, dy/dt) * 1000 by central differences (one-sided at the ends); NaN for an
+    object with a single row. For files older than the speed_px_ms column."""
+    t = np.asarray(gt["t"], dtype=np.float64)
+    x, y = np.asarray(gt["x"], dtype=np.float64), np.asarray(gt["y"], dtype=np.float64)
+    ids = np.asarray(gt["object_id"])
+    out = np.full(t.shape[0], np.nan, dtype=np.float32)
+    for oid in np.unique(ids):
+        sel = np.flatnonzero(ids == oid)
+        sel = sel[np.argsort(t[sel], kind="stable")]
+        if sel.shape[0] < 2 or np.any(np.diff(t[sel]) <= 0):
+            continue
+        out[sel] = np.hypot(np.gradient(x[sel], t[sel]), np.gradient(y[sel], t[sel])) * 1000.0
+    return out
 
 
 def ms_index(t: np.ndarray, index_t0_us: int) -> np.ndarray:
@@ -217,7 +245,10 @@ class ToffeH5Source(EventSource):
                 gt = {k: g[k][()] for k in g if isinstance(g[k], h5py.Dataset)}
             except (OSError, ValueError) as exc:
                 raise InputError(self.path, f"cannot read /ground_truth (corrupt file?): {exc}") from None
-            self._gt_cache = check_ground_truth(self.path, gt, required=tuple(GT_DTYPES))
+            if "speed_px_ms" not in gt and all(k in gt for k in ("t", "object_id", "x", "y")) \
+                    and len({gt[k].shape for k in ("t", "object_id", "x", "y")}) == 1:
+                gt["speed_px_ms"] = derive_speed_px_ms(gt)   # a file from before the column
+            self._gt_cache = check_ground_truth(self.path, gt, required=GT_REQUIRED)
         return self._gt_cache
 
     @property
