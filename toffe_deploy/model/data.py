@@ -24,7 +24,7 @@ from ..errors import InputError
 from ..events.binning import bin_window
 from ..events.frontend import apply_dense
 
-CROP_PX = 160   # R: crop side for training windows (covers the 128 px OFPD crop around the centroid)
+CROP_PX = 320   # R: crop side for training windows (holds objects up to ~250 px with their motion)
 
 
 @dataclass
