@@ -8,6 +8,7 @@ import sys
 from . import __version__
 from .commands import COMMAND_MODULES
 from .errors import ToffeError
+from .signals import Terminated, exceptions_on_signals
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -24,21 +25,28 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
-    try:
-        return int(args.func(args) or 0)
-    except ToffeError as exc:
-        print(f"toffe-deploy: error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    except KeyboardInterrupt:
-        print("toffe-deploy: interrupted", file=sys.stderr)
-        return 130
-    except BrokenPipeError:
-        return 0
+    """Run one command. Signals raise from the start (toffe_deploy.signals), so a Ctrl-C or a
+    kill at any stage unwinds through the clean-ups: exit 130 (SIGINT) or 128 + n (SIGTERM 143,
+    SIGHUP 129) with one line on stderr."""
+    with exceptions_on_signals():
+        try:
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            if not getattr(args, "func", None):
+                parser.print_help()
+                return 2
+            return int(args.func(args) or 0)
+        except ToffeError as exc:
+            print(f"toffe-deploy: error: {exc}", file=sys.stderr)
+            return exc.exit_code
+        except KeyboardInterrupt:
+            print("toffe-deploy: interrupted", file=sys.stderr)
+            return 130
+        except Terminated as exc:
+            print(f"toffe-deploy: {exc}", file=sys.stderr)
+            return exc.exit_code
+        except BrokenPipeError:
+            return 0
 
 
 if __name__ == "__main__":
