@@ -17,6 +17,7 @@ The tests (tests/test_faults_signals.py) run a few of these scenarios with the s
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
 import os
 import shutil
@@ -96,18 +97,25 @@ def shm_sizes() -> dict[str, int]:
     return out
 
 
+def _maps(pid: int) -> set[str]:
+    """Names of the /dev/shm files process ``pid`` maps."""
+    used = set()
+    try:
+        with open(f"/proc/{pid}/maps") as f:
+            for line in f:
+                i = line.find("/dev/shm/")
+                if i >= 0:
+                    used.add(line[i + 9:].split()[0])
+    except OSError:
+        pass
+    return used
+
+
 def mapped_shm() -> set[str]:
     """Names of /dev/shm files some live process maps (segments in use)."""
     used = set()
     for pid in _pids():
-        try:
-            with open(f"/proc/{pid}/maps") as f:
-                for line in f:
-                    i = line.find("/dev/shm/")
-                    if i >= 0:
-                        used.add(line[i + 9:].split()[0])
-        except OSError:
-            pass
+        used |= _maps(pid)
     return used
 
 
@@ -123,20 +131,27 @@ class Outcome:
     temp_left: list[str] = field(default_factory=list)
     stderr: str = ""
     triggered: bool = True         # False: the run ended before the stage was reached
+    pid: int = 0                   # the host's
 
 
 def _run_shm(before: dict[str, int], host: int, t_start: float) -> dict[str, int]:
-    """Segments of this run: named after the host, or new stdlib psm_ names created since it started."""
-    out = {}
+    """Segments of this run: named after the host, or (code before segment naming) stdlib psm_
+    names created since the run started that no process outside its session maps."""
+    out, psm = {}, {}
     for name, size in shm_sizes().items():
         if name.startswith(f"toffe_lava_{host}_"):
             out[name] = size
         elif name.startswith("psm_") and name not in before:
-            try:
+            with contextlib.suppress(OSError):
                 if os.stat(os.path.join(SHM, name)).st_mtime >= t_start - 1:
-                    out[name] = size
-            except OSError:
-                pass
+                    psm[name] = size
+    if psm:
+        ours = set(session_pids(host))
+        foreign = set()
+        for pid in _pids():
+            if pid not in ours:
+                foreign |= _maps(pid)
+        out.update({n: s for n, s in psm.items() if n not in foreign})
     return out
 
 
@@ -178,7 +193,7 @@ def run_scenario(name: str, argv: list[str], trigger: Callable[[subprocess.Popen
     temp = sorted(x for g in temp_globs for x in glob.glob(g))
     err.seek(0)
     out = Outcome(name, rc, round(exit_s, 2), len(left), len(shm), sum(shm.values()), temp,
-                  err.read().decode(errors="replace"), triggered)
+                  err.read().decode(errors="replace"), triggered, p.pid)
     if cleanup:
         for pid in left:
             try:

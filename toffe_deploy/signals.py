@@ -4,8 +4,11 @@ The CLI enters ``exceptions_on_signals()`` before it does any work: SIGTERM (``k
 ``timeout``) and SIGHUP (a closed terminal) raise ``Terminated``, SIGINT (Ctrl-C) raises
 KeyboardInterrupt, from the first signal on, at any stage, start-up included. Unwinding then
 stops the Lava runtime and removes temporary files and directories (fileio.atomic_path /
-atomic_dir, the exporter's staging directory). A repeated signal while unwinding is ignored, so
-it cannot cut a clean-up short; SIGKILL still ends everything (Lava's children die with the
+atomic_dir, the exporter's staging directory). A handler's exception that Python cannot
+propagate (raised while an at-fork hook, a ``__del__`` or a weakref callback runs: logging's
+fork hook is one, and Lava forks a dozen times at start-up) reaches sys.unraisablehook instead;
+there the signal is sent again 10 ms later, from a timer thread, until it lands in ordinary code. A
+repeated signal while unwinding is ignored, so it cannot cut a clean-up short; SIGKILL still ends everything (Lava's children die with the
 host, see runtime.lava_host). A signal that the parent set to be ignored (``nohup``, a
 background job's SIGINT) stays ignored.
 
@@ -15,7 +18,9 @@ SIGHUP), with one line on stderr.
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
+import sys
 import threading
 from typing import Iterator
 
@@ -39,21 +44,36 @@ def exceptions_on_signals() -> Iterator[None]:
         yield
         return
     fired: list[int] = []
+    raised: list[BaseException] = []
 
     def handler(signum, frame):
         if fired:
             return
         fired.append(signum)
-        if signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        raise Terminated(signum)
+        exc = KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+        raised.append(exc)
+        raise exc
+
+    prev_hook = sys.unraisablehook
+
+    def unraisable(info):
+        if raised and info.exc_value is raised[-1]:        # swallowed: deliver the signal again
+            signum = fired.pop()
+            raised.clear()
+            timer = threading.Timer(0.01, os.kill, (os.getpid(), signum))
+            timer.daemon = True
+            timer.start()
+            return
+        prev_hook(info)
 
     old = {}
     for sig in HANDLED:
         if signal.getsignal(sig) is not signal.SIG_IGN:
             old[sig] = signal.signal(sig, handler)
+    sys.unraisablehook = unraisable
     try:
         yield
     finally:
+        sys.unraisablehook = prev_hook
         for sig, prev in old.items():
             signal.signal(sig, prev)
