@@ -4,7 +4,8 @@ Each scenario starts the CLI in a session of its own, waits for a stage (the hos
 children, the run is streaming, the output's temp file exists), does one thing (SIGTERM to the
 host, Ctrl-C to the process group as a terminal sends it, SIGKILL to the host or to the whole
 group as ``timeout -k`` does, SIGKILL to Lava's shared-memory manager), then records the exit
-status, how long the host took to exit, and what is left 10 s later: processes of the session,
+status, how long the host took to exit, and what is left 10 s later: processes of the session
+(and the run's shm reaper),
 /dev/shm bytes and segments of the run (named toffe_lava_<host pid>_..., or the stdlib's psm_...
 created during the run by the code before segment naming), temp files and directories.
 Everything left is removed afterwards (the sweep's own processes and segments only).
@@ -59,6 +60,13 @@ def session_pids(sid: int) -> list[int]:
         if st is not None and st[1] == sid:
             out.append(pid)
     return out
+
+
+def run_pids(host: int) -> list[int]:
+    """Live processes of a run: its session (the host started in a session of its own, its
+    children and their orphans) and its shm reaper (a session of its own, named after the host)."""
+    tag = f"toffe_lava_{host}_"
+    return sorted(set(session_pids(host)) | {p for p in _pids() if tag in cmdline(p) and stat(p) is not None})
 
 
 def children(pid: int) -> list[int]:
@@ -185,10 +193,10 @@ def run_scenario(name: str, argv: list[str], trigger: Callable[[subprocess.Popen
         p.wait()
     settle = time.monotonic() + settle_s
     while time.monotonic() < settle:
-        if not session_pids(sid) and not _run_shm(before, p.pid, t_start):
+        if not run_pids(sid) and not _run_shm(before, p.pid, t_start):
             break
         time.sleep(0.1)
-    left = session_pids(sid)
+    left = run_pids(sid)
     shm = _run_shm(before, p.pid, t_start)
     temp = sorted(x for g in temp_globs for x in glob.glob(g))
     err.seek(0)

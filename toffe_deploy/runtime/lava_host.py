@@ -16,9 +16,14 @@ one runtime so that:
   pid and its start time (clock ticks since boot, /proc/PID/stat field 22, which tells a reused
   pid apart), the runtime's number in that host, and a random token.
 
-``reclaim()`` removes the segments whose named host is gone (no process with that pid and start
-time); each Lava start calls it, so leftovers of a killed run never outlast the next run.
-Segments with other names (other programs, Lava used directly) are never touched.
+When the host dies, Python's resource tracker (a child of the host) unlinks the segments once
+the last process holding its pipe is gone. A SIGKILL of the whole process group (``timeout -k``,
+``kill -9 -PGID``) kills the tracker too, so ``ensure_reaper()`` starts, once per host, a small
+process in a session of its own that waits for the end of a pipe held by the host and everything
+forked from it, unlinks the host's segments and exits. ``reclaim()`` removes the segments whose
+named host is gone (no process with that pid and start time), for when even the reaper was
+killed; each Lava start calls it. Segments with other names (other programs, Lava used
+directly) are never touched.
 """
 from __future__ import annotations
 
@@ -29,6 +34,8 @@ import multiprocessing.managers as managers
 import os
 import secrets
 import signal
+import subprocess
+import sys
 import threading
 from dataclasses import dataclass
 from multiprocessing import shared_memory
@@ -43,6 +50,20 @@ _fork_state: dict = {}                # the host's pid, handed from the before h
 _registered = False
 _prctl = None                         # libc's prctl, looked up before any fork
 _counter = itertools.count(1)
+_reaper: tuple[int, int, subprocess.Popen] | None = None   # (host pid, pipe write end, process)
+
+REAPER = """
+import os, sys
+fd, shm_dir, prefix = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+while os.read(fd, 4096):
+    pass
+for name in os.listdir(shm_dir):
+    if name.startswith(prefix):
+        try:
+            os.unlink(os.path.join(shm_dir, name))
+        except OSError:
+            pass
+"""
 
 
 def start_ticks(pid: int) -> int | None:
@@ -119,6 +140,30 @@ def unlink_prefix(prefix: str, shm_dir: str = SHM_DIR) -> int:
                 with contextlib.suppress(Exception):
                     resource_tracker.unregister("/" + name, "shared_memory")
     return n
+
+
+def ensure_reaper(shm_dir: str = SHM_DIR) -> int:
+    """Start this host's reaper unless it runs; returns its pid.
+
+    The reaper reads a pipe whose write end only this process and its forks hold (close-on-exec);
+    end of file means all of them are gone, however they died: it then unlinks the segments named
+    after this host. It lives in its own session, out of reach of signals to the host's group.
+    """
+    global _reaper
+    if _reaper is not None and _reaper[0] == os.getpid() and _reaper[2].poll() is None:
+        return _reaper[2].pid
+    r, w = os.pipe()
+    try:
+        proc = subprocess.Popen([sys.executable, "-I", "-S", "-c", REAPER, str(r), shm_dir, host_prefix()],
+                                pass_fds=(r,), start_new_session=True, stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except BaseException:
+        os.close(w)
+        raise
+    finally:
+        os.close(r)
+    _reaper = (os.getpid(), w, proc)
+    return proc.pid
 
 
 class NamedSegmentManager(managers.SharedMemoryManager):

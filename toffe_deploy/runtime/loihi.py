@@ -239,6 +239,7 @@ class LavaCascade:
         from lava_procs.ofs_neuron.process import OFSNeuron
 
         self.reclaimed = lava_host.reclaim()
+        lava_host.ensure_reaper()
         n, b = self.n_stages, self.n_bins
         self._source = EventBinSource(shape=(self.channels, self.height, self.width), n_bins=b,
                                       buffer_size=2, name="event_source")
