@@ -163,6 +163,10 @@ def _run_shm(before: dict[str, int], host: int, t_start: float) -> dict[str, int
     return out
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def run_scenario(name: str, argv: list[str], trigger: Callable[[subprocess.Popen], bool],
                  action: Callable[[subprocess.Popen], None], temp_globs: list[str], env: dict | None = None,
                  settle_s: float = 10.0, exit_wait_s: float = 60.0, trigger_wait_s: float = 180.0,
@@ -171,7 +175,10 @@ def run_scenario(name: str, argv: list[str], trigger: Callable[[subprocess.Popen
     before = shm_sizes()
     t_start = time.time()
     err = tempfile.TemporaryFile()
-    p = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, env=env, cwd=ROOT, start_new_session=True)
+    # SIGINT as in a terminal's foreground job: a sweep started in the background (`cmd &` in a
+    # script) would hand its ignored SIGINT down to the CLI, which keeps an ignored signal ignored
+    p = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, env=env, cwd=ROOT, start_new_session=True,
+                         preexec_fn=_default_sigint)
     sid = p.pid
     triggered = False
     deadline = time.monotonic() + trigger_wait_s
