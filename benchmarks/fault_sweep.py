@@ -241,6 +241,19 @@ def n_children(n: int, after_s: float = 0.0) -> Callable[[subprocess.Popen], boo
     return trig
 
 
+def catching(sig: int = signal.SIGTERM) -> Callable[[subprocess.Popen], bool]:
+    """The host has a handler for ``sig`` (/proc/PID/status SigCgt) and no child yet: the CLI is
+    past interpreter start-up (before that, a signal takes its default action)."""
+    def trig(p):
+        try:
+            with open(f"/proc/{p.pid}/status") as f:
+                caught = next(int(line.split()[1], 16) for line in f if line.startswith("SigCgt:"))
+        except (OSError, StopIteration):
+            return False
+        return bool(caught >> (sig - 1) & 1) and not children(p.pid)
+    return trig
+
+
 def file_exists(pattern: str, min_bytes: int = 1) -> Callable[[subprocess.Popen], bool]:
     def trig(p):
         return any(os.path.getsize(x) >= min_bytes for x in glob.glob(pattern) if os.path.isfile(x))
@@ -287,7 +300,7 @@ def matrix(e: dict, pythonpath: str, out: Path):
     run_lava, env = cli(pythonpath, "run", e["bundle"], "--target", "loihi-sim", "--synthetic",
                         "multi:0,duration=5", "--no-progress", "--out", out / "lava.jsonl")
     lava_tmp = [str(out / ".lava.jsonl.*")]
-    stages = [("0 children", n_children(0, 0.3)), ("1 child", n_children(1)), ("2 children", n_children(2)),
+    stages = [("0 children", catching()), ("1 child", n_children(1)), ("2 children", n_children(2)),
               ("6 children", n_children(6)), ("streaming", n_children(11, 1.5))]
     for act in ACTIONS:
         for stage, trig in stages:
@@ -303,7 +316,7 @@ def matrix(e: dict, pythonpath: str, out: Path):
                    "--windows", "2", "--lava-windows", "1", "--quiet")
     exp_tmp = [str(out / ".bundle.*")]
     for act in ("SIGTERM host", "Ctrl-C group", "SIGKILL host"):
-        for stage, trig in (("0 children", n_children(0, 0.3)), ("2 children", n_children(2)),
+        for stage, trig in (("0 children", catching()), ("2 children", n_children(2)),
                             ("6 children", n_children(6))):
             yield "export", f"{act} @ {stage}", exp, env, trig, ACTIONS[act], exp_tmp
 

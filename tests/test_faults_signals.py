@@ -103,14 +103,14 @@ def test_named_segments_carry_the_host(tmp_path):
 
 # ------------------------------------------------------------------------- run --target loihi-sim
 @pytest.mark.parametrize("action, n, rc, message", [
-    ("SIGTERM host", 0, 143, "terminated by SIGTERM"),     # before Lava is imported
+    ("SIGTERM host", 0, 143, "terminated by SIGTERM"),     # handlers installed, Lava not started
     ("SIGTERM host", 2, 143, "terminated by SIGTERM"),     # resource tracker + shm manager forked
     ("Ctrl-C group", 2, 130, "interrupted"),               # a terminal's Ctrl-C reaches every process
     ("SIGTERM host", 6, 143, "terminated by SIGTERM"),     # half the process models forked
 ])
 def test_signal_during_lava_start_up_stops_everything(env, action, n, rc, message):
     argv, cenv = run_lava(env)
-    o = fs.run_scenario(f"{action} @ {n}", argv, fs.n_children(n, 0.3 if n == 0 else 0.0), fs.ACTIONS[action],
+    o = fs.run_scenario(f"{action} @ {n}", argv, fs.catching() if n == 0 else fs.n_children(n), fs.ACTIONS[action],
                         [str(env["out"] / ".lava.jsonl.*")], env=cenv)
     assert_clean(o, rc, message)
     assert o.exit_s < 10

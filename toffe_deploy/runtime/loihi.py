@@ -18,9 +18,10 @@ Hygiene: the runtime is stopped on success, on error, on Ctrl-C and on SIGTERM, 
 start-up too (what start() built so far is killed and unlinked). Lava's child processes ignore
 SIGINT (the host alone handles it) and die with the host, even on SIGKILL; their shared memory
 is named after the host and reclaimed by the next start once the host is gone (lava_host).
-Ctrl-C during a host <-> network exchange is deferred to the end of that exchange, every wait on
-the network has a timeout and checks that the children and the shared-memory manager are alive,
-and a runtime that does not stop in time has its processes killed and its shared memory unlinked.
+Ctrl-C, SIGTERM and SIGHUP during a host <-> network exchange are deferred to the end of that
+exchange; every window and every wait on the network check that the children and the
+shared-memory manager are alive; every wait has a timeout; a runtime that does not stop in time
+has its processes killed and its shared memory unlinked.
 """
 from __future__ import annotations
 
@@ -103,23 +104,31 @@ def run_config(tag: str = "fixed_pt", hardware: bool = False):
     return Loihi2SimCfg(select_tag=tag, exception_proc_model_map=models)
 
 
+DEFERRED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
 @contextlib.contextmanager
-def _sigint_deferred():
-    """Hold Ctrl-C until a host <-> network exchange is complete, then deliver it."""
+def _signals_deferred():
+    """Hold Ctrl-C, SIGTERM and SIGHUP until a host <-> network exchange is complete, then hand
+    the first one to its handler. Only signals with a Python handler are held (an ignored one
+    stays ignored, a default one keeps its default action)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    hit: list[Any] = []
-    old = signal.signal(signal.SIGINT, lambda sig, frame: hit.append(frame))
+    hit: list[tuple[int, Any]] = []
+    old = {}
+    for sig in DEFERRED:
+        h = signal.getsignal(sig)
+        if callable(h):
+            old[sig] = signal.signal(sig, lambda signum, frame: hit.append((signum, frame)))
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, old)
+        for sig, h in old.items():
+            signal.signal(sig, h)
     if hit:
-        if callable(old):
-            old(signal.SIGINT, hit[0])
-        else:
-            raise KeyboardInterrupt
+        sig, frame = hit[0]
+        old[sig](sig, frame)
 
 
 def _as_packed(window: Any, shape: tuple[int, int, int, int]) -> np.ndarray:
@@ -314,7 +323,7 @@ class LavaCascade:
         if rt is None:
             return
         try:
-            with _sigint_deferred():
+            with _signals_deferred():
                 if self._inflight is not None:
                     self._end_period()
                 self._stop_with_timeout()
@@ -391,7 +400,8 @@ class LavaCascade:
 
         period = self._period
         owed = [k for k in range(1, self.n_stages + 1) if period - (self.n_stages - k) >= 0]
-        with _sigint_deferred():
+        self._check_alive(f"window {period}")
+        with _signals_deferred():
             self._runtime.start(RunSteps(num_steps=self.n_bins, blocking=False))
             self._inflight = owed
             self._source.send(packed)
@@ -400,7 +410,7 @@ class LavaCascade:
     def _end_period(self) -> list[tuple[int, np.ndarray]]:
         """Collect the records the running period owes, then wait for its last step."""
         out = []
-        with _sigint_deferred():
+        with _signals_deferred():
             for k in sorted(self._inflight, reverse=True):
                 out.append((k, self._recv(self._record_ports[k - 1], f"stage {k}")))
             self._wait_done()
@@ -509,6 +519,7 @@ class LavaCascade:
                 manager.join(5.0)
         if self.shm_prefix:                   # the manager unlinks them; make sure
             lava_host.unlink_prefix(self.shm_prefix)
+        rt._is_started = False                # nothing left for Runtime.__del__ to stop
 
 
 def run_ofs_lava(windows: Sequence[np.ndarray], params: LoihiOFSParams, tag: str = "fixed_pt") -> list[np.ndarray]:
