@@ -88,9 +88,11 @@ def cmdline(pid: int) -> str:
 
 
 def manager_pid(host: int) -> int | None:
-    """Lava's shared-memory manager: the host's first forked child (the resource tracker is exec'd)."""
+    """Lava's shared-memory manager: the host's first forked child (same command line as the host;
+    the resource tracker and the shm reaper are exec'd)."""
+    me = cmdline(host)
     for p in children(host):
-        if "resource_tracker" not in cmdline(p):
+        if cmdline(p) == me:
             return p
     return None
 
@@ -142,14 +144,14 @@ class Outcome:
     pid: int = 0                   # the host's
 
 
-def _run_shm(before: dict[str, int], host: int, t_start: float) -> dict[str, int]:
+def _run_shm(before: dict[str, int], host: int, t_start: float, count_psm: bool = True) -> dict[str, int]:
     """Segments of this run: named after the host, or (code before segment naming) stdlib psm_
     names created since the run started that no process outside its session maps."""
     out, psm = {}, {}
     for name, size in shm_sizes().items():
         if name.startswith(f"toffe_lava_{host}_"):
             out[name] = size
-        elif name.startswith("psm_") and name not in before:
+        elif count_psm and name.startswith("psm_") and name not in before:
             with contextlib.suppress(OSError):
                 if os.stat(os.path.join(SHM, name)).st_mtime >= t_start - 1:
                     psm[name] = size
@@ -170,14 +172,19 @@ def _default_sigint() -> None:
 def run_scenario(name: str, argv: list[str], trigger: Callable[[subprocess.Popen], bool],
                  action: Callable[[subprocess.Popen], None], temp_globs: list[str], env: dict | None = None,
                  settle_s: float = 10.0, exit_wait_s: float = 60.0, trigger_wait_s: float = 180.0,
-                 cleanup: bool = True) -> Outcome:
-    """Start ``argv`` in its own session, wait for ``trigger``, do ``action``, measure what is left."""
+                 cleanup: bool = True, count_psm: bool = False) -> Outcome:
+    """Start ``argv`` in its own session, wait for ``trigger``, do ``action``, measure what is left.
+
+    The working directory is the checkout on PYTHONPATH (``python -m`` puts the working directory
+    first on sys.path). ``count_psm``: also count stdlib-named segments (code before naming).
+    """
     before = shm_sizes()
     t_start = time.time()
     err = tempfile.TemporaryFile()
     # SIGINT as in a terminal's foreground job: a sweep started in the background (`cmd &` in a
     # script) would hand its ignored SIGINT down to the CLI, which keeps an ignored signal ignored
-    p = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, env=env, cwd=ROOT, start_new_session=True,
+    cwd = (env or {}).get("PYTHONPATH", str(ROOT))
+    p = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, env=env, cwd=cwd, start_new_session=True,
                          preexec_fn=_default_sigint)
     sid = p.pid
     triggered = False
@@ -200,11 +207,11 @@ def run_scenario(name: str, argv: list[str], trigger: Callable[[subprocess.Popen
         p.wait()
     settle = time.monotonic() + settle_s
     while time.monotonic() < settle:
-        if not run_pids(sid) and not _run_shm(before, p.pid, t_start):
+        if not run_pids(sid) and not _run_shm(before, p.pid, t_start, count_psm):
             break
         time.sleep(0.1)
     left = run_pids(sid)
-    shm = _run_shm(before, p.pid, t_start)
+    shm = _run_shm(before, p.pid, t_start, count_psm)
     temp = sorted(x for g in temp_globs for x in glob.glob(g))
     err.seek(0)
     out = Outcome(name, rc, round(exit_s, 2), len(left), len(shm), sum(shm.values()), temp,
@@ -217,7 +224,7 @@ def run_scenario(name: str, argv: list[str], trigger: Callable[[subprocess.Popen
                 pass
         time.sleep(0.5)
         used = mapped_shm()
-        for n in _run_shm(before, p.pid, t_start):
+        for n in _run_shm(before, p.pid, t_start, count_psm):
             if n not in used:
                 try:
                     os.unlink(os.path.join(SHM, n))
@@ -296,29 +303,30 @@ def cli(pythonpath: str, *args) -> tuple[list[str], dict]:
 
 
 def matrix(e: dict, pythonpath: str, out: Path):
-    """(group, name, argv, env, trigger, action, temp globs) of every scenario."""
+    """(group, name, argv, env, trigger, action, temp globs, exit wait s) of every scenario."""
     run_lava, env = cli(pythonpath, "run", e["bundle"], "--target", "loihi-sim", "--synthetic",
                         "multi:0,duration=5", "--no-progress", "--out", out / "lava.jsonl")
     lava_tmp = [str(out / ".lava.jsonl.*")]
-    stages = [("0 children", catching()), ("1 child", n_children(1)), ("2 children", n_children(2)),
-              ("6 children", n_children(6)), ("streaming", n_children(11, 1.5))]
-    for act in ACTIONS:
+    stages = [("0 children", catching()), ("2 children", n_children(2)), ("6 children", n_children(6)),
+              ("streaming", file_exists(lava_tmp[0]))]
+    for act in ("SIGTERM host", "Ctrl-C group", "SIGKILL host", "SIGKILL group"):
         for stage, trig in stages:
-            if act == "SIGKILL shm manager" and stage in ("0 children", "1 child"):
-                continue
-            yield "run-loihi", f"{act} @ {stage}", run_lava, env, trig, ACTIONS[act], lava_tmp
+            yield "run-loihi", f"{act} @ {stage}", run_lava, env, trig, ACTIONS[act], lava_tmp, 30.0
+    # a run that ends by itself in a few seconds: not exiting within 60 s after the kill is a hang
+    short = run_lava[:run_lava.index("--no-progress")] + ["--max-windows", "100", "--no-progress", "--out",
+                                                          str(out / "lava.jsonl")]
+    for stage, trig in stages[1:]:
+        yield "run-loihi", f"SIGKILL shm manager @ {stage}", short, env, trig, kill_manager, lava_tmp, 60.0
     run_cpu, env = cli(pythonpath, "run", e["bundle"], "--target", "cpu", "--synthetic", "multi:0,duration=20",
                        "--no-progress", "--out", out / "cpu.jsonl")
-    for act in ("SIGTERM host", "Ctrl-C group"):
-        yield "run-cpu", f"{act} @ writing output", run_cpu, env, file_exists(str(out / ".cpu.jsonl.*")), \
-            ACTIONS[act], [str(out / ".cpu.jsonl.*")]
+    yield "run-cpu", "SIGTERM host @ writing output", run_cpu, env, file_exists(str(out / ".cpu.jsonl.*")), \
+        ACTIONS["SIGTERM host"], [str(out / ".cpu.jsonl.*")], 30.0
     exp, env = cli(pythonpath, "export", e["ckpt"], "-o", out / "bundle", "--checks", "lava_vs_fixed",
                    "--windows", "2", "--lava-windows", "1", "--quiet")
     exp_tmp = [str(out / ".bundle.*")]
-    for act in ("SIGTERM host", "Ctrl-C group", "SIGKILL host"):
-        for stage, trig in (("0 children", catching()), ("2 children", n_children(2)),
-                            ("6 children", n_children(6))):
-            yield "export", f"{act} @ {stage}", exp, env, trig, ACTIONS[act], exp_tmp
+    for act, stage, trig in (("SIGTERM host", "2 children", n_children(2)), ("SIGTERM host", "6 children", n_children(6)),
+                             ("SIGKILL host", "6 children", n_children(6))):
+        yield "export", f"{act} @ {stage}", exp, env, trig, ACTIONS[act], exp_tmp, 30.0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -327,8 +335,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", default="", help="comma-separated groups: run-loihi, run-cpu, export")
     ap.add_argument("--match", default="", help="only scenarios whose name contains this text")
     ap.add_argument("--settle", type=float, default=10.0, help="seconds to wait for leftovers to go (default: 10)")
-    ap.add_argument("--exit-wait", type=float, default=30.0,
-                    help="seconds the host may take to exit before it counts as hung (default: 30)")
     a = ap.parse_args(argv)
     groups = {g for g in a.only.split(",") if g}
     with tempfile.TemporaryDirectory(prefix="fault-sweep-") as tmp:
@@ -337,10 +343,12 @@ def main(argv: list[str] | None = None) -> int:
         out.mkdir()
         print(f"code: {a.pythonpath}")
         print(f"{'group':10} {'scenario':34} {'rc':>5} {'exit s':>7} {'procs':>5} {'shm seg':>7} {'shm bytes':>10} temp")
-        for group, name, args, env, trig, act, globs in matrix(e, a.pythonpath, out):
+        named = (Path(a.pythonpath) / "toffe_deploy" / "runtime" / "lava_host.py").is_file()
+        for group, name, args, env, trig, act, globs, wait in matrix(e, a.pythonpath, out):
             if (groups and group not in groups) or a.match not in name:
                 continue
-            o = run_scenario(name, args, trig, act, globs, env=env, settle_s=a.settle, exit_wait_s=a.exit_wait)
+            o = run_scenario(name, args, trig, act, globs, env=env, settle_s=a.settle, exit_wait_s=wait,
+                             count_psm=not named)
             rc = "hung" if o.rc is None else str(o.rc)
             note = "" if o.triggered else "  (ended before the stage)"
             print(f"{group:10} {name:34} {rc:>5} {o.exit_s:7.2f} {o.procs_left:5d} {o.shm_segments_left:7d} "
