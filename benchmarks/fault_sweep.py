@@ -261,7 +261,7 @@ def catching(sig: int = signal.SIGTERM) -> Callable[[subprocess.Popen], bool]:
     return trig
 
 
-def file_exists(pattern: str, min_bytes: int = 1) -> Callable[[subprocess.Popen], bool]:
+def file_exists(pattern: str, min_bytes: int = 0) -> Callable[[subprocess.Popen], bool]:
     def trig(p):
         return any(os.path.getsize(x) >= min_bytes for x in glob.glob(pattern) if os.path.isfile(x))
     return trig
@@ -317,7 +317,7 @@ def matrix(e: dict, pythonpath: str, out: Path):
                                                           str(out / "lava.jsonl")]
     for stage, trig in stages[1:]:
         yield "run-loihi", f"SIGKILL shm manager @ {stage}", short, env, trig, kill_manager, lava_tmp, 60.0
-    run_cpu, env = cli(pythonpath, "run", e["bundle"], "--target", "cpu", "--synthetic", "multi:0,duration=20",
+    run_cpu, env = cli(pythonpath, "run", e["bundle"], "--target", "cpu", "--synthetic", "multi:0,duration=3",
                        "--no-progress", "--out", out / "cpu.jsonl")
     yield "run-cpu", "SIGTERM host @ writing output", run_cpu, env, file_exists(str(out / ".cpu.jsonl.*")), \
         ACTIONS["SIGTERM host"], [str(out / ".cpu.jsonl.*")], 30.0

@@ -113,7 +113,7 @@ def test_signal_during_lava_start_up_stops_everything(env, action, n, rc, messag
     o = fs.run_scenario(f"{action} @ {n}", argv, fs.catching() if n == 0 else fs.n_children(n), fs.ACTIONS[action],
                         [str(env["out"] / ".lava.jsonl.*")], env=cenv)
     assert_clean(o, rc, message)
-    assert o.exit_s < 10
+    assert o.exit_s < 20
 
 
 def test_sigterm_while_streaming_removes_the_output_temp_file(env):
@@ -167,12 +167,12 @@ def test_killed_shm_manager_is_a_one_line_error_not_a_hang(env):
     o = fs.run_scenario("kill manager", argv, fs.file_exists(str(env["out"] / ".lava.jsonl.*")), fs.kill_manager,
                         [str(env["out"] / ".lava.jsonl.*")], env=cenv, exit_wait_s=30)
     assert_clean(o, 2, "shared-memory manager")
-    assert o.exit_s < 5
+    assert o.exit_s < 20                  # a hang is for ever; this allows a loaded 2-core machine
 
 
 # ------------------------------------------------------------------------- cpu target, export
 def test_sigterm_on_the_cpu_target_removes_the_output_temp_file(env):
-    argv, cenv = fs.cli(str(ROOT), "run", env["bundle"], "--target", "cpu", "--synthetic", "multi:0,duration=20",
+    argv, cenv = fs.cli(str(ROOT), "run", env["bundle"], "--target", "cpu", "--synthetic", "multi:0,duration=3",
                         "--no-progress", "--out", env["out"] / "cpu.jsonl")
     tmp = str(env["out"] / ".cpu.jsonl.*")
     o = fs.run_scenario("cpu SIGTERM", argv, fs.file_exists(tmp), fs.ACTIONS["SIGTERM host"], [tmp], env=cenv)
