@@ -74,6 +74,7 @@ def exceptions_on_signals() -> Iterator[None]:
     try:
         yield
     finally:
+        fired.append(0)                   # a signal from here on must not raise outside the caller's try
         sys.unraisablehook = prev_hook
         for sig, prev in old.items():
             signal.signal(sig, prev)
