@@ -9,6 +9,7 @@ import sys
 from . import __version__
 from .commands import COMMAND_MODULES
 from .errors import ToffeError
+from .signals import Terminated, exceptions_on_signals
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,26 +32,33 @@ def os_error_line(exc: OSError) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
-    try:
-        return int(args.func(args) or 0)
-    except ToffeError as exc:
-        print(f"toffe-deploy: error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    except KeyboardInterrupt:
-        print("toffe-deploy: interrupted", file=sys.stderr)
-        return 130
-    except BrokenPipeError:
-        return 0
-    except OSError as exc:
-        # A write (or read) the system refused: full disk (ENOSPC, EDQUOT), read-only file
-        # system (EROFS), permissions (EACCES). Writers are atomic, so nothing partial is left.
-        print(f"toffe-deploy: error: {os_error_line(exc)}", file=sys.stderr)
-        return 2
+    """Run one command. Signals raise from the start (toffe_deploy.signals), so a Ctrl-C or a
+    kill at any stage unwinds through the clean-ups: exit 130 (SIGINT) or 128 + n (SIGTERM 143,
+    SIGHUP 129) with one line on stderr."""
+    with exceptions_on_signals():
+        try:
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            if not getattr(args, "func", None):
+                parser.print_help()
+                return 2
+            return int(args.func(args) or 0)
+        except ToffeError as exc:
+            print(f"toffe-deploy: error: {exc}", file=sys.stderr)
+            return exc.exit_code
+        except KeyboardInterrupt:
+            print("toffe-deploy: interrupted", file=sys.stderr)
+            return 130
+        except Terminated as exc:
+            print(f"toffe-deploy: {exc}", file=sys.stderr)
+            return exc.exit_code
+        except BrokenPipeError:
+            return 0
+        except OSError as exc:
+            # A write (or read) the system refused: full disk (ENOSPC, EDQUOT), read-only file
+            # system (EROFS), permissions (EACCES). Writers are atomic, so nothing partial is left.
+            print(f"toffe-deploy: error: {os_error_line(exc)}", file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":

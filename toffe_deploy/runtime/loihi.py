@@ -14,16 +14,18 @@ clean. While the network computes window p, the host pulls window p + 1 from its
 the consumer works on the results of earlier windows. After the last window, N - 1 empty
 windows flush the pipeline.
 
-Hygiene: the runtime is stopped on success, on error and on Ctrl-C. Lava's child processes
-ignore SIGINT (the host alone handles it), Ctrl-C during a host <-> network exchange is
-deferred to the end of that exchange, every wait on the network has a timeout and checks that
-the children are alive, and a runtime that does not stop in time has its processes killed and
-its shared memory unlinked (through Lava's shared-memory manager).
+Hygiene: the runtime is stopped on success, on error, on Ctrl-C and on SIGTERM, at any stage of
+start-up too (what start() built so far is killed and unlinked). Lava's child processes ignore
+SIGINT (the host alone handles it) and die with the host, even on SIGKILL; their shared memory
+is named after the host and reclaimed by the next start once the host is gone (lava_host).
+Ctrl-C, SIGTERM and SIGHUP during a host <-> network exchange are deferred to the end of that
+exchange; every window and every wait on the network check that the children and the
+shared-memory manager are alive; every wait has a timeout; a runtime that does not stop in time
+has its processes killed and its shared memory unlinked.
 """
 from __future__ import annotations
 
 import contextlib
-import os
 import queue
 import signal
 import threading
@@ -35,6 +37,7 @@ import numpy as np
 from ..cascade import CascadeResult
 from ..errors import ToffeError
 from ..fixed_point import LoihiOFSParams
+from . import lava_host
 
 TAGS = ("fixed_pt", "floating_pt")
 HW_MISSING = "loihi2 target needs lava-loihi (Intel's NRC package), not installed; use --target loihi-sim"
@@ -101,36 +104,31 @@ def run_config(tag: str = "fixed_pt", hardware: bool = False):
     return Loihi2SimCfg(select_tag=tag, exception_proc_model_map=models)
 
 
-@contextlib.contextmanager
-def _sigint_ignored():
-    """Children forked inside this block inherit SIG_IGN for SIGINT: Ctrl-C reaches the host only."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, old)
+DEFERRED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 @contextlib.contextmanager
-def _sigint_deferred():
-    """Hold Ctrl-C until a host <-> network exchange is complete, then deliver it."""
+def _signals_deferred():
+    """Hold Ctrl-C, SIGTERM and SIGHUP until a host <-> network exchange is complete, then hand
+    the first one to its handler. Only signals with a Python handler are held (an ignored one
+    stays ignored, a default one keeps its default action)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    hit: list[Any] = []
-    old = signal.signal(signal.SIGINT, lambda sig, frame: hit.append(frame))
+    hit: list[tuple[int, Any]] = []
+    old = {}
+    for sig in DEFERRED:
+        h = signal.getsignal(sig)
+        if callable(h):
+            old[sig] = signal.signal(sig, lambda signum, frame: hit.append((signum, frame)))
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, old)
+        for sig, h in old.items():
+            signal.signal(sig, h)
     if hit:
-        if callable(old):
-            old(signal.SIGINT, hit[0])
-        else:
-            raise KeyboardInterrupt
+        sig, frame = hit[0]
+        old[sig](sig, frame)
 
 
 def _as_packed(window: Any, shape: tuple[int, int, int, int]) -> np.ndarray:
@@ -199,6 +197,8 @@ class LavaCascade:
         self.child_pids: list[int] = []
         self.shm_names: list[str] = []
         self.shm_bytes = 0
+        self.shm_prefix: str | None = None   # every segment of this runtime starts with it
+        self.reclaimed: lava_host.Reclaimed | None = None   # leftovers of dead hosts removed by start()
         self._runtime = None
         self._source = None
         self._bridges: list[Any] = []        # index k - 1
@@ -222,15 +222,33 @@ class LavaCascade:
             pass
 
     def start(self) -> None:
-        """Build, compile and start the network (once)."""
+        """Build, compile and start the network (once).
+
+        A signal or error at any point in here kills the processes started so far, unlinks their
+        shared memory and re-raises (ToffeError and BaseException as they are, others as
+        LavaRuntimeError): nothing outlives a start that did not finish.
+        """
         if self._runtime is not None:
             return
         t0 = time.perf_counter()
+        self._catch_sigterm()                # before anything is forked
+        try:
+            self._start()
+        except BaseException:
+            self._restore_sigterm()
+            raise
+        self.startup_s = time.perf_counter() - t0
+
+    def _start(self) -> None:
+        import multiprocessing as mp
+
         cfg = run_config(self.tag, self.hardware)
         from lava_procs.bridge.process import CascadeBridge
         from lava_procs.event_source.process import EventBinSource
         from lava_procs.ofs_neuron.process import OFSNeuron
 
+        self.reclaimed = lava_host.reclaim()
+        lava_host.ensure_reaper()
         n, b = self.n_stages, self.n_bins
         self._source = EventBinSource(shape=(self.channels, self.height, self.width), n_bins=b,
                                       buffer_size=2, name="event_source")
@@ -247,33 +265,45 @@ class LavaCascade:
             x_port = bridge.x_out
             bridges[k - 1] = bridge
         self._bridges = bridges
+        self.shm_prefix = lava_host.next_runtime_prefix()
+        before = set(mp.active_children())
         try:
             exe = self._source.compile(cfg)
-            with _sigint_ignored():          # the children fork here
+            with lava_host.spawning(self.shm_prefix):      # the children fork here
                 self._source.create_runtime(executable=exe)
-        except ToffeError:
-            raise
-        except Exception as e:
+            self._runtime = self._source.runtime
+            self._record_ports = [br.receive_port() for br in bridges]
+            mi = self._runtime._messaging_infrastructure
+            self.child_pids = [a.pid for a in mi.actors]
+            manager = self._manager_process()
+            if manager is not None:
+                self.child_pids.append(manager.pid)
+            handles = list(getattr(mi.smm, "_shared_memory_handles", []))
+            self.shm_names = [h.name for h in handles]
+            self.shm_bytes = int(sum(h.size for h in handles))
+        except BaseException as e:
             self._runtime = getattr(self._source, "_runtime", None)
             self._force_stop()
+            self._runtime = None
+            for proc in set(mp.active_children()) - before:   # forked before Lava listed them
+                with contextlib.suppress(Exception):
+                    proc.kill()
+                    proc.join(5.0)
+            if isinstance(e, ToffeError) or not isinstance(e, Exception):
+                raise
             raise LavaRuntimeError(f"could not start the Lava network: {type(e).__name__}: {e}") from e
-        self._runtime = self._source.runtime
-        self._record_ports = [br.receive_port() for br in bridges]
-        mi = self._runtime._messaging_infrastructure
-        self.child_pids = [a.pid for a in mi.actors]
-        manager = getattr(mi.smm, "_manager", None)
-        if manager is not None and getattr(manager, "_process", None) is not None:
-            self.child_pids.append(manager._process.pid)
-        handles = list(getattr(mi.smm, "_shared_memory_handles", []))
-        self.shm_names = [h.name for h in handles]
-        self.shm_bytes = int(sum(h.size for h in handles))
-        self._catch_sigterm()
-        self.startup_s = time.perf_counter() - t0
+
+    def _manager_process(self):
+        """The process of Lava's SharedMemoryManager (a multiprocessing Process), or None."""
+        mi = getattr(self._runtime, "_messaging_infrastructure", None)
+        manager = getattr(getattr(mi, "smm", None), "_manager", None)
+        return getattr(manager, "_process", None)
 
     def _catch_sigterm(self) -> None:
         """Turn a polite kill (SIGTERM, e.g. from `timeout`) into SystemExit so that close() runs.
 
-        Installed after the children forked (they keep the default), only over the default.
+        Only over the default handler: the CLI installs its own (toffe_deploy.signals) first.
+        Lava's children take the default action again (lava_host).
         """
         if threading.current_thread() is not threading.main_thread():
             return
@@ -282,13 +312,18 @@ class LavaCascade:
                 raise SystemExit(128 + signal.SIGTERM)
             self._old_sigterm = signal.signal(signal.SIGTERM, on_term)
 
+    def _restore_sigterm(self) -> None:
+        if self._old_sigterm is not None and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, self._old_sigterm)
+            self._old_sigterm = None
+
     def close(self) -> None:
         """Stop the runtime: drain a running window, stop, and kill what does not stop in time."""
         rt = self._runtime
         if rt is None:
             return
         try:
-            with _sigint_deferred():
+            with _signals_deferred():
                 if self._inflight is not None:
                     self._end_period()
                 self._stop_with_timeout()
@@ -298,9 +333,9 @@ class LavaCascade:
         finally:
             self._runtime = None
             self._inflight = None
-            if self._old_sigterm is not None and threading.current_thread() is threading.main_thread():
-                signal.signal(signal.SIGTERM, self._old_sigterm)
-                self._old_sigterm = None
+            if self.shm_prefix:               # a manager that died cannot unlink its segments
+                lava_host.unlink_prefix(self.shm_prefix)
+            self._restore_sigterm()
 
     # ----------------------------------------------------------------- streaming
     def cascade_stream(self, windows: Iterable[Any]) -> Iterator[CascadeResult]:
@@ -365,7 +400,8 @@ class LavaCascade:
 
         period = self._period
         owed = [k for k in range(1, self.n_stages + 1) if period - (self.n_stages - k) >= 0]
-        with _sigint_deferred():
+        self._check_alive(f"window {period}")
+        with _signals_deferred():
             self._runtime.start(RunSteps(num_steps=self.n_bins, blocking=False))
             self._inflight = owed
             self._source.send(packed)
@@ -374,7 +410,7 @@ class LavaCascade:
     def _end_period(self) -> list[tuple[int, np.ndarray]]:
         """Collect the records the running period owes, then wait for its last step."""
         out = []
-        with _sigint_deferred():
+        with _signals_deferred():
             for k in sorted(self._inflight, reverse=True):
                 out.append((k, self._recv(self._record_ports[k - 1], f"stage {k}")))
             self._wait_done()
@@ -383,6 +419,9 @@ class LavaCascade:
 
     def _check_alive(self, what: str) -> None:
         rt = self._runtime
+        manager = self._manager_process()
+        if manager is not None and not manager.is_alive():
+            raise LavaRuntimeError(f"Lava's shared-memory manager process stopped while waiting for {what}")
         for a in rt._messaging_infrastructure.actors:
             try:
                 alive = a.is_alive()
@@ -458,6 +497,7 @@ class LavaCascade:
         if rt is None:
             return
         mi = getattr(rt, "_messaging_infrastructure", None)
+        manager = self._manager_process()     # smm.shutdown() forgets it
         import multiprocessing as mp
 
         for a in list(getattr(mi, "actors", [])):
@@ -472,9 +512,14 @@ class LavaCascade:
                 smm.shutdown()
         with contextlib.suppress(Exception):
             rt._watchdog_manager.stop()
-        for name in self.shm_names:           # the manager unlinks them; make sure
-            with contextlib.suppress(FileNotFoundError, OSError):
-                os.unlink(os.path.join("/dev/shm", name))
+        if manager is not None:
+            with contextlib.suppress(Exception):
+                if manager.is_alive():
+                    manager.kill()
+                manager.join(5.0)
+        if self.shm_prefix:                   # the manager unlinks them; make sure
+            lava_host.unlink_prefix(self.shm_prefix)
+        rt._is_started = False                # nothing left for Runtime.__del__ to stop
 
 
 def run_ofs_lava(windows: Sequence[np.ndarray], params: LoihiOFSParams, tag: str = "fixed_pt") -> list[np.ndarray]:

@@ -1,0 +1,189 @@
+"""Faults from outside: signals at each start-up stage of `toffe-deploy run` and `export`, SIGKILL
+of the host and of its whole process group, a killed shared-memory manager.
+
+Real CLI subprocesses (each in its own session) on a 32x24 bundle; benchmarks/fault_sweep.py
+holds the observation helpers and runs the full matrix. Each case asserts the exit status, that
+no process of the run's session is left and none of its /dev/shm segments 10 s after, and that
+no temporary file or directory is left.
+"""
+import importlib.util
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from toffe_deploy.runtime import lava_host
+from toffe_deploy.signals import Terminated, exceptions_on_signals
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load_sweep():
+    spec = importlib.util.spec_from_file_location("fault_sweep", ROOT / "benchmarks" / "fault_sweep.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod          # its dataclasses look their module up
+    spec.loader.exec_module(mod)
+    return mod
+
+
+fs = _load_sweep()
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    pytest.importorskip("lava.magma.core.run_configs")
+    root = tmp_path_factory.mktemp("faults")
+    e = fs.make_env(root)
+    e["out"] = root / "out"
+    e["out"].mkdir()
+    return e
+
+
+def run_lava(e):
+    return fs.cli(str(ROOT), "run", e["bundle"], "--target", "loihi-sim", "--synthetic", "multi:0,duration=5",
+                  "--no-progress", "--out", e["out"] / "lava.jsonl")
+
+
+def assert_clean(o, rc, message=None):
+    assert o.triggered, o.stderr
+    assert o.rc == rc, o.stderr
+    if message is not None:
+        lines = o.stderr.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], o.stderr
+    assert o.procs_left == 0, o
+    assert o.shm_segments_left == 0 and o.shm_bytes_left == 0, o
+    assert o.temp_left == [], o
+
+
+# ------------------------------------------------------------------------- units: no subprocess
+def test_sigterm_and_sigint_raise_once_then_are_ignored():
+    before = signal.getsignal(signal.SIGTERM)
+    with exceptions_on_signals():
+        with pytest.raises(Terminated) as info:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1)
+        assert info.value.exit_code == 143 and "SIGTERM" in str(info.value)
+        os.kill(os.getpid(), signal.SIGINT)         # a repeated signal while unwinding: ignored
+        time.sleep(0.05)
+    with exceptions_on_signals():
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1)
+    assert signal.getsignal(signal.SIGTERM) == before
+
+
+def test_reclaim_removes_only_our_segments_of_dead_hosts(tmp_path):
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+    me = os.getpid()
+    ticks = lava_host.start_ticks(me)
+    names = {
+        f"toffe_lava_{dead.pid}_{ticks}_1_aa": True,          # host gone
+        f"toffe_lava_{me}_{ticks + 1}_1_bb": True,           # pid reused by another process
+        f"toffe_lava_{me}_{ticks}_1_cc": False,              # host alive
+        "psm_0123abcd": False,                               # not ours to judge
+        "toffe_lava_x_y": False,                             # not one of our names
+    }
+    for n in names:
+        (tmp_path / n).write_bytes(b"\0" * 100)
+    got = lava_host.reclaim(str(tmp_path))
+    assert got.segments == 2 and got.bytes == 200
+    assert {p.name for p in tmp_path.iterdir()} == {n for n, gone in names.items() if not gone}
+
+
+def test_named_segments_carry_the_host(tmp_path):
+    assert lava_host.host_prefix().startswith(f"toffe_lava_{os.getpid()}_{lava_host.start_ticks(os.getpid())}_")
+    a, b = lava_host.next_runtime_prefix(), lava_host.next_runtime_prefix()
+    assert a != b and a.startswith(lava_host.host_prefix())
+
+
+# ------------------------------------------------------------------------- run --target loihi-sim
+@pytest.mark.parametrize("action, n, rc, message", [
+    ("SIGTERM host", 0, 143, "terminated by SIGTERM"),     # handlers installed, Lava not started
+    ("SIGTERM host", 2, 143, "terminated by SIGTERM"),     # resource tracker + shm manager forked
+    ("Ctrl-C group", 2, 130, "interrupted"),               # a terminal's Ctrl-C reaches every process
+    ("SIGTERM host", 6, 143, "terminated by SIGTERM"),     # half the process models forked
+])
+def test_signal_during_lava_start_up_stops_everything(env, action, n, rc, message):
+    argv, cenv = run_lava(env)
+    o = fs.run_scenario(f"{action} @ {n}", argv, fs.catching() if n == 0 else fs.n_children(n), fs.ACTIONS[action],
+                        [str(env["out"] / ".lava.jsonl.*")], env=cenv)
+    assert_clean(o, rc, message)
+    assert o.exit_s < 20
+
+
+def test_sigterm_while_streaming_removes_the_output_temp_file(env):
+    argv, cenv = run_lava(env)
+    o = fs.run_scenario("SIGTERM streaming", argv, fs.file_exists(str(env["out"] / ".lava.jsonl.*")),
+                        fs.ACTIONS["SIGTERM host"], [str(env["out"] / ".lava.jsonl.*")], env=cenv)
+    assert_clean(o, 143, "terminated by SIGTERM")
+    assert not (env["out"] / "lava.jsonl").exists()
+
+
+def test_sigkill_of_the_host_takes_its_lava_processes_and_memory(env):
+    argv, cenv = run_lava(env)
+    o = fs.run_scenario("SIGKILL host", argv, fs.n_children(6), fs.ACTIONS["SIGKILL host"], [], env=cenv)
+    assert_clean(o, -signal.SIGKILL)
+
+
+def test_sigkill_of_the_group_leaves_nothing_but_the_output_temp_file(env):
+    """`timeout -k` kills the whole group, Python's resource tracker included: the host's reaper
+    (its own session) unlinks the segments."""
+    argv, cenv = run_lava(env)
+    tmp = str(env["out"] / ".lava.jsonl.*")
+    o = fs.run_scenario("SIGKILL group", argv, fs.file_exists(tmp), fs.ACTIONS["SIGKILL group"], [tmp], env=cenv)
+    assert o.rc == -signal.SIGKILL and o.procs_left == 0 and o.shm_segments_left == 0, o
+    assert len(o.temp_left) == 1          # SIGKILL runs no clean-up; the name is hidden, the target untouched
+    assert not (env["out"] / "lava.jsonl").exists()
+
+
+def test_lava_start_reclaims_segments_of_dead_hosts():
+    """When even the reaper was killed, the next start removes what a dead host left."""
+    pytest.importorskip("lava.magma.core.run_configs")
+    import numpy as np
+
+    from toffe_deploy.fixed_point import quantize_ofs
+    from toffe_deploy.runtime.loihi import LavaCascade
+
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+    stale = f"/dev/shm/{lava_host.PREFIX}{dead.pid}_1_1_0123456789ab"
+    with open(stale, "wb") as f:
+        f.write(b"\0" * 4096)
+    params = [quantize_ofs(np.full((1, 2, 3, 3), 0.15), 0.5, 0.3)]
+    with LavaCascade(params, n_bins=2, mask_kernel=1, sensor_size=(8, 8)) as lc:
+        assert lc.reclaimed.segments >= 1 and lc.reclaimed.bytes >= 4096
+        assert not os.path.exists(stale)
+        assert lc.shm_names and all(n.startswith(lc.shm_prefix) for n in lc.shm_names)
+    assert not [n for n in os.listdir("/dev/shm") if n.startswith(lc.shm_prefix)]
+
+
+def test_killed_shm_manager_is_a_one_line_error_not_a_hang(env):
+    argv, cenv = run_lava(env)
+    o = fs.run_scenario("kill manager", argv, fs.file_exists(str(env["out"] / ".lava.jsonl.*")), fs.kill_manager,
+                        [str(env["out"] / ".lava.jsonl.*")], env=cenv, exit_wait_s=30)
+    assert_clean(o, 2, "shared-memory manager")
+    assert o.exit_s < 20                  # a hang is for ever; this allows a loaded 2-core machine
+
+
+# ------------------------------------------------------------------------- cpu target, export
+def test_sigterm_on_the_cpu_target_removes_the_output_temp_file(env):
+    argv, cenv = fs.cli(str(ROOT), "run", env["bundle"], "--target", "cpu", "--synthetic", "multi:0,duration=3",
+                        "--no-progress", "--out", env["out"] / "cpu.jsonl")
+    tmp = str(env["out"] / ".cpu.jsonl.*")
+    o = fs.run_scenario("cpu SIGTERM", argv, fs.file_exists(tmp), fs.ACTIONS["SIGTERM host"], [tmp], env=cenv)
+    assert_clean(o, 143, "terminated by SIGTERM")
+    assert not (env["out"] / "cpu.jsonl").exists()
+
+
+def test_sigterm_during_the_export_lava_check_leaves_no_hidden_bundle(env):
+    argv, cenv = fs.cli(str(ROOT), "export", env["ckpt"], "-o", env["out"] / "bundle", "--checks", "lava_vs_fixed",
+                        "--windows", "2", "--lava-windows", "1", "--quiet")
+    tmp = str(env["out"] / ".bundle.*")
+    o = fs.run_scenario("export SIGTERM", argv, fs.n_children(2), fs.ACTIONS["SIGTERM host"], [tmp], env=cenv)
+    assert_clean(o, 143, "terminated by SIGTERM")
+    assert not (env["out"] / "bundle").exists()

@@ -1,0 +1,80 @@
+"""Signals as exceptions, so that a kill unwinds through the same ``finally`` blocks as an error.
+
+The CLI enters ``exceptions_on_signals()`` before it does any work: SIGTERM (``kill``,
+``timeout``) and SIGHUP (a closed terminal) raise ``Terminated``, SIGINT (Ctrl-C) raises
+KeyboardInterrupt, from the first signal on, at any stage, start-up included. Unwinding then
+stops the Lava runtime and removes temporary files and directories (fileio.atomic_path /
+atomic_dir, the exporter's staging directory). A handler's exception that Python cannot
+propagate (raised while an at-fork hook, a ``__del__`` or a weakref callback runs: logging's
+fork hook is one, and Lava forks a dozen times at start-up) reaches sys.unraisablehook instead;
+there the signal is sent again 10 ms later, from a timer thread, until it lands in ordinary code. A
+repeated signal while unwinding is ignored, so it cannot cut a clean-up short; SIGKILL still ends everything (Lava's children die with the
+host, see runtime.lava_host). A signal that the parent set to be ignored (``nohup``, a
+background job's SIGINT) stays ignored.
+
+Exit status (cli.main): 130 for SIGINT, 128 + n for ``Terminated`` (143 for SIGTERM, 129 for
+SIGHUP), with one line on stderr.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import sys
+import threading
+from typing import Iterator
+
+HANDLED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class Terminated(BaseException):
+    """The process was asked to stop by a signal (a BaseException: ``except Exception`` lets it
+    through, like KeyboardInterrupt). ``exit_code`` is 128 + the signal number."""
+
+    def __init__(self, signum: int):
+        self.signum = int(signum)
+        self.exit_code = 128 + self.signum
+        super().__init__(f"terminated by {signal.Signals(self.signum).name}")
+
+
+@contextlib.contextmanager
+def exceptions_on_signals() -> Iterator[None]:
+    """Within this block (main thread only), SIGINT, SIGTERM and SIGHUP raise once, then are ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    fired: list[int] = []
+    raised: list[BaseException] = []
+
+    def handler(signum, frame):
+        if fired:
+            return
+        fired.append(signum)
+        exc = KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+        raised.append(exc)
+        raise exc
+
+    prev_hook = sys.unraisablehook
+
+    def unraisable(info):
+        if raised and info.exc_value is raised[-1]:        # swallowed: deliver the signal again
+            signum = fired.pop()
+            raised.clear()
+            timer = threading.Timer(0.01, os.kill, (os.getpid(), signum))
+            timer.daemon = True
+            timer.start()
+            return
+        prev_hook(info)
+
+    old = {}
+    for sig in HANDLED:
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            old[sig] = signal.signal(sig, handler)
+    sys.unraisablehook = unraisable
+    try:
+        yield
+    finally:
+        fired.append(0)                   # a signal from here on must not raise outside the caller's try
+        sys.unraisablehook = prev_hook
+        for sig, prev in old.items():
+            signal.signal(sig, prev)
