@@ -46,27 +46,30 @@ class SparseWindows:
         rows = np.concatenate(rows) if rows else np.zeros(0, np.int64)
         nb = self.channels * self.kernel * self.kernel
         b = torch.from_numpy(self.bits[:, rows]).to(device)
-        feats = ((b[..., None] >> torch.arange(nb, device=device, dtype=torch.int32)) & 1).to(torch.float32)
+        feats = ((b[..., None] >> torch.arange(nb, device=device, dtype=b.dtype)) & 1).to(torch.float32)
         return feats, torch.from_numpy(self.event[rows]).to(device=device, dtype=torch.float32), torch.from_numpy(owner).to(device)
 
 
 def pack_window(vol: np.ndarray, kernel: int) -> tuple[np.ndarray, np.ndarray]:
-    """(B, C, H, W) binary -> (bits (B, |P|) int32, event (|P|,) bool) for the pixel set P."""
+    """(B, C, H, W) binary -> (bits (B, |P|) int32, or int64 past 31 bits, event (|P|,) bool)
+    for the pixel set P (2 channels x 5 x 5 = 50 bits needs int64)."""
     b, c, h, w = vol.shape
-    if c * kernel * kernel > 31:
-        raise ValueError("neighbourhood too large to pack into int32")
+    nbits = c * kernel * kernel
+    if nbits > 63:
+        raise ValueError(f"a {c} x {kernel} x {kernel} neighbourhood ({nbits} bits) is too large to pack into int64")
+    dtype = np.int32 if nbits <= 31 else np.int64
     r = kernel // 2
     vol = vol > 0
     ev = vol.any(axis=(0, 1))
     near = cv2.dilate(ev.astype(np.uint8), np.ones((kernel, kernel), np.uint8)).astype(bool)
     ys, xs = np.nonzero(near)
     padded = np.pad(vol, ((0, 0), (0, 0), (r, r), (r, r)))
-    bits = np.zeros((b, ys.size), dtype=np.int32)
+    bits = np.zeros((b, ys.size), dtype=dtype)
     for ci in range(c):
         for i in range(kernel):
             for j in range(kernel):
                 bit = ci * kernel * kernel + i * kernel + j
-                bits |= padded[:, ci, ys + i, xs + j].astype(np.int32) << bit
+                bits |= padded[:, ci, ys + i, xs + j].astype(dtype) << bit
     return bits, ev[ys, xs]
 
 
@@ -79,7 +82,8 @@ def pack_windows(vols, kernel: int) -> SparseWindows:
         event.append(e)
         lens.append(e.size)
         c = v.shape[1]
-    return SparseWindows(np.concatenate(bits, axis=1), np.concatenate(event), np.concatenate([[0], np.cumsum(lens)]).astype(np.int64),
+    dtype = np.result_type(*[bt.dtype for bt in bits]) if bits else np.int32
+    return SparseWindows(np.concatenate([bt.astype(dtype, copy=False) for bt in bits], axis=1), np.concatenate(event), np.concatenate([[0], np.cumsum(lens)]).astype(np.int64),
                          kernel, c)
 
 
