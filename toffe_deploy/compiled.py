@@ -1,5 +1,5 @@
 """The per-window loops of the hot path, compiled (numba): the cpu cascade's indexing, OFS
-stage, closing compaction and mask split, and ofpd_io's box tests, box means, density-seed
+stage, closing compaction and mask split, the input front end, and ofpd_io's box tests, box means, density-seed
 grouping and cell counts.
 
 Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
@@ -327,6 +327,26 @@ KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_l
            in_boxes, box_mean, density_groups, count_cells)
 
 
+@njit(cache=True, nogil=True)
+def first_spikes(idx, n_channels, n_pixels, seen):
+    """Keep mask of the input front end "first" (events/frontend.py) over a sorted linear index of
+    ones into a (B, C, H, W) volume: True for the first one of each (c, pixel). ``seen`` is a
+    (n_pixels,) uint8 of zeros (bit c = channel c seen), left zeroed again; C <= 8."""
+    n = idx.shape[0]
+    keep = np.zeros(n, np.bool_)
+    plane = n_channels * n_pixels
+    for i in range(n):
+        r = idx[i] % plane
+        pix = r % n_pixels
+        bit = np.uint8(1 << (r // n_pixels))
+        if seen[pix] & bit == 0:
+            seen[pix] |= bit
+            keep[i] = True
+    for i in range(n):
+        seen[idx[i] % plane % n_pixels] = 0
+    return keep
+
+
 def warm_up() -> None:
     """Compile (first run on a machine, a few seconds) or load from the on-disk cache (~0.1 s)
     every kernel for the argument types the cpu cascade passes, so that the first window of a
@@ -346,3 +366,4 @@ def warm_up() -> None:
     in_boxes(i64, i64, np.zeros((1, 2)), 1.0)
     density_groups(i64, i64, 1, 2)
     count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.zeros((1, 2), np.int64), 1, 1, 1)
+    first_spikes(i64, 2, 1, np.zeros(1, np.uint8))

