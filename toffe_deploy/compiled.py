@@ -1,6 +1,6 @@
 """The per-window loops of the hot path, compiled (numba): the cpu cascade's indexing, OFS
 stage, closing compaction and mask split, and ofpd_io's box tests, box means, density-seed
-grouping and cell counts.
+grouping, event-blob components and cell counts.
 
 Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
 (~25 calls per stage on arrays of ~2,000 values, plus the window's de-duplication and scatter
@@ -310,21 +310,175 @@ def density_groups(xs, ys, r, width):
 
 
 @njit(cache=True, nogil=True)
-def count_cells(out, obj, xs, ys, ch, origins, n_channels, size, pool):
+def _root(parent, i):
+    """Union-find root of i, halving the path on the way."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True, nogil=True)
+def _union(parent, a, b):
+    """Joins the sets of a and b under the smaller root (so labels do not depend on the order)."""
+    ra = _root(parent, a)
+    rb = _root(parent, b)
+    if ra < rb:
+        parent[rb] = ra
+    elif rb < ra:
+        parent[ra] = rb
+
+
+@njit(cache=True, nogil=True)
+def link_components(xs, ys, link, width):
+    """Connected components of unique pixels (xs, ys) where two pixels are linked when
+    max(|dx|, |dy|) <= link: (labels (n,) 0..C-1 numbered by each component's first pixel in
+    row-major order, C). The pixels are sorted by key y * W + x once; each one looks up the keys
+    of the rows y..y + link in [x - link, x + link] by binary search (no sensor-sized grid)."""
+    n = xs.shape[0]
+    keys = ys * width + xs
+    order = np.argsort(keys)
+    sk = keys[order]
+    parent = np.arange(n)
+    for a in range(n):
+        y = sk[a] // width
+        x = sk[a] - y * width
+        for dy in range(link + 1):
+            lo = (y + dy) * width + max(x - link, 0)
+            hi = (y + dy) * width + min(x + link, width - 1)
+            if dy == 0:
+                lo = sk[a] + 1
+            j = np.searchsorted(sk, lo)
+            while j < n and sk[j] <= hi:
+                _union(parent, a, j)
+                j += 1
+    label_of_root = np.full(n, -1, np.int64)
+    labels = np.empty(n, np.int64)
+    c = 0
+    for a in range(n):                       # sorted order: components numbered row-major
+        r = _root(parent, a)
+        if label_of_root[r] < 0:
+            label_of_root[r] = c
+            c += 1
+        labels[order[a]] = label_of_root[r]
+    return labels, c
+
+
+@njit(cache=True, nogil=True)
+def component_stats(labels, n_comp, xs, ys):
+    """Per component: (count (C,), sum x (C,), sum y (C,), bbox (C, 4) = x_min, y_min, x_max,
+    y_max), exact integers."""
+    count = np.zeros(n_comp, np.int64)
+    sx = np.zeros(n_comp, np.int64)
+    sy = np.zeros(n_comp, np.int64)
+    bbox = np.empty((n_comp, 4), np.int64)
+    for c in range(n_comp):
+        bbox[c, 0] = bbox[c, 1] = 1 << 40
+        bbox[c, 2] = bbox[c, 3] = -(1 << 40)
+    for i in range(labels.shape[0]):
+        c = labels[i]
+        count[c] += 1
+        sx[c] += xs[i]
+        sy[c] += ys[i]
+        bbox[c, 0] = min(bbox[c, 0], xs[i])
+        bbox[c, 1] = min(bbox[c, 1], ys[i])
+        bbox[c, 2] = max(bbox[c, 2], xs[i])
+        bbox[c, 3] = max(bbox[c, 3], ys[i])
+    return count, sx, sy, bbox
+
+
+@njit(cache=True, nogil=True)
+def blob_gap(ca, cb, ea, eb):
+    """Gap between two blobs seen as discs: |centroid a - centroid b| - (extent a + extent b) / 2
+    (negative when they overlap); rotation invariant, unlike a bounding-box gap."""
+    dx = ca[0] - cb[0]
+    dy = ca[1] - cb[1]
+    return np.sqrt(dx * dx + dy * dy) - 0.5 * (ea + eb)
+
+
+@njit(cache=True, nogil=True)
+def merge_blobs(count, sx, sy, bbox, frac, min_count):
+    """Groups the components with >= min_count pixels whose blob_gap <= frac * the larger
+    extent (max(width, height) of the bounding box), transitively: the leading and trailing
+    edges of one object, or the arcs of its outline. Returns (group (C,) 0..G-1 numbered by
+    smallest member, -1 for components below min_count; per group count, sum x, sum y, bbox)."""
+    n = count.shape[0]
+    parent = np.arange(n)
+    cen = np.empty((n, 2))
+    ext = np.empty(n)
+    for c in range(n):
+        cen[c, 0] = sx[c] / max(count[c], 1)
+        cen[c, 1] = sy[c] / max(count[c], 1)
+        ext[c] = max(bbox[c, 2] - bbox[c, 0], bbox[c, 3] - bbox[c, 1]) + 1
+    for a in range(n):
+        if count[a] < min_count:
+            continue
+        for b in range(a + 1, n):
+            if count[b] >= min_count and blob_gap(cen[a], cen[b], ext[a], ext[b]) <= frac * max(ext[a], ext[b]):
+                _union(parent, a, b)
+    group = np.full(n, -1, np.int64)
+    label_of_root = np.full(n, -1, np.int64)
+    g = 0
+    for c in range(n):
+        if count[c] < min_count:
+            continue
+        r = _root(parent, c)
+        if label_of_root[r] < 0:
+            label_of_root[r] = g
+            g += 1
+        group[c] = label_of_root[r]
+    gc = np.zeros(g, np.int64)
+    gx = np.zeros(g, np.int64)
+    gy = np.zeros(g, np.int64)
+    gb = np.empty((g, 4), np.int64)
+    for q in range(g):
+        gb[q, 0] = gb[q, 1] = 1 << 40
+        gb[q, 2] = gb[q, 3] = -(1 << 40)
+    for c in range(n):
+        q = group[c]
+        if q < 0:
+            continue
+        gc[q] += count[c]
+        gx[q] += sx[c]
+        gy[q] += sy[c]
+        gb[q, 0] = min(gb[q, 0], bbox[c, 0])
+        gb[q, 1] = min(gb[q, 1], bbox[c, 1])
+        gb[q, 2] = max(gb[q, 2], bbox[c, 2])
+        gb[q, 3] = max(gb[q, 3], bbox[c, 3])
+    return group, gc, gx, gy, gb
+
+
+@njit(cache=True, nogil=True)
+def in_rects(xs, ys, rects):
+    """(G, n) bool: pixel i inside rectangle g, rects[g] = (x_min, y_min, x_max, y_max) inclusive."""
+    out = np.empty((rects.shape[0], xs.shape[0]), np.bool_)
+    for g in range(rects.shape[0]):
+        for i in range(xs.shape[0]):
+            out[g, i] = rects[g, 0] <= xs[i] <= rects[g, 2] and rects[g, 1] <= ys[i] <= rects[g, 3]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def count_cells(out, obj, xs, ys, ch, origins, n_channels):
     """Adds 1 to out[obj, ch, y // P, x // P] for every one (object obj, pixel (x, y), channel
-    ch < n_channels) inside its object's S x S crop at origins[obj] (crop coordinates x, y);
-    ones outside are dropped. ``out`` float32 holds exact integer counts (< 2**24)."""
+    ch < n_channels) inside its object's S x S crop, origins[obj] = (x0, y0, S), P = S / g
+    (crop coordinates x, y); ones outside are dropped. ``out`` float32 holds exact integer
+    counts (< 2**24)."""
+    g = out.shape[-1]
     for i in range(xs.shape[0]):
         o = obj[i]
+        size = origins[o, 2]
         x = xs[i] - origins[o, 0]
         y = ys[i] - origins[o, 1]
         if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < n_channels:
+            pool = size // g
             out[o, ch[i], y // pool, x // pool] += 1
 
 
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
-           in_boxes, box_mean, density_groups, count_cells)
+           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, in_rects,
+           count_cells)
 
 
 def warm_up() -> None:
@@ -345,4 +499,8 @@ def warm_up() -> None:
     box_mean(i64, i64, 0.0, 0.0, 1.0)
     in_boxes(i64, i64, np.zeros((1, 2)), 1.0)
     density_groups(i64, i64, 1, 2)
-    count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.zeros((1, 2), np.int64), 1, 1, 1)
+    labels, n_comp = link_components(i64, i64, 1, 2)
+    count, sx, sy, bbox = component_stats(labels, n_comp, i64, i64)
+    merge_blobs(count, sx, sy, bbox, 0.25, 1)
+    in_rects(i64, i64, np.zeros((1, 4), np.int64))
+    count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1)
