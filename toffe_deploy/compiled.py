@@ -388,48 +388,84 @@ def component_stats(labels, n_comp, xs, ys):
 
 
 @njit(cache=True, nogil=True)
-def blob_gap(ca, cb, ea, eb):
-    """Gap between two blobs seen as discs: |centroid a - centroid b| - (extent a + extent b) / 2
-    (negative when they overlap); rotation invariant, unlike a bounding-box gap."""
-    dx = ca[0] - cb[0]
-    dy = ca[1] - cb[1]
-    return np.sqrt(dx * dx + dy * dy) - 0.5 * (ea + eb)
+def sets_within(xa, ya, xb, yb, t):
+    """Whether some pixel of set a lies within Euclidean distance t of some pixel of set b: only
+    the pixels of each set inside the other's bounding box grown by t are compared, and the
+    search stops at the first such pair (the leading and trailing edges of one object are
+    found at once; far sets are cut by the bounding boxes)."""
+    if xa.shape[0] == 0 or xb.shape[0] == 0:
+        return False
+    ax0, ax1, ay0, ay1 = xa.min() - t, xa.max() + t, ya.min() - t, ya.max() + t
+    bx0, bx1, by0, by1 = xb.min() - t, xb.max() + t, yb.min() - t, yb.max() + t
+    keep = np.empty(xb.shape[0], np.int64)
+    m = 0
+    for j in range(xb.shape[0]):
+        if ax0 <= xb[j] <= ax1 and ay0 <= yb[j] <= ay1:
+            keep[m] = j
+            m += 1
+    t2 = t * t
+    for i in range(xa.shape[0]):
+        if not (bx0 <= xa[i] <= bx1 and by0 <= ya[i] <= by1):
+            continue
+        for q in range(m):
+            dx = xa[i] - xb[keep[q]]
+            dy = ya[i] - yb[keep[q]]
+            if dx * dx + dy * dy <= t2:
+                return True
+    return False
 
 
 @njit(cache=True, nogil=True)
-def merge_blobs(count, sx, sy, bbox, frac, min_count):
-    """Groups the components with >= min_count pixels whose blob_gap <= frac * the larger
-    extent (max(width, height) of the bounding box), transitively: the leading and trailing
-    edges of one object, or the arcs of its outline. Returns (group (C,) 0..G-1 numbered by
-    smallest member, -1 for components below min_count; per group count, sum x, sum y, bbox)."""
+def box_gap(a, b):
+    """Chebyshev gap between two inclusive boxes (x_min, y_min, x_max, y_max); <= 0 if they touch."""
+    return max(a[0] - b[2], b[0] - a[2], a[1] - b[3], b[1] - a[3])
+
+
+@njit(cache=True, nogil=True)
+def merge_blobs(labels, count, bbox, xs, ys, frac, min_count):
+    """Groups the components with >= min_count pixels that come within frac * the larger extent
+    (max(width, height) of the bounding box) of each other (sets_within), transitively: the
+    leading and trailing edges of one object, the arcs of its outline. A smaller component (a
+    speck) joins a group it comes that close to, but specks never group on their own. Returns
+    (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count
+    and bbox)."""
     n = count.shape[0]
+    order = np.argsort(labels, kind="mergesort")
+    start = np.zeros(n + 1, np.int64)
+    for c in range(n):
+        start[c + 1] = start[c] + count[c]
+    px = xs[order]
+    py = ys[order]
     parent = np.arange(n)
-    cen = np.empty((n, 2))
     ext = np.empty(n)
     for c in range(n):
-        cen[c, 0] = sx[c] / max(count[c], 1)
-        cen[c, 1] = sy[c] / max(count[c], 1)
         ext[c] = max(bbox[c, 2] - bbox[c, 0], bbox[c, 3] - bbox[c, 1]) + 1
     for a in range(n):
         if count[a] < min_count:
             continue
-        for b in range(a + 1, n):
-            if count[b] >= min_count and blob_gap(cen[a], cen[b], ext[a], ext[b]) <= frac * max(ext[a], ext[b]):
+        for b in range(n):                       # smaller specks join a group, never form one
+            if b == a or (count[b] >= min_count and b < a) or _root(parent, a) == _root(parent, b):
+                continue
+            t = frac * max(ext[a], ext[b])
+            if box_gap(bbox[a], bbox[b]) <= t and sets_within(px[start[a]:start[a + 1]], py[start[a]:start[a + 1]],
+                                                                px[start[b]:start[b + 1]], py[start[b]:start[b + 1]], t):
                 _union(parent, a, b)
     group = np.full(n, -1, np.int64)
     label_of_root = np.full(n, -1, np.int64)
+    seeded = np.zeros(n, np.bool_)
+    for c in range(n):
+        if count[c] >= min_count:
+            seeded[_root(parent, c)] = True
     g = 0
     for c in range(n):
-        if count[c] < min_count:
-            continue
         r = _root(parent, c)
+        if not seeded[r]:
+            continue
         if label_of_root[r] < 0:
             label_of_root[r] = g
             g += 1
         group[c] = label_of_root[r]
     gc = np.zeros(g, np.int64)
-    gx = np.zeros(g, np.int64)
-    gy = np.zeros(g, np.int64)
     gb = np.empty((g, 4), np.int64)
     for q in range(g):
         gb[q, 0] = gb[q, 1] = 1 << 40
@@ -439,13 +475,11 @@ def merge_blobs(count, sx, sy, bbox, frac, min_count):
         if q < 0:
             continue
         gc[q] += count[c]
-        gx[q] += sx[c]
-        gy[q] += sy[c]
         gb[q, 0] = min(gb[q, 0], bbox[c, 0])
         gb[q, 1] = min(gb[q, 1], bbox[c, 1])
         gb[q, 2] = max(gb[q, 2], bbox[c, 2])
         gb[q, 3] = max(gb[q, 3], bbox[c, 3])
-    return group, gc, gx, gy, gb
+    return group, gc, gb
 
 
 @njit(cache=True, nogil=True)
@@ -477,7 +511,7 @@ def count_cells(out, obj, xs, ys, ch, origins, n_channels):
 
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
-           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, in_rects,
+           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, sets_within, in_rects,
            count_cells)
 
 
@@ -501,6 +535,7 @@ def warm_up() -> None:
     density_groups(i64, i64, 1, 2)
     labels, n_comp = link_components(i64, i64, 1, 2)
     count, sx, sy, bbox = component_stats(labels, n_comp, i64, i64)
-    merge_blobs(count, sx, sy, bbox, 0.25, 1)
+    merge_blobs(labels, count, bbox, i64, i64, 0.2, 1)
+    sets_within(i64, i64, i64, i64, 1.0)
     in_rects(i64, i64, np.zeros((1, 4), np.int64))
     count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1)

@@ -19,7 +19,7 @@ their spacing, and adds its own residual in cells (times P), so its ``pose`` out
 in full-resolution pixels while all learned features stay translation and scale invariant.
 
 Which objects a window reports (``group_objects_xy``: fastest stage first, each object claims
-a region, several objects per stage possible; ofpd.grouping "blobs" follows the event blobs,
+its pixels, several objects per stage possible; ofpd.grouping "blobs" follows the event blobs,
 "boxes" is the fixed +-dedupe_px box of older checkpoints) and each object's frame
 (``merge_frames``) are decided here too. All of it is implemented once, on pixel coordinates
 (``group_objects_xy``, ``object_masks_xy``, ``crop_origin_xy``, ``prepare_xy``); the dense
@@ -35,12 +35,14 @@ the head only refines within it); m/s and px/ms convert with config.speed_scale.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import cv2
 import numpy as np
 
-from .compiled import box_mean, component_stats, count_cells, density_groups, in_rects, link_components, merge_blobs
+from .compiled import (box_gap, box_mean, component_stats, count_cells, density_groups, in_rects, link_components,
+                       merge_blobs, sets_within)
 from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
 
@@ -65,8 +67,7 @@ OFPD_DEFAULTS: dict[str, Any] = {
     "dedupe_px": 64,        # grouping "boxes": box half-size (px) around a reported object
     **CURRENT_LAYOUT,
     "link_px": 4,           # grouping "blobs": pixels <= 4 px apart (Chebyshev) are one blob (what a 5x5 closing bridges)
-    "merge_frac": 0.25,     # blobs whose gap <= merge_frac * the larger extent are one object
-    "claim_frac": 0.25,     # an object claims its bounding box grown by max(link_px, claim_frac * extent)
+    "merge_frac": 0.2,      # blobs within merge_frac * the larger extent of each other are one object
     "pool_min": 2,          # crop "scaled": P = clip(2^ceil(log2(1.5 * extent / g)), pool_min, pool_max)
     "pool_max": 16,
 }
@@ -228,15 +229,15 @@ Objects = list[tuple[int, float, float]]
 def report_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
                       config: ToffeConfig) -> Objects:
     """The objects one window reports: [(stage index k-1, cx, cy)], fastest stage first
-    (group_objects_xy without the regions)."""
+    (group_objects_xy without the claims)."""
     return group_objects_xy(stage_pixels, sensor_size, config)[0]
 
 
 def group_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
-                     config: ToffeConfig) -> tuple[Objects, np.ndarray]:
-    """(objects [(stage index k-1, cx, cy)], regions (G, 4) int64 inclusive rectangles x_min,
-    y_min, x_max, y_max): the objects one window reports, fastest stage first, and the region
-    each one claims (its OFPD frame is the events of every stage inside it: object_masks_xy).
+                     config: ToffeConfig) -> tuple[Objects, "Claims"]:
+    """(objects [(stage index k-1, cx, cy)], claims): the objects one window reports, fastest
+    stage first, and which pixels each one claims (its OFPD frame is the events of every stage
+    at them: object_masks_xy).
 
     stage_pixels[k-1] = (xs, ys): the unique event pixels of stage k's frame (any order) on a
     sensor (width, height). Why fastest first: OFS_k fires for speed bin >= k, so an object's
@@ -249,6 +250,7 @@ def group_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sens
     spacing above what the closing bridges. "boxes" (box_objects_xy, checkpoints before it):
     a fixed +-dedupe_px box per object.
     """
+    w = int(sensor_size[0])
     if ofpd_settings(config)["grouping"] == "blobs":
         return blob_objects_xy(stage_pixels, sensor_size, config)
     objs = box_objects_xy(stage_pixels, sensor_size, config)
@@ -256,7 +258,29 @@ def group_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sens
     # |x - c| < r over integers x is floor(c - r) + 1 <= x <= ceil(c + r) - 1
     regions = np.array([[np.floor(cx - r) + 1, np.floor(cy - r) + 1, np.ceil(cx + r) - 1, np.ceil(cy + r) - 1]
                         for _i, cx, cy in objs], dtype=np.int64).reshape(-1, 4)
-    return objs, regions
+    return objs, Claims(regions=regions, width=w)
+
+
+@dataclass(frozen=True)
+class Claims:
+    """Which pixels each reported object claims: rectangles regions (G, 4) = x_min, y_min,
+    x_max, y_max inclusive (grouping "boxes"), or pixel sets: keys (M,) sorted linear pixel ids
+    y * width + x and owner (M,) their object (grouping "blobs")."""
+
+    width: int
+    regions: np.ndarray | None = None
+    keys: np.ndarray | None = None
+    owner: np.ndarray | None = None
+
+    def masks(self, xs: np.ndarray, ys: np.ndarray, n_objects: int) -> list[np.ndarray]:
+        """(n,) bool per object: the pixels (xs, ys) it claims."""
+        xs, ys = _int64(xs), _int64(ys)
+        if self.regions is not None:
+            return list(in_rects(xs, ys, np.ascontiguousarray(self.regions, dtype=np.int64).reshape(-1, 4)))
+        key = ys * self.width + xs
+        at = np.minimum(np.searchsorted(self.keys, key), max(self.keys.size - 1, 0))
+        own = np.where(self.keys[at] == key, self.owner[at], -1) if self.keys.size else np.full(key.size, -1)
+        return [own == j for j in range(n_objects)]
 
 
 def box_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
@@ -285,99 +309,96 @@ def box_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor
     return out
 
 
-def blobs_xy(xs: np.ndarray, ys: np.ndarray, width: int, config: ToffeConfig
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The candidate objects of one frame's unique pixels: (count (G,), centroid (G, 2), extent
-    (G,), bbox (G, 4) inclusive), numbered by their first pixel in row-major order.
+def blobs_xy(xs: np.ndarray, ys: np.ndarray, width: int, config: ToffeConfig) -> tuple[np.ndarray, np.ndarray, int]:
+    """The candidate objects of one frame's unique pixels: (group (n,) per pixel, -1 for none;
+    count (G,) pixels per group; G), groups numbered by their first pixel in row-major order.
 
     Blobs are the connected components of the pixels linked within ofpd.link_px (the 5x5
     closing of the cascade bridges 4 px gaps: a component is a blob of the closed mask).
-    Components with >= ceil(min_events / 4) pixels whose gap (blob_gap: centroid distance minus
-    the mean extent) is <= merge_frac * the larger extent are one object: the leading and
-    trailing edges of a big object, the arcs of its outline; smaller components are dropped
-    (isolated noise). Two objects of radius r at centre distance 3r have a gap of r > 0.25 * 2r:
-    apart. Groups below min_events are returned too: they may be a reported object's leftovers.
+    Components with >= ceil(min_events / 4) pixels that come within merge_frac * the larger
+    extent of each other (some pixel pair that close, compiled.merge_blobs) are one group: the
+    leading and trailing edges of a big object, the arcs of its outline; smaller components are
+    isolated noise. Two objects of radius r at centre distance 3r are r apart > 0.2 * 2r.
+    Groups below min_events are returned too: they may be a reported object's leftovers.
     """
     s = ofpd_settings(config)
     xs, ys = _int64(xs), _int64(ys)
     if xs.size == 0:
-        return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 4), np.int64)
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), 0
     labels, n_comp = link_components(xs, ys, int(s["link_px"]), int(width))
-    count, sx, sy, bbox = component_stats(labels, n_comp, xs, ys)
+    count, _sx, _sy, bbox = component_stats(labels, n_comp, xs, ys)
     need = int(s["min_events"])
-    _group, gc, gx, gy, gb = merge_blobs(count, sx, sy, bbox, float(s["merge_frac"]), max(1, -(-need // 4)))
-    keep = gc >= max(1, -(-need // 4))
-    gc, gx, gy, gb = gc[keep], gx[keep], gy[keep], gb[keep]
-    centre = np.stack([gx / np.maximum(gc, 1), gy / np.maximum(gc, 1)], axis=1).reshape(-1, 2)
-    extent = (np.maximum(gb[:, 2] - gb[:, 0], gb[:, 3] - gb[:, 1]) + 1).astype(np.float64)
-    return gc, centre, extent, gb
+    group, gc, _gb = merge_blobs(labels, count, bbox, xs, ys, float(s["merge_frac"]), max(1, -(-need // 4)))
+    return group[labels], gc, int(gc.shape[0])
 
 
 def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
-                    config: ToffeConfig) -> tuple[Objects, np.ndarray]:
-    """Grouping "blobs" (see group_objects_xy): from the fastest stage down, the pixels of frame
-    k outside the regions claimed so far form candidates (blobs_xy). A candidate near an object
-    already reported (blob_gap <= merge_frac * the larger extent, or its bounding box touching
-    the object's region: the faster object's leftover edges) is absorbed: the object's region
-    grows over it. Any other with >= min_events pixels is an object of bin k at its centroid,
-    claiming its bounding box grown by max(link_px, claim_frac * extent) (clipped to the sensor). Two objects of radius r at centre distance >= 3r stay two (gap r,
-    margin r/2); closer than the closing bridges (edge gap <= 4 px) they are one blob."""
+                    config: ToffeConfig) -> tuple[Objects, Claims]:
+    """Grouping "blobs" (see group_objects_xy): from the fastest stage down, each frame's pixels
+    form candidate groups (blobs_xy). A group within merge_frac * the larger extent of an object
+    already reported (some pixel pair that close: the object's leftover edges on a slower
+    stage, or a piece of it) joins that object's pixels. Any other with >= min_events pixels is
+    an object of bin k at its centroid. An object claims exactly its pixels, of every stage.
+    Objects of radius r at centre distance >= 3r stay two (their events are r apart, minus
+    their motion, > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob."""
     s = ofpd_settings(config)
-    frac, claim, link, need = float(s["merge_frac"]), float(s["claim_frac"]), int(s["link_px"]), int(s["min_events"])
-    w, h = int(sensor_size[0]), int(sensor_size[1])
+    frac, need = float(s["merge_frac"]), int(s["min_events"])
+    w = int(sensor_size[0])
     objs: list[tuple[int, float, float]] = []
-    cen: list[np.ndarray] = []
-    ext: list[float] = []
-    regions: list[np.ndarray] = []
-
-    def grown(box: np.ndarray, e: float) -> np.ndarray:
-        m = max(link, int(np.ceil(claim * e)))
-        return np.array([max(box[0] - m, 0), max(box[1] - m, 0), min(box[2] + m, w - 1), min(box[3] + m, h - 1)],
-                        dtype=np.int64)
-
+    px: list[list[np.ndarray]] = []          # per object: [xs, ys] of its pixels so far
+    boxes: list[np.ndarray] = []
+    keys, owner = [], []
     for i in range(len(stage_pixels) - 1, -1, -1):          # fastest stage first; N is tiny
         xs, ys = (_int64(a) for a in stage_pixels[i])
-        if regions and xs.size:                             # drop the claimed regions, all at once
-            free = ~in_rects(xs, ys, np.asarray(regions)).any(axis=0)
-            xs, ys = xs[free], ys[free]
-        n_before = len(objs)
-        for n, c, e, box in zip(*blobs_xy(xs, ys, w, config)):
-            near = [j for j in range(n_before) if _gap(c, cen[j], e, ext[j]) <= frac * max(e, ext[j])
-                    or _touches(box, regions[j])]
-            if near:                                        # a faster object's leftovers
-                j = min(near, key=lambda q: _gap(c, cen[q], e, ext[q]))
-                g = grown(box, ext[j])
-                r = regions[j]
-                regions[j] = np.array([min(r[0], g[0]), min(r[1], g[1]), max(r[2], g[2]), max(r[3], g[3])], np.int64)
-                continue
-            if n < need:
-                continue
-            objs.append((i, float(c[0]), float(c[1])))
-            cen.append(c)
-            ext.append(float(e))
-            regions.append(grown(box, e))
-    return objs, np.asarray(regions, dtype=np.int64).reshape(-1, 4)
+        group, count, n_groups = blobs_xy(xs, ys, w, config)
+        if not n_groups:
+            continue
+        order = np.argsort(group, kind="stable")
+        bounds = np.searchsorted(group[order], np.arange(n_groups + 1))
+        for q in range(n_groups):
+            sel = order[bounds[q]:bounds[q + 1]]
+            gx, gy = xs[sel], ys[sel]
+            box = np.array([gx.min(), gy.min(), gx.max(), gy.max()], dtype=np.int64)
+            e = _extent(box)
+            host = -1
+            for j in range(len(objs)):
+                t = frac * max(e, _extent(boxes[j]))
+                if box_gap(box, boxes[j]) <= t and sets_within(gx, gy, px[j][0], px[j][1], t):
+                    host = j
+                    break
+            if host < 0:
+                if count[q] < need:
+                    continue
+                host = len(objs)
+                objs.append((i, float(gx.sum() / gx.size), float(gy.sum() / gy.size)))
+                px.append([gx, gy])
+                boxes.append(box)
+            else:
+                px[host] = [np.concatenate([px[host][0], gx]), np.concatenate([px[host][1], gy])]
+                b = boxes[host]
+                boxes[host] = np.array([min(b[0], box[0]), min(b[1], box[1]), max(b[2], box[2]), max(b[3], box[3])],
+                                       dtype=np.int64)
+            keys.append(gy * w + gx)
+            owner.append(np.full(gx.size, host, dtype=np.int64))
+    if not objs:
+        return [], Claims(width=w, keys=np.zeros(0, np.int64), owner=np.zeros(0, np.int64))
+    k, o = np.concatenate(keys), np.concatenate(owner)
+    srt = np.argsort(k, kind="stable")
+    return objs, Claims(width=w, keys=k[srt], owner=o[srt])
 
 
-def _touches(box: np.ndarray, region: np.ndarray) -> bool:
-    """Whether a bounding box overlaps a region or lies next to it (<= 1 px apart on both axes)."""
-    return bool(box[0] <= region[2] + 1 and region[0] <= box[2] + 1 and box[1] <= region[3] + 1
-                and region[1] <= box[3] + 1)
+def _extent(box: np.ndarray) -> float:
+    """max(width, height) of an inclusive box."""
+    return float(max(box[2] - box[0], box[3] - box[1]) + 1)
 
 
-def _gap(ca: np.ndarray, cb: np.ndarray, ea: float, eb: float) -> float:
-    """compiled.blob_gap in Python (a handful of pairs per window)."""
-    return float(np.hypot(ca[0] - cb[0], ca[1] - cb[1]) - 0.5 * (ea + eb))
-
-
-def object_masks_xy(xs: np.ndarray, ys: np.ndarray, regions: np.ndarray) -> list[np.ndarray]:
+def object_masks_xy(xs: np.ndarray, ys: np.ndarray, objects: Objects, claims: Claims) -> list[np.ndarray]:
     """merge_frames on coordinates: for each reported object, the bool mask of the given pixels
-    (a window's ones of every stage frame) inside its region (group_objects_xy): all of the
-    object's events, whichever stage the cascade's mask gave them to."""
-    regions = np.ascontiguousarray(regions, dtype=np.int64).reshape(-1, 4)
-    if not regions.shape[0]:
+    (a window's ones of every stage frame) it claims (group_objects_xy): all of the object's
+    events, whichever stage the cascade's mask gave them to."""
+    if not objects:
         return []
-    return list(in_rects(_int64(xs), _int64(ys), regions))
+    return claims.masks(xs, ys, len(objects))
 
 
 def crop_size_xy(xs: np.ndarray, ys: np.ndarray, config: ToffeConfig) -> int:
@@ -483,11 +504,11 @@ def merge_frames(frames: np.ndarray, config: ToffeConfig) -> tuple[np.ndarray, n
     frames = np.asarray(frames) > 0
     pixels = event_pixels(frames)
     h, w = frames.shape[-2:]
-    objs, regions = group_objects_xy([np.nonzero(p)[::-1] for p in pixels], (w, h), config)
+    objs, claims = group_objects_xy([np.nonzero(p)[::-1] for p in pixels], (w, h), config)
     every = np.flatnonzero(frames.any(axis=0))             # the window's ones, (b, c, y, x) linear
     ys, xs = np.divmod(every % (h * w), w)
     merged = np.zeros((len(objs), int(np.prod(frames.shape[1:]))), dtype=bool)
-    for j, m in enumerate(object_masks_xy(xs, ys, regions)):
+    for j, m in enumerate(object_masks_xy(xs, ys, objs, claims)):
         merged[j, every[m]] = True
     return (np.array([i + 1 for i, _, _ in objs], dtype=np.int64),
             merged.reshape((len(objs),) + frames.shape[1:]))

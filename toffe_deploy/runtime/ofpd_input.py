@@ -8,8 +8,8 @@ evaluation and export are thin wrappers over the same functions):
 
     pixels_k  = unique (x, y) of frame k's ones (any order: the core's means are exact integer
                 sums, its density seed is computed on a grid)
-    objects   = ofpd_io.group_objects_xy(pixels_1..N)                 (stage, centre, region)
-    merged_j  = the ones of every frame inside object j's region     (ofpd_io.object_masks_xy)
+    objects   = ofpd_io.group_objects_xy(pixels_1..N)                 (stage, centre, claims)
+    merged_j  = the ones of every frame at object j's claimed pixels (ofpd_io.object_masks_xy)
     input     = ofpd_io.prepare_xy(ones of merged_j, crop_origin_xy(pixels of merged_j))
 
 This module only converts between SpikeVolume and coordinates, with O(n) de-duplication through
@@ -47,12 +47,12 @@ def merge_objects(volume: SpikeVolume, frames: Sequence[np.ndarray], config: Tof
     """
     _b, _c, h, w = volume.shape
     pix = volume.pix
-    objs, regions = group_objects_xy([unique_xy(pix[m], w, scratch) for m in frames], (w, h), config)
+    objs, claims = group_objects_xy([unique_xy(pix[m], w, scratch) for m in frames], (w, h), config)
     if not objs:
         return np.zeros(0, dtype=np.int64), []
     every = np.flatnonzero(np.logical_or.reduce(list(frames)))     # the ones of every frame
     fy, fx = np.divmod(pix[every], w)
-    merged = [volume.subset(every[m]) for m in object_masks_xy(fx, fy, regions)]
+    merged = [volume.subset(every[m]) for m in object_masks_xy(fx, fy, objs, claims)]
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), merged
 
 
@@ -65,8 +65,8 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     once (``volume.pixel_index``, shared with the OFS window) instead of once per stage frame
     and once per object: a frame's (or an object's) unique pixels are the unique pixel ids
     its ones point to, marked on a (U,) array over the window's U unique pixels. An object's
-    merged frame is the ones of every frame whose pixel lies in its region, so its unique
-    pixels are the window pixels of those ones inside the region.
+    merged frame is the ones of every frame whose pixel it claims, so its unique pixels are
+    the window pixels of those ones it claims.
     """
     _b, nc, h, w = volume.shape
     upix, pinv = volume.pixel_index(scratch)
@@ -78,16 +78,16 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
         mark[pinv[ones]] = True
         return np.flatnonzero(mark)
 
-    objs, regions = group_objects_xy([(ux[u], uy[u]) for u in (pixels_of(m) for m in frames)], (w, h), config)
+    objs, claims = group_objects_xy([(ux[u], uy[u]) for u in (pixels_of(m) for m in frames)], (w, h), config)
     if not objs:
         c, g, _ = input_shape(config)
         return np.zeros(0, dtype=np.int64), np.zeros((0, c, g, g), np.float32), np.zeros(0, dtype=np.int64)
     every = np.flatnonzero(np.logical_or.reduce(list(frames)))     # the ones of every frame
     ev_u = pinv[every]
     fx, fy = ux[ev_u], uy[ev_u]
-    masks = object_masks_xy(fx, fy, regions)
+    masks = object_masks_xy(fx, fy, objs, claims)
     ev_pix = pixels_of(every)
-    pix_masks = object_masks_xy(ux[ev_pix], uy[ev_pix], regions)
+    pix_masks = object_masks_xy(ux[ev_pix], uy[ev_pix], objs, claims)
     ch = volume.bc[every] if nc == 2 else volume.b[every] * 2 + volume.c[every]
     ones, origins, n_ev = [], [], []
     for m, pm in zip(masks, pix_masks):
