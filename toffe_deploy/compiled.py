@@ -422,13 +422,84 @@ def box_gap(a, b):
 
 
 @njit(cache=True, nogil=True)
-def merge_blobs(labels, count, bbox, xs, ys, frac, min_count):
-    """Groups the components with >= min_count pixels that come within frac * the larger extent
-    (max(width, height) of the bounding box) of each other (sets_within), transitively: the
-    leading and trailing edges of one object, the arcs of its outline. A smaller component (a
-    speck) joins a group it comes that close to, but specks never group on their own. Returns
-    (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count
-    and bbox)."""
+def min_gap(xa, ya, xb, yb, t):
+    """Smallest Euclidean distance between a pixel of set a and one of set b when it is <= t,
+    else inf: only the pixels of each set inside the other's bounding box grown by t are
+    compared (far sets are cut by the bounding boxes)."""
+    best = np.inf
+    if xa.shape[0] == 0 or xb.shape[0] == 0:
+        return best
+    ax0, ax1, ay0, ay1 = xa.min() - t, xa.max() + t, ya.min() - t, ya.max() + t
+    bx0, bx1, by0, by1 = xb.min() - t, xb.max() + t, yb.min() - t, yb.max() + t
+    keep = np.empty(xb.shape[0], np.int64)
+    m = 0
+    for j in range(xb.shape[0]):
+        if ax0 <= xb[j] <= ax1 and ay0 <= yb[j] <= ay1:
+            keep[m] = j
+            m += 1
+    t2 = t * t
+    for i in range(xa.shape[0]):
+        if not (bx0 <= xa[i] <= bx1 and by0 <= ya[i] <= by1):
+            continue
+        for q in range(m):
+            dx = xa[i] - xb[keep[q]]
+            dy = ya[i] - yb[keep[q]]
+            d2 = dx * dx + dy * dy
+            if d2 <= t2 and d2 < best:
+                best = d2
+    return np.sqrt(best)
+
+
+@njit(cache=True, nogil=True)
+def surrounds(xs, ys):
+    """Whether pixels surround their centroid: one or more in each of 8 sectors of 45 degrees
+    around it (pixels within 1 px of it not counted). A whole object's outline or blob does;
+    one edge of it (a line, an L, a crescent) does not."""
+    n = xs.shape[0]
+    if n == 0:
+        return False
+    cx = xs.sum() / n
+    cy = ys.sum() / n
+    occupied = 0
+    for i in range(n):
+        dx = xs[i] - cx
+        dy = ys[i] - cy
+        if dx * dx + dy * dy <= 1.0:
+            continue
+        occupied |= 1 << (int(np.floor((np.arctan2(dy, dx) + np.pi) * (4.0 / np.pi))) % 8)
+    return occupied == 255
+
+
+@njit(cache=True, nogil=True)
+def _members(root_of, r, px, py):
+    """Pixels (x, y) of the components whose root is r (px, py in component order)."""
+    n = 0
+    for i in range(px.shape[0]):
+        n += root_of[i] == r
+    x = np.empty(n, np.int64)
+    y = np.empty(n, np.int64)
+    k = 0
+    for i in range(px.shape[0]):
+        if root_of[i] == r:
+            x[k] = px[i]
+            y[k] = py[i]
+            k += 1
+    return x, y
+
+
+@njit(cache=True, nogil=True)
+def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
+    """Groups a frame's components into objects, closest pairs first.
+
+    Components with >= min_count pixels (seeds) are joined in order of their gap (smallest
+    pixel distance) over the larger extent (max(width, height) of the bounding box), while
+    that ratio is <= frac_open when neither group surrounds its centroid yet (``surrounds``:
+    the leading and trailing edges of one object, as far apart as the object is wide) and
+    <= frac_closed otherwise: once an object's edges have closed around it, only pieces close
+    to it join, not a neighbour's edges. A smaller component (a speck) joins the first seed it
+    comes within frac_closed * the seed's extent of; specks never group on their own. Returns
+    (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count,
+    bbox and whether it surrounds its centroid)."""
     n = count.shape[0]
     order = np.argsort(labels, kind="mergesort")
     start = np.zeros(n + 1, np.int64)
@@ -436,26 +507,69 @@ def merge_blobs(labels, count, bbox, xs, ys, frac, min_count):
         start[c + 1] = start[c] + count[c]
     px = xs[order]
     py = ys[order]
+    comp_of = labels[order]
     parent = np.arange(n)
     ext = np.empty(n)
     for c in range(n):
         ext[c] = max(bbox[c, 2] - bbox[c, 0], bbox[c, 3] - bbox[c, 1]) + 1
-    for a in range(n):
-        if count[a] < min_count:
-            continue
-        for b in range(n):                       # smaller specks join a group, never form one
-            if b == a or (count[b] >= min_count and b < a) or _root(parent, a) == _root(parent, b):
+    seeds = np.flatnonzero(count >= min_count)
+    closed = np.zeros(n, np.bool_)
+    gbox = bbox.copy()
+    for a in seeds:
+        closed[a] = surrounds(px[start[a]:start[a + 1]], py[start[a]:start[a + 1]])
+    # candidate seed pairs and their gap ratio, smallest first
+    m = seeds.shape[0]
+    pa = np.empty(m * m, np.int64)
+    pb = np.empty(m * m, np.int64)
+    ratio = np.empty(m * m)
+    k = 0
+    for i in range(m):
+        a = seeds[i]
+        for j in range(i + 1, m):
+            b = seeds[j]
+            big = max(ext[a], ext[b])
+            t = frac_open * big
+            if box_gap(bbox[a], bbox[b]) > t:
                 continue
-            t = frac * max(ext[a], ext[b])
-            if box_gap(bbox[a], bbox[b]) <= t and sets_within(px[start[a]:start[a + 1]], py[start[a]:start[a + 1]],
-                                                                px[start[b]:start[b + 1]], py[start[b]:start[b + 1]], t):
+            d = min_gap(px[start[a]:start[a + 1]], py[start[a]:start[a + 1]],
+                        px[start[b]:start[b + 1]], py[start[b]:start[b + 1]], t)
+            if d <= t:
+                pa[k], pb[k], ratio[k] = a, b, d / big
+                k += 1
+    by = np.argsort(ratio[:k], kind="mergesort")
+    root_of = np.empty(px.shape[0], np.int64)
+    for q in by:
+        ra = _root(parent, pa[q])
+        rb = _root(parent, pb[q])
+        if ra == rb:
+            continue
+        limit = frac_closed if closed[ra] or closed[rb] else frac_open
+        if ratio[q] > limit:
+            continue
+        _union(parent, ra, rb)
+        r = _root(parent, ra)
+        for c in range(4):
+            gbox[r, c] = min(gbox[ra, c], gbox[rb, c]) if c < 2 else max(gbox[ra, c], gbox[rb, c])
+        for i in range(px.shape[0]):
+            root_of[i] = _root(parent, comp_of[i])
+        gx, gy = _members(root_of, r, px, py)
+        closed[r] = surrounds(gx, gy)
+    for b in range(n):                       # specks join a seed they come close to
+        if count[b] >= min_count:
+            continue
+        for a in seeds:
+            t = frac_closed * ext[a]
+            if box_gap(bbox[a], bbox[b]) <= t and min_gap(px[start[b]:start[b + 1]], py[start[b]:start[b + 1]],
+                                                         px[start[a]:start[a + 1]], py[start[a]:start[a + 1]], t) <= t:
+                was = closed[_root(parent, a)]
                 _union(parent, a, b)
+                closed[_root(parent, a)] = was       # the root may now be the speck
+                break
+    seeded = np.zeros(n, np.bool_)
+    for a in seeds:
+        seeded[_root(parent, a)] = True
     group = np.full(n, -1, np.int64)
     label_of_root = np.full(n, -1, np.int64)
-    seeded = np.zeros(n, np.bool_)
-    for c in range(n):
-        if count[c] >= min_count:
-            seeded[_root(parent, c)] = True
     g = 0
     for c in range(n):
         r = _root(parent, c)
@@ -466,6 +580,7 @@ def merge_blobs(labels, count, bbox, xs, ys, frac, min_count):
             g += 1
         group[c] = label_of_root[r]
     gc = np.zeros(g, np.int64)
+    gclosed = np.zeros(g, np.bool_)
     gb = np.empty((g, 4), np.int64)
     for q in range(g):
         gb[q, 0] = gb[q, 1] = 1 << 40
@@ -475,11 +590,13 @@ def merge_blobs(labels, count, bbox, xs, ys, frac, min_count):
         if q < 0:
             continue
         gc[q] += count[c]
+        if count[c] >= min_count:
+            gclosed[q] |= closed[_root(parent, c)]
         gb[q, 0] = min(gb[q, 0], bbox[c, 0])
         gb[q, 1] = min(gb[q, 1], bbox[c, 1])
         gb[q, 2] = max(gb[q, 2], bbox[c, 2])
         gb[q, 3] = max(gb[q, 3], bbox[c, 3])
-    return group, gc, gb
+    return group, gc, gb, gclosed
 
 
 @njit(cache=True, nogil=True)
@@ -511,7 +628,8 @@ def count_cells(out, obj, xs, ys, ch, origins, n_channels):
 
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
-           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, sets_within, in_rects,
+           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds, sets_within,
+           in_rects,
            count_cells)
 
 
@@ -535,7 +653,9 @@ def warm_up() -> None:
     density_groups(i64, i64, 1, 2)
     labels, n_comp = link_components(i64, i64, 1, 2)
     count, sx, sy, bbox = component_stats(labels, n_comp, i64, i64)
-    merge_blobs(labels, count, bbox, i64, i64, 0.2, 1)
+    merge_blobs(labels, count, bbox, i64, i64, 0.2, 1.5, 1)
+    min_gap(i64, i64, i64, i64, 1.0)
+    surrounds(i64, i64)
     sets_within(i64, i64, i64, i64, 1.0)
     in_rects(i64, i64, np.zeros((1, 4), np.int64))
     count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1)

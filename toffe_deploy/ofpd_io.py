@@ -67,7 +67,8 @@ OFPD_DEFAULTS: dict[str, Any] = {
     "dedupe_px": 64,        # grouping "boxes": box half-size (px) around a reported object
     **CURRENT_LAYOUT,
     "link_px": 4,           # grouping "blobs": pixels <= 4 px apart (Chebyshev) are one blob (what a 5x5 closing bridges)
-    "merge_frac": 0.2,      # blobs within merge_frac * the larger extent of each other are one object
+    "merge_frac": 0.2,      # blobs within merge_frac * the larger extent of each other are one object ...
+    "edge_merge_frac": 1.5,  # ... or within edge_merge_frac when both are open edges (not surrounding their centroid)
     "pool_min": 2,          # crop "scaled": P = clip(2^ceil(log2(1.5 * extent / g)), pool_min, pool_max)
     "pool_max": 16,
 }
@@ -309,48 +310,56 @@ def box_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor
     return out
 
 
-def blobs_xy(xs: np.ndarray, ys: np.ndarray, width: int, config: ToffeConfig) -> tuple[np.ndarray, np.ndarray, int]:
+def blobs_xy(xs: np.ndarray, ys: np.ndarray, width: int, config: ToffeConfig
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """The candidate objects of one frame's unique pixels: (group (n,) per pixel, -1 for none;
-    count (G,) pixels per group; G), groups numbered by their first pixel in row-major order.
+    count (G,) pixels per group; closed (G,) whether a group holds a component surrounding its
+    centroid; G), groups numbered by their first pixel in row-major order.
 
     Blobs are the connected components of the pixels linked within ofpd.link_px (the 5x5
     closing of the cascade bridges 4 px gaps: a component is a blob of the closed mask).
     Components with >= ceil(min_events / 4) pixels that come within merge_frac * the larger
-    extent of each other (some pixel pair that close, compiled.merge_blobs) are one group: the
-    leading and trailing edges of a big object, the arcs of its outline; smaller components are
-    isolated noise. Two objects of radius r at centre distance 3r are r apart > 0.2 * 2r.
+    extent of each other (some pixel pair that close, compiled.merge_blobs), or within
+    edge_merge_frac while neither surrounds its centroid yet (open edges, compiled.surrounds),
+    closest pairs first (compiled.merge_blobs), are one group: the
+    leading and trailing edges of an object (measured on the shipped sample: up to 1.0-1.4 of an
+    edge's extent apart), the arcs of its outline; smaller components are specks that join a
+    group they come that close to, or isolated noise. Two objects of radius r at centre
+    distance 3r whose events close around them are r apart > 0.2 * 2r: two groups.
     Groups below min_events are returned too: they may be a reported object's leftovers.
     """
     s = ofpd_settings(config)
     xs, ys = _int64(xs), _int64(ys)
     if xs.size == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), 0
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool), 0
     labels, n_comp = link_components(xs, ys, int(s["link_px"]), int(width))
     count, _sx, _sy, bbox = component_stats(labels, n_comp, xs, ys)
     need = int(s["min_events"])
-    group, gc, _gb = merge_blobs(labels, count, bbox, xs, ys, float(s["merge_frac"]), max(1, -(-need // 4)))
-    return group[labels], gc, int(gc.shape[0])
+    group, gc, _gb, gclosed = merge_blobs(labels, count, bbox, xs, ys, float(s["merge_frac"]),
+                                          float(s["edge_merge_frac"]), max(1, -(-need // 4)))
+    return group[labels], gc, gclosed, int(gc.shape[0])
 
 
 def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
                     config: ToffeConfig) -> tuple[Objects, Claims]:
     """Grouping "blobs" (see group_objects_xy): from the fastest stage down, each frame's pixels
-    form candidate groups (blobs_xy). A group within merge_frac * the larger extent of an object
-    already reported (some pixel pair that close: the object's leftover edges on a slower
-    stage, or a piece of it) joins that object's pixels. Any other with >= min_events pixels is
+    form candidate groups (blobs_xy). A group within merge_frac (edge_merge_frac if both are
+    open edges) * the larger extent of an object already reported (some pixel pair that close:
+    the object's leftover edges on a slower stage, or a piece of it) joins that object's pixels. Any other with >= min_events pixels is
     an object of bin k at its centroid. An object claims exactly its pixels, of every stage.
     Objects of radius r at centre distance >= 3r stay two (their events are r apart, minus
     their motion, > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob."""
     s = ofpd_settings(config)
-    frac, need = float(s["merge_frac"]), int(s["min_events"])
+    frac, frac_open, need = float(s["merge_frac"]), float(s["edge_merge_frac"]), int(s["min_events"])
     w = int(sensor_size[0])
     objs: list[tuple[int, float, float]] = []
     px: list[list[np.ndarray]] = []          # per object: [xs, ys] of its pixels so far
     boxes: list[np.ndarray] = []
+    closed: list[bool] = []
     keys, owner = [], []
     for i in range(len(stage_pixels) - 1, -1, -1):          # fastest stage first; N is tiny
         xs, ys = (_int64(a) for a in stage_pixels[i])
-        group, count, n_groups = blobs_xy(xs, ys, w, config)
+        group, count, gclosed, n_groups = blobs_xy(xs, ys, w, config)
         if not n_groups:
             continue
         order = np.argsort(group, kind="stable")
@@ -362,7 +371,7 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
             e = _extent(box)
             host = -1
             for j in range(len(objs)):
-                t = frac * max(e, _extent(boxes[j]))
+                t = (frac if gclosed[q] or closed[j] else frac_open) * max(e, _extent(boxes[j]))
                 if box_gap(box, boxes[j]) <= t and sets_within(gx, gy, px[j][0], px[j][1], t):
                     host = j
                     break
@@ -373,6 +382,7 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
                 objs.append((i, float(gx.sum() / gx.size), float(gy.sum() / gy.size)))
                 px.append([gx, gy])
                 boxes.append(box)
+                closed.append(bool(gclosed[q]))
             else:
                 px[host] = [np.concatenate([px[host][0], gx]), np.concatenate([px[host][1], gy])]
                 b = boxes[host]
