@@ -41,7 +41,7 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from .compiled import (box_gap, box_mean, component_stats, count_cells, density_groups, in_rects, link_components,
+from .compiled import (box_mean, component_stats, count_cells, density_groups, in_rects, link_components,
                        merge_blobs, sets_within)
 from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
@@ -311,95 +311,99 @@ def box_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor
 
 
 def blobs_xy(xs: np.ndarray, ys: np.ndarray, width: int, config: ToffeConfig
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The candidate objects of one frame's unique pixels: (group (n,) per pixel, -1 for none;
-    count (G,) pixels per group; closed (G,) whether a group holds a component surrounding its
-    centroid; G), groups numbered by their first pixel in row-major order.
+    count (G,) pixels per group; bbox (G, 4) inclusive; closed (G,) whether a group surrounds
+    its centroid), groups numbered by their first pixel in row-major order.
 
     Blobs are the connected components of the pixels linked within ofpd.link_px (the 5x5
     closing of the cascade bridges 4 px gaps: a component is a blob of the closed mask).
-    Components with >= ceil(min_events / 4) pixels that come within merge_frac * the larger
-    extent of each other (some pixel pair that close, compiled.merge_blobs), or within
-    edge_merge_frac while neither surrounds its centroid yet (open edges, compiled.surrounds),
-    closest pairs first (compiled.merge_blobs), are one group: the
-    leading and trailing edges of an object (measured on the shipped sample: up to 1.0-1.4 of an
-    edge's extent apart), the arcs of its outline; smaller components are specks that join a
-    group they come that close to, or isolated noise. Two objects of radius r at centre
-    distance 3r whose events close around them are r apart > 0.2 * 2r: two groups.
-    Groups below min_events are returned too: they may be a reported object's leftovers.
+    Components with >= ceil(min_events / 4) pixels are joined, closest pairs first
+    (compiled.merge_blobs), while they come within edge_merge_frac * the larger extent of each
+    other and neither surrounds its centroid yet (open edges, compiled.surrounds: the leading
+    and trailing edges of an object, measured on the shipped sample up to 1.0-1.4 of an edge's
+    extent apart), else within merge_frac (a whole object joins only pieces close to it, not a
+    neighbour's edges); smaller components are specks that join a group they come close to,
+    or isolated noise. Two objects of radius r at centre distance 3r whose events close
+    around them are r apart > 0.2 * 2r: two groups. Groups below min_events are returned too:
+    they may be a reported object's leftovers.
     """
     s = ofpd_settings(config)
     xs, ys = _int64(xs), _int64(ys)
     if xs.size == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool), 0
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 4), np.int64), np.zeros(0, bool)
     labels, n_comp = link_components(xs, ys, int(s["link_px"]), int(width))
     count, _sx, _sy, bbox = component_stats(labels, n_comp, xs, ys)
     need = int(s["min_events"])
-    group, gc, _gb, gclosed = merge_blobs(labels, count, bbox, xs, ys, float(s["merge_frac"]),
-                                          float(s["edge_merge_frac"]), max(1, -(-need // 4)))
-    return group[labels], gc, gclosed, int(gc.shape[0])
+    group, gc, gb, gclosed = merge_blobs(labels, count, bbox, xs, ys, float(s["merge_frac"]),
+                                         float(s["edge_merge_frac"]), max(1, -(-need // 4)))
+    return group[labels], gc, gb, gclosed
 
 
 def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
                     config: ToffeConfig) -> tuple[Objects, Claims]:
     """Grouping "blobs" (see group_objects_xy): from the fastest stage down, each frame's pixels
-    form candidate groups (blobs_xy). A group within merge_frac (edge_merge_frac if both are
-    open edges) * the larger extent of an object already reported (some pixel pair that close:
-    the object's leftover edges on a slower stage, or a piece of it) joins that object's pixels. Any other with >= min_events pixels is
-    an object of bin k at its centroid. An object claims exactly its pixels, of every stage.
-    Objects of radius r at centre distance >= 3r stay two (their events are r apart, minus
-    their motion, > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob."""
+    form candidate groups (blobs_xy). A group within merge_frac (edge_merge_frac if neither
+    surrounds its centroid) * the larger extent of an object already reported (some pixel pair
+    that close: the object's leftover edges on a slower stage, or a piece of it) joins that
+    object's pixels. Any other with >= min_events pixels is an object of bin k at its centroid.
+    An object claims exactly its pixels, of every stage. Objects of radius r at centre distance
+    >= 3r stay two when their events close around them (they are r apart, minus their motion,
+    > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob."""
     s = ofpd_settings(config)
     frac, frac_open, need = float(s["merge_frac"]), float(s["edge_merge_frac"]), int(s["min_events"])
     w = int(sensor_size[0])
     objs: list[tuple[int, float, float]] = []
-    px: list[list[np.ndarray]] = []          # per object: [xs, ys] of its pixels so far
-    boxes: list[np.ndarray] = []
+    px: list[list[tuple[np.ndarray, np.ndarray]]] = []      # per object: its pixel sets so far
+    boxes: list[list[int]] = []
     closed: list[bool] = []
     keys, owner = [], []
     for i in range(len(stage_pixels) - 1, -1, -1):          # fastest stage first; N is tiny
         xs, ys = (_int64(a) for a in stage_pixels[i])
-        group, count, gclosed, n_groups = blobs_xy(xs, ys, w, config)
+        group, count, gbox, gclosed = blobs_xy(xs, ys, w, config)
+        n_groups = count.shape[0]
         if not n_groups:
             continue
         order = np.argsort(group, kind="stable")
         bounds = np.searchsorted(group[order], np.arange(n_groups + 1))
+        host_of = np.full(n_groups, -1, np.int64)
         for q in range(n_groups):
-            sel = order[bounds[q]:bounds[q + 1]]
-            gx, gy = xs[sel], ys[sel]
-            box = np.array([gx.min(), gy.min(), gx.max(), gy.max()], dtype=np.int64)
-            e = _extent(box)
-            host = -1
+            box = gbox[q].tolist()
+            e = float(max(box[2] - box[0], box[3] - box[1]) + 1)
+            sel = None
             for j in range(len(objs)):
-                t = (frac if gclosed[q] or closed[j] else frac_open) * max(e, _extent(boxes[j]))
-                if box_gap(box, boxes[j]) <= t and sets_within(gx, gy, px[j][0], px[j][1], t):
-                    host = j
-                    break
-            if host < 0:
-                if count[q] < need:
+                b = boxes[j]
+                t = (frac if gclosed[q] or closed[j] else frac_open) * max(e, float(max(b[2] - b[0], b[3] - b[1]) + 1))
+                if max(box[0] - b[2], b[0] - box[2], box[1] - b[3], b[1] - box[3]) > t:
                     continue
-                host = len(objs)
-                objs.append((i, float(gx.sum() / gx.size), float(gy.sum() / gy.size)))
-                px.append([gx, gy])
+                if sel is None:
+                    sel = order[bounds[q]:bounds[q + 1]]
+                if any(sets_within(xs[sel], ys[sel], ox, oy, t) for ox, oy in px[j]):
+                    host_of[q] = j
+                    break
+            if host_of[q] >= 0:
+                j = host_of[q]
+                b = boxes[j]
+                boxes[j] = [min(b[0], box[0]), min(b[1], box[1]), max(b[2], box[2]), max(b[3], box[3])]
+            elif count[q] >= need:
+                sel = order[bounds[q]:bounds[q + 1]] if sel is None else sel
+                host_of[q] = len(objs)
+                objs.append((i, float(xs[sel].sum() / sel.size), float(ys[sel].sum() / sel.size)))
+                px.append([])
                 boxes.append(box)
                 closed.append(bool(gclosed[q]))
-            else:
-                px[host] = [np.concatenate([px[host][0], gx]), np.concatenate([px[host][1], gy])]
-                b = boxes[host]
-                boxes[host] = np.array([min(b[0], box[0]), min(b[1], box[1]), max(b[2], box[2]), max(b[3], box[3])],
-                                       dtype=np.int64)
-            keys.append(gy * w + gx)
-            owner.append(np.full(gx.size, host, dtype=np.int64))
+            if host_of[q] >= 0:
+                sel = order[bounds[q]:bounds[q + 1]] if sel is None else sel
+                px[host_of[q]].append((xs[sel], ys[sel]))
+        pix_host = np.where(group >= 0, host_of[np.maximum(group, 0)], -1)
+        mine = pix_host >= 0
+        keys.append(ys[mine] * w + xs[mine])
+        owner.append(pix_host[mine])
     if not objs:
         return [], Claims(width=w, keys=np.zeros(0, np.int64), owner=np.zeros(0, np.int64))
     k, o = np.concatenate(keys), np.concatenate(owner)
     srt = np.argsort(k, kind="stable")
     return objs, Claims(width=w, keys=k[srt], owner=o[srt])
-
-
-def _extent(box: np.ndarray) -> float:
-    """max(width, height) of an inclusive box."""
-    return float(max(box[2] - box[0], box[3] - box[1]) + 1)
 
 
 def object_masks_xy(xs: np.ndarray, ys: np.ndarray, objects: Objects, claims: Claims) -> list[np.ndarray]:
