@@ -334,12 +334,14 @@ def link_components(xs, ys, link, width):
     """Connected components of unique pixels (xs, ys) where two pixels are linked when
     max(|dx|, |dy|) <= link: (labels (n,) 0..C-1 numbered by each component's first pixel in
     row-major order, C). The pixels are sorted by key y * W + x once; each one looks up the keys
-    of the rows y..y + link in [x - link, x + link] by binary search (no sensor-sized grid)."""
+    of the rows y..y + link in [x - link, x + link] with one forward-moving pointer per row
+    offset (the window's start only grows with the key): O(n * link), no sensor-sized grid."""
     n = xs.shape[0]
     keys = ys * width + xs
     order = np.argsort(keys)
     sk = keys[order]
     parent = np.arange(n)
+    ptr = np.zeros(link + 1, np.int64)
     for a in range(n):
         y = sk[a] // width
         x = sk[a] - y * width
@@ -348,7 +350,10 @@ def link_components(xs, ys, link, width):
             hi = (y + dy) * width + min(x + link, width - 1)
             if dy == 0:
                 lo = sk[a] + 1
-            j = np.searchsorted(sk, lo)
+            j = ptr[dy]
+            while j < n and sk[j] < lo:
+                j += 1
+            ptr[dy] = j
             while j < n and sk[j] <= hi:
                 _union(parent, a, j)
                 j += 1
