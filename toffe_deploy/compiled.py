@@ -429,30 +429,29 @@ def box_gap(a, b):
 @njit(cache=True, nogil=True)
 def min_gap(xa, ya, xb, yb, t):
     """Smallest Euclidean distance between a pixel of set a and one of set b when it is <= t,
-    else inf: only the pixels of each set inside the other's bounding box grown by t are
-    compared (far sets are cut by the bounding boxes)."""
-    best = np.inf
+    else inf. Set b is sorted by x once; each pixel of a scans only the pixels of b with
+    |dx| <= the best distance so far (found by binary search), so the scan narrows as soon as
+    a close pair is found."""
+    best = t
+    found = False
     if xa.shape[0] == 0 or xb.shape[0] == 0:
-        return best
-    ax0, ax1, ay0, ay1 = xa.min() - t, xa.max() + t, ya.min() - t, ya.max() + t
-    bx0, bx1, by0, by1 = xb.min() - t, xb.max() + t, yb.min() - t, yb.max() + t
-    keep = np.empty(xb.shape[0], np.int64)
-    m = 0
-    for j in range(xb.shape[0]):
-        if ax0 <= xb[j] <= ax1 and ay0 <= yb[j] <= ay1:
-            keep[m] = j
-            m += 1
-    t2 = t * t
+        return np.inf
+    by = np.argsort(xb)
+    sx = xb[by]
+    sy = yb[by]
     for i in range(xa.shape[0]):
-        if not (bx0 <= xa[i] <= bx1 and by0 <= ya[i] <= by1):
-            continue
-        for q in range(m):
-            dx = xa[i] - xb[keep[q]]
-            dy = ya[i] - yb[keep[q]]
-            d2 = dx * dx + dy * dy
-            if d2 <= t2 and d2 < best:
-                best = d2
-    return np.sqrt(best)
+        lo = np.searchsorted(sx, xa[i] - best)
+        j = lo
+        while j < sx.shape[0] and sx[j] <= xa[i] + best:
+            dx = xa[i] - sx[j]
+            dy = ya[i] - sy[j]
+            if abs(dy) <= best:
+                d = np.sqrt(dx * dx + dy * dy)
+                if d <= best:
+                    best = d
+                    found = True
+            j += 1
+    return best if found else np.inf
 
 
 @njit(cache=True, nogil=True)
