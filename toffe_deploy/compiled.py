@@ -429,22 +429,16 @@ def box_gap(a, b):
 @njit(cache=True, nogil=True)
 def min_gap(xa, ya, xb, yb, t):
     """Smallest Euclidean distance between a pixel of set a and one of set b when it is <= t,
-    else inf. Set b is sorted by x once; each pixel of a scans only the pixels of b with
+    else inf. Set b must be sorted by x: each pixel of a scans only the pixels of b with
     |dx| <= the best distance so far (found by binary search), so the scan narrows as soon as
     a close pair is found."""
     best = t
     found = False
-    if xa.shape[0] == 0 or xb.shape[0] == 0:
-        return np.inf
-    by = np.argsort(xb)
-    sx = xb[by]
-    sy = yb[by]
     for i in range(xa.shape[0]):
-        lo = np.searchsorted(sx, xa[i] - best)
-        j = lo
-        while j < sx.shape[0] and sx[j] <= xa[i] + best:
-            dx = xa[i] - sx[j]
-            dy = ya[i] - sy[j]
+        j = np.searchsorted(xb, xa[i] - best)
+        while j < xb.shape[0] and xb[j] <= xa[i] + best:
+            dx = xa[i] - xb[j]
+            dy = ya[i] - yb[j]
             if abs(dy) <= best:
                 d = np.sqrt(dx * dx + dy * dy)
                 if d <= best:
@@ -505,7 +499,7 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
     (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count,
     bbox and whether it surrounds its centroid)."""
     n = count.shape[0]
-    order = np.argsort(labels, kind="mergesort")
+    order = np.argsort(labels * (xs.max() + 1) + xs)      # by component, then x (min_gap's order)
     start = np.zeros(n + 1, np.int64)
     for c in range(n):
         start[c + 1] = start[c] + count[c]
