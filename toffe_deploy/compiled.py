@@ -451,18 +451,20 @@ def min_gap(xa, ya, xb, yb, t):
 @njit(cache=True, nogil=True)
 def surrounds(xs, ys):
     """Whether pixels surround their centroid: one or more in each of 8 sectors of 45 degrees
-    around it (pixels within 1 px of it not counted). A whole object's outline or blob does;
-    one edge of it (a line, an L, a crescent) does not."""
+    around it, counting only the pixels farther from it than a quarter of the set's extent
+    (max(width, height) of its bounding box), so that a thick edge does not pass. A whole
+    object's outline or blob does; one edge of it (a line, an L, a crescent) does not."""
     n = xs.shape[0]
     if n == 0:
         return False
     cx = xs.sum() / n
     cy = ys.sum() / n
+    r = 0.25 * (max(xs.max() - xs.min(), ys.max() - ys.min()) + 1)
     occupied = 0
     for i in range(n):
         dx = xs[i] - cx
         dy = ys[i] - cy
-        if dx * dx + dy * dy <= 1.0:
+        if dx * dx + dy * dy <= r * r:
             continue
         occupied |= 1 << (int(np.floor((np.arctan2(dy, dx) + np.pi) * (4.0 / np.pi))) % 8)
     return occupied == 255
