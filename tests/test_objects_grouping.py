@@ -186,3 +186,33 @@ def test_pose_and_speed_round_trip_through_the_module_and_onnx(tmp_path):
             np.testing.assert_allclose(d["speed_mps"][0], CFG.speed_scale.to_mps(v_px[i]), rtol=1e-5)
     # the training target is what the module outputs for the right head value
     np.testing.assert_allclose(ofpd_io.speed_target(v_px, CFG), np.log(v_px))
+
+
+def test_link_components_equals_brute_force(rng):
+    """compiled.link_components (sorted sweep, joins only what is needed) against the
+    definition: pixels max(|dx|, |dy|) <= link apart are connected, transitively."""
+    from toffe_deploy.compiled import link_components
+
+    for t in range(60):
+        h, w = 24, 32
+        m = rng.random((h, w)) < rng.uniform(0.02, 0.4)
+        ys, xs = np.nonzero(m)
+        if xs.size == 0:
+            continue
+        link = int(rng.integers(1, 5))
+        labels, n = link_components(xs.astype(np.int64), ys.astype(np.int64), link, w)
+        adj = (np.abs(xs[:, None] - xs[None]) <= link) & (np.abs(ys[:, None] - ys[None]) <= link)
+        ref = np.full(xs.size, -1)
+        k = 0
+        for i in range(xs.size):
+            if ref[i] < 0:
+                stack, ref[i] = [i], k
+                while stack:
+                    q = stack.pop()
+                    for j in np.flatnonzero(adj[q] & (ref < 0)):
+                        ref[j] = k
+                        stack.append(j)
+                k += 1
+        assert n == k
+        assert all(len(set(ref[labels == g])) == 1 for g in range(n))     # same partition
+        assert labels[np.argmin(ys * w + xs)] == 0                          # numbered row-major

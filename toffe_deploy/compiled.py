@@ -335,7 +335,8 @@ def link_components(xs, ys, link, width):
     max(|dx|, |dy|) <= link: (labels (n,) 0..C-1 numbered by each component's first pixel in
     row-major order, C). The pixels are sorted by key y * W + x once; each one looks up the keys
     of the rows y..y + link in [x - link, x + link] with one forward-moving pointer per row
-    offset (the window's start only grows with the key): O(n * link), no sensor-sized grid."""
+    offset (the window's start only grows with the key), and joins only pixels of a row more
+    than link apart (closer ones are joined through each other): O(n * link), no sensor grid."""
     n = xs.shape[0]
     keys = ys * width + xs
     order = np.argsort(keys)
@@ -354,8 +355,13 @@ def link_components(xs, ys, link, width):
             while j < n and sk[j] < lo:
                 j += 1
             ptr[dy] = j
+            last = -(1 << 62)
             while j < n and sk[j] <= hi:
-                _union(parent, a, j)
+                if sk[j] - last > link:          # pixels of a row <= link apart link each other anyway
+                    _union(parent, a, j)
+                    last = sk[j]
+                    if dy == 0:                  # the row's next pixel carries the chain on
+                        break
                 j += 1
     label_of_root = np.full(n, -1, np.int64)
     labels = np.empty(n, np.int64)
