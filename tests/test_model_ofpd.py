@@ -28,8 +28,9 @@ def test_prepare_centres_crop_on_events_and_encodes_position():
     centre = x[:, -2:].mean(axis=(2, 3)) * ofpd_io.COORD_SCALE
     np.testing.assert_allclose(centre, [[13.5, 7.5], [43.5, 32.5]], atol=0.51)
     # the event planes hold all events (pooled means of binary pixels) and the same pattern
-    pool = ofpd_io.ofpd_settings(CFG)["pool"]
-    assert x[0, :10].sum() * pool * pool == pytest.approx(5 * 8 * 6)
+    pool = ofpd_io.crop_origins(np.stack([_frame(10, 5), _frame(40, 30)]), CFG)[:, 2] // g
+    assert pool.tolist() == [2, 2]          # scaled crop: an 8 px object gets the smallest, 64 px
+    assert x[0, :10].sum() * 4 == pytest.approx(5 * 8 * 6)
     np.testing.assert_array_equal(x[0, :10], x[1, :10])
 
 
@@ -41,11 +42,18 @@ def test_has_object_counts_event_pixels():
 
 
 def test_decode_angles_and_speed_within_bin():
+    sc = CFG.speed_scale
     d = ofpd_io.decode(np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([[0.0, -2.0], [-1.0, 0.0]]),
-                       np.log([[500.0], [25.0]]), np.array([4, 2]), CFG)
+                       np.log([[50.0], [sc.to_px_ms(25.0)]]), np.array([4, 2]), CFG)
     np.testing.assert_allclose(d["direction_rad"], [-np.pi / 2, np.pi])
-    np.testing.assert_allclose(d["speed_mps"], [ofpd_io.MAX_SPEED_MPS, 25.0])   # clipped into bin 4
+    np.testing.assert_allclose(d["speed_px_ms"], [ofpd_io.MAX_SPEED_PX_MS, sc.to_px_ms(25.0)])   # clipped into bin 4
+    np.testing.assert_allclose(d["speed_mps"], [sc.to_mps(ofpd_io.MAX_SPEED_PX_MS), 25.0])
     np.testing.assert_allclose(d["speed_bin_mps"], [114.0, 30.0])
+    # a legacy-layout OFPD (config.ofpd without "grouping") regresses ln m/s
+    old = ToffeConfig(sensor_size=(64, 48), ofpd={"crop_px": 128})
+    d = ofpd_io.decode(np.zeros((2, 2)), np.ones((2, 2)), np.log([[500.0], [25.0]]), np.array([4, 2]), old)
+    np.testing.assert_allclose(d["speed_mps"], [ofpd_io.MAX_SPEED_MPS, 25.0])
+    np.testing.assert_allclose(d["speed_px_ms"], sc.to_px_ms(np.array([ofpd_io.MAX_SPEED_MPS, 25.0])))
     with pytest.raises(ValueError):
         ofpd_io.decode(np.zeros((1, 2)), np.ones((1, 2)), np.zeros((1, 1)), np.array([5]), CFG)
 

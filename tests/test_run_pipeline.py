@@ -62,7 +62,9 @@ def _random_window(rng, cfg, n_stages=4):
 @pytest.mark.parametrize("ofpd", [{"crop_px": 32, "pool": 2, "min_events": 10, "dedupe_px": 12},
                                   {"crop_px": 16, "pool": 4, "min_events": 4, "dedupe_px": 20},
                                   {"crop_px": 24, "pool": 3, "min_events": 1, "dedupe_px": 6},
-                                  {"crop_px": 16, "pool": 2, "min_events": 6, "dedupe_px": 5}])
+                                  {"crop_px": 16, "pool": 2, "min_events": 6, "dedupe_px": 5},
+                                  {"crop_px": 32, "pool": 4, "min_events": 6, "pool_max": 4, **ofpd_io.CURRENT_LAYOUT},
+                                  {"crop_px": 16, "pool": 2, "min_events": 3, "link_px": 1, **ofpd_io.CURRENT_LAYOUT}])
 def test_sparse_ofpd_input_equals_ofpd_io(rng, ofpd):
     """The runtime's coordinate path == the dense ofpd_io API (training/export), bit for bit:
     stages, merged frames (hence n_events), has_object and the prepared OFPD input."""
@@ -80,6 +82,9 @@ def test_sparse_ofpd_input_equals_ofpd_io(rng, ofpd):
         assert np.array_equal(np.flatnonzero(ofpd_io.has_object(dense, cfg)), np.unique(ks_ref - 1))
         got, ref = ofpd_input.prepare(merged, cfg, lookup), ofpd_io.prepare(merged_ref, cfg)
         assert got.dtype == ref.dtype and got.shape == ref.shape and got.tobytes() == ref.tobytes()
+        ks_b, x_b, n_b = ofpd_input.batch(vol, masks, cfg, lookup)          # the pipeline's one-pass form
+        assert ks_b.tolist() == ks_ref.tolist() and x_b.tobytes() == ref.tobytes()
+        assert n_b.tolist() == [int(m.sum()) for m in merged_ref]
         n_obj += ks.size
         multi += int(np.any(np.bincount(ks) > 1))
     assert n_obj > 16 and multi >= 3            # covered windows with several objects in one stage

@@ -1,6 +1,6 @@
 """The per-window loops of the hot path, compiled (numba): the cpu cascade's indexing, OFS
-stage, closing compaction and mask split, the input front end, and ofpd_io's box tests, box means, density-seed
-grouping and cell counts.
+stage, closing compaction and mask split, the input front end, and ofpd_io's box tests, box
+means, density-seed grouping, event-blob components and cell counts.
 
 Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
 (~25 calls per stage on arrays of ~2,000 values, plus the window's de-duplication and scatter
@@ -310,21 +310,333 @@ def density_groups(xs, ys, r, width):
 
 
 @njit(cache=True, nogil=True)
-def count_cells(out, obj, xs, ys, ch, origins, n_channels, size, pool):
+def _root(parent, i):
+    """Union-find root of i, halving the path on the way."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True, nogil=True)
+def _union(parent, a, b):
+    """Joins the sets of a and b under the smaller root (so labels do not depend on the order)."""
+    ra = _root(parent, a)
+    rb = _root(parent, b)
+    if ra < rb:
+        parent[rb] = ra
+    elif rb < ra:
+        parent[ra] = rb
+
+
+@njit(cache=True, nogil=True)
+def link_components(xs, ys, link, width):
+    """Connected components of unique pixels (xs, ys) where two pixels are linked when
+    max(|dx|, |dy|) <= link: (labels (n,) 0..C-1 numbered by each component's first pixel in
+    row-major order, C). The pixels are sorted by key y * W + x once; each one looks up the keys
+    of the rows y..y + link in [x - link, x + link] with one forward-moving pointer per row
+    offset (the window's start only grows with the key), and joins only pixels of a row more
+    than link apart (closer ones are joined through each other): O(n * link), no sensor grid."""
+    n = xs.shape[0]
+    keys = ys * width + xs
+    order = np.argsort(keys)
+    sk = keys[order]
+    parent = np.arange(n)
+    ptr = np.zeros(link + 1, np.int64)
+    for a in range(n):
+        y = sk[a] // width
+        x = sk[a] - y * width
+        for dy in range(link + 1):
+            lo = (y + dy) * width + max(x - link, 0)
+            hi = (y + dy) * width + min(x + link, width - 1)
+            if dy == 0:
+                lo = sk[a] + 1
+            j = ptr[dy]
+            while j < n and sk[j] < lo:
+                j += 1
+            ptr[dy] = j
+            last = -(1 << 62)
+            while j < n and sk[j] <= hi:
+                if sk[j] - last > link:          # pixels of a row <= link apart link each other anyway
+                    _union(parent, a, j)
+                    last = sk[j]
+                    if dy == 0:                  # the row's next pixel carries the chain on
+                        break
+                j += 1
+    label_of_root = np.full(n, -1, np.int64)
+    labels = np.empty(n, np.int64)
+    c = 0
+    for a in range(n):                       # sorted order: components numbered row-major
+        r = _root(parent, a)
+        if label_of_root[r] < 0:
+            label_of_root[r] = c
+            c += 1
+        labels[order[a]] = label_of_root[r]
+    return labels, c
+
+
+@njit(cache=True, nogil=True)
+def component_stats(labels, n_comp, xs, ys):
+    """Per component: (count (C,), sum x (C,), sum y (C,), bbox (C, 4) = x_min, y_min, x_max,
+    y_max), exact integers."""
+    count = np.zeros(n_comp, np.int64)
+    sx = np.zeros(n_comp, np.int64)
+    sy = np.zeros(n_comp, np.int64)
+    bbox = np.empty((n_comp, 4), np.int64)
+    for c in range(n_comp):
+        bbox[c, 0] = bbox[c, 1] = 1 << 40
+        bbox[c, 2] = bbox[c, 3] = -(1 << 40)
+    for i in range(labels.shape[0]):
+        c = labels[i]
+        count[c] += 1
+        sx[c] += xs[i]
+        sy[c] += ys[i]
+        bbox[c, 0] = min(bbox[c, 0], xs[i])
+        bbox[c, 1] = min(bbox[c, 1], ys[i])
+        bbox[c, 2] = max(bbox[c, 2], xs[i])
+        bbox[c, 3] = max(bbox[c, 3], ys[i])
+    return count, sx, sy, bbox
+
+
+@njit(cache=True, nogil=True)
+def sets_within(xa, ya, xb, yb, t):
+    """Whether some pixel of set a lies within Euclidean distance t of some pixel of set b: only
+    the pixels of each set inside the other's bounding box grown by t are compared, and the
+    search stops at the first such pair (the leading and trailing edges of one object are
+    found at once; far sets are cut by the bounding boxes)."""
+    if xa.shape[0] == 0 or xb.shape[0] == 0:
+        return False
+    ax0, ax1, ay0, ay1 = xa.min() - t, xa.max() + t, ya.min() - t, ya.max() + t
+    bx0, bx1, by0, by1 = xb.min() - t, xb.max() + t, yb.min() - t, yb.max() + t
+    keep = np.empty(xb.shape[0], np.int64)
+    m = 0
+    for j in range(xb.shape[0]):
+        if ax0 <= xb[j] <= ax1 and ay0 <= yb[j] <= ay1:
+            keep[m] = j
+            m += 1
+    t2 = t * t
+    for i in range(xa.shape[0]):
+        if not (bx0 <= xa[i] <= bx1 and by0 <= ya[i] <= by1):
+            continue
+        for q in range(m):
+            dx = xa[i] - xb[keep[q]]
+            dy = ya[i] - yb[keep[q]]
+            if dx * dx + dy * dy <= t2:
+                return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def box_gap(a, b):
+    """Chebyshev gap between two inclusive boxes (x_min, y_min, x_max, y_max); <= 0 if they touch."""
+    return max(a[0] - b[2], b[0] - a[2], a[1] - b[3], b[1] - a[3])
+
+
+@njit(cache=True, nogil=True)
+def min_gap(xa, ya, xb, yb, t):
+    """Smallest Euclidean distance between a pixel of set a and one of set b when it is <= t,
+    else inf. Set b must be sorted by x: each pixel of a scans only the pixels of b with
+    |dx| <= the best distance so far (found by binary search), so the scan narrows as soon as
+    a close pair is found."""
+    best = t
+    found = False
+    for i in range(xa.shape[0]):
+        j = np.searchsorted(xb, xa[i] - best)
+        while j < xb.shape[0] and xb[j] <= xa[i] + best:
+            dx = xa[i] - xb[j]
+            dy = ya[i] - yb[j]
+            if abs(dy) <= best:
+                d = np.sqrt(dx * dx + dy * dy)
+                if d <= best:
+                    best = d
+                    found = True
+            j += 1
+    return best if found else np.inf
+
+
+@njit(cache=True, nogil=True)
+def surrounds(xs, ys):
+    """Whether pixels surround their centroid: one or more in each of 8 sectors of 45 degrees
+    around it, counting only the pixels farther from it than a quarter of the set's extent
+    (max(width, height) of its bounding box), so that a thick edge does not pass. A whole
+    object's outline or blob does; one edge of it (a line, an L, a crescent) does not."""
+    n = xs.shape[0]
+    if n == 0:
+        return False
+    cx = xs.sum() / n
+    cy = ys.sum() / n
+    r = 0.25 * (max(xs.max() - xs.min(), ys.max() - ys.min()) + 1)
+    occupied = 0
+    for i in range(n):
+        dx = xs[i] - cx
+        dy = ys[i] - cy
+        if dx * dx + dy * dy <= r * r:
+            continue
+        occupied |= 1 << (int(np.floor((np.arctan2(dy, dx) + np.pi) * (4.0 / np.pi))) % 8)
+    return occupied == 255
+
+
+@njit(cache=True, nogil=True)
+def _members(root_of, r, px, py):
+    """Pixels (x, y) of the components whose root is r (px, py in component order)."""
+    n = 0
+    for i in range(px.shape[0]):
+        n += root_of[i] == r
+    x = np.empty(n, np.int64)
+    y = np.empty(n, np.int64)
+    k = 0
+    for i in range(px.shape[0]):
+        if root_of[i] == r:
+            x[k] = px[i]
+            y[k] = py[i]
+            k += 1
+    return x, y
+
+
+@njit(cache=True, nogil=True)
+def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
+    """Groups a frame's components into objects, closest pairs first.
+
+    Components with >= min_count pixels (seeds) are joined in order of their gap (smallest
+    pixel distance) over the larger extent (max(width, height) of the bounding box), while
+    that ratio is <= frac_open when neither group surrounds its centroid yet (``surrounds``:
+    the leading and trailing edges of one object, as far apart as the object is wide) and
+    <= frac_closed otherwise: once an object's edges have closed around it, only pieces close
+    to it join, not a neighbour's edges. A smaller component (a speck) joins the first seed it
+    comes within frac_closed * the seed's extent of; specks never group on their own. Returns
+    (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count,
+    bbox and whether it surrounds its centroid)."""
+    n = count.shape[0]
+    order = np.argsort(labels * (xs.max() + 1) + xs)      # by component, then x (min_gap's order)
+    start = np.zeros(n + 1, np.int64)
+    for c in range(n):
+        start[c + 1] = start[c] + count[c]
+    px = xs[order]
+    py = ys[order]
+    comp_of = labels[order]
+    parent = np.arange(n)
+    ext = np.empty(n)
+    for c in range(n):
+        ext[c] = max(bbox[c, 2] - bbox[c, 0], bbox[c, 3] - bbox[c, 1]) + 1
+    seeds = np.flatnonzero(count >= min_count)
+    closed = np.zeros(n, np.bool_)
+    gbox = bbox.copy()
+    for a in seeds:
+        closed[a] = surrounds(px[start[a]:start[a + 1]], py[start[a]:start[a + 1]])
+    # candidate seed pairs and their gap ratio, smallest first
+    m = seeds.shape[0]
+    pa = np.empty(m * m, np.int64)
+    pb = np.empty(m * m, np.int64)
+    ratio = np.empty(m * m)
+    k = 0
+    for i in range(m):
+        a = seeds[i]
+        for j in range(i + 1, m):
+            b = seeds[j]
+            big = max(ext[a], ext[b])
+            t = frac_open * big
+            if box_gap(bbox[a], bbox[b]) > t:
+                continue
+            d = min_gap(px[start[a]:start[a + 1]], py[start[a]:start[a + 1]],
+                        px[start[b]:start[b + 1]], py[start[b]:start[b + 1]], t)
+            if d <= t:
+                pa[k], pb[k], ratio[k] = a, b, d / big
+                k += 1
+    by = np.argsort(ratio[:k], kind="mergesort")
+    root_of = np.empty(px.shape[0], np.int64)
+    for q in by:
+        ra = _root(parent, pa[q])
+        rb = _root(parent, pb[q])
+        if ra == rb:
+            continue
+        limit = frac_closed if closed[ra] or closed[rb] else frac_open
+        if ratio[q] > limit:
+            continue
+        _union(parent, ra, rb)
+        r = _root(parent, ra)
+        for c in range(4):
+            gbox[r, c] = min(gbox[ra, c], gbox[rb, c]) if c < 2 else max(gbox[ra, c], gbox[rb, c])
+        for i in range(px.shape[0]):
+            root_of[i] = _root(parent, comp_of[i])
+        gx, gy = _members(root_of, r, px, py)
+        closed[r] = surrounds(gx, gy)
+    for b in range(n):                       # specks join a seed they come close to
+        if count[b] >= min_count:
+            continue
+        for a in seeds:
+            t = frac_closed * ext[a]
+            if box_gap(bbox[a], bbox[b]) <= t and min_gap(px[start[b]:start[b + 1]], py[start[b]:start[b + 1]],
+                                                         px[start[a]:start[a + 1]], py[start[a]:start[a + 1]], t) <= t:
+                was = closed[_root(parent, a)]
+                _union(parent, a, b)
+                closed[_root(parent, a)] = was       # the root may now be the speck
+                break
+    seeded = np.zeros(n, np.bool_)
+    for a in seeds:
+        seeded[_root(parent, a)] = True
+    group = np.full(n, -1, np.int64)
+    label_of_root = np.full(n, -1, np.int64)
+    g = 0
+    for c in range(n):
+        r = _root(parent, c)
+        if not seeded[r]:
+            continue
+        if label_of_root[r] < 0:
+            label_of_root[r] = g
+            g += 1
+        group[c] = label_of_root[r]
+    gc = np.zeros(g, np.int64)
+    gclosed = np.zeros(g, np.bool_)
+    gb = np.empty((g, 4), np.int64)
+    for q in range(g):
+        gb[q, 0] = gb[q, 1] = 1 << 40
+        gb[q, 2] = gb[q, 3] = -(1 << 40)
+    for c in range(n):
+        q = group[c]
+        if q < 0:
+            continue
+        gc[q] += count[c]
+        if count[c] >= min_count:
+            gclosed[q] |= closed[_root(parent, c)]
+        gb[q, 0] = min(gb[q, 0], bbox[c, 0])
+        gb[q, 1] = min(gb[q, 1], bbox[c, 1])
+        gb[q, 2] = max(gb[q, 2], bbox[c, 2])
+        gb[q, 3] = max(gb[q, 3], bbox[c, 3])
+    return group, gc, gb, gclosed
+
+
+@njit(cache=True, nogil=True)
+def in_rects(xs, ys, rects):
+    """(G, n) bool: pixel i inside rectangle g, rects[g] = (x_min, y_min, x_max, y_max) inclusive."""
+    out = np.empty((rects.shape[0], xs.shape[0]), np.bool_)
+    for g in range(rects.shape[0]):
+        for i in range(xs.shape[0]):
+            out[g, i] = rects[g, 0] <= xs[i] <= rects[g, 2] and rects[g, 1] <= ys[i] <= rects[g, 3]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def count_cells(out, obj, xs, ys, ch, origins, n_channels):
     """Adds 1 to out[obj, ch, y // P, x // P] for every one (object obj, pixel (x, y), channel
-    ch < n_channels) inside its object's S x S crop at origins[obj] (crop coordinates x, y);
-    ones outside are dropped. ``out`` float32 holds exact integer counts (< 2**24)."""
+    ch < n_channels) inside its object's S x S crop, origins[obj] = (x0, y0, S), P = S / g
+    (crop coordinates x, y); ones outside are dropped. ``out`` float32 holds exact integer
+    counts (< 2**24)."""
+    g = out.shape[-1]
     for i in range(xs.shape[0]):
         o = obj[i]
+        size = origins[o, 2]
         x = xs[i] - origins[o, 0]
         y = ys[i] - origins[o, 1]
         if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < n_channels:
+            pool = size // g
             out[o, ch[i], y // pool, x // pool] += 1
 
 
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
-           in_boxes, box_mean, density_groups, count_cells)
+           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds, sets_within,
+           in_rects,
+           count_cells)
 
 
 @njit(cache=True, nogil=True)
@@ -365,5 +677,12 @@ def warm_up() -> None:
     box_mean(i64, i64, 0.0, 0.0, 1.0)
     in_boxes(i64, i64, np.zeros((1, 2)), 1.0)
     density_groups(i64, i64, 1, 2)
-    count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.zeros((1, 2), np.int64), 1, 1, 1)
+    labels, n_comp = link_components(i64, i64, 1, 2)
+    count, sx, sy, bbox = component_stats(labels, n_comp, i64, i64)
+    merge_blobs(labels, count, bbox, i64, i64, 0.2, 1.5, 1)
+    min_gap(i64, i64, i64, i64, 1.0)
+    surrounds(i64, i64)
+    sets_within(i64, i64, i64, i64, 1.0)
+    in_rects(i64, i64, np.zeros((1, 4), np.int64))
+    count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1)
     first_spikes(i64, 2, 1, np.zeros(1, np.uint8))

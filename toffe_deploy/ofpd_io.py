@@ -1,65 +1,92 @@
 """OFPD input/output in numpy (inner loops compiled: toffe_deploy/compiled.py), shared by
 training, export and every runtime target (no torch).
 
-Input (``prepare``): a speed-separated frame (B, 2, H, W) of one stage is cut to an
-object-centric crop and pooled:
+Input (``prepare``): a speed-separated frame (B, 2, H, W) of one object is cut to an
+object-centric crop and pooled to g x g cells (g = ofpd.crop_px / ofpd.pool):
 
+    S        = crop side: ofpd.crop_px (crop "fixed") or g * P with P = clip(2^ceil(log2(1.5 *
+               extent / g)), pool_min, pool_max) (crop "scaled", extent = the object's
+               bounding-box side): the object fills about 2/3 of the crop whatever its size
     c        = centroid of the frame's event pixels (two passes: whole frame, then within the
                crop around the first estimate, so stray events far away barely move it)
-    crop     = frame[:, :, cy - S/2 : cy + S/2, cx - S/2 : cx + S/2]     (S = ofpd.crop_px, zero
-               outside the sensor)
-    x[2b+p]  = mean over each P x P cell of crop[b, p] > 0                (P = ofpd.pool)
+    crop     = frame[:, :, cy - S/2 : cy + S/2, cx - S/2 : cx + S/2]     (zero outside the sensor)
+    x[2b+p]  = mean over each P x P cell of crop[b, p] > 0                (P = S / g)
     x[2B]    = (x_px of the cell centre) / COORD_SCALE,  x[2B+1] = (y_px of the cell centre) / COORD_SCALE
 
-so C = 2B + 2 channels of (S/P) x (S/P). The two coordinate planes carry where the crop sits on
-the sensor; the network reads the crop centre back as their mean and adds its own residual,
-so its ``pose`` output is already in full-resolution pixels while all learned features stay
-translation invariant (a crop learns far faster than a whole-sensor regression on a 2-core CPU).
+so C = 2B + 2 channels of g x g. The two coordinate planes carry where the crop sits on the
+sensor and its cell size: the network reads the crop centre back as their mean and P from
+their spacing, and adds its own residual in cells (times P), so its ``pose`` output is already
+in full-resolution pixels while all learned features stay translation and scale invariant.
 
-Which objects a window reports (``report_objects``: fastest stage first, one +-dedupe_px box
-claimed per object, several objects per stage possible) and each object's frame
+Which objects a window reports (``group_objects_xy``: fastest stage first, each object claims
+its pixels, several objects per stage possible; ofpd.grouping "blobs" follows the event blobs,
+"boxes" is the fixed +-dedupe_px box of older checkpoints) and each object's frame
 (``merge_frames``) are decided here too. All of it is implemented once, on pixel coordinates
-(``report_objects_xy``, ``object_masks_xy``, ``crop_origin_xy``, ``prepare_xy``); the dense
+(``group_objects_xy``, ``object_masks_xy``, ``crop_origin_xy``, ``prepare_xy``); the dense
 functions only extract coordinates (np.nonzero) and call that core, and the cpu runtime
 (runtime/ofpd_input.py) calls it on the window's event coordinates without building dense frames.
 
 Output (``decode``): pose (N, 2) px; direction (N, 2) = (cos, sin) -> atan2, image-plane angle
-with y pointing down; speed (N, 1) = ln(speed in m/s), exponentiated and clipped into the
-stage's speed bin [lo, min(hi, MAX_SPEED_MPS)] (the OFS cascade already decided the bin; the
-head only refines within it). ``speed_bin_mps`` is the paper's bin-only estimate: the
-representative speed of stage k.
+with y pointing down; speed (N, 1) = ln(image-plane speed in px/ms) (speed_unit "px_ms"; the
+module regresses ln(cells/ms) and adds ln P) or ln(m/s) ("mps", older checkpoints),
+exponentiated and clipped into the stage's speed bin (the OFS cascade already decided the bin;
+the head only refines within it); m/s and px/ms convert with config.speed_scale.
+``speed_bin_mps`` is the paper's bin-only estimate: the representative speed of stage k.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import cv2
 import numpy as np
 
-from .compiled import box_mean, count_cells, density_groups
+from .compiled import (box_mean, component_stats, count_cells, density_groups, in_rects, link_components,
+                       merge_blobs, sets_within)
 from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
 
 COORD_SCALE = 1000.0       # coordinate planes hold px / 1000 (keeps inputs O(1))
 MAX_SPEED_MPS = 150.0      # the data set's programmed speeds stay below 144 m/s
+MAX_SPEED_PX_MS = 16.0     # the same cap in px/ms (150 m/s at 5 m seen with 554 px: 16.6 px/ms)
+
+# The OFPD input/output layout. A config.ofpd written before these keys existed (a non-empty
+# dict without "grouping") keeps the layout its OFPD was trained on (LEGACY_LAYOUT); a config
+# without any OFPD settings, and every OFPD trained from now on, get CURRENT_LAYOUT.
+LEGACY_LAYOUT: dict[str, str] = {"grouping": "boxes", "crop": "fixed", "speed_unit": "mps"}
+CURRENT_LAYOUT: dict[str, str] = {"grouping": "blobs", "crop": "scaled", "speed_unit": "px_ms"}
+LAYOUT_CHOICES = {"grouping": ("boxes", "blobs"), "crop": ("fixed", "scaled"), "speed_unit": ("mps", "px_ms")}
 
 OFPD_DEFAULTS: dict[str, Any] = {
-    "crop_px": 128,         # S: crop side in full-resolution pixels
-    "pool": 4,              # P: cell side; the network sees (S/P) x (S/P)
+    "crop_px": 128,         # S: crop side in full-resolution pixels (crop "fixed"); S/P = the grid g
+    "pool": 4,              # P: cell side; the network sees g x g = (crop_px/pool)^2 cells
     "conv_channels": [16, 32],
     "conv_kernels": [3, 3],
     "hidden": 64,           # FC width shared by the three heads
     "min_events": 12,       # has_object: fewer event pixels than this = no object in the frame
-    "dedupe_px": 64,        # report_objects: box half-size (px) around a reported object
+    "dedupe_px": 64,        # grouping "boxes": box half-size (px) around a reported object
+    **CURRENT_LAYOUT,
+    "link_px": 4,           # grouping "blobs": pixels <= 4 px apart (Chebyshev) are one blob (what a 5x5 closing bridges)
+    "merge_frac": 0.2,      # blobs within merge_frac * the larger extent of each other are one object ...
+    "edge_merge_frac": 1.5,  # ... or within edge_merge_frac when both are open edges (not surrounding their centroid)
+    "pool_min": 2,          # crop "scaled": P = clip(2^ceil(log2(1.5 * extent / g)), pool_min, pool_max)
+    "pool_max": 16,
 }
 
 
 def ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
-    """config.ofpd over the defaults (a checkpoint written by an older version still loads)."""
+    """config.ofpd over the defaults (a checkpoint written by an older version still loads, with
+    the layout it was trained on: LEGACY_LAYOUT)."""
+    given = dict(config.ofpd or {})
     s = dict(OFPD_DEFAULTS)
-    s.update(config.ofpd or {})
+    if given and "grouping" not in given:
+        s.update(LEGACY_LAYOUT)
+    s.update(given)
     if s["crop_px"] % s["pool"] != 0:
         raise ValueError(f"ofpd.crop_px {s['crop_px']} must be a multiple of ofpd.pool {s['pool']}")
+    for key, choices in LAYOUT_CHOICES.items():
+        if s[key] not in choices:
+            raise ValueError(f"ofpd.{key} must be one of {', '.join(choices)}, got {s[key]!r}")
     return s
 
 
@@ -197,23 +224,73 @@ def mode_centroid_xy(xs: np.ndarray, ys: np.ndarray, r: int, half: int, width: i
     return cx, cy
 
 
+Objects = list[tuple[int, float, float]]
+
+
 def report_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
-                      config: ToffeConfig) -> list[tuple[int, float, float]]:
-    """The objects one window reports: [(stage index k-1, cx, cy)], fastest stage first.
+                      config: ToffeConfig) -> Objects:
+    """The objects one window reports: [(stage index k-1, cx, cy)], fastest stage first
+    (group_objects_xy without the claims)."""
+    return group_objects_xy(stage_pixels, sensor_size, config)[0]
+
+
+def group_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
+                     config: ToffeConfig) -> tuple[Objects, "Claims"]:
+    """(objects [(stage index k-1, cx, cy)], claims): the objects one window reports, fastest
+    stage first, and which pixels each one claims (its OFPD frame is the events of every stage
+    at them: object_masks_xy).
 
     stage_pixels[k-1] = (xs, ys): the unique event pixels of stage k's frame (any order) on a
-    sensor (width, height). Going from the fastest stage down, the pixels of frame k outside the
+    sensor (width, height). Why fastest first: OFS_k fires for speed bin >= k, so an object's
+    bin is the fastest stage that fires on it. The cascade's closed mask rarely takes every
+    event of the object; its leftover edges reach the slower stages, which would otherwise
+    report the same object again at a wrong speed (measured on the test split: bin assignment
+    92 % with this rule, 57 % when every frame reports and the nearest report is matched).
+
+    ofpd.grouping "blobs" (blob_objects_xy): objects follow the event blobs, any size, any
+    spacing above what the closing bridges. "boxes" (box_objects_xy, checkpoints before it):
+    a fixed +-dedupe_px box per object.
+    """
+    w = int(sensor_size[0])
+    if ofpd_settings(config)["grouping"] == "blobs":
+        return blob_objects_xy(stage_pixels, sensor_size, config)
+    objs = box_objects_xy(stage_pixels, sensor_size, config)
+    r = float(ofpd_settings(config)["dedupe_px"])
+    # |x - c| < r over integers x is floor(c - r) + 1 <= x <= ceil(c + r) - 1
+    regions = np.array([[np.floor(cx - r) + 1, np.floor(cy - r) + 1, np.ceil(cx + r) - 1, np.ceil(cy + r) - 1]
+                        for _i, cx, cy in objs], dtype=np.int64).reshape(-1, 4)
+    return objs, Claims(regions=regions, width=w)
+
+
+@dataclass(frozen=True)
+class Claims:
+    """Which pixels each reported object claims: rectangles regions (G, 4) = x_min, y_min,
+    x_max, y_max inclusive (grouping "boxes"), or pixel sets: keys (M,) sorted linear pixel ids
+    y * width + x and owner (M,) their object (grouping "blobs")."""
+
+    width: int
+    regions: np.ndarray | None = None
+    keys: np.ndarray | None = None
+    owner: np.ndarray | None = None
+
+    def masks(self, xs: np.ndarray, ys: np.ndarray, n_objects: int) -> list[np.ndarray]:
+        """(n,) bool per object: the pixels (xs, ys) it claims."""
+        xs, ys = _int64(xs), _int64(ys)
+        if self.regions is not None:
+            return list(in_rects(xs, ys, np.ascontiguousarray(self.regions, dtype=np.int64).reshape(-1, 4)))
+        key = ys * self.width + xs
+        at = np.minimum(np.searchsorted(self.keys, key), max(self.keys.size - 1, 0))
+        own = np.where(self.keys[at] == key, self.owner[at], -1) if self.keys.size else np.full(key.size, -1)
+        return [own == j for j in range(n_objects)]
+
+
+def box_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
+                   config: ToffeConfig) -> Objects:
+    """Grouping "boxes": going from the fastest stage down, the pixels of frame k outside the
     boxes |x - cx|, |y - cy| < R (R = ofpd.dedupe_px) of the objects found so far are its
     candidates; while the box around their mode_centroid_xy holds >= ofpd.min_events of them,
-    that is an object of speed bin k and its box is claimed (several objects of one bin in one
-    frame are reported separately).
-
-    Why: OFS_k fires for speed bin >= k, so an object's bin is the fastest stage that fires on
-    it. The cascade's closed mask rarely takes every event of the object; its leftover edges
-    reach the slower stages, which would otherwise report the same object again at a wrong
-    speed (measured on the test split: bin assignment 92 % with this rule, 57 % when every frame
-    reports and the nearest report is matched).
-    """
+    that is an object of speed bin k and its box is claimed. Objects wider than R are split or
+    missed, two closer than R merge: kept for the OFPDs trained on it."""
     s = ofpd_settings(config)
     r, need, half = int(s["dedupe_px"]), s["min_events"], s["crop_px"] // 2
     w, h = int(sensor_size[0]), int(sensor_size[1])
@@ -233,52 +310,171 @@ def report_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sen
     return out
 
 
-def object_masks_xy(xs: np.ndarray, ys: np.ndarray, objects: Sequence[tuple[int, float, float]],
-                    config: ToffeConfig) -> list[np.ndarray]:
-    """merge_frames on coordinates: for each reported object, the bool mask of the given ones
-    (a window's ones of every stage frame) inside its box |x - cx|, |y - cy| < ofpd.dedupe_px:
-    all of the object's events, whichever stage the cascade's mask gave them to."""
-    r = ofpd_settings(config)["dedupe_px"]
+def blobs_xy(xs: np.ndarray, ys: np.ndarray, width: int, config: ToffeConfig
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The candidate objects of one frame's unique pixels: (group (n,) per pixel, -1 for none;
+    count (G,) pixels per group; bbox (G, 4) inclusive; closed (G,) whether a group surrounds
+    its centroid), groups numbered by their first pixel in row-major order.
+
+    Blobs are the connected components of the pixels linked within ofpd.link_px (the 5x5
+    closing of the cascade bridges 4 px gaps: a component is a blob of the closed mask).
+    Components with >= ceil(min_events / 4) pixels are joined, closest pairs first
+    (compiled.merge_blobs), while they come within edge_merge_frac * the larger extent of each
+    other and neither surrounds its centroid yet (open edges, compiled.surrounds: the leading
+    and trailing edges of an object, measured on the shipped sample up to 1.0-1.4 of an edge's
+    extent apart), else within merge_frac (a whole object joins only pieces close to it, not a
+    neighbour's edges); smaller components are specks that join a group they come close to,
+    or isolated noise. Two objects of radius r at centre distance 3r whose events close
+    around them are r apart > 0.2 * 2r: two groups. Groups below min_events are returned too:
+    they may be a reported object's leftovers.
+    """
+    s = ofpd_settings(config)
+    xs, ys = _int64(xs), _int64(ys)
+    if xs.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 4), np.int64), np.zeros(0, bool)
+    labels, n_comp = link_components(xs, ys, int(s["link_px"]), int(width))
+    count, _sx, _sy, bbox = component_stats(labels, n_comp, xs, ys)
+    need = int(s["min_events"])
+    group, gc, gb, gclosed = merge_blobs(labels, count, bbox, xs, ys, float(s["merge_frac"]),
+                                         float(s["edge_merge_frac"]), max(1, -(-need // 4)))
+    return group[labels], gc, gb, gclosed
+
+
+def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
+                    config: ToffeConfig) -> tuple[Objects, Claims]:
+    """Grouping "blobs" (see group_objects_xy): from the fastest stage down, each frame's pixels
+    form candidate groups (blobs_xy). A group within merge_frac (edge_merge_frac if neither
+    surrounds its centroid) * the larger extent of an object already reported (some pixel pair
+    that close: the object's leftover edges on a slower stage, or a piece of it) joins that
+    object's pixels. Any other with >= min_events pixels is an object of bin k at its centroid.
+    An object claims exactly its pixels, of every stage. Objects of radius r at centre distance
+    >= 3r stay two when their events close around them (they are r apart, minus their motion,
+    > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob."""
+    s = ofpd_settings(config)
+    frac, frac_open, need = float(s["merge_frac"]), float(s["edge_merge_frac"]), int(s["min_events"])
+    w = int(sensor_size[0])
+    objs: list[tuple[int, float, float]] = []
+    px: list[list[tuple[np.ndarray, np.ndarray]]] = []      # per object: its pixel sets so far
+    boxes: list[list[int]] = []
+    closed: list[bool] = []
+    keys, owner = [], []
+    for i in range(len(stage_pixels) - 1, -1, -1):          # fastest stage first; N is tiny
+        xs, ys = (_int64(a) for a in stage_pixels[i])
+        group, count, gbox, gclosed = blobs_xy(xs, ys, w, config)
+        n_groups = count.shape[0]
+        if not n_groups:
+            continue
+        order = np.argsort(group, kind="stable")
+        bounds = np.searchsorted(group[order], np.arange(n_groups + 1))
+        host_of = np.full(n_groups, -1, np.int64)
+        for q in range(n_groups):
+            box = gbox[q].tolist()
+            e = float(max(box[2] - box[0], box[3] - box[1]) + 1)
+            sel = None
+            for j in range(len(objs)):
+                b = boxes[j]
+                t = (frac if gclosed[q] or closed[j] else frac_open) * max(e, float(max(b[2] - b[0], b[3] - b[1]) + 1))
+                if max(box[0] - b[2], b[0] - box[2], box[1] - b[3], b[1] - box[3]) > t:
+                    continue
+                if sel is None:
+                    sel = order[bounds[q]:bounds[q + 1]]
+                if any(sets_within(xs[sel], ys[sel], ox, oy, t) for ox, oy in px[j]):
+                    host_of[q] = j
+                    break
+            if host_of[q] >= 0:
+                j = host_of[q]
+                b = boxes[j]
+                boxes[j] = [min(b[0], box[0]), min(b[1], box[1]), max(b[2], box[2]), max(b[3], box[3])]
+            elif count[q] >= need:
+                sel = order[bounds[q]:bounds[q + 1]] if sel is None else sel
+                host_of[q] = len(objs)
+                objs.append((i, float(xs[sel].sum() / sel.size), float(ys[sel].sum() / sel.size)))
+                px.append([])
+                boxes.append(box)
+                closed.append(bool(gclosed[q]))
+            if host_of[q] >= 0:
+                sel = order[bounds[q]:bounds[q + 1]] if sel is None else sel
+                px[host_of[q]].append((xs[sel], ys[sel]))
+        pix_host = np.where(group >= 0, host_of[np.maximum(group, 0)], -1)
+        mine = pix_host >= 0
+        keys.append(ys[mine] * w + xs[mine])
+        owner.append(pix_host[mine])
+    if not objs:
+        return [], Claims(width=w, keys=np.zeros(0, np.int64), owner=np.zeros(0, np.int64))
+    k, o = np.concatenate(keys), np.concatenate(owner)
+    srt = np.argsort(k, kind="stable")
+    return objs, Claims(width=w, keys=k[srt], owner=o[srt])
+
+
+def object_masks_xy(xs: np.ndarray, ys: np.ndarray, objects: Objects, claims: Claims) -> list[np.ndarray]:
+    """merge_frames on coordinates: for each reported object, the bool mask of the given pixels
+    (a window's ones of every stage frame) it claims (group_objects_xy): all of the object's
+    events, whichever stage the cascade's mask gave them to."""
     if not objects:
         return []
-    return list(in_boxes(xs, ys, [o[1:] for o in objects], r))
+    return claims.masks(xs, ys, len(objects))
 
 
-def crop_origin_xy(xs: np.ndarray, ys: np.ndarray, sensor_size: tuple[int, int], config: ToffeConfig) -> tuple[int, int]:
-    """Top-left (x0, y0) of the crop of one frame with unique event pixels (xs, ys): the crop
-    centre x0 + (S - 1) / 2 nearest to the two-pass centroid (within half a pixel)."""
-    size = ofpd_settings(config)["crop_px"]
+def crop_size_xy(xs: np.ndarray, ys: np.ndarray, config: ToffeConfig) -> int:
+    """Crop side S of an object with unique pixels (xs, ys): crop "fixed": ofpd.crop_px;
+    "scaled": g * P with P = clip(2^ceil(log2(1.5 * extent / g)), pool_min, pool_max), extent =
+    max(width, height) of the pixels' bounding box, g = crop_px / pool: the object fills about
+    two thirds of the crop whatever its size, and the network still sees g x g cells."""
+    s = ofpd_settings(config)
+    if s["crop"] == "fixed":
+        return int(s["crop_px"])
+    g = s["crop_px"] // s["pool"]
+    extent = 0 if xs.size == 0 else max(int(xs.max()) - int(xs.min()), int(ys.max()) - int(ys.min())) + 1
+    p = 1 if extent == 0 else 1 << max(int(np.ceil(np.log2(1.5 * extent / g))), 0)
+    return int(g * min(max(p, int(s["pool_min"])), int(s["pool_max"])))
+
+
+def crop_origin_xy(xs: np.ndarray, ys: np.ndarray, sensor_size: tuple[int, int], config: ToffeConfig
+                   ) -> tuple[int, int, int]:
+    """(x0, y0, S): the crop of one frame with unique event pixels (xs, ys): side S
+    (crop_size_xy), top-left with the crop centre x0 + (S - 1) / 2 nearest to the two-pass
+    centroid (within half a pixel)."""
+    size = crop_size_xy(xs, ys, config)
     cx, cy = centroid_of_pixels(xs, ys, size // 2, int(sensor_size[0]), int(sensor_size[1]))
-    return int(np.floor(cx - (size - 1) / 2 + 0.5)), int(np.floor(cy - (size - 1) / 2 + 0.5))
+    return int(np.floor(cx - (size - 1) / 2 + 0.5)), int(np.floor(cy - (size - 1) / 2 + 0.5)), size
+
+
+def coordinate_planes(origins: np.ndarray, g: int) -> tuple[np.ndarray, np.ndarray]:
+    """(x (N, g), y (N, g)) cell-centre coordinates / COORD_SCALE of crops at origins (N, 3) =
+    (x0, y0, S): x0 + (i + 0.5) P - 0.5 with P = S / g. The network reads the crop centre as
+    their mean and the cell size P from their spacing."""
+    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+    pool = o[:, 2:3] / g
+    centres = (np.arange(g)[None, :] + 0.5) * pool - 0.5
+    return (o[:, 0:1] + centres) / COORD_SCALE, (o[:, 1:2] + centres) / COORD_SCALE
 
 
 def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origins: np.ndarray,
                config: ToffeConfig) -> np.ndarray:
-    """The OFPD input (N, 2B+2, S/P, S/P) float32 of N frames given as their ones.
+    """The OFPD input (N, 2B+2, g, g) float32 of N frames given as their ones.
 
     ones[i] = (xs, ys, ch): the (unique) ones of frame i, ch = 2 b + polarity; origins[i] =
-    crop_origin_xy of its event pixels. x[2b+p, cell] = #ones of channel 2b+p in the crop cell /
-    P^2 (the mean of P x P binary pixels: one float32 division of an exact count), zero
-    elsewhere; the coordinate planes as in the module doc. The counts are one compiled pass over
-    the ones (compiled.count_cells).
+    crop_origin_xy of its event pixels (x0, y0, S). x[2b+p, cell] = #ones of channel 2b+p in
+    the crop cell / P^2 (P = S / g: the mean of P x P binary pixels, one float32 division of an
+    exact count), zero elsewhere; the coordinate planes as in coordinate_planes. The counts are
+    one compiled pass over the ones (compiled.count_cells).
     """
-    s = ofpd_settings(config)
-    size, pool = s["crop_px"], s["pool"]
-    g = size // pool
+    g = input_shape(config)[1]
     b = config.n_bins
     n = len(ones)
     out = np.zeros((n, 2 * b + 2, g, g), dtype=np.float32)
     if n == 0:
         return out
-    origins = np.ascontiguousarray(np.asarray(origins, dtype=np.int64).reshape(n, 2))
-    centres = (np.arange(g) + 0.5) * pool - 0.5          # cell centre in crop pixel units
-    out[:, 2 * b] = ((origins[:, 0, None] + centres[None, :]) / COORD_SCALE)[:, None, :]
-    out[:, 2 * b + 1] = ((origins[:, 1, None] + centres[None, :]) / COORD_SCALE)[:, :, None]
+    origins = np.ascontiguousarray(np.asarray(origins, dtype=np.int64).reshape(n, 3))
+    px, py = coordinate_planes(origins, g)
+    out[:, 2 * b] = px[:, None, :]
+    out[:, 2 * b + 1] = py[:, :, None]
     obj = np.repeat(np.arange(n, dtype=np.int64), [len(o[0]) for o in ones])
     xs, ys, ch = (np.concatenate([o[i] for o in ones]).astype(np.int64, copy=False) for i in range(3))
-    count_cells(out, obj, xs, ys, ch, origins, 2 * b, size, pool)
+    count_cells(out, obj, xs, ys, ch, origins, 2 * b)
     cells = out[:, :2 * b]
-    np.divide(cells, np.float32(pool * pool), out=cells)
+    pool = (origins[:, 2] // g).astype(np.float32)
+    np.divide(cells, (pool * pool)[:, None, None, None], out=cells)
     return out
 
 
@@ -320,21 +516,22 @@ def merge_frames(frames: np.ndarray, config: ToffeConfig) -> tuple[np.ndarray, n
     to, and none of another object's. Feed these to prepare / decode.
     """
     frames = np.asarray(frames) > 0
-    objs = report_objects(event_pixels(frames), config)
+    pixels = event_pixels(frames)
     h, w = frames.shape[-2:]
+    objs, claims = group_objects_xy([np.nonzero(p)[::-1] for p in pixels], (w, h), config)
     every = np.flatnonzero(frames.any(axis=0))             # the window's ones, (b, c, y, x) linear
     ys, xs = np.divmod(every % (h * w), w)
     merged = np.zeros((len(objs), int(np.prod(frames.shape[1:]))), dtype=bool)
-    for j, m in enumerate(object_masks_xy(xs, ys, objs, config)):
+    for j, m in enumerate(object_masks_xy(xs, ys, objs, claims)):
         merged[j, every[m]] = True
     return (np.array([i + 1 for i, _, _ in objs], dtype=np.int64),
             merged.reshape((len(objs),) + frames.shape[1:]))
 
 
 def crop_origins(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
-    """(N, 2) int top-left (x0, y0) of each frame's crop on the sensor (crop_origin_xy)."""
+    """(N, 3) int (x0, y0, S): top-left and side of each frame's crop on the sensor (crop_origin_xy)."""
     px = event_pixels(np.asarray(frames))
-    out = np.empty((px.shape[0], 2), dtype=np.int64)
+    out = np.empty((px.shape[0], 3), dtype=np.int64)
     for i in range(px.shape[0]):          # one centroid per frame (N is small: stages x windows)
         ys, xs = np.nonzero(px[i])
         out[i] = crop_origin_xy(xs, ys, (px.shape[2], px.shape[1]), config)
@@ -342,7 +539,7 @@ def crop_origins(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
 
 
 def prepare(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
-    """(N, B, 2, H, W) bool/uint8 speed-separated frames -> (N, 2B+2, S/P, S/P) float32 (see module doc)."""
+    """(N, B, 2, H, W) bool/uint8 speed-separated frames -> (N, 2B+2, g, g) float32 (see module doc)."""
     frames = np.asarray(frames)
     if frames.ndim == 4:
         frames = frames[None]
@@ -357,13 +554,35 @@ def prepare(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
 
 
 def speed_bounds(config: ToffeConfig) -> np.ndarray:
-    """(N_bins, 2) [lo, hi] of each bin used to clip the regressed speed."""
+    """(N_bins, 2) [lo, hi] m/s of each bin used to clip a speed regressed in m/s (speed_unit "mps")."""
     return np.array([[lo, min(hi, MAX_SPEED_MPS)] for lo, hi in config.speed_bins], dtype=np.float64)
+
+
+def speed_bounds_px_ms(config: ToffeConfig) -> np.ndarray:
+    """(N_bins, 2) [lo, hi] px/ms of each bin (config.speed_bins_px_ms, the top one capped at
+    MAX_SPEED_PX_MS) used to clip a speed regressed in px/ms (speed_unit "px_ms")."""
+    return np.array([[lo, min(hi, MAX_SPEED_PX_MS)] for lo, hi in config.speed_bins_px_ms], dtype=np.float64)
+
+
+def speed_target(speed_px_ms: np.ndarray, config: ToffeConfig, speed_mps: np.ndarray | None = None) -> np.ndarray:
+    """The OFPD speed output a training sample should give: ln(px/ms) (speed_unit "px_ms"; the
+    module adds ln P to its head, which so regresses ln(cells/ms)) or ln(m/s) ("mps"), floored
+    at the slowest bin's lower edge / 2."""
+    if ofpd_settings(config)["speed_unit"] == "px_ms":
+        return np.log(np.maximum(np.asarray(speed_px_ms, dtype=np.float64), config.speed_bins_px_ms[0][0] / 2))
+    v = config.speed_scale.to_mps(np.asarray(speed_px_ms, dtype=np.float64)) if speed_mps is None else speed_mps
+    return np.log(np.maximum(np.asarray(v, dtype=np.float64), 0.5))
 
 
 def decode(pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: np.ndarray,
            config: ToffeConfig) -> dict[str, np.ndarray]:
-    """OFPD outputs + 1-based stage per row -> x_px, y_px, direction_rad, speed_mps, speed_bin_mps."""
+    """OFPD outputs + 1-based stage per row -> x_px, y_px, direction_rad, speed_px_ms, speed_mps,
+    speed_bin_mps.
+
+    speed_unit "px_ms": speed = ln(image-plane px/ms), exponentiated and clipped into the
+    stage's bin in px/ms (speed_bounds_px_ms); speed_mps = config.speed_scale.to_mps of it.
+    "mps": speed = ln(m/s), clipped into the bin in m/s; speed_px_ms = speed_scale.to_px_ms.
+    """
     pose = np.asarray(pose, dtype=np.float64).reshape(-1, 2)
     direction = np.asarray(direction, dtype=np.float64).reshape(-1, 2)
     speed = np.asarray(speed, dtype=np.float64).reshape(-1)
@@ -372,12 +591,21 @@ def decode(pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: 
         raise ValueError("pose, direction, speed and stage_k must have the same number of rows")
     if k.size and (k.min() < 1 or k.max() > config.n_speed_bins):
         raise ValueError(f"stage_k must be in 1..{config.n_speed_bins}")
-    bounds = speed_bounds(config)[k - 1] if k.size else np.zeros((0, 2))
     reg = np.exp(np.clip(speed, -10.0, 10.0))
+    scale = config.speed_scale
+    if ofpd_settings(config)["speed_unit"] == "px_ms":
+        bounds = speed_bounds_px_ms(config)[k - 1] if k.size else np.zeros((0, 2))
+        v_px = np.clip(reg, bounds[:, 0], bounds[:, 1])
+        v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
+    else:
+        bounds = speed_bounds(config)[k - 1] if k.size else np.zeros((0, 2))
+        v_mps = np.clip(reg, bounds[:, 0], bounds[:, 1])
+        v_px = np.asarray(scale.to_px_ms(v_mps), dtype=np.float64)
     return {
         "x_px": pose[:, 0],
         "y_px": pose[:, 1],
         "direction_rad": np.arctan2(direction[:, 1], direction[:, 0]),
-        "speed_mps": np.clip(reg, bounds[:, 0], bounds[:, 1]),
+        "speed_px_ms": v_px,
+        "speed_mps": v_mps,
         "speed_bin_mps": np.asarray(config.representative_speeds, dtype=np.float64)[k - 1] if k.size else np.zeros(0),
     }

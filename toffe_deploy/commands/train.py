@@ -21,8 +21,10 @@ def register(sub) -> None:
                    help="training windows sampled per sequence (default 30)")
     p.add_argument("--seed", type=int, default=0, help="random seed for window sampling, init and shuffling (default 0)")
     p.add_argument("--ofpd-pool", type=int, default=None, metavar="P",
-                   help="OFPD input cell size in pixels: the 128 px crop is pooled to (128/P)^2 cells "
-                        "(default: the checkpoint's setting, else 4); a new value trains a fresh OFPD")
+                   help="OFPD grid: the network sees (128/P)^2 cells (crop_px 128 / P; with the scaled crop "
+                        "each object's crop is pooled to that grid) (default: the checkpoint's setting, else 4); "
+                        "a new value trains a fresh OFPD. --stage ofpd/all trains on the current input layout "
+                        "(blob grouping, scaled crop, px/ms speed)")
     p.add_argument("--ofpd-kernels", default=None, metavar="K1,K2",
                    help="OFPD conv kernel sizes (default: the checkpoint's, else 3,3); a new value trains a fresh OFPD")
     p.add_argument("--input-norm", choices=("first", "none"), default="first",

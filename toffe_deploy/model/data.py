@@ -32,7 +32,9 @@ class WindowSet:
     """N sparse crops: cells[offsets[i]:offsets[i+1]] are the active cells of sample i.
 
     origin (N, 2) = sensor (x, y) of the crop's top-left pixel; labels x, y (sensor px),
-    direction (rad), speed (m/s), speed_bin (1..N_bins); seq (N,) index of the source file.
+    direction (rad), speed (m/s), speed_bin (1..N_bins); seq (N,) index of the source file;
+    speed_px_ms (N,) the ground truth's image-plane speed (px/ms), NaN where the data set has no
+    such column (then training derives it from m/s with config.speed_scale).
     """
 
     n_bins: int
@@ -46,6 +48,11 @@ class WindowSet:
     speed: np.ndarray
     speed_bin: np.ndarray
     seq: np.ndarray
+    speed_px_ms: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.speed_px_ms is None:
+            self.speed_px_ms = np.full(self.origin.shape[0], np.nan)
 
     def __len__(self) -> int:
         return int(self.origin.shape[0])
@@ -75,7 +82,8 @@ class WindowSet:
         lens = np.array([p.size for p in parts], dtype=np.int64)
         return WindowSet(self.n_bins, self.crop, np.concatenate(parts) if parts else np.zeros(0, np.int32),
                          np.concatenate([[0], np.cumsum(lens)]), self.origin[keep], self.x[keep], self.y[keep],
-                         self.direction[keep], self.speed[keep], self.speed_bin[keep], self.seq[keep])
+                         self.direction[keep], self.speed[keep], self.speed_bin[keep], self.seq[keep],
+                         self.speed_px_ms[keep])
 
 
 def crop_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, centre_xy: tuple[float, float],
@@ -148,10 +156,10 @@ def load_windows(files: list[Path], config: ToffeConfig, dt_us: int | None = Non
                 cells.append(idx)
                 lens.append(idx.size)
                 origin.append(org)
-                lab.append((o.x, o.y, o.direction, o.speed, o.speed_bin))
+                lab.append((o.x, o.y, o.direction, o.speed, o.speed_bin, getattr(o, "speed_px_ms", np.nan)))
                 seq.append(fi)
-    lab_a = np.asarray(lab, dtype=np.float64).reshape(-1, 5)
+    lab_a = np.asarray(lab, dtype=np.float64).reshape(-1, 6)
     return WindowSet(config.n_bins, crop, np.concatenate(cells) if cells else np.zeros(0, np.int32),
                      np.concatenate([[0], np.cumsum(lens)]).astype(np.int64),
                      np.asarray(origin, dtype=np.int64).reshape(-1, 2), lab_a[:, 0], lab_a[:, 1], lab_a[:, 2],
-                     lab_a[:, 3], lab_a[:, 4].astype(np.int64), np.asarray(seq, dtype=np.int64))
+                     lab_a[:, 3], lab_a[:, 4].astype(np.int64), np.asarray(seq, dtype=np.int64), lab_a[:, 5])

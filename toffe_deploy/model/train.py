@@ -19,7 +19,9 @@ OFPD is trained on what it sees at inference: each training crop goes through th
 the *quantized* OFS stages in Loihi fixed point (model/reference.py), and every reported object
 (ofpd_io.merge_frames: the union of the stage frames of one object) becomes one sample,
 prepared by ofpd_io.prepare.
-Targets: sensor (x, y), (cos, sin) of the direction, ln(speed). Augmentation: the 8 flips and
+Targets: sensor (x, y), (cos, sin) of the direction, ln(speed) (ofpd_io.speed_target: ln px/ms of
+the image-plane speed, the ground truth's speed_px_ms or its m/s through config.speed_scale;
+ln m/s for a legacy-layout OFPD). A fresh OFPD trains on ofpd_io.CURRENT_LAYOUT. Augmentation: the 8 flips and
 transposes of the crop (pose mirrored about the crop centre, direction mirrored likewise).
 Loss: SmoothL1(pose px / 4) + |d_pred - d_gt|^2 + |ln v_pred - ln v_gt|.
 """
@@ -225,8 +227,10 @@ def _closed(spikes: np.ndarray, config: ToffeConfig) -> np.ndarray:
 # ----------------------------------------------------------------------------------- OFPD
 @dataclass
 class OFPDSet:
-    """Prepared OFPD samples: planes (N, 2B, g, g) uint8 = pooled fraction * P^2, origin (N, 2) =
-    sensor px of the prepare crop's top-left, targets x, y, direction, speed, stage."""
+    """Prepared OFPD samples: planes (N, 2B, g, g) uint16 = pooled fraction * P^2 (event counts
+    per cell), origin (N, 3) = (x0, y0, S): sensor px of the prepare crop's top-left and its
+    side (P = S / g), targets x, y, direction, speed = the OFPD's speed target
+    (ofpd_io.speed_target: ln px/ms, or ln m/s for the "mps" layout), stage."""
 
     planes: np.ndarray
     origin: np.ndarray
@@ -235,15 +239,13 @@ class OFPDSet:
     direction: np.ndarray
     speed: np.ndarray
     stage: np.ndarray
-    pool: int
-    crop_px: int
 
 
 def build_ofpd_set(windows: WindowSet, stages, config: ToffeConfig, progress: bool = True) -> OFPDSet:
     """Run the fixed-point cascade on every crop; each reported object (ofpd_io.merge_frames,
-    as at inference) is a sample, labelled with the crop's ground truth."""
-    s = ofpd_io.ofpd_settings(config)
-    pool, size = s["pool"], s["crop_px"]
+    as at inference) is a sample, labelled with the crop's ground truth (speed: the ground
+    truth's px/ms where the data set has it, else its m/s through config.speed_scale)."""
+    g = ofpd_io.input_shape(config)[1]
     run = fixed_stage_fn(stages)
     planes, origin, tx, ty, td, tv, tk = [], [], [], [], [], [], []
     nb = 2 * config.n_bins
@@ -254,25 +256,30 @@ def build_ofpd_set(windows: WindowSet, stages, config: ToffeConfig, progress: bo
         if ks.size == 0:
             continue
         x = ofpd_io.prepare(merged, config)
-        org = ofpd_io.crop_origins(merged, config) + windows.origin[i]
+        org = ofpd_io.crop_origins(merged, config)
+        org[:, :2] += windows.origin[i]
+        v_px = windows.speed_px_ms[i]
+        if not np.isfinite(v_px):
+            v_px = config.speed_scale.to_px_ms(windows.speed[i])
         for j, k in enumerate(ks):
-            planes.append(np.rint(x[j, :nb] * pool * pool).astype(np.uint8))
+            pool = int(org[j, 2]) // g
+            planes.append(np.rint(x[j, :nb] * pool * pool).astype(np.uint16))
             origin.append(org[j])
             tx.append(windows.x[i]); ty.append(windows.y[i]); td.append(windows.direction[i])
-            tv.append(windows.speed[i]); tk.append(k)
-    g = size // pool
-    return OFPDSet(np.asarray(planes, dtype=np.uint8).reshape(-1, nb, g, g), np.asarray(origin, dtype=np.float64).reshape(-1, 2),
-                   np.asarray(tx), np.asarray(ty), np.asarray(td), np.asarray(tv), np.asarray(tk, dtype=np.int64), pool, size)
+            tv.append(float(ofpd_io.speed_target(v_px, config, windows.speed[i]))); tk.append(k)
+    return OFPDSet(np.asarray(planes, dtype=np.uint16).reshape(-1, nb, g, g), np.asarray(origin, dtype=np.float64).reshape(-1, 3),
+                   np.asarray(tx), np.asarray(ty), np.asarray(td), np.asarray(tv), np.asarray(tk, dtype=np.int64))
 
 
 def ofpd_batch(ds: OFPDSet, idx: np.ndarray, rng: np.random.Generator | None):
-    """Model input (n, 2B+2, g, g) float32 and targets (pose px (n,2), dir (n,2), ln speed (n,)),
+    """Model input (n, 2B+2, g, g) float32 and targets (pose px (n,2), dir (n,2), speed target (n,)),
     with a random flip/transpose per batch when rng is given (see module docstring)."""
-    planes = ds.planes[idx].astype(np.float32) / (ds.pool * ds.pool)
-    g = planes.shape[-1]
+    g = ds.planes.shape[-1]
     org = ds.origin[idx]
-    cx = org[:, 0] + (ds.crop_px - 1) / 2.0
-    cy = org[:, 1] + (ds.crop_px - 1) / 2.0
+    pool = (org[:, 2] // g).astype(np.float32)
+    planes = ds.planes[idx].astype(np.float32) / (pool * pool)[:, None, None, None]
+    cx = org[:, 0] + (org[:, 2] - 1) / 2.0
+    cy = org[:, 1] + (org[:, 2] - 1) / 2.0
     dx, dy = ds.x[idx] - cx, ds.y[idx] - cy
     c, s = np.cos(ds.direction[idx]), np.sin(ds.direction[idx])
     if rng is not None:
@@ -282,20 +289,20 @@ def ofpd_batch(ds: OFPDSet, idx: np.ndarray, rng: np.random.Generator | None):
             planes = planes[..., ::-1, :]; dy = -dy; s = -s
         if rng.random() < 0.5:
             planes = planes.swapaxes(-1, -2); dx, dy = dy, dx; c, s = s, c
-    centres = (np.arange(g) + 0.5) * ds.pool - 0.5
-    coord_x = (org[:, 0, None, None] + centres[None, None, :]) / ofpd_io.COORD_SCALE * np.ones((1, g, 1))
-    coord_y = (org[:, 1, None, None] + centres[None, :, None]) / ofpd_io.COORD_SCALE * np.ones((1, 1, g))
+    px, py = ofpd_io.coordinate_planes(org, g)
+    coord_x = px[:, None, :] * np.ones((1, g, 1))
+    coord_y = py[:, :, None] * np.ones((1, 1, g))
     x = np.concatenate([planes, coord_x[:, None], coord_y[:, None]], axis=1).astype(np.float32)
     pose = np.stack([cx + dx, cy + dy], axis=1)
     return (torch.from_numpy(np.ascontiguousarray(x)), torch.from_numpy(pose.astype(np.float32)),
             torch.from_numpy(np.stack([c, s], axis=1).astype(np.float32)),
-            torch.from_numpy(np.log(np.maximum(ds.speed[idx], 0.5)).astype(np.float32)))
+            torch.from_numpy(ds.speed[idx].astype(np.float32)))
 
 
 def ofpd_loss(model, batch, device):
     x, pose_t, dir_t, lnv_t = (t.to(device) for t in batch)
     pose, direction, speed = model(x)
-    lp = F.smooth_l1_loss(pose / 4.0, pose_t / 4.0)
+    lp = F.smooth_l1_loss(pose / 4.0, pose_t / 4.0)     # px / 4: about cells at the old fixed crop
     ld = ((direction - dir_t) ** 2).sum(dim=1).mean()
     lv = (speed[:, 0] - lnv_t).abs().mean()
     return lp + ld + lv, (float(lp), float(ld), float(lv))
@@ -372,6 +379,12 @@ def with_ofpd_settings(config: ToffeConfig, pool: int | None, kernels: tuple[int
     return dataclasses.replace(config, ofpd=new), True
 
 
+def with_current_layout(config: ToffeConfig) -> ToffeConfig:
+    """config with ofpd_io.CURRENT_LAYOUT (blob grouping, scaled crop, px/ms speed): what a fresh
+    OFPD is trained on, also over a checkpoint whose OFPD used the legacy layout."""
+    return dataclasses.replace(config, ofpd={**ofpd_io.ofpd_settings(config), **ofpd_io.CURRENT_LAYOUT})
+
+
 def resolve_ofpd_settings(config: ToffeConfig, pool: int | None, kernels: tuple[int, int] | None,
                           interrupted: dict | None = None) -> tuple[ToffeConfig, bool]:
     """The OFPD settings a run trains with, and whether they differ from the checkpoint's.
@@ -406,6 +419,8 @@ def train(opts: TrainOptions) -> Path:
         config = make_config(files, Path(opts.data), opts.dt_us, opts.seed, opts.input_norm, opts.ofs_kernel)
         ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
         state = {}
+    if opts.stage in ("ofpd", "all") and not (opts.resume and state.get("ofpd_settings")):
+        config = with_current_layout(config)      # a fresh OFPD trains on today's input/output layout
     try:
         config, fresh = resolve_ofpd_settings(config, opts.ofpd_pool, opts.ofpd_kernels,
                                               state.get("ofpd_settings") if opts.resume else None)

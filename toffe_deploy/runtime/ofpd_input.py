@@ -8,8 +8,8 @@ evaluation and export are thin wrappers over the same functions):
 
     pixels_k  = unique (x, y) of frame k's ones (any order: the core's means are exact integer
                 sums, its density seed is computed on a grid)
-    objects   = ofpd_io.report_objects_xy(pixels_1..N)                (stage, box centre)
-    merged_j  = the ones of every frame inside object j's box        (ofpd_io.object_masks_xy)
+    objects   = ofpd_io.group_objects_xy(pixels_1..N)                 (stage, centre, claims)
+    merged_j  = the ones of every frame at object j's claimed pixels (ofpd_io.object_masks_xy)
     input     = ofpd_io.prepare_xy(ones of merged_j, crop_origin_xy(pixels of merged_j))
 
 This module only converts between SpikeVolume and coordinates, with O(n) de-duplication through
@@ -23,7 +23,7 @@ import numpy as np
 
 from ..compiled import dedupe
 from ..config import ToffeConfig
-from ..ofpd_io import crop_origin_xy, input_shape, object_masks_xy, prepare_xy, report_objects_xy
+from ..ofpd_io import crop_origin_xy, group_objects_xy, input_shape, object_masks_xy, prepare_xy
 from .spikes import SpikeVolume
 
 
@@ -47,26 +47,26 @@ def merge_objects(volume: SpikeVolume, frames: Sequence[np.ndarray], config: Tof
     """
     _b, _c, h, w = volume.shape
     pix = volume.pix
-    objs = report_objects_xy([unique_xy(pix[m], w, scratch) for m in frames], (w, h), config)
+    objs, claims = group_objects_xy([unique_xy(pix[m], w, scratch) for m in frames], (w, h), config)
     if not objs:
         return np.zeros(0, dtype=np.int64), []
     every = np.flatnonzero(np.logical_or.reduce(list(frames)))     # the ones of every frame
     fy, fx = np.divmod(pix[every], w)
-    merged = [volume.subset(every[m]) for m in object_masks_xy(fx, fy, objs, config)]
+    merged = [volume.subset(every[m]) for m in object_masks_xy(fx, fy, objs, claims)]
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), merged
 
 
 def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig,
           scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``prepare(*merge_objects(...))`` in one pass: (stage_k (G,), OFPD input (G, 2B+2, S/P,
-    S/P) float32, n_events (G,) = the number of ones of each merged frame).
+    """``prepare(*merge_objects(...))`` in one pass: (stage_k (G,), OFPD input (G, 2B+2, g, g)
+    float32, n_events (G,) = the number of ones of each merged frame).
 
     The same core calls on the same coordinate sets, with the window's pixels de-duplicated
     once (``volume.pixel_index``, shared with the OFS window) instead of once per stage frame
     and once per object: a frame's (or an object's) unique pixels are the unique pixel ids
     its ones point to, marked on a (U,) array over the window's U unique pixels. An object's
-    merged frame is the ones of every frame whose pixel lies in its box, so its unique pixels
-    are the window pixels of those ones inside the box.
+    merged frame is the ones of every frame whose pixel it claims, so its unique pixels are
+    the window pixels of those ones it claims.
     """
     _b, nc, h, w = volume.shape
     upix, pinv = volume.pixel_index(scratch)
@@ -78,16 +78,16 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
         mark[pinv[ones]] = True
         return np.flatnonzero(mark)
 
-    objs = report_objects_xy([(ux[u], uy[u]) for u in (pixels_of(m) for m in frames)], (w, h), config)
+    objs, claims = group_objects_xy([(ux[u], uy[u]) for u in (pixels_of(m) for m in frames)], (w, h), config)
     if not objs:
         c, g, _ = input_shape(config)
         return np.zeros(0, dtype=np.int64), np.zeros((0, c, g, g), np.float32), np.zeros(0, dtype=np.int64)
     every = np.flatnonzero(np.logical_or.reduce(list(frames)))     # the ones of every frame
     ev_u = pinv[every]
     fx, fy = ux[ev_u], uy[ev_u]
-    masks = object_masks_xy(fx, fy, objs, config)
+    masks = object_masks_xy(fx, fy, objs, claims)
     ev_pix = pixels_of(every)
-    pix_masks = object_masks_xy(ux[ev_pix], uy[ev_pix], objs, config)
+    pix_masks = object_masks_xy(ux[ev_pix], uy[ev_pix], objs, claims)
     ch = volume.bc[every] if nc == 2 else volume.b[every] * 2 + volume.c[every]
     ones, origins, n_ev = [], [], []
     for m, pm in zip(masks, pix_masks):
@@ -95,12 +95,12 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
         origins.append(crop_origin_xy(ux[mu], uy[mu], (w, h), config))
         ones.append((fx[m], fy[m], ch[m]))
         n_ev.append(ones[-1][0].shape[0])
-    x = prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 2), config)
+    x = prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 3), config)
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, np.asarray(n_ev, dtype=np.int64)
 
 
 def prepare(frames: Sequence[SpikeVolume], config: ToffeConfig, scratch: np.ndarray | None = None) -> np.ndarray:
-    """(N, 2B+2, S/P, S/P) float32, equal to ``ofpd_io.prepare`` of the dense frames."""
+    """(N, 2B+2, g, g) float32, equal to ``ofpd_io.prepare`` of the dense frames."""
     b = config.n_bins
     ones, origins = [], []
     for f in frames:
@@ -110,4 +110,4 @@ def prepare(frames: Sequence[SpikeVolume], config: ToffeConfig, scratch: np.ndar
         origins.append(crop_origin_xy(*unique_xy(f.pix, w, scratch), (w, h), config))
         ys, xs = np.divmod(f.pix, w)
         ones.append((xs, ys, f.b * 2 + f.c))
-    return prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 2), config)
+    return prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 3), config)

@@ -5,7 +5,7 @@ Per window [t0, t0 + dt) and speed bin k = N..1 (paper section "TOFFE Inference"
     frames_k  = speed-separated event volume of stage k          (cascade, eq. 3-4)
     objects   = ofpd_io's grouping of the frames into objects (report_objects_xy: an object's
                 speed bin is the fastest stage reporting it; object_masks_xy: its frame is the
-                events of all stages in its box), then decode(OFPD(prepare_xy(merged_j)), k_j)
+                events of all stages in its region), then decode(OFPD(prepare_xy(merged_j)), k_j)
                 for each object j -- the same coordinate core that ofpd_io's dense
                 merge_frames / prepare (training, evaluation, export) run, called through
                 runtime.ofpd_input on the window's event coordinates

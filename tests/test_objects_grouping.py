@@ -1,0 +1,218 @@
+"""Object grouping by event blobs (ofpd.grouping "blobs") and the OFPD crop scaled with the
+object (crop "scaled", speed in px/ms): sizes 15..200 px, pairs at 3 and 4 radii, a fast
+object's leftovers on slower stages, crop size and the pose / speed round trip through the
+torch module and its ONNX export. Blobs are drawn in numpy the way a moving object's events
+look: the symmetric difference of the object at two positions (its leading and trailing edges,
+two crescents for a disc), or a filled disc."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from toffe_deploy import ofpd_io
+from toffe_deploy.config import ToffeConfig
+from toffe_deploy.model.ofpd import OFPD
+
+SENSOR = (480, 360)
+CFG = ToffeConfig(sensor_size=SENSOR)          # no ofpd settings: the current layout
+
+
+def disc(cx, cy, d, shape=SENSOR[::-1]):
+    ys, xs = np.ogrid[:shape[0], :shape[1]]
+    return (xs - cx) ** 2 + (ys - cy) ** 2 <= (d / 2.0) ** 2
+
+
+def moving_disc(cx, cy, d, step=(4, 0)):
+    """Events of a disc of diameter d moving by ``step`` px: both edges, centred on (cx, cy)."""
+    a = disc(cx - step[0] / 2, cy - step[1] / 2, d)
+    b = disc(cx + step[0] / 2, cy + step[1] / 2, d)
+    return a ^ b
+
+
+def xy(mask):
+    ys, xs = np.nonzero(mask)
+    return xs, ys
+
+
+def stages(*masks):
+    """stage_pixels of 4 stages, masks[k-1] for stage k (None: empty)."""
+    out = []
+    for k in range(4):
+        m = masks[k] if k < len(masks) and masks[k] is not None else np.zeros(SENSOR[::-1], bool)
+        out.append(xy(m))
+    return out
+
+
+def test_current_layout_is_the_default_and_old_configs_keep_theirs():
+    assert {k: ofpd_io.ofpd_settings(CFG)[k] for k in ofpd_io.CURRENT_LAYOUT} == ofpd_io.CURRENT_LAYOUT
+    old = ToffeConfig(ofpd={"crop_px": 128, "pool": 4, "dedupe_px": 64})       # a checkpoint's config.json
+    assert {k: ofpd_io.ofpd_settings(old)[k] for k in ofpd_io.LEGACY_LAYOUT} == ofpd_io.LEGACY_LAYOUT
+    with pytest.raises(ValueError, match="grouping"):
+        ofpd_io.ofpd_settings(ToffeConfig(ofpd={"grouping": "rings"}))
+
+
+@pytest.mark.parametrize("d", [15, 40, 90, 200])
+@pytest.mark.parametrize("kind", ["edges", "filled", "diagonal"])
+def test_one_object_of_any_size(d, kind):
+    cx, cy = 240.0, 180.0
+    m = {"edges": lambda: moving_disc(cx, cy, d), "filled": lambda: disc(cx, cy, d),
+         "diagonal": lambda: moving_disc(cx, cy, d, step=(6, 6))}[kind]()
+    for stage in range(4):                                          # whichever stage fires on it
+        objs, claims = ofpd_io.group_objects_xy(stages(*[m if k == stage else None for k in range(4)]), SENSOR, CFG)
+        assert len(objs) == 1 and objs[0][0] == stage
+        assert np.hypot(objs[0][1] - cx, objs[0][2] - cy) <= 2.0
+        assert ofpd_io.object_masks_xy(*xy(m), objs, claims)[0].all()      # it claims the whole blob
+
+
+@pytest.mark.parametrize("d", [20, 40, 90])
+@pytest.mark.parametrize("radii", [3, 4])
+@pytest.mark.parametrize("angle", [0.0, 45.0, 90.0])
+def test_two_objects_three_and_four_radii_apart(d, radii, angle):
+    """Centre distance 3r and 4r (edge gaps r and 2r) -> two objects at their centres. A gap of
+    r is 0.5 of an object's extent, above merge_frac = 0.25; the gap between their events (r
+    minus the 4 px each moves along the line joining them) must stay above the 4 px the closing
+    bridges (link_px): r >= 9 px, objects from 18 px across."""
+    r = d / 2.0
+    dist = radii * r
+    a = np.radians(angle)
+    c0 = np.array([120.0, 90.0])                                   # both inside the 480 x 360 sensor
+    c1 = c0 + dist * np.array([np.cos(a), np.sin(a)])
+    m = moving_disc(*c0, d) | moving_disc(*c1, d)
+    objs, claims = ofpd_io.group_objects_xy(stages(None, m), SENSOR, CFG)
+    assert len(objs) == 2
+    got = sorted((o[1], o[2]) for o in objs)
+    want = sorted([tuple(c0), tuple(c1)])
+    np.testing.assert_allclose(got, want, atol=2.0)
+    # each object's frame holds all of its events and none of the other's
+    xs, ys = xy(m)
+    for g, inside in enumerate(ofpd_io.object_masks_xy(xs, ys, objs, claims)):
+        near = np.hypot(xs - objs[g][1], ys - objs[g][2]) <= r + 4
+        assert np.array_equal(inside, near)
+
+
+def test_touching_objects_are_one_blob():
+    """Centre distance 2r (edge gap 0): one connected blob, reported once (not supported: no
+    grouping that follows the events can split it without a shape model)."""
+    m = moving_disc(200, 170, 40) | moving_disc(240, 170, 40)
+    objs, _ = ofpd_io.group_objects_xy(stages(m), SENSOR, CFG)
+    assert len(objs) == 1
+
+
+def test_fast_objects_leftovers_on_slower_stages_are_not_reported_again():
+    d, cx, cy = 90, 200.0, 180.0
+    edges = moving_disc(cx, cy, d, step=(8, 0))
+    lead = edges & (np.arange(SENSOR[0]) > cx)[None, :]             # stage 4 takes the leading edge
+    trail = edges & ~lead                                           # stage 2 gets the trailing edge
+    arc = disc(cx - 2, cy, d + 6) & ~disc(cx - 2, cy, d) & (np.arange(SENSOR[1]) < cy - 30)[:, None]
+    neighbour = moving_disc(cx + 1.5 * d, cy, d)                    # a slow object 3 radii away
+    objs, _claims = ofpd_io.group_objects_xy(stages(arc | neighbour, trail, None, lead), SENSOR, CFG)
+    assert [o[0] for o in objs] == [3, 0]                           # the fast one once, the neighbour once
+    assert np.hypot(objs[1][1] - (cx + 1.5 * d), objs[1][2] - cy) <= 2.0
+    # the fast object's frame is all of its events (every stage), none of the neighbour's
+    frames = np.zeros((4, 5, 2) + SENSOR[::-1], bool)
+    frames[3, 0, 0] = lead
+    frames[1, 0, 0] = trail
+    frames[0, 0, 0] = arc | neighbour
+    ks, merged = ofpd_io.merge_frames(frames, CFG)
+    assert ks.tolist() == [4, 1]
+    px = ofpd_io.event_pixels(merged)
+    assert np.array_equal(px[0], lead | trail | arc) and np.array_equal(px[1], neighbour)
+
+
+def test_noise_pixels_are_no_object():
+    rng = np.random.default_rng(0)
+    m = np.zeros(SENSOR[::-1], bool)
+    m[rng.integers(0, SENSOR[1], 400), rng.integers(0, SENSOR[0], 400)] = True      # isolated events
+    objs, _ = ofpd_io.group_objects_xy(stages(m), SENSOR, CFG)
+    assert objs == []
+
+
+@pytest.mark.parametrize("d, size", [(15, 64), (36, 64), (50, 128), (90, 256), (200, 512), (400, 512)])
+def test_crop_scales_with_the_object(d, size):
+    m = moving_disc(240, 180, d) if d < 400 else np.ones(SENSOR[::-1], bool)
+    xs, ys = xy(m)
+    assert ofpd_io.crop_size_xy(xs, ys, CFG) == size
+    x0, y0, s = ofpd_io.crop_origin_xy(xs, ys, SENSOR, CFG)
+    assert s == size and abs(x0 + (s - 1) / 2 - xs.mean()) <= 0.5 and abs(y0 + (s - 1) / 2 - ys.mean()) <= 0.5
+    # every event of the object is in the crop, pooled into the g x g cells
+    frames = np.zeros((1, 5, 2) + SENSOR[::-1], bool)
+    frames[0, 0, 1] = m
+    x = ofpd_io.prepare(frames, CFG)
+    c, g, _ = ofpd_io.input_shape(CFG)
+    p = s // g
+    assert x.shape == (1, c, g, g)
+    inside = (xs >= x0) & (xs < x0 + s) & (ys >= y0) & (ys < y0 + s)
+    assert x[0, :-2].sum() * p * p == pytest.approx(inside.sum())
+    assert d >= 400 or inside.all()
+    # the coordinate planes: cell centres, spacing P
+    np.testing.assert_allclose(np.diff(x[0, -2, 0]) * ofpd_io.COORD_SCALE, p, atol=1e-3)
+    assert ofpd_io.crop_size_xy(xs, ys, ToffeConfig(ofpd={"crop_px": 128})) == 128     # legacy: fixed
+
+
+def test_pose_and_speed_round_trip_through_the_module_and_onnx(tmp_path):
+    """Encode targets as head outputs (pose residual in cells of P px, ln cells/ms) -> the module
+    and its ONNX export -> decode gives the targets back, for small and big crops."""
+    import onnxruntime as ort
+
+    c, g, _ = ofpd_io.input_shape(CFG)
+    origins = np.array([[100, 50, 64], [-40, 10, 512], [300, 200, 256]], dtype=np.int64)
+    x = ofpd_io.prepare_xy([(np.zeros(0, np.int64),) * 3] * 3, origins, CFG)
+    pool = origins[:, 2] / g
+    centre = origins[:, :2] + (origins[:, 2:] - 1) / 2.0
+    pose_t = centre + np.array([[3.0, -2.0], [-100.0, 40.0], [10.5, 0.25]])
+    ks = np.array([1, 4, 2])
+    v_px = np.array([0.5, 12.0, 3.0])                              # px/ms inside bins 1, 4, 2
+    dir_t = np.array([0.3, -2.0, 3.0])
+    m = OFPD.from_config(CFG).eval()
+    heads = [(m.pose_head, (pose_t - centre) / (g * pool[:, None] / 2)),
+             (m.direction_head, np.stack([np.cos(dir_t), np.sin(dir_t)], axis=1)),
+             (m.speed_head, (np.log(v_px) - np.log(pool))[:, None])]
+    for i in range(3):                       # one row at a time: the heads' bias is the encoded target
+        with torch.no_grad():
+            for head, target in heads:
+                head.weight.zero_()
+                head.bias.copy_(torch.from_numpy(target[i].astype(np.float32)))
+            out = [t.numpy() for t in m(torch.from_numpy(x[i:i + 1]))]
+        torch.onnx.export(m, torch.from_numpy(x[i:i + 1]), tmp_path / "m.onnx", input_names=["events"],
+                          output_names=["pose", "direction", "speed"], opset_version=17)
+        onnx_out = ort.InferenceSession(str(tmp_path / "m.onnx"), providers=["CPUExecutionProvider"]).run(
+            None, {"events": x[i:i + 1]})
+        for got in (out, onnx_out):
+            d = ofpd_io.decode(*got, ks[i:i + 1], CFG)
+            np.testing.assert_allclose([d["x_px"][0], d["y_px"][0]], pose_t[i], atol=2e-3)
+            np.testing.assert_allclose(d["direction_rad"][0], np.arctan2(np.sin(dir_t[i]), np.cos(dir_t[i])), atol=1e-5)
+            np.testing.assert_allclose(d["speed_px_ms"][0], v_px[i], rtol=1e-5)
+            np.testing.assert_allclose(d["speed_mps"][0], CFG.speed_scale.to_mps(v_px[i]), rtol=1e-5)
+    # the training target is what the module outputs for the right head value
+    np.testing.assert_allclose(ofpd_io.speed_target(v_px, CFG), np.log(v_px))
+
+
+def test_link_components_equals_brute_force(rng):
+    """compiled.link_components (sorted sweep, joins only what is needed) against the
+    definition: pixels max(|dx|, |dy|) <= link apart are connected, transitively."""
+    from toffe_deploy.compiled import link_components
+
+    for t in range(60):
+        h, w = 24, 32
+        m = rng.random((h, w)) < rng.uniform(0.02, 0.4)
+        ys, xs = np.nonzero(m)
+        if xs.size == 0:
+            continue
+        link = int(rng.integers(1, 5))
+        labels, n = link_components(xs.astype(np.int64), ys.astype(np.int64), link, w)
+        adj = (np.abs(xs[:, None] - xs[None]) <= link) & (np.abs(ys[:, None] - ys[None]) <= link)
+        ref = np.full(xs.size, -1)
+        k = 0
+        for i in range(xs.size):
+            if ref[i] < 0:
+                stack, ref[i] = [i], k
+                while stack:
+                    q = stack.pop()
+                    for j in np.flatnonzero(adj[q] & (ref < 0)):
+                        ref[j] = k
+                        stack.append(j)
+                k += 1
+        assert n == k
+        assert all(len(set(ref[labels == g])) == 1 for g in range(n))     # same partition
+        assert labels[np.argmin(ys * w + xs)] == 0                          # numbered row-major
