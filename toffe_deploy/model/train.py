@@ -55,6 +55,7 @@ from .reference import fixed_stage_fn, quantize_stages
 STATE_DIR = ".train_state"
 MARGIN = 0.2        # in threshold units: fire with u > 1.2 vth, stay below 0.8 vth
 NEG_WEIGHT = 2.0    # negatives: a handful of spikes already leaves a frame with an "object"
+OFS_CROP_PX = 128   # centre of each training crop the OFS is trained on (see pack_training_windows)
 
 
 def pick_device(name: str = "auto") -> torch.device:
@@ -97,12 +98,17 @@ def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: 
 
     rng = np.random.default_rng(seed)
     n_noise = max(len(windows) // 8, 4)
+    # The OFS is local (one K x K conv), so its training needs only the centre of each crop: the
+    # crops are sized for the OFPD's largest objects, and their noise events would make the packed
+    # neighbourhoods of whole crops tens of GB.
+    r = min(windows.crop, OFS_CROP_PX)
+    c0 = (windows.crop - r) // 2
 
     def vols():
         for i in tqdm(range(len(windows)), desc="packing OFS windows", leave=False, disable=not progress):
-            yield windows.dense([i])[0]
+            yield windows.dense([i])[0][:, :, c0:c0 + r, c0:c0 + r]
         for _ in range(n_noise):
-            yield apply_dense(noise_crops(1, windows.n_bins, windows.crop, rng)[0], input_norm)
+            yield apply_dense(noise_crops(1, windows.n_bins, r, rng)[0], input_norm)
 
     sw = pack_windows(vols(), kernel)
     return sw, np.concatenate([windows.speed_bin, np.zeros(n_noise, np.int64)])
