@@ -288,12 +288,12 @@ ACTIONS = {"SIGTERM host": to_host(signal.SIGTERM), "Ctrl-C group": to_group(sig
 
 # ----------------------------------------------------------------------------- fixtures and matrix
 def make_env(root: Path, sensor=(32, 24)) -> dict:
-    """A small real bundle, its checkpoint and a recording (tests/test_run_pipeline's factories)."""
+    """A small real bundle, its checkpoint and a recording (tests/conftest.py's factories)."""
     sys.path.insert(0, str(ROOT / "tests"))
-    from test_run_pipeline import make_bundle, make_recording
+    from conftest import _make_bundle, _make_recording
 
-    bundle = make_bundle(root, sensor=sensor)
-    rec = make_recording(root / "rec.h5", sensor=sensor, duration=0.02)
+    bundle = _make_bundle(root, sensor=sensor)
+    rec = _make_recording(root / "rec.h5", sensor=sensor, duration=0.02)
     return {"root": root, "bundle": bundle.root, "ckpt": root / "ckpt", "rec": rec}
 
 

@@ -164,6 +164,11 @@ class Prediction:
     speed_px_ms: float = math.nan
 
 
+def _or_nan(v) -> float:
+    """An optional ground-truth number (None where the file lacks the column) as a float."""
+    return math.nan if v is None else float(v)
+
+
 def _finite(v) -> bool:
     return v is not None and math.isfinite(float(v))
 
@@ -207,8 +212,8 @@ class FlowErrors:
             t, p = truths[i], preds[j]
             self.pix.append(float(np.hypot(p.x - t.x, p.y - t.y)))
             self.dir.append(float(angle_error_deg(p.direction_rad, t.direction)))
-            true_px = float(getattr(t, "speed_px_ms", math.nan))
-            depth = float(getattr(t, "depth_m", math.nan))
+            true_px = _or_nan(getattr(t, "speed_px_ms", None))
+            depth = _or_nan(getattr(t, "depth_m", None))
             pred_px = float(p.speed_px_ms) if _finite(p.speed_px_ms) else self._px_ms(p.speed_mps)
             bin_px = self._px_ms(p.speed_bin_mps)
             self.speed_px_ms.append(abs(pred_px - true_px) if _finite(true_px) and _finite(pred_px) else math.nan)
