@@ -606,6 +606,126 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
 
 
 @njit(cache=True, nogil=True)
+def _near_members(gx, gy, box, head, nxt, xs, ys, t):
+    """Whether a pixel of the group (gx, gy) with bounding box ``box`` lies within Euclidean
+    distance t of a member of an object (linked list head / nxt over xs, ys): only the members
+    inside the box grown by t can be (the exact test of ``sets_within`` on the same pairs)."""
+    x0, y0, x1, y1 = box[0] - t, box[1] - t, box[2] + t, box[3] + t
+    t2 = t * t
+    p = head
+    while p >= 0:
+        mx = xs[p]
+        my = ys[p]
+        if x0 <= mx <= x1 and y0 <= my <= y1:
+            for i in range(gx.shape[0]):
+                dx = gx[i] - mx
+                dy = gy[i] - my
+                if dx * dx + dy * dy <= t2:
+                    return True
+        p = nxt[p]
+    return False
+
+
+@njit(cache=True, nogil=True)
+def blob_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_count):
+    """ofpd_io.blob_objects_xy's loop over the stages in one pass: the pixels of stage i are
+    xs, ys[starts[i]:starts[i + 1]] (unique per stage). From the fastest stage down, each
+    frame's groups (link_components, component_stats, merge_blobs) join the first object
+    whose box comes within t = (frac_closed if either surrounds its centroid else frac_open) *
+    the larger extent and that has a pixel within t of one of theirs; the others with >= need
+    pixels are new objects at their centroid (exact integer sums over the count).
+
+    Returns (stage (G,), cx (G,), cy (G,), owner (n,) the object claiming each pixel or -1,
+    claim keys (M,) sorted linear ids y * width + x of the claimed pixels and their owners
+    (M,), keys of equal value in fastest-stage-first order)."""
+    n = xs.shape[0]
+    n_stages = starts.shape[0] - 1
+    owner = np.full(n, -1, np.int64)
+    nxt = np.full(n, -1, np.int64)
+    o_stage = np.empty(n, np.int64)                            # at most one object per pixel
+    o_cx = np.empty(n)
+    o_cy = np.empty(n)
+    o_box = np.empty((n, 4), np.int64)
+    o_closed = np.empty(n, np.bool_)
+    o_head = np.empty(n, np.int64)
+    n_obj = 0
+    claim_key = np.empty(n, np.int64)
+    claim_own = np.empty(n, np.int64)
+    m = 0
+    for i in range(n_stages - 1, -1, -1):                     # fastest stage first
+        s0 = starts[i]
+        s1 = starts[i + 1]
+        if s1 == s0:
+            continue
+        sx = xs[s0:s1]
+        sy = ys[s0:s1]
+        labels, n_comp = link_components(sx, sy, link, width)
+        count, _sx, _sy, bbox = component_stats(labels, n_comp, sx, sy)
+        comp_group, gcount, gbox, gclosed = merge_blobs(labels, count, bbox, sx, sy, frac_closed, frac_open, min_count)
+        n_groups = gcount.shape[0]
+        if n_groups == 0:
+            continue
+        # the stage's pixels by group (stable: pixel order within a group)
+        gstart = np.zeros(n_groups + 1, np.int64)
+        for p in range(s1 - s0):
+            q = comp_group[labels[p]]
+            if q >= 0:
+                gstart[q + 1] += 1
+        for q in range(n_groups):
+            gstart[q + 1] += gstart[q]
+        fill = gstart[:n_groups].copy()
+        members = np.empty(gstart[n_groups], np.int64)
+        for p in range(s1 - s0):
+            q = comp_group[labels[p]]
+            if q >= 0:
+                members[fill[q]] = s0 + p
+                fill[q] += 1
+        host_of = np.full(n_groups, -1, np.int64)
+        for q in range(n_groups):
+            sel = members[gstart[q]:gstart[q + 1]]
+            gx = xs[sel]
+            gy = ys[sel]
+            box = gbox[q]
+            e = float(max(box[2] - box[0], box[3] - box[1]) + 1)
+            host = -1
+            for j in range(n_obj):
+                b = o_box[j]
+                t = (frac_closed if gclosed[q] or o_closed[j] else frac_open) * max(e, float(max(b[2] - b[0], b[3] - b[1]) + 1))
+                if box_gap(box, b) > t:
+                    continue
+                if _near_members(gx, gy, box, o_head[j], nxt, xs, ys, t):
+                    host = j
+                    break
+            if host >= 0:
+                for c in range(2):
+                    o_box[host, c] = min(o_box[host, c], box[c])
+                    o_box[host, c + 2] = max(o_box[host, c + 2], box[c + 2])
+            elif gcount[q] >= need:
+                host = n_obj
+                n_obj += 1
+                o_stage[host] = i
+                o_cx[host] = gx.sum() / sel.shape[0]
+                o_cy[host] = gy.sum() / sel.shape[0]
+                o_box[host] = box
+                o_closed[host] = gclosed[q]
+                o_head[host] = -1
+            host_of[q] = host
+            if host >= 0:
+                for p in sel:
+                    owner[p] = host
+                    nxt[p] = o_head[host]
+                    o_head[host] = p
+        for p in range(s1 - s0):                               # the stage's claims, in pixel order
+            q = comp_group[labels[p]]
+            if q >= 0 and host_of[q] >= 0:
+                claim_key[m] = sy[p] * width + sx[p]
+                claim_own[m] = host_of[q]
+                m += 1
+    srt = np.argsort(claim_key[:m], kind="mergesort")
+    return o_stage[:n_obj].copy(), o_cx[:n_obj].copy(), o_cy[:n_obj].copy(), owner, claim_key[srt], claim_own[srt]
+
+
+@njit(cache=True, nogil=True)
 def in_rects(xs, ys, rects):
     """(G, n) bool: pixel i inside rectangle g, rects[g] = (x_min, y_min, x_max, y_max) inclusive."""
     out = np.empty((rects.shape[0], xs.shape[0]), np.bool_)
@@ -635,6 +755,7 @@ def count_cells(out, obj, xs, ys, ch, origins, n_channels):
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds, sets_within,
+           blob_objects,
            in_rects,
            count_cells)
 
@@ -680,6 +801,7 @@ def warm_up() -> None:
     labels, n_comp = link_components(i64, i64, 1, 2)
     count, sx, sy, bbox = component_stats(labels, n_comp, i64, i64)
     merge_blobs(labels, count, bbox, i64, i64, 0.2, 1.5, 1)
+    blob_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1)
     min_gap(i64, i64, i64, i64, 1.0)
     surrounds(i64, i64)
     sets_within(i64, i64, i64, i64, 1.0)

@@ -41,8 +41,8 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from .compiled import (box_mean, component_stats, count_cells, density_groups, in_rects, link_components,
-                       merge_blobs, sets_within)
+from .compiled import (blob_objects, box_mean, component_stats, count_cells, density_groups, in_rects, link_components,
+                       merge_blobs)
 from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
 
@@ -351,59 +351,16 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
     >= 3r stay two when their events close around them (they are r apart, minus their motion,
     > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob."""
     s = ofpd_settings(config)
-    frac, frac_open, need = float(s["merge_frac"]), float(s["edge_merge_frac"]), int(s["min_events"])
     w = int(sensor_size[0])
-    objs: list[tuple[int, float, float]] = []
-    px: list[list[tuple[np.ndarray, np.ndarray]]] = []      # per object: its pixel sets so far
-    boxes: list[list[int]] = []
-    closed: list[bool] = []
-    keys, owner = [], []
-    for i in range(len(stage_pixels) - 1, -1, -1):          # fastest stage first; N is tiny
-        xs, ys = (_int64(a) for a in stage_pixels[i])
-        group, count, gbox, gclosed = blobs_xy(xs, ys, w, config)
-        n_groups = count.shape[0]
-        if not n_groups:
-            continue
-        order = np.argsort(group, kind="stable")
-        bounds = np.searchsorted(group[order], np.arange(n_groups + 1))
-        host_of = np.full(n_groups, -1, np.int64)
-        for q in range(n_groups):
-            box = gbox[q].tolist()
-            e = float(max(box[2] - box[0], box[3] - box[1]) + 1)
-            sel = None
-            for j in range(len(objs)):
-                b = boxes[j]
-                t = (frac if gclosed[q] or closed[j] else frac_open) * max(e, float(max(b[2] - b[0], b[3] - b[1]) + 1))
-                if max(box[0] - b[2], b[0] - box[2], box[1] - b[3], b[1] - box[3]) > t:
-                    continue
-                if sel is None:
-                    sel = order[bounds[q]:bounds[q + 1]]
-                if any(sets_within(xs[sel], ys[sel], ox, oy, t) for ox, oy in px[j]):
-                    host_of[q] = j
-                    break
-            if host_of[q] >= 0:
-                j = host_of[q]
-                b = boxes[j]
-                boxes[j] = [min(b[0], box[0]), min(b[1], box[1]), max(b[2], box[2]), max(b[3], box[3])]
-            elif count[q] >= need:
-                sel = order[bounds[q]:bounds[q + 1]] if sel is None else sel
-                host_of[q] = len(objs)
-                objs.append((i, float(xs[sel].sum() / sel.size), float(ys[sel].sum() / sel.size)))
-                px.append([])
-                boxes.append(box)
-                closed.append(bool(gclosed[q]))
-            if host_of[q] >= 0:
-                sel = order[bounds[q]:bounds[q + 1]] if sel is None else sel
-                px[host_of[q]].append((xs[sel], ys[sel]))
-        pix_host = np.where(group >= 0, host_of[np.maximum(group, 0)], -1)
-        mine = pix_host >= 0
-        keys.append(ys[mine] * w + xs[mine])
-        owner.append(pix_host[mine])
-    if not objs:
-        return [], Claims(width=w, keys=np.zeros(0, np.int64), owner=np.zeros(0, np.int64))
-    k, o = np.concatenate(keys), np.concatenate(owner)
-    srt = np.argsort(k, kind="stable")
-    return objs, Claims(width=w, keys=k[srt], owner=o[srt])
+    pix = [tuple(_int64(a) for a in p) for p in stage_pixels]
+    starts = np.cumsum([0] + [p[0].shape[0] for p in pix]).astype(np.int64)
+    xs = np.concatenate([p[0] for p in pix]) if pix else np.zeros(0, np.int64)
+    ys = np.concatenate([p[1] for p in pix]) if pix else np.zeros(0, np.int64)
+    need = int(s["min_events"])
+    stage, cx, cy, _owner, keys, owner = blob_objects(xs, ys, starts, w, int(s["link_px"]), float(s["merge_frac"]),
+                                                      float(s["edge_merge_frac"]), need, max(1, -(-need // 4)))
+    objs = [(int(k), float(x), float(y)) for k, x, y in zip(stage.tolist(), cx.tolist(), cy.tolist())]
+    return objs, Claims(width=w, keys=keys, owner=owner)
 
 
 def object_masks_xy(xs: np.ndarray, ys: np.ndarray, objects: Objects, claims: Claims) -> list[np.ndarray]:
