@@ -726,6 +726,112 @@ def blob_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_
 
 
 @njit(cache=True, nogil=True)
+def claimed_by(keys, owner, query, n_objects):
+    """(G, n) bool: the pixel query[i] (linear id) is claimed by object g, i.e. the first entry
+    of the sorted ``keys`` equal to it has owner g (ofpd_io.Claims of grouping "blobs")."""
+    out = np.zeros((n_objects, query.shape[0]), np.bool_)
+    if keys.shape[0] == 0:
+        return out
+    at = np.searchsorted(keys, query)
+    for i in range(query.shape[0]):
+        j = at[i]
+        if j < keys.shape[0] and keys[j] == query[i]:
+            out[owner[j], i] = True
+    return out
+
+
+@njit(cache=True, nogil=True)
+def crop_pool(extent, g, pool_min, pool_max):
+    """Cell side P of crop "scaled" for an object of the given extent (px): the smallest power of
+    two P >= 1.5 * extent / g (2^ceil(log2(1.5 * extent / g)), 1 for extent 0, in integers:
+    2 P g >= 3 extent), clipped to [pool_min, pool_max]."""
+    p = 1
+    while 2 * p * g < 3 * extent:
+        p *= 2
+    return min(max(p, pool_min), pool_max)
+
+
+@njit(cache=True, nogil=True)
+def frame_pixels(frames, pix_inverse, n_pixels):
+    """The unique pixels of a window's stage frames: frames (N, n) bool over the window's ones,
+    pix_inverse (n,) the window pixel (0..n_pixels-1) of each one. Returns (pixels (M,) the
+    window pixels of frame 0, then frame 1, ..., each frame's in increasing order, starts
+    (N + 1,) where each frame's begin, every (E,) the ones in any frame, in order)."""
+    n_frames, n = frames.shape
+    mark = np.zeros(n_pixels, np.bool_)
+    out = np.empty(n_frames * n_pixels, np.int64)
+    starts = np.zeros(n_frames + 1, np.int64)
+    in_any = np.zeros(n, np.bool_)
+    m = 0
+    for k in range(n_frames):
+        for i in range(n):
+            if frames[k, i]:
+                mark[pix_inverse[i]] = True
+                in_any[i] = True
+        for u in range(n_pixels):
+            if mark[u]:
+                out[m] = u
+                m += 1
+                mark[u] = False
+        starts[k + 1] = m
+    return out[:m].copy(), starts, np.flatnonzero(in_any)
+
+
+@njit(cache=True, nogil=True)
+def object_crops(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_min, pool_max):
+    """Each object's crop and ones from the claims (G, n) bool over a window's ones (pixel (xs,
+    ys), channel ch, window pixel pix_inverse): ofpd_io.crop_origin_xy of its unique pixels
+    (side fixed_size, or g * crop_pool of their extent when fixed_size is 0; two-pass centroid
+    with exact integer sums, ofpd_io.centroid_of_pixels) and the claimed ones. Returns
+    (origins (G, 3) = x0, y0, S, n_ones (G,), and the claimed ones as flat arrays object, x, y,
+    channel, object by object)."""
+    n_obj, n = masks.shape
+    origins = np.empty((n_obj, 3), np.int64)
+    n_ones = np.zeros(n_obj, np.int64)
+    for j in range(n_obj):
+        for i in range(n):
+            n_ones[j] += masks[j, i]
+    total = n_ones.sum()
+    obj = np.empty(total, np.int64)
+    ox = np.empty(total, np.int64)
+    oy = np.empty(total, np.int64)
+    och = np.empty(total, np.int64)
+    seen = np.full(n_pixels, -1, np.int64)
+    ux = np.empty(n, np.int64)
+    uy = np.empty(n, np.int64)
+    m = 0
+    for j in range(n_obj):
+        nu = 0
+        for i in range(n):
+            if masks[j, i]:
+                obj[m] = j
+                ox[m] = xs[i]
+                oy[m] = ys[i]
+                och[m] = ch[i]
+                m += 1
+                u = pix_inverse[i]
+                if seen[u] != j:
+                    seen[u] = j
+                    ux[nu] = xs[i]
+                    uy[nu] = ys[i]
+                    nu += 1
+        px = ux[:nu]
+        py = uy[:nu]
+        size = fixed_size
+        if size == 0:
+            extent = 0 if nu == 0 else max(px.max() - px.min(), py.max() - py.min()) + 1
+            size = g * crop_pool(extent, g, pool_min, pool_max)
+        _n, cx, cy = box_mean(px, py, 0.0, 0.0, np.inf)
+        k, nx, ny = box_mean(px, py, cx, cy, float(size // 2))
+        if k:
+            cx, cy = nx, ny
+        origins[j, 0] = int(np.floor(cx - (size - 1) / 2 + 0.5))
+        origins[j, 1] = int(np.floor(cy - (size - 1) / 2 + 0.5))
+        origins[j, 2] = size
+    return origins, n_ones, obj, ox, oy, och
+
+
+@njit(cache=True, nogil=True)
 def in_rects(xs, ys, rects):
     """(G, n) bool: pixel i inside rectangle g, rects[g] = (x_min, y_min, x_max, y_max) inclusive."""
     out = np.empty((rects.shape[0], xs.shape[0]), np.bool_)
@@ -755,7 +861,7 @@ def count_cells(out, obj, xs, ys, ch, origins, n_channels):
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds, sets_within,
-           blob_objects,
+           blob_objects, claimed_by, crop_pool, frame_pixels, object_crops,
            in_rects,
            count_cells)
 
@@ -806,5 +912,9 @@ def warm_up() -> None:
     surrounds(i64, i64)
     sets_within(i64, i64, i64, i64, 1.0)
     in_rects(i64, i64, np.zeros((1, 4), np.int64))
+    claimed_by(i64, i64, i64, 1)
+    crop_pool(1, 1, 1, 1)
+    _u, _s, every = frame_pixels(np.ones((1, 1), np.bool_), i64, 1)
+    object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1)
     count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1)
     first_spikes(i64, 2, 1, np.zeros(1, np.uint8))

@@ -41,8 +41,8 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from .compiled import (blob_objects, box_mean, component_stats, count_cells, density_groups, in_rects, link_components,
-                       merge_blobs)
+from .compiled import (blob_objects, box_mean, claimed_by, component_stats, count_cells, crop_pool, density_groups,
+                       in_rects, link_components, merge_blobs)
 from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
 
@@ -275,13 +275,14 @@ class Claims:
 
     def masks(self, xs: np.ndarray, ys: np.ndarray, n_objects: int) -> list[np.ndarray]:
         """(n,) bool per object: the pixels (xs, ys) it claims."""
+        return list(self.matrix(xs, ys, n_objects))
+
+    def matrix(self, xs: np.ndarray, ys: np.ndarray, n_objects: int) -> np.ndarray:
+        """(G, n) bool: pixel i is claimed by object g (``masks`` as one array, one compiled pass)."""
         xs, ys = _int64(xs), _int64(ys)
         if self.regions is not None:
-            return list(in_rects(xs, ys, np.ascontiguousarray(self.regions, dtype=np.int64).reshape(-1, 4)))
-        key = ys * self.width + xs
-        at = np.minimum(np.searchsorted(self.keys, key), max(self.keys.size - 1, 0))
-        own = np.where(self.keys[at] == key, self.owner[at], -1) if self.keys.size else np.full(key.size, -1)
-        return [own == j for j in range(n_objects)]
+            return in_rects(xs, ys, np.ascontiguousarray(self.regions, dtype=np.int64).reshape(-1, 4))
+        return claimed_by(self.keys, self.owner, ys * self.width + xs, int(n_objects))
 
 
 def box_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
@@ -382,8 +383,7 @@ def crop_size_xy(xs: np.ndarray, ys: np.ndarray, config: ToffeConfig) -> int:
         return int(s["crop_px"])
     g = s["crop_px"] // s["pool"]
     extent = 0 if xs.size == 0 else max(int(xs.max()) - int(xs.min()), int(ys.max()) - int(ys.min())) + 1
-    p = 1 if extent == 0 else 1 << max(int(np.ceil(np.log2(1.5 * extent / g))), 0)
-    return int(g * min(max(p, int(s["pool_min"])), int(s["pool_max"])))
+    return int(g * crop_pool(extent, g, int(s["pool_min"]), int(s["pool_max"])))
 
 
 def crop_origin_xy(xs: np.ndarray, ys: np.ndarray, sensor_size: tuple[int, int], config: ToffeConfig
@@ -416,9 +416,19 @@ def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origin
     exact count), zero elsewhere; the coordinate planes as in coordinate_planes. The counts are
     one compiled pass over the ones (compiled.count_cells).
     """
+    n = len(ones)
+    obj = np.repeat(np.arange(n, dtype=np.int64), [len(o[0]) for o in ones])
+    xs, ys, ch = (np.concatenate([o[i] for o in ones]).astype(np.int64, copy=False) if n else np.zeros(0, np.int64)
+                  for i in range(3))
+    return prepare_flat(obj, xs, ys, ch, origins, n, config)
+
+
+def prepare_flat(obj: np.ndarray, xs: np.ndarray, ys: np.ndarray, ch: np.ndarray, origins: np.ndarray, n: int,
+                 config: ToffeConfig) -> np.ndarray:
+    """prepare_xy of n frames whose ones are given as flat arrays: one (xs, ys, ch) of frame obj
+    each (int64, any order)."""
     g = input_shape(config)[1]
     b = config.n_bins
-    n = len(ones)
     out = np.zeros((n, 2 * b + 2, g, g), dtype=np.float32)
     if n == 0:
         return out
@@ -426,8 +436,6 @@ def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origin
     px, py = coordinate_planes(origins, g)
     out[:, 2 * b] = px[:, None, :]
     out[:, 2 * b + 1] = py[:, :, None]
-    obj = np.repeat(np.arange(n, dtype=np.int64), [len(o[0]) for o in ones])
-    xs, ys, ch = (np.concatenate([o[i] for o in ones]).astype(np.int64, copy=False) for i in range(3))
     count_cells(out, obj, xs, ys, ch, origins, 2 * b)
     cells = out[:, :2 * b]
     pool = (origins[:, 2] // g).astype(np.float32)
