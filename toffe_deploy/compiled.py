@@ -330,48 +330,101 @@ def _union(parent, a, b):
 
 
 @njit(cache=True, nogil=True)
+def row_major(xs, ys):
+    """(order (n,), row_start (R + 1,), y0): the pixels (non-empty) in row-major order, by a
+    counting sort on the rows y0..y0 + R - 1 and a sort of each row by x (insertion sort for
+    the short rows of edges, argsort for long ones); row r's pixels are order[row_start[r]:
+    row_start[r + 1]]."""
+    n = xs.shape[0]
+    y0 = ys.min()
+    n_rows = ys.max() - y0 + 1
+    row_start = np.zeros(n_rows + 1, np.int64)
+    for i in range(n):
+        row_start[ys[i] - y0 + 1] += 1
+    for r in range(n_rows):
+        row_start[r + 1] += row_start[r]
+    fill = row_start[:n_rows].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        r = ys[i] - y0
+        order[fill[r]] = i
+        fill[r] += 1
+    for r in range(n_rows):
+        lo = row_start[r]
+        hi = row_start[r + 1]
+        if hi - lo > 32:
+            seg = order[lo:hi].copy()
+            order[lo:hi] = seg[np.argsort(xs[seg])]
+            continue
+        for a in range(lo + 1, hi):
+            v = order[a]
+            xv = xs[v]
+            b = a - 1
+            while b >= lo and xs[order[b]] > xv:
+                order[b + 1] = order[b]
+                b -= 1
+            order[b + 1] = v
+    return order, row_start, y0
+
+
+@njit(cache=True, nogil=True)
 def link_components(xs, ys, link, width):
     """Connected components of unique pixels (xs, ys) where two pixels are linked when
     max(|dx|, |dy|) <= link: (labels (n,) 0..C-1 numbered by each component's first pixel in
-    row-major order, C). The pixels are sorted by key y * W + x once; each one looks up the keys
-    of the rows y..y + link in [x - link, x + link] with one forward-moving pointer per row
-    offset (the window's start only grows with the key), and joins only pixels of a row more
-    than link apart (closer ones are joined through each other): O(n * link), no sensor grid."""
+    row-major order, C).
+
+    On runs, not pixels: the pixels of a row (row_major) split into runs where consecutive
+    pixels are <= link apart (each run is connected). Two runs [a0, a1], [b0, b1] of rows
+    <= link apart are linked exactly when [a0 - link, a1 + link] meets [b0, b1]: a pixel of
+    the other run then lies in it (an end, or one of the > link positions it covers, which no
+    gap of a run spans), and that pixel is <= link from the run's nearest pixel. Each row's
+    runs are swept against the next link rows' with one pointer per row: O(n + runs * link)."""
     n = xs.shape[0]
-    keys = ys * width + xs
-    order = np.argsort(keys)
-    sk = keys[order]
-    parent = np.arange(n)
-    ptr = np.zeros(link + 1, np.int64)
-    for a in range(n):
-        y = sk[a] // width
-        x = sk[a] - y * width
-        for dy in range(link + 1):
-            lo = (y + dy) * width + max(x - link, 0)
-            hi = (y + dy) * width + min(x + link, width - 1)
-            if dy == 0:
-                lo = sk[a] + 1
-            j = ptr[dy]
-            while j < n and sk[j] < lo:
-                j += 1
-            ptr[dy] = j
-            last = -(1 << 62)
-            while j < n and sk[j] <= hi:
-                if sk[j] - last > link:          # pixels of a row <= link apart link each other anyway
-                    _union(parent, a, j)
-                    last = sk[j]
-                    if dy == 0:                  # the row's next pixel carries the chain on
-                        break
-                j += 1
-    label_of_root = np.full(n, -1, np.int64)
     labels = np.empty(n, np.int64)
+    if n == 0:
+        return labels, 0
+    order, row_start, y0 = row_major(xs, ys)
+    n_rows = row_start.shape[0] - 1
+    run_x0 = np.empty(n, np.int64)
+    run_x1 = np.empty(n, np.int64)
+    run_of = np.empty(n, np.int64)             # run of each pixel of ``order``
+    row_run = np.zeros(n_rows + 1, np.int64)   # row r's runs: row_run[r]:row_run[r + 1]
+    m = 0
+    for r in range(n_rows):
+        row_run[r] = m
+        for a in range(row_start[r], row_start[r + 1]):
+            x = xs[order[a]]
+            if a == row_start[r] or x - run_x1[m - 1] > link:
+                run_x0[m] = x
+                m += 1
+            run_x1[m - 1] = x
+            run_of[a] = m - 1
+    row_run[n_rows] = m
+    parent = np.arange(m)
+    for r in range(n_rows):
+        for dy in range(1, link + 1):
+            if r + dy >= n_rows:
+                break
+            j = row_run[r + dy]
+            j_end = row_run[r + dy + 1]
+            for q in range(row_run[r], row_run[r + 1]):
+                lo = run_x0[q] - link
+                hi = run_x1[q] + link
+                while j < j_end and run_x1[j] < lo:
+                    j += 1
+                k = j
+                while k < j_end and run_x0[k] <= hi:
+                    _union(parent, q, k)
+                    k += 1
+    label_of_root = np.full(m, -1, np.int64)
     c = 0
-    for a in range(n):                       # sorted order: components numbered row-major
-        r = _root(parent, a)
-        if label_of_root[r] < 0:
-            label_of_root[r] = c
+    for q in range(m):                         # runs in row-major order: components numbered so
+        root = _root(parent, q)
+        if label_of_root[root] < 0:
+            label_of_root[root] = c
             c += 1
-        labels[order[a]] = label_of_root[r]
+    for a in range(n):
+        labels[order[a]] = label_of_root[_root(parent, run_of[a])]
     return labels, c
 
 
