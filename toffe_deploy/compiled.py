@@ -508,42 +508,94 @@ def min_gap(xa, ya, xb, yb, t):
 
 
 @njit(cache=True, nogil=True)
+def _sector(dx, dy):
+    """floor((atan2(dy, dx) + pi) * 4 / pi) % 8, the 45 degree sector of (dx, dy): from the
+    signs and |dx| vs |dy| where the angle is clearly inside a sector, from the formula itself
+    within 1e-9 (relative) of a sector boundary (an axis or a diagonal), so bit for bit the same."""
+    ax = abs(dx)
+    ay = abs(dy)
+    eps = 1e-9 * max(ax, ay)
+    if ax <= eps or ay <= eps or abs(ax - ay) <= eps:
+        return int(np.floor((np.arctan2(dy, dx) + np.pi) * (4.0 / np.pi))) % 8
+    steep = ay > ax
+    if dy < 0:
+        if dx < 0:
+            return 1 if steep else 0
+        return 2 if steep else 3
+    if dx > 0:
+        return 5 if steep else 4
+    return 6 if steep else 7
+
+
+@njit(cache=True, nogil=True)
+def _surrounds_ranges(xs, ys, lo, hi, k):
+    """surrounds of the pixels xs, ys[lo[i]:hi[i]] for i < k (one set in several ranges)."""
+    n = 0
+    sx = 0
+    sy = 0
+    x0 = y0 = 1 << 40
+    x1 = y1 = -(1 << 40)
+    for i in range(k):
+        for p in range(lo[i], hi[i]):
+            n += 1
+            sx += xs[p]
+            sy += ys[p]
+            x0 = min(x0, xs[p])
+            x1 = max(x1, xs[p])
+            y0 = min(y0, ys[p])
+            y1 = max(y1, ys[p])
+    if n == 0:
+        return False
+    cx = sx / n
+    cy = sy / n
+    r = 0.25 * (max(x1 - x0, y1 - y0) + 1)
+    occupied = 0
+    for i in range(k):
+        for p in range(lo[i], hi[i]):
+            dx = xs[p] - cx
+            dy = ys[p] - cy
+            if dx * dx + dy * dy <= r * r:
+                continue
+            occupied |= 1 << _sector(dx, dy)
+            if occupied == 255:
+                return True
+    return False
+
+
+@njit(cache=True, nogil=True)
 def surrounds(xs, ys):
     """Whether pixels surround their centroid: one or more in each of 8 sectors of 45 degrees
     around it, counting only the pixels farther from it than a quarter of the set's extent
     (max(width, height) of its bounding box), so that a thick edge does not pass. A whole
     object's outline or blob does; one edge of it (a line, an L, a crescent) does not."""
-    n = xs.shape[0]
-    if n == 0:
-        return False
-    cx = xs.sum() / n
-    cy = ys.sum() / n
-    r = 0.25 * (max(xs.max() - xs.min(), ys.max() - ys.min()) + 1)
-    occupied = 0
-    for i in range(n):
-        dx = xs[i] - cx
-        dy = ys[i] - cy
-        if dx * dx + dy * dy <= r * r:
-            continue
-        occupied |= 1 << (int(np.floor((np.arctan2(dy, dx) + np.pi) * (4.0 / np.pi))) % 8)
-    return occupied == 255
+    return _surrounds_ranges(xs, ys, np.zeros(1, np.int64), np.full(1, xs.shape[0], np.int64), 1)
 
 
 @njit(cache=True, nogil=True)
-def _members(root_of, r, px, py):
-    """Pixels (x, y) of the components whose root is r (px, py in component order)."""
-    n = 0
-    for i in range(px.shape[0]):
-        n += root_of[i] == r
-    x = np.empty(n, np.int64)
-    y = np.empty(n, np.int64)
-    k = 0
-    for i in range(px.shape[0]):
-        if root_of[i] == r:
-            x[k] = px[i]
-            y[k] = py[i]
-            k += 1
-    return x, y
+def _by_component_then_x(labels, xs, start):
+    """The pixels ordered by component (component c at start[c]:start[c + 1]), then by x: two
+    counting sorts (x, then a stable pass over the components)."""
+    n = xs.shape[0]
+    order = np.empty(n, np.int64)
+    if n == 0:
+        return order
+    x_lo = xs.min()
+    cnt = np.zeros(xs.max() - x_lo + 2, np.int64)
+    for i in range(n):
+        cnt[xs[i] - x_lo + 1] += 1
+    for v in range(cnt.shape[0] - 1):
+        cnt[v + 1] += cnt[v]
+    by_x = np.empty(n, np.int64)
+    for i in range(n):
+        v = xs[i] - x_lo
+        by_x[cnt[v]] = i
+        cnt[v] += 1
+    fill = start[:-1].copy()
+    for i in by_x:
+        c = labels[i]
+        order[fill[c]] = i
+        fill[c] += 1
+    return order
 
 
 @njit(cache=True, nogil=True)
@@ -560,13 +612,12 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
     (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count,
     bbox and whether it surrounds its centroid)."""
     n = count.shape[0]
-    order = np.argsort(labels * (xs.max() + 1) + xs)      # by component, then x (min_gap's order)
     start = np.zeros(n + 1, np.int64)
     for c in range(n):
         start[c + 1] = start[c] + count[c]
+    order = _by_component_then_x(labels, xs, start)       # min_gap's order
     px = xs[order]
     py = ys[order]
-    comp_of = labels[order]
     parent = np.arange(n)
     ext = np.empty(n)
     for c in range(n):
@@ -596,7 +647,8 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
                 pa[k], pb[k], ratio[k] = a, b, d / big
                 k += 1
     by = np.argsort(ratio[:k], kind="mergesort")
-    root_of = np.empty(px.shape[0], np.int64)
+    lo = np.empty(n, np.int64)
+    hi = np.empty(n, np.int64)
     for q in by:
         ra = _root(parent, pa[q])
         rb = _root(parent, pb[q])
@@ -609,10 +661,13 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
         r = _root(parent, ra)
         for c in range(4):
             gbox[r, c] = min(gbox[ra, c], gbox[rb, c]) if c < 2 else max(gbox[ra, c], gbox[rb, c])
-        for i in range(px.shape[0]):
-            root_of[i] = _root(parent, comp_of[i])
-        gx, gy = _members(root_of, r, px, py)
-        closed[r] = surrounds(gx, gy)
+        k = 0
+        for c in range(n):                   # the group's components, in order
+            if _root(parent, c) == r:
+                lo[k] = start[c]
+                hi[k] = start[c + 1]
+                k += 1
+        closed[r] = _surrounds_ranges(px, py, lo, hi, k)
     for b in range(n):                       # specks join a seed they come close to
         if count[b] >= min_count:
             continue
