@@ -834,11 +834,23 @@ def blob_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_
 
 
 @njit(cache=True, nogil=True)
-def claimed_by(keys, owner, query, n_objects):
+def claimed_by(keys, owner, query, n_objects, slot_of):
     """(G, n) bool: the pixel query[i] (linear id) is claimed by object g, i.e. the first entry
-    of the sorted ``keys`` equal to it has owner g (ofpd_io.Claims of grouping "blobs")."""
+    of the sorted ``keys`` equal to it has owner g (ofpd_io.Claims of grouping "blobs"). With a
+    scratch ``slot_of`` (all -1, left so) longer than every key, by marking the keys on it,
+    else by binary search."""
     out = np.zeros((n_objects, query.shape[0]), np.bool_)
     if keys.shape[0] == 0:
+        return out
+    if keys[-1] < slot_of.shape[0]:
+        for j in range(keys.shape[0] - 1, -1, -1):         # the first of equal keys last: it stays
+            slot_of[keys[j]] = owner[j]
+        for i in range(query.shape[0]):
+            q = query[i]
+            if q < slot_of.shape[0] and slot_of[q] >= 0:
+                out[slot_of[q], i] = True
+        for j in range(keys.shape[0]):
+            slot_of[keys[j]] = -1
         return out
     at = np.searchsorted(keys, query)
     for i in range(query.shape[0]):
@@ -860,29 +872,31 @@ def crop_pool(extent, g, pool_min, pool_max):
 
 
 @njit(cache=True, nogil=True)
-def frame_pixels(frames, pix_inverse, n_pixels):
+def frame_pixels(frames, pix_inverse, ux, uy):
     """The unique pixels of a window's stage frames: frames (N, n) bool over the window's ones,
-    pix_inverse (n,) the window pixel (0..n_pixels-1) of each one. Returns (pixels (M,) the
-    window pixels of frame 0, then frame 1, ..., each frame's in increasing order, starts
-    (N + 1,) where each frame's begin, every (E,) the ones in any frame, in order)."""
+    pix_inverse (n,) the window pixel of each one, (ux, uy) the window pixels' coordinates.
+    Returns (xs, ys (M,) the pixels of frame 0, then frame 1, ..., each frame's in order of
+    first appearance, starts (N + 1,) where each frame's begin, every (E,) the ones in any
+    frame, in order)."""
     n_frames, n = frames.shape
-    mark = np.zeros(n_pixels, np.bool_)
-    out = np.empty(n_frames * n_pixels, np.int64)
+    stamp = np.full(ux.shape[0], -1, np.int64)
+    xs = np.empty(n_frames * n, np.int64)
+    ys = np.empty(n_frames * n, np.int64)
     starts = np.zeros(n_frames + 1, np.int64)
     in_any = np.zeros(n, np.bool_)
     m = 0
     for k in range(n_frames):
         for i in range(n):
             if frames[k, i]:
-                mark[pix_inverse[i]] = True
                 in_any[i] = True
-        for u in range(n_pixels):
-            if mark[u]:
-                out[m] = u
-                m += 1
-                mark[u] = False
+                u = pix_inverse[i]
+                if stamp[u] != k:
+                    stamp[u] = k
+                    xs[m] = ux[u]
+                    ys[m] = uy[u]
+                    m += 1
         starts[k + 1] = m
-    return out[:m].copy(), starts, np.flatnonzero(in_any)
+    return xs[:m], ys[:m], starts, np.flatnonzero(in_any)
 
 
 @njit(cache=True, nogil=True)
@@ -950,20 +964,40 @@ def in_rects(xs, ys, rects):
 
 
 @njit(cache=True, nogil=True)
-def count_cells(out, obj, xs, ys, ch, origins, n_channels):
-    """Adds 1 to out[obj, ch, y // P, x // P] for every one (object obj, pixel (x, y), channel
-    ch < n_channels) inside its object's S x S crop, origins[obj] = (x0, y0, S), P = S / g
-    (crop coordinates x, y); ones outside are dropped. ``out`` float32 holds exact integer
-    counts (< 2**24)."""
+def fill_input(out, obj, xs, ys, ch, origins, n_channels, plane_x, plane_y):
+    """The OFPD input of ofpd_io.prepare_xy into ``out`` (N, n_channels + 2, g, g) float32 of
+    zeros: out[obj, ch, y // P, x // P] = the number of ones (object obj, pixel (x, y), channel
+    ch < n_channels) in that cell of its object's S x S crop, origins[obj] = (x0, y0, S), P = S / g
+    (crop coordinates x, y; ones outside are dropped), divided by P * P in float32 (exact
+    integer counts < 2**24, one division each: numpy's result); then the coordinate planes
+    out[obj, n_channels, :, i] = plane_x[obj, i], out[obj, n_channels + 1, i, :] = plane_y[obj, i]
+    (ofpd_io.coordinate_planes, float64, stored as float32)."""
     g = out.shape[-1]
-    for i in range(xs.shape[0]):
+    for i in range(xs.shape[0]):               # counts, negative until divided
         o = obj[i]
         size = origins[o, 2]
         x = xs[i] - origins[o, 0]
         y = ys[i] - origins[o, 1]
         if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < n_channels:
             pool = size // g
-            out[o, ch[i], y // pool, x // pool] += 1
+            out[o, ch[i], y // pool, x // pool] -= 1
+    for i in range(xs.shape[0]):               # each counted cell divided once
+        o = obj[i]
+        size = origins[o, 2]
+        x = xs[i] - origins[o, 0]
+        y = ys[i] - origins[o, 1]
+        if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < n_channels:
+            pool = size // g
+            v = out[o, ch[i], y // pool, x // pool]
+            if v < 0:
+                out[o, ch[i], y // pool, x // pool] = -v / np.float32(pool * pool)
+    for o in range(out.shape[0]):
+        for i in range(g):
+            vx = np.float32(plane_x[o, i])
+            vy = np.float32(plane_y[o, i])
+            for j in range(g):
+                out[o, n_channels, j, i] = vx
+                out[o, n_channels + 1, i, j] = vy
 
 
 # the kernels called from Python (the others are compiled into their callers)
@@ -971,7 +1005,7 @@ KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_l
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds, sets_within,
            blob_objects, claimed_by, crop_pool, frame_pixels, object_crops,
            in_rects,
-           count_cells)
+           fill_input)
 
 
 @njit(cache=True, nogil=True)
@@ -1020,9 +1054,9 @@ def warm_up() -> None:
     surrounds(i64, i64)
     sets_within(i64, i64, i64, i64, 1.0)
     in_rects(i64, i64, np.zeros((1, 4), np.int64))
-    claimed_by(i64, i64, i64, 1)
+    claimed_by(i64, i64, i64, 1, scratch)
     crop_pool(1, 1, 1, 1)
-    _u, _s, every = frame_pixels(np.ones((1, 1), np.bool_), i64, 1)
+    frame_pixels(np.ones((1, 1), np.bool_), i64, i64, i64)
     object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1)
-    count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1)
+    fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, np.zeros((1, 1)), np.zeros((1, 1)))
     first_spikes(i64, 2, 1, np.zeros(1, np.uint8))

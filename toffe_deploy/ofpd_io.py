@@ -41,12 +41,13 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from .compiled import (blob_objects, box_mean, claimed_by, component_stats, count_cells, crop_pool, density_groups,
-                       in_rects, link_components, merge_blobs)
+from .compiled import (blob_objects, box_mean, claimed_by, component_stats, crop_pool, density_groups,
+                       fill_input, in_rects, link_components, merge_blobs)
 from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
 
 COORD_SCALE = 1000.0       # coordinate planes hold px / 1000 (keeps inputs O(1))
+_NO_SCRATCH = np.zeros(0, np.int32)   # compiled.claimed_by without a scratch array
 MAX_SPEED_MPS = 150.0      # the data set's programmed speeds stay below 144 m/s
 MAX_SPEED_PX_MS = 16.0     # the same cap in px/ms (150 m/s at 5 m seen with 554 px: 16.6 px/ms)
 
@@ -277,12 +278,14 @@ class Claims:
         """(n,) bool per object: the pixels (xs, ys) it claims."""
         return list(self.matrix(xs, ys, n_objects))
 
-    def matrix(self, xs: np.ndarray, ys: np.ndarray, n_objects: int) -> np.ndarray:
-        """(G, n) bool: pixel i is claimed by object g (``masks`` as one array, one compiled pass)."""
+    def matrix(self, xs: np.ndarray, ys: np.ndarray, n_objects: int, scratch: np.ndarray | None = None) -> np.ndarray:
+        """(G, n) bool: pixel i is claimed by object g (``masks`` as one array, one compiled pass;
+        O(n) with an all -1 ``scratch`` of the sensor's size, compiled.new_scratch)."""
         xs, ys = _int64(xs), _int64(ys)
         if self.regions is not None:
             return in_rects(xs, ys, np.ascontiguousarray(self.regions, dtype=np.int64).reshape(-1, 4))
-        return claimed_by(self.keys, self.owner, ys * self.width + xs, int(n_objects))
+        return claimed_by(self.keys, self.owner, ys * self.width + xs, int(n_objects),
+                          _NO_SCRATCH if scratch is None else scratch)
 
 
 def box_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
@@ -414,7 +417,7 @@ def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origin
     crop_origin_xy of its event pixels (x0, y0, S). x[2b+p, cell] = #ones of channel 2b+p in
     the crop cell / P^2 (P = S / g: the mean of P x P binary pixels, one float32 division of an
     exact count), zero elsewhere; the coordinate planes as in coordinate_planes. The counts are
-    one compiled pass over the ones (compiled.count_cells).
+    one compiled pass over the ones (compiled.fill_input).
     """
     n = len(ones)
     obj = np.repeat(np.arange(n, dtype=np.int64), [len(o[0]) for o in ones])
@@ -434,12 +437,7 @@ def prepare_flat(obj: np.ndarray, xs: np.ndarray, ys: np.ndarray, ch: np.ndarray
         return out
     origins = np.ascontiguousarray(np.asarray(origins, dtype=np.int64).reshape(n, 3))
     px, py = coordinate_planes(origins, g)
-    out[:, 2 * b] = px[:, None, :]
-    out[:, 2 * b + 1] = py[:, :, None]
-    count_cells(out, obj, xs, ys, ch, origins, 2 * b)
-    cells = out[:, :2 * b]
-    pool = (origins[:, 2] // g).astype(np.float32)
-    np.divide(cells, (pool * pool)[:, None, None, None], out=cells)
+    fill_input(out, obj, xs, ys, ch, origins, 2 * b, px, py)
     return out
 
 

@@ -72,9 +72,8 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     _b, nc, h, w = volume.shape
     upix, pinv = volume.pixel_index(scratch)
     uy, ux = np.divmod(upix, w)
-    sel, starts, every = frame_pixels(np.stack(frames) if len(frames) else np.zeros((0, len(pinv)), bool),
-                                      pinv, upix.shape[0])
-    sx, sy = ux[sel], uy[sel]
+    sx, sy, starts, every = frame_pixels(np.stack(frames) if len(frames) else np.zeros((0, len(pinv)), bool),
+                                         pinv, ux, uy)
     objs, claims = group_objects_xy([(sx[a:b], sy[a:b]) for a, b in zip(starts[:-1].tolist(), starts[1:].tolist())],
                                     (w, h), config)
     if not objs:
@@ -85,7 +84,7 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     ch = volume.bc[every] if nc == 2 else volume.b[every] * 2 + volume.c[every]
     s = ofpd_settings(config)
     g = input_shape(config)[1]
-    origins, n_ev, obj, ox, oy, och = object_crops(claims.matrix(fx, fy, len(objs)), fx, fy, ch, ev_u, upix.shape[0],
+    origins, n_ev, obj, ox, oy, och = object_crops(claims.matrix(fx, fy, len(objs), scratch), fx, fy, ch, ev_u, upix.shape[0],
                                                    int(s["crop_px"]) if s["crop"] == "fixed" else 0, g,
                                                    int(s["pool_min"]), int(s["pool_max"]))
     x = prepare_flat(obj, ox, oy, och, origins, len(objs), config)
