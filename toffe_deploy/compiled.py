@@ -964,40 +964,58 @@ def in_rects(xs, ys, rects):
 
 
 @njit(cache=True, nogil=True)
-def fill_input(out, obj, xs, ys, ch, origins, n_channels, plane_x, plane_y):
+def cell_centres(origins, g, coord_scale):
+    """ofpd_io.coordinate_planes: (x (N, g), y (N, g)) = (x0 + (i + 0.5) * (S / g) - 0.5) /
+    coord_scale (and y0) for crops at origins (N, 3) float64 = (x0, y0, S)."""
+    n = origins.shape[0]
+    px = np.empty((n, g))
+    py = np.empty((n, g))
+    for o in range(n):
+        pool = origins[o, 2] / g
+        for i in range(g):
+            c = (i + 0.5) * pool - 0.5
+            px[o, i] = (origins[o, 0] + c) / coord_scale
+            py[o, i] = (origins[o, 1] + c) / coord_scale
+    return px, py
+
+
+@njit(cache=True, nogil=True)
+def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
     """The OFPD input of ofpd_io.prepare_xy into ``out`` (N, n_channels + 2, g, g) float32 of
     zeros: out[obj, ch, y // P, x // P] = the number of ones (object obj, pixel (x, y), channel
     ch < n_channels) in that cell of its object's S x S crop, origins[obj] = (x0, y0, S), P = S / g
     (crop coordinates x, y; ones outside are dropped), divided by P * P in float32 (exact
     integer counts < 2**24, one division each: numpy's result); then the coordinate planes
-    out[obj, n_channels, :, i] = plane_x[obj, i], out[obj, n_channels + 1, i, :] = plane_y[obj, i]
-    (ofpd_io.coordinate_planes, float64, stored as float32)."""
+    out[obj, n_channels, :, i], out[obj, n_channels + 1, i, :] = cell_centres (float64, stored
+    as float32)."""
+    n_obj = out.shape[0]
     g = out.shape[-1]
+    flat = out.reshape(-1)
+    plane = g * g
+    cell = np.empty(xs.shape[0], np.int64)
     for i in range(xs.shape[0]):               # counts, negative until divided
         o = obj[i]
         size = origins[o, 2]
         x = xs[i] - origins[o, 0]
         y = ys[i] - origins[o, 1]
+        cell[i] = -1
         if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < n_channels:
             pool = size // g
-            out[o, ch[i], y // pool, x // pool] -= 1
+            cell[i] = at = ((o * (n_channels + 2) + ch[i]) * g + y // pool) * g + x // pool
+            flat[at] -= 1
     for i in range(xs.shape[0]):               # each counted cell divided once
-        o = obj[i]
-        size = origins[o, 2]
-        x = xs[i] - origins[o, 0]
-        y = ys[i] - origins[o, 1]
-        if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < n_channels:
-            pool = size // g
-            v = out[o, ch[i], y // pool, x // pool]
-            if v < 0:
-                out[o, ch[i], y // pool, x // pool] = -v / np.float32(pool * pool)
-    for o in range(out.shape[0]):
-        for i in range(g):
-            vx = np.float32(plane_x[o, i])
-            vy = np.float32(plane_y[o, i])
-            for j in range(g):
-                out[o, n_channels, j, i] = vx
-                out[o, n_channels + 1, i, j] = vy
+        at = cell[i]
+        if at >= 0 and flat[at] < 0:
+            pool = origins[obj[i], 2] // g
+            flat[at] = -flat[at] / np.float32(pool * pool)
+    px, py = cell_centres(origins.astype(np.float64), g, coord_scale)
+    for o in range(n_obj):
+        base = (o * (n_channels + 2) + n_channels) * plane
+        for j in range(g):
+            for i in range(g):
+                flat[base + j * g + i] = np.float32(px[o, i])
+                flat[base + plane + j * g + i] = np.float32(py[o, j])
+    return out
 
 
 # the kernels called from Python (the others are compiled into their callers)
@@ -1005,7 +1023,7 @@ KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_l
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds, sets_within,
            blob_objects, claimed_by, crop_pool, frame_pixels, object_crops,
            in_rects,
-           fill_input)
+           cell_centres, fill_input)
 
 
 @njit(cache=True, nogil=True)
@@ -1058,5 +1076,6 @@ def warm_up() -> None:
     crop_pool(1, 1, 1, 1)
     frame_pixels(np.ones((1, 1), np.bool_), i64, i64, i64)
     object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1)
-    fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, np.zeros((1, 1)), np.zeros((1, 1)))
+    fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 1000.0)
+    cell_centres(np.ones((1, 3)), 1, 1000.0)
     first_spikes(i64, 2, 1, np.zeros(1, np.uint8))

@@ -41,7 +41,7 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from .compiled import (blob_objects, box_mean, claimed_by, component_stats, crop_pool, density_groups,
+from .compiled import (blob_objects, box_mean, cell_centres, claimed_by, component_stats, crop_pool, density_groups,
                        fill_input, in_rects, link_components, merge_blobs)
 from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
@@ -403,10 +403,7 @@ def coordinate_planes(origins: np.ndarray, g: int) -> tuple[np.ndarray, np.ndarr
     """(x (N, g), y (N, g)) cell-centre coordinates / COORD_SCALE of crops at origins (N, 3) =
     (x0, y0, S): x0 + (i + 0.5) P - 0.5 with P = S / g. The network reads the crop centre as
     their mean and the cell size P from their spacing."""
-    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
-    pool = o[:, 2:3] / g
-    centres = (np.arange(g)[None, :] + 0.5) * pool - 0.5
-    return (o[:, 0:1] + centres) / COORD_SCALE, (o[:, 1:2] + centres) / COORD_SCALE
+    return cell_centres(np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3), int(g), COORD_SCALE)
 
 
 def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origins: np.ndarray,
@@ -436,8 +433,7 @@ def prepare_flat(obj: np.ndarray, xs: np.ndarray, ys: np.ndarray, ch: np.ndarray
     if n == 0:
         return out
     origins = np.ascontiguousarray(np.asarray(origins, dtype=np.int64).reshape(n, 3))
-    px, py = coordinate_planes(origins, g)
-    fill_input(out, obj, xs, ys, ch, origins, 2 * b, px, py)
+    fill_input(out, obj, xs, ys, ch, origins, 2 * b, COORD_SCALE)
     return out
 
 
