@@ -714,10 +714,19 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
 
 
 @njit(cache=True, nogil=True)
-def _near_members(gx, gy, box, head, nxt, xs, ys, t):
+def _near_members(gx, gy, box, obox, head, nxt, xs, ys, t, buf_x, buf_y):
     """Whether a pixel of the group (gx, gy) with bounding box ``box`` lies within Euclidean
-    distance t of a member of an object (linked list head / nxt over xs, ys): only the members
-    inside the box grown by t can be (the exact test of ``sets_within`` on the same pairs)."""
+    distance t of a member of an object with bounding box ``obox`` (linked list head / nxt over
+    xs, ys): only the group's pixels inside the object's box grown by t (kept in buf_x, buf_y)
+    and the members inside the group's box grown by t can be (``sets_within`` on the same pairs)."""
+    k = 0
+    for i in range(gx.shape[0]):
+        if obox[0] - t <= gx[i] <= obox[2] + t and obox[1] - t <= gy[i] <= obox[3] + t:
+            buf_x[k] = gx[i]
+            buf_y[k] = gy[i]
+            k += 1
+    if k == 0:
+        return False
     x0, y0, x1, y1 = box[0] - t, box[1] - t, box[2] + t, box[3] + t
     t2 = t * t
     p = head
@@ -725,9 +734,9 @@ def _near_members(gx, gy, box, head, nxt, xs, ys, t):
         mx = xs[p]
         my = ys[p]
         if x0 <= mx <= x1 and y0 <= my <= y1:
-            for i in range(gx.shape[0]):
-                dx = gx[i] - mx
-                dy = gy[i] - my
+            for i in range(k):
+                dx = buf_x[i] - mx
+                dy = buf_y[i] - my
                 if dx * dx + dy * dy <= t2:
                     return True
         p = nxt[p]
@@ -758,6 +767,8 @@ def blob_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_
     o_head = np.empty(n, np.int64)
     n_obj = 0
     claim_key = np.empty(n, np.int64)
+    buf_x = np.empty(n, np.int64)
+    buf_y = np.empty(n, np.int64)
     claim_own = np.empty(n, np.int64)
     m = 0
     for i in range(n_stages - 1, -1, -1):                     # fastest stage first
@@ -801,7 +812,7 @@ def blob_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_
                 t = (frac_closed if gclosed[q] or o_closed[j] else frac_open) * max(e, float(max(b[2] - b[0], b[3] - b[1]) + 1))
                 if box_gap(box, b) > t:
                     continue
-                if _near_members(gx, gy, box, o_head[j], nxt, xs, ys, t):
+                if _near_members(gx, gy, box, b, o_head[j], nxt, xs, ys, t, buf_x, buf_y):
                     host = j
                     break
             if host >= 0:
