@@ -490,19 +490,41 @@ def min_gap(xa, ya, xb, yb, t):
     """Smallest Euclidean distance between a pixel of set a and one of set b when it is <= t,
     else inf. Set b must be sorted by x: each pixel of a scans only the pixels of b with
     |dx| <= the best distance so far (found by binary search), so the scan narrows as soon as
-    a close pair is found."""
+    a close pair is found; pixels of a farther than that from b's bounding box are skipped.
+    Distances are compared as exact integer squares; the result is sqrt of the smallest
+    (correctly rounded: the smallest of the pairs' float distances)."""
+    nb = xb.shape[0]
+    if nb == 0:
+        return np.inf
+    bx0 = xb[0]
+    bx1 = xb[nb - 1]
+    by0 = by1 = yb[0]
+    for j in range(nb):
+        by0 = min(by0, yb[j])
+        by1 = max(by1, yb[j])
     best = t
+    best2 = 0
     found = False
+    t2_hi = t * t * (1.0 + 1e-12) + 1.0      # no pair with a larger square is within t
     for i in range(xa.shape[0]):
-        j = np.searchsorted(xb, xa[i] - best)
-        while j < xb.shape[0] and xb[j] <= xa[i] + best:
-            dx = xa[i] - xb[j]
-            dy = ya[i] - yb[j]
+        x = xa[i]
+        y = ya[i]
+        if x < bx0 - best or x > bx1 + best or y < by0 - best or y > by1 + best:
+            continue
+        j = np.searchsorted(xb, x - best)
+        while j < nb and xb[j] <= x + best:
+            dy = y - yb[j]
             if abs(dy) <= best:
-                d = np.sqrt(dx * dx + dy * dy)
-                if d <= best:
-                    best = d
+                dx = x - xb[j]
+                d2 = dx * dx + dy * dy
+                if found:
+                    if d2 < best2:
+                        best2 = d2
+                        best = np.sqrt(d2)
+                elif d2 <= t2_hi and np.sqrt(d2) <= t:
                     found = True
+                    best2 = d2
+                    best = np.sqrt(d2)
             j += 1
     return best if found else np.inf
 
