@@ -255,7 +255,21 @@ def group_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sens
     w = int(sensor_size[0])
     if ofpd_settings(config)["grouping"] == "blobs":
         return blob_objects_xy(stage_pixels, sensor_size, config)
-    objs = box_objects_xy(stage_pixels, sensor_size, config)
+    return _with_regions(box_objects_xy(stage_pixels, sensor_size, config), w, config)
+
+
+def group_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, sensor_size: tuple[int, int],
+                       config: ToffeConfig) -> tuple[Objects, "Claims"]:
+    """group_objects_xy of stage pixels given as flat int64 arrays: stage i's are
+    xs, ys[starts[i]:starts[i + 1]] (the cpu runtime's form: no per-stage arrays to join)."""
+    if ofpd_settings(config)["grouping"] == "blobs":
+        return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config)
+    stage_pixels = [(xs[a:b], ys[a:b]) for a, b in zip(starts[:-1].tolist(), starts[1:].tolist())]
+    return _with_regions(box_objects_xy(stage_pixels, sensor_size, config), int(sensor_size[0]), config)
+
+
+def _with_regions(objs: Objects, w: int, config: ToffeConfig) -> tuple[Objects, "Claims"]:
+    """Grouping "boxes": the objects and the rectangles they claim."""
     r = float(ofpd_settings(config)["dedupe_px"])
     # |x - c| < r over integers x is floor(c - r) + 1 <= x <= ceil(c + r) - 1
     regions = np.array([[np.floor(cx - r) + 1, np.floor(cy - r) + 1, np.ceil(cx + r) - 1, np.ceil(cy + r) - 1]
@@ -354,12 +368,17 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
     An object claims exactly its pixels, of every stage. Objects of radius r at centre distance
     >= 3r stay two when their events close around them (they are r apart, minus their motion,
     > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob."""
-    s = ofpd_settings(config)
-    w = int(sensor_size[0])
     pix = [tuple(_int64(a) for a in p) for p in stage_pixels]
     starts = np.cumsum([0] + [p[0].shape[0] for p in pix]).astype(np.int64)
     xs = np.concatenate([p[0] for p in pix]) if pix else np.zeros(0, np.int64)
     ys = np.concatenate([p[1] for p in pix]) if pix else np.zeros(0, np.int64)
+    return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config)
+
+
+def _blob_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, w: int, config: ToffeConfig
+                       ) -> tuple[Objects, Claims]:
+    """blob_objects_xy on flat stage pixels (group_objects_flat), in one compiled pass."""
+    s = ofpd_settings(config)
     need = int(s["min_events"])
     stage, cx, cy, _owner, keys, owner = blob_objects(xs, ys, starts, w, int(s["link_px"]), float(s["merge_frac"]),
                                                       float(s["edge_merge_frac"]), need, max(1, -(-need // 4)))

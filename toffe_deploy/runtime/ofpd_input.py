@@ -23,7 +23,7 @@ import numpy as np
 
 from ..compiled import dedupe, frame_pixels, object_crops
 from ..config import ToffeConfig
-from ..ofpd_io import (crop_origin_xy, group_objects_xy, input_shape, object_masks_xy, ofpd_settings, prepare_flat,
+from ..ofpd_io import (crop_origin_xy, group_objects_flat, group_objects_xy, input_shape, object_masks_xy, ofpd_settings, prepare_flat,
                        prepare_xy)
 from .spikes import SpikeVolume
 
@@ -74,8 +74,7 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     uy, ux = np.divmod(upix, w)
     sx, sy, starts, every = frame_pixels(np.stack(frames) if len(frames) else np.zeros((0, len(pinv)), bool),
                                          pinv, ux, uy)
-    objs, claims = group_objects_xy([(sx[a:b], sy[a:b]) for a, b in zip(starts[:-1].tolist(), starts[1:].tolist())],
-                                    (w, h), config)
+    objs, claims = group_objects_flat(sx, sy, starts, (w, h), config)
     if not objs:
         c, g, _ = input_shape(config)
         return np.zeros(0, dtype=np.int64), np.zeros((0, c, g, g), np.float32), np.zeros(0, dtype=np.int64)
