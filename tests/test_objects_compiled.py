@@ -8,13 +8,17 @@ import numpy as np
 import pytest
 
 from toffe_deploy import ofpd_io
-from toffe_deploy.compiled import sets_within
 from toffe_deploy.config import ToffeConfig
 from toffe_deploy.runtime import ofpd_input
 from toffe_deploy.runtime.spikes import SpikeVolume
 
 SENSOR = (480, 360)
 CFG = ToffeConfig(sensor_size=SENSOR)          # the current layout: blobs, scaled crop
+
+
+def sets_within(xa, ya, xb, yb, t):
+    """Whether some pixel of set a lies within Euclidean distance t of some pixel of set b (all pairs)."""
+    return bool(((xa[:, None] - xb[None]) ** 2 + (ya[:, None] - yb[None]) ** 2 <= t * t).any())
 
 
 def blob_objects_reference(stage_pixels, sensor_size, config):

@@ -1,6 +1,8 @@
 """The per-window loops of the hot path, compiled (numba): the cpu cascade's indexing, OFS
 stage, closing compaction and mask split, the input front end, and ofpd_io's box tests, box
-means, density-seed grouping, event-blob components and cell counts.
+means, density-seed grouping, the event-blob grouping of a window's stages (blob_objects:
+components, their merging and the objects' claims in one pass), each object's crop and ones
+(object_crops) and the OFPD input (fill_input).
 
 Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
 (~25 calls per stage on arrays of ~2,000 values, plus the window's de-duplication and scatter
@@ -452,34 +454,6 @@ def component_stats(labels, n_comp, xs, ys):
 
 
 @njit(cache=True, nogil=True)
-def sets_within(xa, ya, xb, yb, t):
-    """Whether some pixel of set a lies within Euclidean distance t of some pixel of set b: only
-    the pixels of each set inside the other's bounding box grown by t are compared, and the
-    search stops at the first such pair (the leading and trailing edges of one object are
-    found at once; far sets are cut by the bounding boxes)."""
-    if xa.shape[0] == 0 or xb.shape[0] == 0:
-        return False
-    ax0, ax1, ay0, ay1 = xa.min() - t, xa.max() + t, ya.min() - t, ya.max() + t
-    bx0, bx1, by0, by1 = xb.min() - t, xb.max() + t, yb.min() - t, yb.max() + t
-    keep = np.empty(xb.shape[0], np.int64)
-    m = 0
-    for j in range(xb.shape[0]):
-        if ax0 <= xb[j] <= ax1 and ay0 <= yb[j] <= ay1:
-            keep[m] = j
-            m += 1
-    t2 = t * t
-    for i in range(xa.shape[0]):
-        if not (bx0 <= xa[i] <= bx1 and by0 <= ya[i] <= by1):
-            continue
-        for q in range(m):
-            dx = xa[i] - xb[keep[q]]
-            dy = ya[i] - yb[keep[q]]
-            if dx * dx + dy * dy <= t2:
-                return True
-    return False
-
-
-@njit(cache=True, nogil=True)
 def box_gap(a, b):
     """Chebyshev gap between two inclusive boxes (x_min, y_min, x_max, y_max); <= 0 if they touch."""
     return max(a[0] - b[2], b[0] - a[2], a[1] - b[3], b[1] - a[3])
@@ -740,7 +714,7 @@ def _near_members(gx, gy, box, obox, head, nxt, xs, ys, t, buf_x, buf_y):
     """Whether a pixel of the group (gx, gy) with bounding box ``box`` lies within Euclidean
     distance t of a member of an object with bounding box ``obox`` (linked list head / nxt over
     xs, ys): only the group's pixels inside the object's box grown by t (kept in buf_x, buf_y)
-    and the members inside the group's box grown by t can be (``sets_within`` on the same pairs)."""
+    and the members inside the group's box grown by t can be: the exact test on fewer pairs)."""
     k = 0
     for i in range(gx.shape[0]):
         if obox[0] - t <= gx[i] <= obox[2] + t and obox[1] - t <= gy[i] <= obox[3] + t:
@@ -1081,7 +1055,7 @@ def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
 
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
-           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds, sets_within,
+           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, frame_pixels, object_crops,
            in_rects,
            cell_centres, fill_input)
@@ -1131,7 +1105,6 @@ def warm_up() -> None:
     blob_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1)
     min_gap(i64, i64, i64, i64, 1.0)
     surrounds(i64, i64)
-    sets_within(i64, i64, i64, i64, 1.0)
     in_rects(i64, i64, np.zeros((1, 4), np.int64))
     claimed_by(i64, i64, i64, 1, scratch)
     crop_pool(1, 1, 1, 1)
