@@ -248,6 +248,27 @@ def box_mean(xs, ys, cx, cy, r):
 
 
 @njit(cache=True, nogil=True)
+def two_pass_centroid(xs, ys, half, width, height):
+    """ofpd_io.centroid_of_pixels: the mean of the pixels, then the mean of those in the box of
+    half-side ``half`` around it (box_mean, exact integer sums); the sensor centre when empty."""
+    if xs.shape[0] == 0:
+        return (width - 1) / 2.0, (height - 1) / 2.0
+    _n, cx, cy = box_mean(xs, ys, 0.0, 0.0, np.inf)
+    n, nx, ny = box_mean(xs, ys, cx, cy, float(half))
+    if n:
+        return nx, ny
+    return cx, cy
+
+
+@njit(cache=True, nogil=True)
+def crop_origin(xs, ys, size, width, height):
+    """ofpd_io.crop_origin_xy for a crop of side ``size``: (x0, y0) with the crop centre
+    x0 + (size - 1) / 2 nearest to the two-pass centroid (half-side size // 2)."""
+    cx, cy = two_pass_centroid(xs, ys, size // 2, width, height)
+    return int(np.floor(cx - (size - 1) / 2 + 0.5)), int(np.floor(cy - (size - 1) / 2 + 0.5))
+
+
+@njit(cache=True, nogil=True)
 def density_groups(xs, ys, r, width):
     """ofpd_io.density_seed's splitting of (non-empty) pixels into groups separated by gaps > 2r
     along x, then y, then x...: (best count n and smallest key y * W + x over the groups that fit
@@ -935,11 +956,11 @@ def frame_pixels(frames, pix_inverse, ux, uy):
 
 
 @njit(cache=True, nogil=True)
-def object_crops(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_min, pool_max):
+def object_crops(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_min, pool_max, width, height):
     """Each object's crop and ones from the claims (G, n) bool over a window's ones (pixel (xs,
     ys), channel ch, window pixel pix_inverse): ofpd_io.crop_origin_xy of its unique pixels
-    (side fixed_size, or g * crop_pool of their extent when fixed_size is 0; two-pass centroid
-    with exact integer sums, ofpd_io.centroid_of_pixels) and the claimed ones. Returns
+    (side fixed_size, or g * crop_pool of their extent when fixed_size is 0; crop_origin on a
+    (width, height) sensor) and the claimed ones. Returns
     (origins (G, 3) = x0, y0, S, n_ones (G,), and the claimed ones as flat arrays object, x, y,
     channel, object by object)."""
     n_obj, n = masks.shape
@@ -978,12 +999,7 @@ def object_crops(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_m
         if size == 0:
             extent = 0 if nu == 0 else max(px.max() - px.min(), py.max() - py.min()) + 1
             size = g * crop_pool(extent, g, pool_min, pool_max)
-        _n, cx, cy = box_mean(px, py, 0.0, 0.0, np.inf)
-        k, nx, ny = box_mean(px, py, cx, cy, float(size // 2))
-        if k:
-            cx, cy = nx, ny
-        origins[j, 0] = int(np.floor(cx - (size - 1) / 2 + 0.5))
-        origins[j, 1] = int(np.floor(cy - (size - 1) / 2 + 0.5))
+        origins[j, 0], origins[j, 1] = crop_origin(px, py, size, width, height)
         origins[j, 2] = size
     return origins, n_ones, obj, ox, oy, och
 
@@ -1056,7 +1072,7 @@ def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
-           blob_objects, claimed_by, crop_pool, frame_pixels, object_crops,
+           blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops,
            in_rects,
            cell_centres, fill_input)
 
@@ -1109,7 +1125,9 @@ def warm_up() -> None:
     claimed_by(i64, i64, i64, 1, scratch)
     crop_pool(1, 1, 1, 1)
     frame_pixels(np.ones((1, 1), np.bool_), i64, i64, i64)
-    object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1)
+    object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2)
+    crop_origin(i64, i64, 1, 2, 2)
+    two_pass_centroid(i64, i64, 1.0, 2, 2)
     fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 1000.0)
     cell_centres(np.ones((1, 3)), 1, 1000.0)
     first_spikes(i64, 2, 1, np.zeros(1, np.uint8))

@@ -41,8 +41,8 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from .compiled import (blob_objects, box_mean, cell_centres, claimed_by, component_stats, crop_pool, density_groups,
-                       fill_input, in_rects, link_components, merge_blobs)
+from .compiled import (blob_objects, box_mean, cell_centres, claimed_by, component_stats, crop_origin, crop_pool,
+                       density_groups, fill_input, in_rects, link_components, merge_blobs, two_pass_centroid)
 from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
 
@@ -144,11 +144,7 @@ def _box_mean(xs: np.ndarray, ys: np.ndarray, cx: float, cy: float, r: float) ->
 def centroid_of_pixels(xs: np.ndarray, ys: np.ndarray, half: int, width: int, height: int) -> tuple[float, float]:
     """Two-pass centroid (x, y) of event pixel coordinates: the mean, then the mean of the pixels
     within ``half`` of it (stray events far away barely move it); sensor centre when empty."""
-    if xs.size == 0:
-        return (width - 1) / 2.0, (height - 1) / 2.0
-    _n, cx, cy = _box_mean(xs, ys, 0.0, 0.0, np.inf)
-    n, nx, ny = _box_mean(xs, ys, cx, cy, half)
-    return (nx, ny) if n else (cx, cy)
+    return two_pass_centroid(_int64(xs), _int64(ys), float(half), int(width), int(height))
 
 
 def in_boxes(xs: np.ndarray, ys: np.ndarray, centres, r: float) -> np.ndarray:
@@ -414,8 +410,8 @@ def crop_origin_xy(xs: np.ndarray, ys: np.ndarray, sensor_size: tuple[int, int],
     (crop_size_xy), top-left with the crop centre x0 + (S - 1) / 2 nearest to the two-pass
     centroid (within half a pixel)."""
     size = crop_size_xy(xs, ys, config)
-    cx, cy = centroid_of_pixels(xs, ys, size // 2, int(sensor_size[0]), int(sensor_size[1]))
-    return int(np.floor(cx - (size - 1) / 2 + 0.5)), int(np.floor(cy - (size - 1) / 2 + 0.5)), size
+    x0, y0 = crop_origin(_int64(xs), _int64(ys), size, int(sensor_size[0]), int(sensor_size[1]))
+    return x0, y0, size
 
 
 def coordinate_planes(origins: np.ndarray, g: int) -> tuple[np.ndarray, np.ndarray]:

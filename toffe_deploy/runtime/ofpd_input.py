@@ -85,7 +85,7 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     g = input_shape(config)[1]
     origins, n_ev, obj, ox, oy, och = object_crops(claims.matrix(fx, fy, len(objs), scratch), fx, fy, ch, ev_u, upix.shape[0],
                                                    int(s["crop_px"]) if s["crop"] == "fixed" else 0, g,
-                                                   int(s["pool_min"]), int(s["pool_max"]))
+                                                   int(s["pool_min"]), int(s["pool_max"]), w, h)
     x = prepare_flat(obj, ox, oy, och, origins, len(objs), config)
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, n_ev
 
