@@ -14,6 +14,10 @@ evaluation and export are thin wrappers over the same functions):
 
 This module only converts between SpikeVolume and coordinates, with O(n) de-duplication through
 an all -1 ``scratch`` array (``compiled.new_scratch``; no sort) when the caller has one.
+``batch`` (the pipeline's per-window call) runs these steps as compiled passes over the
+window's ones (compiled.frame_pixels, blob_objects, claimed_by, object_crops, fill_input: the
+same definitions, tested bit for bit against the per-object Python form in
+tests/test_objects_compiled.py).
 """
 from __future__ import annotations
 
@@ -67,7 +71,9 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     and once per object: a frame's (or an object's) unique pixels are the unique pixel ids
     its ones point to, marked on a (U,) array over the window's U unique pixels. An object's
     merged frame is the ones of every frame whose pixel it claims, so its unique pixels are
-    the window pixels of those ones it claims.
+    the window pixels of those ones it claims. The stage pixels go to the grouping as flat
+    arrays (ofpd_io.group_objects_flat); each object's crop and ones, and the OFPD input, come
+    from one compiled pass each (compiled.object_crops, ofpd_io.prepare_flat).
     """
     _b, nc, h, w = volume.shape
     upix, pinv = volume.pixel_index(scratch)
