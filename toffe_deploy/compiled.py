@@ -1044,6 +1044,20 @@ def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
     flat = out.reshape(-1)
     plane = g * g
     cell = np.empty(xs.shape[0], np.int64)
+    side = 0
+    for o in range(n_obj):
+        side = max(side, origins[o, 2])
+    cell_of = np.empty((n_obj, side), np.int64)    # v // P for 0 <= v < S, without a division per one
+    for o in range(n_obj):
+        pool = origins[o, 2] // g
+        c = 0
+        k = 0
+        for v in range(origins[o, 2]):
+            cell_of[o, v] = c
+            k += 1
+            if k == pool:
+                k = 0
+                c += 1
     for i in range(xs.shape[0]):               # counts, negative until divided
         o = obj[i]
         size = origins[o, 2]
@@ -1051,8 +1065,7 @@ def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
         y = ys[i] - origins[o, 1]
         cell[i] = -1
         if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < n_channels:
-            pool = size // g
-            cell[i] = at = ((o * (n_channels + 2) + ch[i]) * g + y // pool) * g + x // pool
+            cell[i] = at = ((o * (n_channels + 2) + ch[i]) * g + cell_of[o, y]) * g + cell_of[o, x]
             flat[at] -= 1
     for i in range(xs.shape[0]):               # each counted cell divided once
         at = cell[i]
