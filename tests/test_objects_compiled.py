@@ -198,3 +198,37 @@ def test_compiled_grouping_and_batch_equal_reference_on_the_sample(sample_window
         n_obj += ks.size
         assert (scratch == -1).all()                        # the scratch is left as found
     assert n_obj >= 20
+
+
+def surrounds_reference(xs, ys):
+    """compiled.surrounds as first written: every sector from np.arctan2."""
+    cx, cy = xs.sum() / xs.size, ys.sum() / ys.size
+    r = 0.25 * (max(xs.max() - xs.min(), ys.max() - ys.min()) + 1)
+    dx, dy = xs - cx, ys - cy
+    far = dx * dx + dy * dy > r * r
+    sectors = np.floor((np.arctan2(dy[far], dx[far]) + np.pi) * (4.0 / np.pi)).astype(np.int64) % 8
+    return np.unique(sectors).size == 8
+
+
+def test_surrounds_sectors_equal_arctan2_also_on_axes_and_diagonals(rng):
+    """compiled.surrounds takes sectors from signs and |dx| vs |dy| away from the boundaries:
+    the same answer as atan2 on sets whose centroid is a pixel (points exactly on the axes and
+    diagonals) and on random ones, which pass and fail."""
+    from toffe_deploy.compiled import surrounds
+
+    answers = set()
+    for i in range(400):
+        if i % 2:                                          # symmetric: integer centroid
+            k = int(rng.integers(1, 9))
+            ox, oy = rng.integers(-6, 7, k), rng.integers(-6, 7, k)
+            sym = [(ox, oy), (-ox, -oy)] + ([(oy, ox), (-oy, -ox)] if i % 4 == 1 else [])
+            xs = np.concatenate([a for a, _ in sym]) + 50
+            ys = np.concatenate([b for _, b in sym]) + 50
+        else:
+            n = int(rng.integers(3, 40))
+            xs, ys = rng.integers(0, 30, n), rng.integers(0, 30, n)
+        xs, ys = xs.astype(np.int64), ys.astype(np.int64)
+        want = surrounds_reference(xs, ys)
+        assert surrounds(xs, ys) == want
+        answers.add(want)
+    assert answers == {True, False}
