@@ -1,6 +1,8 @@
 """The per-window loops of the hot path, compiled (numba): the cpu cascade's indexing, OFS
 stage, closing compaction and mask split, the input front end, and ofpd_io's box tests, box
-means, density-seed grouping, event-blob components and cell counts.
+means, density-seed grouping, the event-blob grouping of a window's stages (blob_objects:
+components, their merging and the objects' claims in one pass), each object's crop and ones
+(object_crops) and the OFPD input (fill_input).
 
 Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
 (~25 calls per stage on arrays of ~2,000 values, plus the window's de-duplication and scatter
@@ -246,6 +248,27 @@ def box_mean(xs, ys, cx, cy, r):
 
 
 @njit(cache=True, nogil=True)
+def two_pass_centroid(xs, ys, half, width, height):
+    """ofpd_io.centroid_of_pixels: the mean of the pixels, then the mean of those in the box of
+    half-side ``half`` around it (box_mean, exact integer sums); the sensor centre when empty."""
+    if xs.shape[0] == 0:
+        return (width - 1) / 2.0, (height - 1) / 2.0
+    _n, cx, cy = box_mean(xs, ys, 0.0, 0.0, np.inf)
+    n, nx, ny = box_mean(xs, ys, cx, cy, float(half))
+    if n:
+        return nx, ny
+    return cx, cy
+
+
+@njit(cache=True, nogil=True)
+def crop_origin(xs, ys, size, width, height):
+    """ofpd_io.crop_origin_xy for a crop of side ``size``: (x0, y0) with the crop centre
+    x0 + (size - 1) / 2 nearest to the two-pass centroid (half-side size // 2)."""
+    cx, cy = two_pass_centroid(xs, ys, size // 2, width, height)
+    return int(np.floor(cx - (size - 1) / 2 + 0.5)), int(np.floor(cy - (size - 1) / 2 + 0.5))
+
+
+@njit(cache=True, nogil=True)
 def density_groups(xs, ys, r, width):
     """ofpd_io.density_seed's splitting of (non-empty) pixels into groups separated by gaps > 2r
     along x, then y, then x...: (best count n and smallest key y * W + x over the groups that fit
@@ -330,48 +353,101 @@ def _union(parent, a, b):
 
 
 @njit(cache=True, nogil=True)
+def row_major(xs, ys):
+    """(order (n,), row_start (R + 1,), y0): the pixels (non-empty) in row-major order, by a
+    counting sort on the rows y0..y0 + R - 1 and a sort of each row by x (insertion sort for
+    the short rows of edges, argsort for long ones); row r's pixels are order[row_start[r]:
+    row_start[r + 1]]."""
+    n = xs.shape[0]
+    y0 = ys.min()
+    n_rows = ys.max() - y0 + 1
+    row_start = np.zeros(n_rows + 1, np.int64)
+    for i in range(n):
+        row_start[ys[i] - y0 + 1] += 1
+    for r in range(n_rows):
+        row_start[r + 1] += row_start[r]
+    fill = row_start[:n_rows].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        r = ys[i] - y0
+        order[fill[r]] = i
+        fill[r] += 1
+    for r in range(n_rows):
+        lo = row_start[r]
+        hi = row_start[r + 1]
+        if hi - lo > 32:
+            seg = order[lo:hi].copy()
+            order[lo:hi] = seg[np.argsort(xs[seg])]
+            continue
+        for a in range(lo + 1, hi):
+            v = order[a]
+            xv = xs[v]
+            b = a - 1
+            while b >= lo and xs[order[b]] > xv:
+                order[b + 1] = order[b]
+                b -= 1
+            order[b + 1] = v
+    return order, row_start, y0
+
+
+@njit(cache=True, nogil=True)
 def link_components(xs, ys, link, width):
     """Connected components of unique pixels (xs, ys) where two pixels are linked when
     max(|dx|, |dy|) <= link: (labels (n,) 0..C-1 numbered by each component's first pixel in
-    row-major order, C). The pixels are sorted by key y * W + x once; each one looks up the keys
-    of the rows y..y + link in [x - link, x + link] with one forward-moving pointer per row
-    offset (the window's start only grows with the key), and joins only pixels of a row more
-    than link apart (closer ones are joined through each other): O(n * link), no sensor grid."""
+    row-major order, C).
+
+    On runs, not pixels: the pixels of a row (row_major) split into runs where consecutive
+    pixels are <= link apart (each run is connected). Two runs [a0, a1], [b0, b1] of rows
+    <= link apart are linked exactly when [a0 - link, a1 + link] meets [b0, b1]: a pixel of
+    the other run then lies in it (an end, or one of the > link positions it covers, which no
+    gap of a run spans), and that pixel is <= link from the run's nearest pixel. Each row's
+    runs are swept against the next link rows' with one pointer per row: O(n + runs * link)."""
     n = xs.shape[0]
-    keys = ys * width + xs
-    order = np.argsort(keys)
-    sk = keys[order]
-    parent = np.arange(n)
-    ptr = np.zeros(link + 1, np.int64)
-    for a in range(n):
-        y = sk[a] // width
-        x = sk[a] - y * width
-        for dy in range(link + 1):
-            lo = (y + dy) * width + max(x - link, 0)
-            hi = (y + dy) * width + min(x + link, width - 1)
-            if dy == 0:
-                lo = sk[a] + 1
-            j = ptr[dy]
-            while j < n and sk[j] < lo:
-                j += 1
-            ptr[dy] = j
-            last = -(1 << 62)
-            while j < n and sk[j] <= hi:
-                if sk[j] - last > link:          # pixels of a row <= link apart link each other anyway
-                    _union(parent, a, j)
-                    last = sk[j]
-                    if dy == 0:                  # the row's next pixel carries the chain on
-                        break
-                j += 1
-    label_of_root = np.full(n, -1, np.int64)
     labels = np.empty(n, np.int64)
+    if n == 0:
+        return labels, 0
+    order, row_start, y0 = row_major(xs, ys)
+    n_rows = row_start.shape[0] - 1
+    run_x0 = np.empty(n, np.int64)
+    run_x1 = np.empty(n, np.int64)
+    run_of = np.empty(n, np.int64)             # run of each pixel of ``order``
+    row_run = np.zeros(n_rows + 1, np.int64)   # row r's runs: row_run[r]:row_run[r + 1]
+    m = 0
+    for r in range(n_rows):
+        row_run[r] = m
+        for a in range(row_start[r], row_start[r + 1]):
+            x = xs[order[a]]
+            if a == row_start[r] or x - run_x1[m - 1] > link:
+                run_x0[m] = x
+                m += 1
+            run_x1[m - 1] = x
+            run_of[a] = m - 1
+    row_run[n_rows] = m
+    parent = np.arange(m)
+    for r in range(n_rows):
+        for dy in range(1, link + 1):
+            if r + dy >= n_rows:
+                break
+            j = row_run[r + dy]
+            j_end = row_run[r + dy + 1]
+            for q in range(row_run[r], row_run[r + 1]):
+                lo = run_x0[q] - link
+                hi = run_x1[q] + link
+                while j < j_end and run_x1[j] < lo:
+                    j += 1
+                k = j
+                while k < j_end and run_x0[k] <= hi:
+                    _union(parent, q, k)
+                    k += 1
+    label_of_root = np.full(m, -1, np.int64)
     c = 0
-    for a in range(n):                       # sorted order: components numbered row-major
-        r = _root(parent, a)
-        if label_of_root[r] < 0:
-            label_of_root[r] = c
+    for q in range(m):                         # runs in row-major order: components numbered so
+        root = _root(parent, q)
+        if label_of_root[root] < 0:
+            label_of_root[root] = c
             c += 1
-        labels[order[a]] = label_of_root[r]
+    for a in range(n):
+        labels[order[a]] = label_of_root[_root(parent, run_of[a])]
     return labels, c
 
 
@@ -399,34 +475,6 @@ def component_stats(labels, n_comp, xs, ys):
 
 
 @njit(cache=True, nogil=True)
-def sets_within(xa, ya, xb, yb, t):
-    """Whether some pixel of set a lies within Euclidean distance t of some pixel of set b: only
-    the pixels of each set inside the other's bounding box grown by t are compared, and the
-    search stops at the first such pair (the leading and trailing edges of one object are
-    found at once; far sets are cut by the bounding boxes)."""
-    if xa.shape[0] == 0 or xb.shape[0] == 0:
-        return False
-    ax0, ax1, ay0, ay1 = xa.min() - t, xa.max() + t, ya.min() - t, ya.max() + t
-    bx0, bx1, by0, by1 = xb.min() - t, xb.max() + t, yb.min() - t, yb.max() + t
-    keep = np.empty(xb.shape[0], np.int64)
-    m = 0
-    for j in range(xb.shape[0]):
-        if ax0 <= xb[j] <= ax1 and ay0 <= yb[j] <= ay1:
-            keep[m] = j
-            m += 1
-    t2 = t * t
-    for i in range(xa.shape[0]):
-        if not (bx0 <= xa[i] <= bx1 and by0 <= ya[i] <= by1):
-            continue
-        for q in range(m):
-            dx = xa[i] - xb[keep[q]]
-            dy = ya[i] - yb[keep[q]]
-            if dx * dx + dy * dy <= t2:
-                return True
-    return False
-
-
-@njit(cache=True, nogil=True)
 def box_gap(a, b):
     """Chebyshev gap between two inclusive boxes (x_min, y_min, x_max, y_max); <= 0 if they touch."""
     return max(a[0] - b[2], b[0] - a[2], a[1] - b[3], b[1] - a[3])
@@ -437,21 +485,98 @@ def min_gap(xa, ya, xb, yb, t):
     """Smallest Euclidean distance between a pixel of set a and one of set b when it is <= t,
     else inf. Set b must be sorted by x: each pixel of a scans only the pixels of b with
     |dx| <= the best distance so far (found by binary search), so the scan narrows as soon as
-    a close pair is found."""
+    a close pair is found; pixels of a farther than that from b's bounding box are skipped.
+    Distances are compared as exact integer squares; the result is sqrt of the smallest
+    (correctly rounded: the smallest of the pairs' float distances)."""
+    nb = xb.shape[0]
+    if nb == 0:
+        return np.inf
+    bx0 = xb[0]
+    bx1 = xb[nb - 1]
+    by0 = by1 = yb[0]
+    for j in range(nb):
+        by0 = min(by0, yb[j])
+        by1 = max(by1, yb[j])
     best = t
+    best2 = 0
     found = False
+    t2_hi = t * t * (1.0 + 1e-12) + 1.0      # no pair with a larger square is within t
     for i in range(xa.shape[0]):
-        j = np.searchsorted(xb, xa[i] - best)
-        while j < xb.shape[0] and xb[j] <= xa[i] + best:
-            dx = xa[i] - xb[j]
-            dy = ya[i] - yb[j]
+        x = xa[i]
+        y = ya[i]
+        if x < bx0 - best or x > bx1 + best or y < by0 - best or y > by1 + best:
+            continue
+        j = np.searchsorted(xb, x - best)
+        while j < nb and xb[j] <= x + best:
+            dy = y - yb[j]
             if abs(dy) <= best:
-                d = np.sqrt(dx * dx + dy * dy)
-                if d <= best:
-                    best = d
+                dx = x - xb[j]
+                d2 = dx * dx + dy * dy
+                if found:
+                    if d2 < best2:
+                        best2 = d2
+                        best = np.sqrt(d2)
+                elif d2 <= t2_hi and np.sqrt(d2) <= t:
                     found = True
+                    best2 = d2
+                    best = np.sqrt(d2)
             j += 1
     return best if found else np.inf
+
+
+@njit(cache=True, nogil=True)
+def _sector(dx, dy):
+    """floor((atan2(dy, dx) + pi) * 4 / pi) % 8, the 45 degree sector of (dx, dy): from the
+    signs and |dx| vs |dy| where the angle is clearly inside a sector, from the formula itself
+    within 1e-9 (relative) of a sector boundary (an axis or a diagonal), so bit for bit the same."""
+    ax = abs(dx)
+    ay = abs(dy)
+    eps = 1e-9 * max(ax, ay)
+    if ax <= eps or ay <= eps or abs(ax - ay) <= eps:
+        return int(np.floor((np.arctan2(dy, dx) + np.pi) * (4.0 / np.pi))) % 8
+    steep = ay > ax
+    if dy < 0:
+        if dx < 0:
+            return 1 if steep else 0
+        return 2 if steep else 3
+    if dx > 0:
+        return 5 if steep else 4
+    return 6 if steep else 7
+
+
+@njit(cache=True, nogil=True)
+def _surrounds_ranges(xs, ys, lo, hi, k):
+    """surrounds of the pixels xs, ys[lo[i]:hi[i]] for i < k (one set in several ranges)."""
+    n = 0
+    sx = 0
+    sy = 0
+    x0 = y0 = 1 << 40
+    x1 = y1 = -(1 << 40)
+    for i in range(k):
+        for p in range(lo[i], hi[i]):
+            n += 1
+            sx += xs[p]
+            sy += ys[p]
+            x0 = min(x0, xs[p])
+            x1 = max(x1, xs[p])
+            y0 = min(y0, ys[p])
+            y1 = max(y1, ys[p])
+    if n == 0:
+        return False
+    cx = sx / n
+    cy = sy / n
+    r = 0.25 * (max(x1 - x0, y1 - y0) + 1)
+    occupied = 0
+    for i in range(k):
+        for p in range(lo[i], hi[i]):
+            dx = xs[p] - cx
+            dy = ys[p] - cy
+            if dx * dx + dy * dy <= r * r:
+                continue
+            occupied |= 1 << _sector(dx, dy)
+            if occupied == 255:
+                return True
+    return False
 
 
 @njit(cache=True, nogil=True)
@@ -460,37 +585,34 @@ def surrounds(xs, ys):
     around it, counting only the pixels farther from it than a quarter of the set's extent
     (max(width, height) of its bounding box), so that a thick edge does not pass. A whole
     object's outline or blob does; one edge of it (a line, an L, a crescent) does not."""
-    n = xs.shape[0]
-    if n == 0:
-        return False
-    cx = xs.sum() / n
-    cy = ys.sum() / n
-    r = 0.25 * (max(xs.max() - xs.min(), ys.max() - ys.min()) + 1)
-    occupied = 0
-    for i in range(n):
-        dx = xs[i] - cx
-        dy = ys[i] - cy
-        if dx * dx + dy * dy <= r * r:
-            continue
-        occupied |= 1 << (int(np.floor((np.arctan2(dy, dx) + np.pi) * (4.0 / np.pi))) % 8)
-    return occupied == 255
+    return _surrounds_ranges(xs, ys, np.zeros(1, np.int64), np.full(1, xs.shape[0], np.int64), 1)
 
 
 @njit(cache=True, nogil=True)
-def _members(root_of, r, px, py):
-    """Pixels (x, y) of the components whose root is r (px, py in component order)."""
-    n = 0
-    for i in range(px.shape[0]):
-        n += root_of[i] == r
-    x = np.empty(n, np.int64)
-    y = np.empty(n, np.int64)
-    k = 0
-    for i in range(px.shape[0]):
-        if root_of[i] == r:
-            x[k] = px[i]
-            y[k] = py[i]
-            k += 1
-    return x, y
+def _by_component_then_x(labels, xs, start):
+    """The pixels ordered by component (component c at start[c]:start[c + 1]), then by x: two
+    counting sorts (x, then a stable pass over the components)."""
+    n = xs.shape[0]
+    order = np.empty(n, np.int64)
+    if n == 0:
+        return order
+    x_lo = xs.min()
+    cnt = np.zeros(xs.max() - x_lo + 2, np.int64)
+    for i in range(n):
+        cnt[xs[i] - x_lo + 1] += 1
+    for v in range(cnt.shape[0] - 1):
+        cnt[v + 1] += cnt[v]
+    by_x = np.empty(n, np.int64)
+    for i in range(n):
+        v = xs[i] - x_lo
+        by_x[cnt[v]] = i
+        cnt[v] += 1
+    fill = start[:-1].copy()
+    for i in by_x:
+        c = labels[i]
+        order[fill[c]] = i
+        fill[c] += 1
+    return order
 
 
 @njit(cache=True, nogil=True)
@@ -507,13 +629,12 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
     (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count,
     bbox and whether it surrounds its centroid)."""
     n = count.shape[0]
-    order = np.argsort(labels * (xs.max() + 1) + xs)      # by component, then x (min_gap's order)
     start = np.zeros(n + 1, np.int64)
     for c in range(n):
         start[c + 1] = start[c] + count[c]
+    order = _by_component_then_x(labels, xs, start)       # min_gap's order
     px = xs[order]
     py = ys[order]
-    comp_of = labels[order]
     parent = np.arange(n)
     ext = np.empty(n)
     for c in range(n):
@@ -543,7 +664,8 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
                 pa[k], pb[k], ratio[k] = a, b, d / big
                 k += 1
     by = np.argsort(ratio[:k], kind="mergesort")
-    root_of = np.empty(px.shape[0], np.int64)
+    lo = np.empty(n, np.int64)
+    hi = np.empty(n, np.int64)
     for q in by:
         ra = _root(parent, pa[q])
         rb = _root(parent, pb[q])
@@ -556,10 +678,13 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
         r = _root(parent, ra)
         for c in range(4):
             gbox[r, c] = min(gbox[ra, c], gbox[rb, c]) if c < 2 else max(gbox[ra, c], gbox[rb, c])
-        for i in range(px.shape[0]):
-            root_of[i] = _root(parent, comp_of[i])
-        gx, gy = _members(root_of, r, px, py)
-        closed[r] = surrounds(gx, gy)
+        k = 0
+        for c in range(n):                   # the group's components, in order
+            if _root(parent, c) == r:
+                lo[k] = start[c]
+                hi[k] = start[c + 1]
+                k += 1
+        closed[r] = _surrounds_ranges(px, py, lo, hi, k)
     for b in range(n):                       # specks join a seed they come close to
         if count[b] >= min_count:
             continue
@@ -606,6 +731,280 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
 
 
 @njit(cache=True, nogil=True)
+def _near_members(gx, gy, box, obox, head, nxt, xs, ys, t, buf_x, buf_y):
+    """Whether a pixel of the group (gx, gy) with bounding box ``box`` lies within Euclidean
+    distance t of a member of an object with bounding box ``obox`` (linked list head / nxt over
+    xs, ys): only the group's pixels inside the object's box grown by t (kept in buf_x, buf_y)
+    and the members inside the group's box grown by t can be: the exact test on fewer pairs)."""
+    k = 0
+    for i in range(gx.shape[0]):
+        if obox[0] - t <= gx[i] <= obox[2] + t and obox[1] - t <= gy[i] <= obox[3] + t:
+            buf_x[k] = gx[i]
+            buf_y[k] = gy[i]
+            k += 1
+    if k == 0:
+        return False
+    x0, y0, x1, y1 = box[0] - t, box[1] - t, box[2] + t, box[3] + t
+    t2 = t * t
+    p = head
+    while p >= 0:
+        mx = xs[p]
+        my = ys[p]
+        if x0 <= mx <= x1 and y0 <= my <= y1:
+            for i in range(k):
+                dx = buf_x[i] - mx
+                dy = buf_y[i] - my
+                if dx * dx + dy * dy <= t2:
+                    return True
+        p = nxt[p]
+    return False
+
+
+@njit(cache=True, nogil=True)
+def blob_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_count):
+    """ofpd_io.blob_objects_xy's loop over the stages in one pass: the pixels of stage i are
+    xs, ys[starts[i]:starts[i + 1]] (unique per stage). From the fastest stage down, each
+    frame's groups (link_components, component_stats, merge_blobs) join the first object
+    whose box comes within t = (frac_closed if either surrounds its centroid else frac_open) *
+    the larger extent and that has a pixel within t of one of theirs; the others with >= need
+    pixels are new objects at their centroid (exact integer sums over the count).
+
+    Returns (stage (G,), cx (G,), cy (G,), owner (n,) the object claiming each pixel or -1,
+    claim keys (M,) sorted linear ids y * width + x of the claimed pixels and their owners
+    (M,), keys of equal value in fastest-stage-first order)."""
+    n = xs.shape[0]
+    n_stages = starts.shape[0] - 1
+    owner = np.full(n, -1, np.int64)
+    nxt = np.full(n, -1, np.int64)
+    o_stage = np.empty(n, np.int64)                            # at most one object per pixel
+    o_cx = np.empty(n)
+    o_cy = np.empty(n)
+    o_box = np.empty((n, 4), np.int64)
+    o_closed = np.empty(n, np.bool_)
+    o_head = np.empty(n, np.int64)
+    n_obj = 0
+    claim_key = np.empty(n, np.int64)
+    buf_x = np.empty(n, np.int64)
+    buf_y = np.empty(n, np.int64)
+    claim_own = np.empty(n, np.int64)
+    m = 0
+    for i in range(n_stages - 1, -1, -1):                     # fastest stage first
+        s0 = starts[i]
+        s1 = starts[i + 1]
+        if s1 == s0:
+            continue
+        sx = xs[s0:s1]
+        sy = ys[s0:s1]
+        labels, n_comp = link_components(sx, sy, link, width)
+        count, _sx, _sy, bbox = component_stats(labels, n_comp, sx, sy)
+        comp_group, gcount, gbox, gclosed = merge_blobs(labels, count, bbox, sx, sy, frac_closed, frac_open, min_count)
+        n_groups = gcount.shape[0]
+        if n_groups == 0:
+            continue
+        # the stage's pixels by group (stable: pixel order within a group)
+        gstart = np.zeros(n_groups + 1, np.int64)
+        for p in range(s1 - s0):
+            q = comp_group[labels[p]]
+            if q >= 0:
+                gstart[q + 1] += 1
+        for q in range(n_groups):
+            gstart[q + 1] += gstart[q]
+        fill = gstart[:n_groups].copy()
+        members = np.empty(gstart[n_groups], np.int64)
+        for p in range(s1 - s0):
+            q = comp_group[labels[p]]
+            if q >= 0:
+                members[fill[q]] = s0 + p
+                fill[q] += 1
+        host_of = np.full(n_groups, -1, np.int64)
+        for q in range(n_groups):
+            sel = members[gstart[q]:gstart[q + 1]]
+            gx = xs[sel]
+            gy = ys[sel]
+            box = gbox[q]
+            e = float(max(box[2] - box[0], box[3] - box[1]) + 1)
+            host = -1
+            for j in range(n_obj):
+                b = o_box[j]
+                t = (frac_closed if gclosed[q] or o_closed[j] else frac_open) * max(e, float(max(b[2] - b[0], b[3] - b[1]) + 1))
+                if box_gap(box, b) > t:
+                    continue
+                if _near_members(gx, gy, box, b, o_head[j], nxt, xs, ys, t, buf_x, buf_y):
+                    host = j
+                    break
+            if host >= 0:
+                for c in range(2):
+                    o_box[host, c] = min(o_box[host, c], box[c])
+                    o_box[host, c + 2] = max(o_box[host, c + 2], box[c + 2])
+            elif gcount[q] >= need:
+                host = n_obj
+                n_obj += 1
+                o_stage[host] = i
+                o_cx[host] = gx.sum() / sel.shape[0]
+                o_cy[host] = gy.sum() / sel.shape[0]
+                o_box[host] = box
+                o_closed[host] = gclosed[q]
+                o_head[host] = -1
+            host_of[q] = host
+            if host >= 0:
+                for p in sel:
+                    owner[p] = host
+                    nxt[p] = o_head[host]
+                    o_head[host] = p
+        for p in range(s1 - s0):                               # the stage's claims, in pixel order
+            q = comp_group[labels[p]]
+            if q >= 0 and host_of[q] >= 0:
+                claim_key[m] = sy[p] * width + sx[p]
+                claim_own[m] = host_of[q]
+                m += 1
+    srt = _stable_order(claim_key[:m])
+    return o_stage[:n_obj].copy(), o_cx[:n_obj].copy(), o_cy[:n_obj].copy(), owner, claim_key[srt], claim_own[srt]
+
+
+@njit(cache=True, nogil=True)
+def _stable_order(keys):
+    """Stable argsort of non-negative int keys: LSD radix sort on 11-bit digits (2 passes for
+    a 640 x 480 sensor's pixel ids), O(n + 2048) per pass."""
+    n = keys.shape[0]
+    order = np.arange(n)
+    if n == 0:
+        return order
+    top = keys.max()
+    tmp = np.empty(n, np.int64)
+    cnt = np.empty(2049, np.int64)
+    shift = 0
+    while (top >> shift) > 0:
+        cnt[:] = 0
+        for i in range(n):
+            cnt[((keys[i] >> shift) & 2047) + 1] += 1
+        for d in range(2048):
+            cnt[d + 1] += cnt[d]
+        for i in range(n):
+            q = order[i]
+            d = (keys[q] >> shift) & 2047
+            tmp[cnt[d]] = q
+            cnt[d] += 1
+        order, tmp = tmp, order
+        shift += 11
+    return order
+
+
+@njit(cache=True, nogil=True)
+def claimed_by(keys, owner, query, n_objects, slot_of):
+    """(G, n) bool: the pixel query[i] (linear id) is claimed by object g, i.e. the first entry
+    of the sorted ``keys`` equal to it has owner g (ofpd_io.Claims of grouping "blobs"). With a
+    scratch ``slot_of`` (all -1, left so) longer than every key, by marking the keys on it,
+    else by binary search."""
+    out = np.zeros((n_objects, query.shape[0]), np.bool_)
+    if keys.shape[0] == 0:
+        return out
+    if keys[-1] < slot_of.shape[0]:
+        for j in range(keys.shape[0] - 1, -1, -1):         # the first of equal keys last: it stays
+            slot_of[keys[j]] = owner[j]
+        for i in range(query.shape[0]):
+            q = query[i]
+            if q < slot_of.shape[0] and slot_of[q] >= 0:
+                out[slot_of[q], i] = True
+        for j in range(keys.shape[0]):
+            slot_of[keys[j]] = -1
+        return out
+    at = np.searchsorted(keys, query)
+    for i in range(query.shape[0]):
+        j = at[i]
+        if j < keys.shape[0] and keys[j] == query[i]:
+            out[owner[j], i] = True
+    return out
+
+
+@njit(cache=True, nogil=True)
+def crop_pool(extent, g, pool_min, pool_max):
+    """Cell side P of crop "scaled" for an object of the given extent (px): the smallest power of
+    two P >= 1.5 * extent / g (2^ceil(log2(1.5 * extent / g)), 1 for extent 0, in integers:
+    2 P g >= 3 extent), clipped to [pool_min, pool_max]."""
+    p = 1
+    while 2 * p * g < 3 * extent:
+        p *= 2
+    return min(max(p, pool_min), pool_max)
+
+
+@njit(cache=True, nogil=True)
+def frame_pixels(frames, pix_inverse, ux, uy):
+    """The unique pixels of a window's stage frames: frames (N, n) bool over the window's ones,
+    pix_inverse (n,) the window pixel of each one, (ux, uy) the window pixels' coordinates.
+    Returns (xs, ys (M,) the pixels of frame 0, then frame 1, ..., each frame's in order of
+    first appearance, starts (N + 1,) where each frame's begin, every (E,) the ones in any
+    frame, in order)."""
+    n_frames, n = frames.shape
+    stamp = np.full(ux.shape[0], -1, np.int64)
+    xs = np.empty(n_frames * n, np.int64)
+    ys = np.empty(n_frames * n, np.int64)
+    starts = np.zeros(n_frames + 1, np.int64)
+    in_any = np.zeros(n, np.bool_)
+    m = 0
+    for k in range(n_frames):
+        for i in range(n):
+            if frames[k, i]:
+                in_any[i] = True
+                u = pix_inverse[i]
+                if stamp[u] != k:
+                    stamp[u] = k
+                    xs[m] = ux[u]
+                    ys[m] = uy[u]
+                    m += 1
+        starts[k + 1] = m
+    return xs[:m], ys[:m], starts, np.flatnonzero(in_any)
+
+
+@njit(cache=True, nogil=True)
+def object_crops(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_min, pool_max, width, height):
+    """Each object's crop and ones from the claims (G, n) bool over a window's ones (pixel (xs,
+    ys), channel ch, window pixel pix_inverse): ofpd_io.crop_origin_xy of its unique pixels
+    (side fixed_size, or g * crop_pool of their extent when fixed_size is 0; crop_origin on a
+    (width, height) sensor) and the claimed ones. Returns
+    (origins (G, 3) = x0, y0, S, n_ones (G,), and the claimed ones as flat arrays object, x, y,
+    channel, object by object)."""
+    n_obj, n = masks.shape
+    origins = np.empty((n_obj, 3), np.int64)
+    n_ones = np.zeros(n_obj, np.int64)
+    for j in range(n_obj):
+        for i in range(n):
+            n_ones[j] += masks[j, i]
+    total = n_ones.sum()
+    obj = np.empty(total, np.int64)
+    ox = np.empty(total, np.int64)
+    oy = np.empty(total, np.int64)
+    och = np.empty(total, np.int64)
+    seen = np.full(n_pixels, -1, np.int64)
+    ux = np.empty(n, np.int64)
+    uy = np.empty(n, np.int64)
+    m = 0
+    for j in range(n_obj):
+        nu = 0
+        for i in range(n):
+            if masks[j, i]:
+                obj[m] = j
+                ox[m] = xs[i]
+                oy[m] = ys[i]
+                och[m] = ch[i]
+                m += 1
+                u = pix_inverse[i]
+                if seen[u] != j:
+                    seen[u] = j
+                    ux[nu] = xs[i]
+                    uy[nu] = ys[i]
+                    nu += 1
+        px = ux[:nu]
+        py = uy[:nu]
+        size = fixed_size
+        if size == 0:
+            extent = 0 if nu == 0 else max(px.max() - px.min(), py.max() - py.min()) + 1
+            size = g * crop_pool(extent, g, pool_min, pool_max)
+        origins[j, 0], origins[j, 1] = crop_origin(px, py, size, width, height)
+        origins[j, 2] = size
+    return origins, n_ones, obj, ox, oy, och
+
+
+@njit(cache=True, nogil=True)
 def in_rects(xs, ys, rects):
     """(G, n) bool: pixel i inside rectangle g, rects[g] = (x_min, y_min, x_max, y_max) inclusive."""
     out = np.empty((rects.shape[0], xs.shape[0]), np.bool_)
@@ -616,27 +1015,79 @@ def in_rects(xs, ys, rects):
 
 
 @njit(cache=True, nogil=True)
-def count_cells(out, obj, xs, ys, ch, origins, n_channels):
-    """Adds 1 to out[obj, ch, y // P, x // P] for every one (object obj, pixel (x, y), channel
-    ch < n_channels) inside its object's S x S crop, origins[obj] = (x0, y0, S), P = S / g
-    (crop coordinates x, y); ones outside are dropped. ``out`` float32 holds exact integer
-    counts (< 2**24)."""
+def cell_centres(origins, g, coord_scale):
+    """ofpd_io.coordinate_planes: (x (N, g), y (N, g)) = (x0 + (i + 0.5) * (S / g) - 0.5) /
+    coord_scale (and y0) for crops at origins (N, 3) float64 = (x0, y0, S)."""
+    n = origins.shape[0]
+    px = np.empty((n, g))
+    py = np.empty((n, g))
+    for o in range(n):
+        pool = origins[o, 2] / g
+        for i in range(g):
+            c = (i + 0.5) * pool - 0.5
+            px[o, i] = (origins[o, 0] + c) / coord_scale
+            py[o, i] = (origins[o, 1] + c) / coord_scale
+    return px, py
+
+
+@njit(cache=True, nogil=True)
+def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
+    """The OFPD input of ofpd_io.prepare_xy into ``out`` (N, n_channels + 2, g, g) float32 of
+    zeros: out[obj, ch, y // P, x // P] = the number of ones (object obj, pixel (x, y), channel
+    ch < n_channels) in that cell of its object's S x S crop, origins[obj] = (x0, y0, S), P = S / g
+    (crop coordinates x, y; ones outside are dropped), divided by P * P in float32 (exact
+    integer counts < 2**24, one division each: numpy's result); then the coordinate planes
+    out[obj, n_channels, :, i], out[obj, n_channels + 1, i, :] = cell_centres (float64, stored
+    as float32)."""
+    n_obj = out.shape[0]
     g = out.shape[-1]
-    for i in range(xs.shape[0]):
+    flat = out.reshape(-1)
+    plane = g * g
+    cell = np.empty(xs.shape[0], np.int64)
+    side = 0
+    for o in range(n_obj):
+        side = max(side, origins[o, 2])
+    cell_of = np.empty((n_obj, side), np.int64)    # v // P for 0 <= v < S, without a division per one
+    for o in range(n_obj):
+        pool = origins[o, 2] // g
+        c = 0
+        k = 0
+        for v in range(origins[o, 2]):
+            cell_of[o, v] = c
+            k += 1
+            if k == pool:
+                k = 0
+                c += 1
+    for i in range(xs.shape[0]):               # counts, negative until divided
         o = obj[i]
         size = origins[o, 2]
         x = xs[i] - origins[o, 0]
         y = ys[i] - origins[o, 1]
+        cell[i] = -1
         if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < n_channels:
-            pool = size // g
-            out[o, ch[i], y // pool, x // pool] += 1
+            cell[i] = at = ((o * (n_channels + 2) + ch[i]) * g + cell_of[o, y]) * g + cell_of[o, x]
+            flat[at] -= 1
+    for i in range(xs.shape[0]):               # each counted cell divided once
+        at = cell[i]
+        if at >= 0 and flat[at] < 0:
+            pool = origins[obj[i], 2] // g
+            flat[at] = -flat[at] / np.float32(pool * pool)
+    px, py = cell_centres(origins.astype(np.float64), g, coord_scale)
+    for o in range(n_obj):
+        base = (o * (n_channels + 2) + n_channels) * plane
+        for j in range(g):
+            for i in range(g):
+                flat[base + j * g + i] = np.float32(px[o, i])
+                flat[base + plane + j * g + i] = np.float32(py[o, j])
+    return out
 
 
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
-           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds, sets_within,
+           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
+           blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops,
            in_rects,
-           count_cells)
+           cell_centres, fill_input)
 
 
 @njit(cache=True, nogil=True)
@@ -680,9 +1131,16 @@ def warm_up() -> None:
     labels, n_comp = link_components(i64, i64, 1, 2)
     count, sx, sy, bbox = component_stats(labels, n_comp, i64, i64)
     merge_blobs(labels, count, bbox, i64, i64, 0.2, 1.5, 1)
+    blob_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1)
     min_gap(i64, i64, i64, i64, 1.0)
     surrounds(i64, i64)
-    sets_within(i64, i64, i64, i64, 1.0)
     in_rects(i64, i64, np.zeros((1, 4), np.int64))
-    count_cells(np.zeros((1, 1, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1)
+    claimed_by(i64, i64, i64, 1, scratch)
+    crop_pool(1, 1, 1, 1)
+    frame_pixels(np.ones((1, 1), np.bool_), i64, i64, i64)
+    object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2)
+    crop_origin(i64, i64, 1, 2, 2)
+    two_pass_centroid(i64, i64, 1.0, 2, 2)
+    fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 1000.0)
+    cell_centres(np.ones((1, 3)), 1, 1000.0)
     first_spikes(i64, 2, 1, np.zeros(1, np.uint8))

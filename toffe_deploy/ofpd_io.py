@@ -41,12 +41,13 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from .compiled import (box_mean, component_stats, count_cells, density_groups, in_rects, link_components,
-                       merge_blobs, sets_within)
+from .compiled import (blob_objects, box_mean, cell_centres, claimed_by, component_stats, crop_origin, crop_pool,
+                       density_groups, fill_input, in_rects, link_components, merge_blobs, two_pass_centroid)
 from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
 
 COORD_SCALE = 1000.0       # coordinate planes hold px / 1000 (keeps inputs O(1))
+_NO_SCRATCH = np.zeros(0, np.int32)   # compiled.claimed_by without a scratch array
 MAX_SPEED_MPS = 150.0      # the data set's programmed speeds stay below 144 m/s
 MAX_SPEED_PX_MS = 16.0     # the same cap in px/ms (150 m/s at 5 m seen with 554 px: 16.6 px/ms)
 
@@ -143,11 +144,7 @@ def _box_mean(xs: np.ndarray, ys: np.ndarray, cx: float, cy: float, r: float) ->
 def centroid_of_pixels(xs: np.ndarray, ys: np.ndarray, half: int, width: int, height: int) -> tuple[float, float]:
     """Two-pass centroid (x, y) of event pixel coordinates: the mean, then the mean of the pixels
     within ``half`` of it (stray events far away barely move it); sensor centre when empty."""
-    if xs.size == 0:
-        return (width - 1) / 2.0, (height - 1) / 2.0
-    _n, cx, cy = _box_mean(xs, ys, 0.0, 0.0, np.inf)
-    n, nx, ny = _box_mean(xs, ys, cx, cy, half)
-    return (nx, ny) if n else (cx, cy)
+    return two_pass_centroid(_int64(xs), _int64(ys), float(half), int(width), int(height))
 
 
 def in_boxes(xs: np.ndarray, ys: np.ndarray, centres, r: float) -> np.ndarray:
@@ -254,7 +251,21 @@ def group_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sens
     w = int(sensor_size[0])
     if ofpd_settings(config)["grouping"] == "blobs":
         return blob_objects_xy(stage_pixels, sensor_size, config)
-    objs = box_objects_xy(stage_pixels, sensor_size, config)
+    return _with_regions(box_objects_xy(stage_pixels, sensor_size, config), w, config)
+
+
+def group_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, sensor_size: tuple[int, int],
+                       config: ToffeConfig) -> tuple[Objects, "Claims"]:
+    """group_objects_xy of stage pixels given as flat int64 arrays: stage i's are
+    xs, ys[starts[i]:starts[i + 1]] (the cpu runtime's form: no per-stage arrays to join)."""
+    if ofpd_settings(config)["grouping"] == "blobs":
+        return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config)
+    stage_pixels = [(xs[a:b], ys[a:b]) for a, b in zip(starts[:-1].tolist(), starts[1:].tolist())]
+    return _with_regions(box_objects_xy(stage_pixels, sensor_size, config), int(sensor_size[0]), config)
+
+
+def _with_regions(objs: Objects, w: int, config: ToffeConfig) -> tuple[Objects, "Claims"]:
+    """Grouping "boxes": the objects and the rectangles they claim."""
     r = float(ofpd_settings(config)["dedupe_px"])
     # |x - c| < r over integers x is floor(c - r) + 1 <= x <= ceil(c + r) - 1
     regions = np.array([[np.floor(cx - r) + 1, np.floor(cy - r) + 1, np.ceil(cx + r) - 1, np.ceil(cy + r) - 1]
@@ -275,13 +286,16 @@ class Claims:
 
     def masks(self, xs: np.ndarray, ys: np.ndarray, n_objects: int) -> list[np.ndarray]:
         """(n,) bool per object: the pixels (xs, ys) it claims."""
+        return list(self.matrix(xs, ys, n_objects))
+
+    def matrix(self, xs: np.ndarray, ys: np.ndarray, n_objects: int, scratch: np.ndarray | None = None) -> np.ndarray:
+        """(G, n) bool: pixel i is claimed by object g (``masks`` as one array, one compiled pass;
+        O(n) with an all -1 ``scratch`` of the sensor's size, compiled.new_scratch)."""
         xs, ys = _int64(xs), _int64(ys)
         if self.regions is not None:
-            return list(in_rects(xs, ys, np.ascontiguousarray(self.regions, dtype=np.int64).reshape(-1, 4)))
-        key = ys * self.width + xs
-        at = np.minimum(np.searchsorted(self.keys, key), max(self.keys.size - 1, 0))
-        own = np.where(self.keys[at] == key, self.owner[at], -1) if self.keys.size else np.full(key.size, -1)
-        return [own == j for j in range(n_objects)]
+            return in_rects(xs, ys, np.ascontiguousarray(self.regions, dtype=np.int64).reshape(-1, 4))
+        return claimed_by(self.keys, self.owner, ys * self.width + xs, int(n_objects),
+                          _NO_SCRATCH if scratch is None else scratch)
 
 
 def box_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
@@ -350,60 +364,22 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
     An object claims exactly its pixels, of every stage. Objects of radius r at centre distance
     >= 3r stay two when their events close around them (they are r apart, minus their motion,
     > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob."""
+    pix = [tuple(_int64(a) for a in p) for p in stage_pixels]
+    starts = np.cumsum([0] + [p[0].shape[0] for p in pix]).astype(np.int64)
+    xs = np.concatenate([p[0] for p in pix]) if pix else np.zeros(0, np.int64)
+    ys = np.concatenate([p[1] for p in pix]) if pix else np.zeros(0, np.int64)
+    return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config)
+
+
+def _blob_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, w: int, config: ToffeConfig
+                       ) -> tuple[Objects, Claims]:
+    """blob_objects_xy on flat stage pixels (group_objects_flat), in one compiled pass."""
     s = ofpd_settings(config)
-    frac, frac_open, need = float(s["merge_frac"]), float(s["edge_merge_frac"]), int(s["min_events"])
-    w = int(sensor_size[0])
-    objs: list[tuple[int, float, float]] = []
-    px: list[list[tuple[np.ndarray, np.ndarray]]] = []      # per object: its pixel sets so far
-    boxes: list[list[int]] = []
-    closed: list[bool] = []
-    keys, owner = [], []
-    for i in range(len(stage_pixels) - 1, -1, -1):          # fastest stage first; N is tiny
-        xs, ys = (_int64(a) for a in stage_pixels[i])
-        group, count, gbox, gclosed = blobs_xy(xs, ys, w, config)
-        n_groups = count.shape[0]
-        if not n_groups:
-            continue
-        order = np.argsort(group, kind="stable")
-        bounds = np.searchsorted(group[order], np.arange(n_groups + 1))
-        host_of = np.full(n_groups, -1, np.int64)
-        for q in range(n_groups):
-            box = gbox[q].tolist()
-            e = float(max(box[2] - box[0], box[3] - box[1]) + 1)
-            sel = None
-            for j in range(len(objs)):
-                b = boxes[j]
-                t = (frac if gclosed[q] or closed[j] else frac_open) * max(e, float(max(b[2] - b[0], b[3] - b[1]) + 1))
-                if max(box[0] - b[2], b[0] - box[2], box[1] - b[3], b[1] - box[3]) > t:
-                    continue
-                if sel is None:
-                    sel = order[bounds[q]:bounds[q + 1]]
-                if any(sets_within(xs[sel], ys[sel], ox, oy, t) for ox, oy in px[j]):
-                    host_of[q] = j
-                    break
-            if host_of[q] >= 0:
-                j = host_of[q]
-                b = boxes[j]
-                boxes[j] = [min(b[0], box[0]), min(b[1], box[1]), max(b[2], box[2]), max(b[3], box[3])]
-            elif count[q] >= need:
-                sel = order[bounds[q]:bounds[q + 1]] if sel is None else sel
-                host_of[q] = len(objs)
-                objs.append((i, float(xs[sel].sum() / sel.size), float(ys[sel].sum() / sel.size)))
-                px.append([])
-                boxes.append(box)
-                closed.append(bool(gclosed[q]))
-            if host_of[q] >= 0:
-                sel = order[bounds[q]:bounds[q + 1]] if sel is None else sel
-                px[host_of[q]].append((xs[sel], ys[sel]))
-        pix_host = np.where(group >= 0, host_of[np.maximum(group, 0)], -1)
-        mine = pix_host >= 0
-        keys.append(ys[mine] * w + xs[mine])
-        owner.append(pix_host[mine])
-    if not objs:
-        return [], Claims(width=w, keys=np.zeros(0, np.int64), owner=np.zeros(0, np.int64))
-    k, o = np.concatenate(keys), np.concatenate(owner)
-    srt = np.argsort(k, kind="stable")
-    return objs, Claims(width=w, keys=k[srt], owner=o[srt])
+    need = int(s["min_events"])
+    stage, cx, cy, _owner, keys, owner = blob_objects(xs, ys, starts, w, int(s["link_px"]), float(s["merge_frac"]),
+                                                      float(s["edge_merge_frac"]), need, max(1, -(-need // 4)))
+    objs = [(int(k), float(x), float(y)) for k, x, y in zip(stage.tolist(), cx.tolist(), cy.tolist())]
+    return objs, Claims(width=w, keys=keys, owner=owner)
 
 
 def object_masks_xy(xs: np.ndarray, ys: np.ndarray, objects: Objects, claims: Claims) -> list[np.ndarray]:
@@ -425,8 +401,7 @@ def crop_size_xy(xs: np.ndarray, ys: np.ndarray, config: ToffeConfig) -> int:
         return int(s["crop_px"])
     g = s["crop_px"] // s["pool"]
     extent = 0 if xs.size == 0 else max(int(xs.max()) - int(xs.min()), int(ys.max()) - int(ys.min())) + 1
-    p = 1 if extent == 0 else 1 << max(int(np.ceil(np.log2(1.5 * extent / g))), 0)
-    return int(g * min(max(p, int(s["pool_min"])), int(s["pool_max"])))
+    return int(g * crop_pool(extent, g, int(s["pool_min"]), int(s["pool_max"])))
 
 
 def crop_origin_xy(xs: np.ndarray, ys: np.ndarray, sensor_size: tuple[int, int], config: ToffeConfig
@@ -435,18 +410,15 @@ def crop_origin_xy(xs: np.ndarray, ys: np.ndarray, sensor_size: tuple[int, int],
     (crop_size_xy), top-left with the crop centre x0 + (S - 1) / 2 nearest to the two-pass
     centroid (within half a pixel)."""
     size = crop_size_xy(xs, ys, config)
-    cx, cy = centroid_of_pixels(xs, ys, size // 2, int(sensor_size[0]), int(sensor_size[1]))
-    return int(np.floor(cx - (size - 1) / 2 + 0.5)), int(np.floor(cy - (size - 1) / 2 + 0.5)), size
+    x0, y0 = crop_origin(_int64(xs), _int64(ys), size, int(sensor_size[0]), int(sensor_size[1]))
+    return x0, y0, size
 
 
 def coordinate_planes(origins: np.ndarray, g: int) -> tuple[np.ndarray, np.ndarray]:
     """(x (N, g), y (N, g)) cell-centre coordinates / COORD_SCALE of crops at origins (N, 3) =
     (x0, y0, S): x0 + (i + 0.5) P - 0.5 with P = S / g. The network reads the crop centre as
     their mean and the cell size P from their spacing."""
-    o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
-    pool = o[:, 2:3] / g
-    centres = (np.arange(g)[None, :] + 0.5) * pool - 0.5
-    return (o[:, 0:1] + centres) / COORD_SCALE, (o[:, 1:2] + centres) / COORD_SCALE
+    return cell_centres(np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3), int(g), COORD_SCALE)
 
 
 def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origins: np.ndarray,
@@ -457,24 +429,26 @@ def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origin
     crop_origin_xy of its event pixels (x0, y0, S). x[2b+p, cell] = #ones of channel 2b+p in
     the crop cell / P^2 (P = S / g: the mean of P x P binary pixels, one float32 division of an
     exact count), zero elsewhere; the coordinate planes as in coordinate_planes. The counts are
-    one compiled pass over the ones (compiled.count_cells).
+    one compiled pass over the ones (compiled.fill_input).
     """
+    n = len(ones)
+    obj = np.repeat(np.arange(n, dtype=np.int64), [len(o[0]) for o in ones])
+    xs, ys, ch = (np.concatenate([o[i] for o in ones]).astype(np.int64, copy=False) if n else np.zeros(0, np.int64)
+                  for i in range(3))
+    return prepare_flat(obj, xs, ys, ch, origins, n, config)
+
+
+def prepare_flat(obj: np.ndarray, xs: np.ndarray, ys: np.ndarray, ch: np.ndarray, origins: np.ndarray, n: int,
+                 config: ToffeConfig) -> np.ndarray:
+    """prepare_xy of n frames whose ones are given as flat arrays: one (xs, ys, ch) of frame obj
+    each (int64, any order)."""
     g = input_shape(config)[1]
     b = config.n_bins
-    n = len(ones)
     out = np.zeros((n, 2 * b + 2, g, g), dtype=np.float32)
     if n == 0:
         return out
     origins = np.ascontiguousarray(np.asarray(origins, dtype=np.int64).reshape(n, 3))
-    px, py = coordinate_planes(origins, g)
-    out[:, 2 * b] = px[:, None, :]
-    out[:, 2 * b + 1] = py[:, :, None]
-    obj = np.repeat(np.arange(n, dtype=np.int64), [len(o[0]) for o in ones])
-    xs, ys, ch = (np.concatenate([o[i] for o in ones]).astype(np.int64, copy=False) for i in range(3))
-    count_cells(out, obj, xs, ys, ch, origins, 2 * b)
-    cells = out[:, :2 * b]
-    pool = (origins[:, 2] // g).astype(np.float32)
-    np.divide(cells, (pool * pool)[:, None, None, None], out=cells)
+    fill_input(out, obj, xs, ys, ch, origins, 2 * b, COORD_SCALE)
     return out
 
 

@@ -14,6 +14,10 @@ evaluation and export are thin wrappers over the same functions):
 
 This module only converts between SpikeVolume and coordinates, with O(n) de-duplication through
 an all -1 ``scratch`` array (``compiled.new_scratch``; no sort) when the caller has one.
+``batch`` (the pipeline's per-window call) runs these steps as compiled passes over the
+window's ones (compiled.frame_pixels, blob_objects, claimed_by, object_crops, fill_input: the
+same definitions, tested bit for bit against the per-object Python form in
+tests/test_objects_compiled.py).
 """
 from __future__ import annotations
 
@@ -21,9 +25,10 @@ from typing import Sequence
 
 import numpy as np
 
-from ..compiled import dedupe
+from ..compiled import dedupe, frame_pixels, object_crops
 from ..config import ToffeConfig
-from ..ofpd_io import crop_origin_xy, group_objects_xy, input_shape, object_masks_xy, prepare_xy
+from ..ofpd_io import (crop_origin_xy, group_objects_flat, group_objects_xy, input_shape, object_masks_xy, ofpd_settings, prepare_flat,
+                       prepare_xy)
 from .spikes import SpikeVolume
 
 
@@ -66,37 +71,29 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     and once per object: a frame's (or an object's) unique pixels are the unique pixel ids
     its ones point to, marked on a (U,) array over the window's U unique pixels. An object's
     merged frame is the ones of every frame whose pixel it claims, so its unique pixels are
-    the window pixels of those ones it claims.
+    the window pixels of those ones it claims. The stage pixels go to the grouping as flat
+    arrays (ofpd_io.group_objects_flat); each object's crop and ones, and the OFPD input, come
+    from one compiled pass each (compiled.object_crops, ofpd_io.prepare_flat).
     """
     _b, nc, h, w = volume.shape
     upix, pinv = volume.pixel_index(scratch)
     uy, ux = np.divmod(upix, w)
-    n_u = upix.shape[0]
-
-    def pixels_of(ones: np.ndarray) -> np.ndarray:          # unique pixel ids of some ones
-        mark = np.zeros(n_u, dtype=bool)
-        mark[pinv[ones]] = True
-        return np.flatnonzero(mark)
-
-    objs, claims = group_objects_xy([(ux[u], uy[u]) for u in (pixels_of(m) for m in frames)], (w, h), config)
+    sx, sy, starts, every = frame_pixels(np.stack(frames) if len(frames) else np.zeros((0, len(pinv)), bool),
+                                         pinv, ux, uy)
+    objs, claims = group_objects_flat(sx, sy, starts, (w, h), config)
     if not objs:
         c, g, _ = input_shape(config)
         return np.zeros(0, dtype=np.int64), np.zeros((0, c, g, g), np.float32), np.zeros(0, dtype=np.int64)
-    every = np.flatnonzero(np.logical_or.reduce(list(frames)))     # the ones of every frame
     ev_u = pinv[every]
     fx, fy = ux[ev_u], uy[ev_u]
-    masks = object_masks_xy(fx, fy, objs, claims)
-    ev_pix = pixels_of(every)
-    pix_masks = object_masks_xy(ux[ev_pix], uy[ev_pix], objs, claims)
     ch = volume.bc[every] if nc == 2 else volume.b[every] * 2 + volume.c[every]
-    ones, origins, n_ev = [], [], []
-    for m, pm in zip(masks, pix_masks):
-        mu = ev_pix[pm]
-        origins.append(crop_origin_xy(ux[mu], uy[mu], (w, h), config))
-        ones.append((fx[m], fy[m], ch[m]))
-        n_ev.append(ones[-1][0].shape[0])
-    x = prepare_xy(ones, np.asarray(origins, dtype=np.int64).reshape(-1, 3), config)
-    return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, np.asarray(n_ev, dtype=np.int64)
+    s = ofpd_settings(config)
+    g = input_shape(config)[1]
+    origins, n_ev, obj, ox, oy, och = object_crops(claims.matrix(fx, fy, len(objs), scratch), fx, fy, ch, ev_u, upix.shape[0],
+                                                   int(s["crop_px"]) if s["crop"] == "fixed" else 0, g,
+                                                   int(s["pool_min"]), int(s["pool_max"]), w, h)
+    x = prepare_flat(obj, ox, oy, och, origins, len(objs), config)
+    return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, n_ev
 
 
 def prepare(frames: Sequence[SpikeVolume], config: ToffeConfig, scratch: np.ndarray | None = None) -> np.ndarray:
