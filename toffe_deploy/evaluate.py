@@ -201,12 +201,14 @@ def format_markdown(r: dict) -> str:
     for g, by in enumerate(rows[0]["by"] if rows else []):
         found = ", ".join(by["attribute"]) or "not found in any sequence"
         lines += ["", f"By `{by['name']}` (sequence attribute: {found}):", "",
-                  f"| dt (us) | {by['name']} | sequences | objects | recall | FP / window | bin acc. | pixE (px) |",
-                  "|---|---|---|---|---|---|---|---|"]
+                  f"| dt (us) | {by['name']} | sequences | objects | recall | FP / window | bin acc. | pixE (px) "
+                  "| dirE (deg) | speedE (m/s) |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for row in rows:
             for b in row["by"][g]["buckets"]:
                 lines.append(f"| {row['dt_us']} | {b['bucket']} | {b['sequences']} | {b['n_gt']} | {_f(b['recall'])} | "
-                             f"{_f(b['fp_per_window'], 3)} | {_f(b['bin_accuracy'])} | {_f(b['pixE'])} |")
+                             f"{_f(b['fp_per_window'], 3)} | {_f(b['bin_accuracy'])} | {_f(b['pixE'])} | "
+                             f"{_f(b['dirE'])} | {_f(b['speedE'])} |")
     lines += ["", "OFS speed separation (single-object windows, each stage alone: fires vs object bin >= k):", "",
               "| dt (us) | " + " | ".join(f"OFS{k} P / R" for k in sorted(r["per_dt"][0]["separation"])) + " |",
               "|---|" + "---|" * len(r["per_dt"][0]["separation"])]
