@@ -452,16 +452,23 @@ def link_components(xs, ys, link, width):
 
 
 @njit(cache=True, nogil=True)
+def _empty_boxes(n):
+    """(n, 4) int64 boxes x_min, y_min, x_max, y_max, empty (min above max) for min/max updates."""
+    box = np.empty((n, 4), np.int64)
+    for c in range(n):
+        box[c, 0] = box[c, 1] = 1 << 40
+        box[c, 2] = box[c, 3] = -(1 << 40)
+    return box
+
+
+@njit(cache=True, nogil=True)
 def component_stats(labels, n_comp, xs, ys):
     """Per component: (count (C,), sum x (C,), sum y (C,), bbox (C, 4) = x_min, y_min, x_max,
     y_max), exact integers."""
     count = np.zeros(n_comp, np.int64)
     sx = np.zeros(n_comp, np.int64)
     sy = np.zeros(n_comp, np.int64)
-    bbox = np.empty((n_comp, 4), np.int64)
-    for c in range(n_comp):
-        bbox[c, 0] = bbox[c, 1] = 1 << 40
-        bbox[c, 2] = bbox[c, 3] = -(1 << 40)
+    bbox = _empty_boxes(n_comp)
     for i in range(labels.shape[0]):
         c = labels[i]
         count[c] += 1
@@ -712,10 +719,7 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
         group[c] = label_of_root[r]
     gc = np.zeros(g, np.int64)
     gclosed = np.zeros(g, np.bool_)
-    gb = np.empty((g, 4), np.int64)
-    for q in range(g):
-        gb[q, 0] = gb[q, 1] = 1 << 40
-        gb[q, 2] = gb[q, 3] = -(1 << 40)
+    gb = _empty_boxes(g)
     for c in range(n):
         q = group[c]
         if q < 0:
