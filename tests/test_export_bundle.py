@@ -173,3 +173,12 @@ def test_onnx_named_io_dynamic_batch(exported):
     for n in (1, 3):
         pose, direction, speed = run_onnx(s, np.zeros((n,) + input_shape(CFG), np.float32))
         assert pose.shape == (n, 2) and direction.shape == (n, 2) and speed.shape == (n, 1)
+
+
+def test_repository_export_readme_is_the_generated_one():
+    """export/README.md is what every bundle gets (deploy/readme.py): edit it there, not here."""
+    from pathlib import Path
+
+    from toffe_deploy.deploy.readme import bundle_readme
+
+    assert (Path(__file__).resolve().parent.parent / "export" / "README.md").read_text() == bundle_readme()

@@ -447,7 +447,7 @@ def coordinate_planes(origins: np.ndarray, g: int) -> tuple[np.ndarray, np.ndarr
 
 def prepare_xy(ones: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]], origins: np.ndarray,
                config: ToffeConfig) -> np.ndarray:
-    """The OFPD input (N, 2B+2, g, g) float32 of N frames given as their ones.
+    """The OFPD input (N, C, g, g) float32 (input_shape) of N frames given as their ones.
 
     ones[i] = (xs, ys, ch): the (unique) ones of frame i, ch = 2 b + polarity; origins[i] =
     crop_origin_xy of its event pixels (x0, y0, S). x[2b+p, cell] = #ones of channel 2b+p in
@@ -540,7 +540,7 @@ def crop_origins(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
 
 
 def prepare(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
-    """(N, B, 2, H, W) bool/uint8 speed-separated frames -> (N, 2B+2, g, g) float32 (see module doc)."""
+    """(N, B, 2, H, W) bool/uint8 speed-separated frames -> (N, C, g, g) float32 (see module doc)."""
     frames = np.asarray(frames)
     if frames.ndim == 4:
         frames = frames[None]

@@ -77,9 +77,29 @@ lowers the scale (a note says so).
 ## ofpd.onnx (and variants)
 
 Input `events`: (N, C, h, w) float32 with dynamic N, made by `toffe_deploy.ofpd_io.prepare`
-from N speed-separated frames. Outputs `pose` (N, 2) px on the full sensor, `direction` (N, 2)
-(cos, sin) of the image-plane motion angle (y down), `speed` (N, 1) ln(m/s); decode with
-`toffe_deploy.ofpd_io.decode`. Checked with `onnx.checker` (full check) at export.
+from N objects' speed-separated frames: C = 2B pooled event planes (B time bins x 2 polarities)
++ the motion planes + 2 coordinate planes, h = w = g = `crop_px / pool` cells (32 by default).
+Each object's crop is S x S px with cells of P = S / g px; with `config.ofpd.crop = "scaled"`
+(OFPDs trained since the layout keys exist) S = g * clip(2^ceil(log2(1.5 * extent / g)),
+pool_min, pool_max), 64..512 px by default, with `"fixed"` S = `crop_px`. The motion planes
+(`config.ofpd.motion = "time_cov"`: planes 2B and 2B + 1; none for `"none"`, older OFPDs) hold
+per cell 12 n cov(t, u) / P^2 and 12 n cov(t, v) over its n event ones, t the time bin scaled to
+-1/2..1/2 and (u, v) the position inside the cell in cells: which way time runs in the cell,
+the direction of motion whatever the contrast sign. The last two planes hold the cell centres'
+x, then y, in sensor px / 1000: the graph reads the crop centre (their mean) and P (their
+spacing) from them. Outputs `pose` (N, 2) px on the full sensor (crop centre + a residual of
+up to g P / 2), `direction` (N, 2) (cos, sin) of the image-plane motion angle (y down), `speed`
+(N, 1) ln of the image-plane speed in px/ms (`config.ofpd.speed_unit = "px_ms"`: the head
+regresses ln(cells/ms) and the graph adds ln P), or ln(m/s) for `"mps"` (older checkpoints);
+decode with `toffe_deploy.ofpd_io.decode`. It gives both m/s and px/ms through the config's
+camera, and the reported speed bin: `config.ofpd.bin_from = "ofpd"`, the bin of this speed
+(the speed clipped only to the bins' overall range), or `"ofs"` (older checkpoints), the
+cascade's stage, the speed clipped into it. Which events form one object is
+`config.ofpd.grouping`: `"blobs"` (connected event blobs of any size, an object's edges joined
+until they surround it; keys `link_px`, `merge_frac`, `edge_merge_frac`, `min_events`) or
+`"boxes"` (a fixed +-`dedupe_px` box, older checkpoints); config.json's `ofpd` keys are listed
+in `toffe_deploy/ofpd_io.py` (OFPD_DEFAULTS; each layout key a non-empty `ofpd` lacks takes its
+legacy value: boxes / fixed / mps / no motion planes / bin from the OFS). Checked with `onnx.checker` (full check) at export.
 
 ## netx/ofs_stage<k>.net (lava-dl netx HDF5)
 

@@ -63,7 +63,7 @@ def merge_objects(volume: SpikeVolume, frames: Sequence[np.ndarray], config: Tof
 
 def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig,
           scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``prepare(*merge_objects(...))`` in one pass: (stage_k (G,), OFPD input (G, 2B+2, g, g)
+    """``prepare(*merge_objects(...))`` in one pass: (stage_k (G,), OFPD input (G, C, g, g)
     float32, n_events (G,) = the number of ones of each merged frame).
 
     The same core calls on the same coordinate sets, with the window's pixels de-duplicated
@@ -97,7 +97,7 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
 
 
 def prepare(frames: Sequence[SpikeVolume], config: ToffeConfig, scratch: np.ndarray | None = None) -> np.ndarray:
-    """(N, 2B+2, g, g) float32, equal to ``ofpd_io.prepare`` of the dense frames."""
+    """(N, C, g, g) float32 (ofpd_io.input_shape), equal to ``ofpd_io.prepare`` of the dense frames."""
     b = config.n_bins
     ones, origins = [], []
     for f in frames:
