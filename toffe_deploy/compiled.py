@@ -1133,12 +1133,56 @@ def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
     return out
 
 
+@njit(cache=True, nogil=True)
+def cluster_keep(idx, n_pixels, width, min_size, slot_of):
+    """Keep mask of the front end's cluster filter (events/frontend.py) over ones given as a
+    linear index into a (B, C, H, W) volume: True for the ones whose pixel lies in an
+    8-connected cluster of >= min_size of the window's event pixels. One pass: each one's pixel
+    gets a slot (``slot_of``, an all -1 (n_pixels,) scratch left so), each new pixel joins the
+    clusters of its already seen 8 neighbours (union-find over slots), then the cluster sizes.
+    O(ones), no sorting; the clusters do not depend on the order of the ones."""
+    n = idx.shape[0]
+    keep = np.zeros(n, np.bool_)
+    pix = np.empty(n, np.int64)
+    slot = np.empty(n, np.int64)
+    parent = np.empty(n, np.int64)
+    u = 0
+    for i in range(n):
+        p = idx[i] % n_pixels
+        pix[u] = p
+        s = _slot(slot_of, p, pix, u)
+        slot[i] = s
+        if s == u:
+            parent[u] = u
+            y, x = divmod(p, width)
+            for dy in range(-1, 2):
+                yy = y + dy
+                if yy < 0 or yy * width >= n_pixels:
+                    continue
+                for dx in range(-1, 2):
+                    xx = x + dx
+                    if (dy == 0 and dx == 0) or xx < 0 or xx >= width:
+                        continue
+                    q = slot_of[yy * width + xx]
+                    if q >= 0 and q < u:
+                        _union(parent, u, q)
+            u += 1
+    size = np.zeros(u, np.int64)
+    for q in range(u):
+        size[_root(parent, q)] += 1
+    for i in range(n):
+        keep[i] = size[_root(parent, slot[i])] >= min_size
+    for q in range(u):
+        slot_of[pix[q]] = -1
+    return keep
+
+
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops,
            in_rects,
-           cell_centres, fill_input, fill_motion)
+           cell_centres, fill_input, fill_motion, cluster_keep)
 
 
 @njit(cache=True, nogil=True)
@@ -1196,3 +1240,4 @@ def warm_up() -> None:
     fill_motion(np.zeros((1, 4, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 0)
     cell_centres(np.ones((1, 3)), 1, 1000.0)
     first_spikes(i64, 2, 1, np.zeros(1, np.uint8))
+    cluster_keep(i64, 1, 1, 2, scratch)

@@ -94,10 +94,10 @@ def min_cluster_dense(volume: np.ndarray, n: int) -> np.ndarray:
 
 
 def min_cluster_index(idx: np.ndarray, shape: tuple[int, ...], n: int) -> np.ndarray:
-    """The same on a sorted unique linear index of ones into a (B, C, H, W) volume: the window's
-    unique pixels (compiled.dedupe), their 8-connected clusters (compiled.link_components with
-    link 1), the ones of pixels in clusters of >= n. Returns a sorted index."""
-    from ..compiled import dedupe, link_components, new_scratch
+    """The same on a sorted unique linear index of ones into a (B, C, H, W) volume, in one
+    compiled pass (compiled.cluster_keep: union-find over the window's event pixels). Returns a
+    sorted index."""
+    from ..compiled import cluster_keep, new_scratch
 
     idx = np.asarray(idx, dtype=np.int64)
     if n <= 1 or idx.size == 0:
@@ -105,13 +105,9 @@ def min_cluster_index(idx: np.ndarray, shape: tuple[int, ...], n: int) -> np.nda
     w = int(shape[3])
     n_pixels = int(shape[2]) * w
     slots = _SLOTS.get(n_pixels)
-    if slots is None:                  # one all -1 scratch per sensor size, left so by dedupe
+    if slots is None:                  # one all -1 scratch per sensor size, left so by the kernel
         slots = _SLOTS[n_pixels] = new_scratch(n_pixels)
-    uniq, inverse = dedupe(idx % n_pixels, slots)
-    ys, xs = np.divmod(uniq, w)
-    labels, _count = link_components(xs, ys, 1, w)
-    size = np.bincount(labels)
-    return idx[(size[labels] >= n)[inverse]]
+    return idx[cluster_keep(idx, n_pixels, w, int(n), slots)]
 
 
 def apply_dense(volume: np.ndarray, norm: str, min_cluster: int = 1) -> np.ndarray:
