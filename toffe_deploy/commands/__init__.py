@@ -3,3 +3,19 @@
 that ``toffe-deploy --help`` and the lean runtime stay fast and torch-free."""
 
 COMMAND_MODULES = ("events", "dataset", "train", "eval", "export", "run")
+
+
+def add_progress_flag(parser, *, alias_quiet: bool = False) -> None:
+    """The one progress switch of every command: ``--no-progress`` (``--quiet`` kept as an alias
+    where a command had it)."""
+    names = ("--no-progress", "--quiet") if alias_quiet else ("--no-progress",)
+    parser.add_argument(*names, dest="no_progress", action="store_true",
+                        help="no progress bars (they are shown only when stderr is a terminal)")
+
+
+def show_progress(args) -> bool:
+    """Progress bars follow habit: on when stderr is a terminal and --no-progress is not given,
+    so a redirected stderr (a log file, CI) gets no bar frames."""
+    import sys
+
+    return not getattr(args, "no_progress", False) and sys.stderr.isatty()

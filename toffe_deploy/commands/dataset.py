@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from ..errors import ToffeError
+from . import add_progress_flag, show_progress
 
 SPLIT_CHOICES = ("train", "test", "multi", "appearance", "pairs", "all")
 
@@ -149,6 +150,7 @@ def register(sub) -> None:
     s.add_argument("--jobs", type=_positive_int, default=1,
                    help="worker processes (default: 1)")
     s.add_argument("--force", action="store_true", help="regenerate files even when up to date")
+    add_progress_flag(s)
     s.set_defaults(func=_synth)
 
     w = dsub.add_parser("show", help="render accumulated event frames with ground truth to PNG (as Fig. 5b)",
@@ -237,7 +239,8 @@ def _synth(args) -> int:
 
     check_outputs(dirs=[("--out", args.out)])
     t = time.perf_counter()
-    index = build_dataset(args.out, specs, seed=args.seed, jobs=args.jobs, force=args.force)
+    index = build_dataset(args.out, specs, seed=args.seed, jobs=args.jobs, force=args.force,
+                          progress=show_progress(args))
     el = time.perf_counter() - t
     size = sum(f.stat().st_size for f in Path(args.out).rglob("*.h5"))
     counts = ", ".join(f"{k} {v}" for k, v in index["splits"].items() if v)

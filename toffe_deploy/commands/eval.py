@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from . import add_progress_flag, show_progress
+
 
 def _dts(text: str) -> tuple[int, ...]:
     import argparse
@@ -56,7 +58,7 @@ def register(sub) -> None:
                    "size, spacing, noise, contrast, bucketed at the given comma-separated edges (default: one bucket "
                    "per value); repeatable")
     p.add_argument("--json", type=Path, help="also write the results as JSON to this file")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_progress_flag(p)
     p.set_defaults(func=run)
 
 
@@ -87,7 +89,7 @@ def run(args) -> int:
     torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
     res = evaluate(EvalOptions(ckpt=args.ckpt, data=args.data, dts=args.dt, split=args.split,
                                max_windows=args.max_windows, ofs=args.ofs, gate_px=args.gate,
-                               by=tuple(args.by), progress=not args.no_progress))
+                               by=tuple(args.by), progress=show_progress(args)))
     print(format_markdown(res))
     if args.json:
         with atomic_path(args.json) as tmp:

@@ -5,6 +5,8 @@ import argparse
 import json
 import sys
 
+from . import add_progress_flag, show_progress
+
 FORMATS_HELP = ("our HDF5 layout (toffe-events), DSEC HDF5, MVSEC HDF5, .npz, .npy, AEDAT4; "
                 "recognised by content")
 
@@ -30,7 +32,7 @@ def register(sub) -> None:
                                     "checked on the way (coordinates, timestamps), so this also validates it.")
     info.add_argument("file", metavar="FILE", help=f"event file ({FORMATS_HELP})")
     info.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
-    info.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_progress_flag(info)
     _add_common(info)
     info.set_defaults(func=_info)
 
@@ -54,7 +56,7 @@ def _info(args) -> int:
     from ..events.info import format_info, summarize
 
     info = summarize(args.file, sensor_size=_size(args), sort=args.sort,
-                     progress=not args.no_progress and not args.json)
+                     progress=show_progress(args) and not args.json)
     if args.json:
         json.dump(info, sys.stdout, indent=2, default=str)
         sys.stdout.write("\n")

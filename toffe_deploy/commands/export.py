@@ -1,6 +1,8 @@
 """`toffe-deploy export CKPT [-o export/]`: the verified deploy bundle (see export/README.md)."""
 from __future__ import annotations
 
+from . import add_progress_flag, show_progress
+
 CHECK_NAMES = ("fixed_vs_float", "lava_vs_fixed", "onnx_vs_torch", "end_to_end")
 
 
@@ -32,7 +34,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed for choosing/generating held-out windows (default: 0)")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 1 when a parity check fails its goal (the bundle is still written)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_progress_flag(p, alias_quiet=True)
     p.set_defaults(func=run)
 
 
@@ -75,7 +77,7 @@ def run(args) -> int:
     check_export_output(args)
     res = export_bundle(args.checkpoint, args.out, force=args.force, variants=_list(args.variants), checks=checks,
                         data=args.data, seed=args.seed, n_windows=args.windows, lava_windows=args.lava_windows,
-                        progress=not args.quiet)
+                        progress=show_progress(args))
     b = res.bundle
     print(f"wrote bundle {b.root}/ ({len(b.manifest['files'])} files, {len(b.ofs)} OFS stages, "
           f"sensor {b.config.width}x{b.config.height}, B={b.config.n_bins}, dt={b.config.dt_us} us) "

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError, ToffeError
+from . import add_progress_flag, show_progress
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
 SAMPLE = Path(__file__).resolve().parent.parent / "samples" / "sample_multi.h5"
@@ -84,7 +85,7 @@ def register(sub) -> None:
                    help="OFPD model of the bundle: fp32 (default, the reference) or the fp16 / int8 variant "
                         "written by `toffe-deploy export --variants`")
     p.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON (atomically)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    add_progress_flag(p)
     p.set_defaults(func=run_command)
 
 
@@ -277,7 +278,7 @@ def run_command(args) -> int:
                 summary.startup_s = time.perf_counter() - t_setup
                 t_run = time.perf_counter()
                 bar = tqdm(total=n_total, unit="win", desc=f"run {args.target}", file=sys.stderr,
-                           disable=args.no_progress or n_total < 2, leave=False)
+                           disable=not show_progress(args) or n_total < 2, leave=False)
                 with bar:
                     for res in pipe.process_stream(windows()):
                         t0, vol, t_ready = pending.popleft()

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from . import add_progress_flag, show_progress
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -39,7 +41,7 @@ def register(sub) -> None:
                    help="OFS conv kernel size of a new checkpoint (odd; default 3)")
     p.add_argument("--resume", action="store_true", help="continue from the training state saved in --out")
     p.add_argument("--device", default="auto", help="torch device: auto (CUDA when present, else CPU), cpu, cuda")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_progress_flag(p)
     p.set_defaults(func=run)
 
 
@@ -73,7 +75,7 @@ def run(args) -> int:
     out = train(TrainOptions(data=args.data, out=args.out, stage=args.stage, ofs_epochs=args.ofs_epochs,
                              ofpd_epochs=args.epochs, seed=args.seed, resume=args.resume, dt_us=args.dt,
                              per_file=args.windows_per_seq, device=args.device, ofpd_pool=args.ofpd_pool,
-                             ofpd_kernels=kernels, progress=not args.no_progress, input_norm=args.input_norm,
+                             ofpd_kernels=kernels, progress=show_progress(args), input_norm=args.input_norm,
                              ofs_kernel=args.ofs_kernel, min_cluster=args.min_cluster))
     print(f"checkpoint written to {out}")
     return 0
