@@ -60,7 +60,7 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
         _preload_lava()         # before the first tqdm bar (see runtime.loihi.import_lava)
     ckpt = load_checkpoint(ckpt_dir)
     config = ckpt.config
-    q = quantize_stages(ckpt.ofs, Path(ckpt_dir) / "ofs.safetensors")
+    q = quantize_stages(ckpt.ofs, Path(ckpt_dir) / "ofs.safetensors", config.reset)
     warnings = list(q.warnings)
 
     from . import onnx_export

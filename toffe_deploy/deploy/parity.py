@@ -47,7 +47,7 @@ def float_ofs_models(ofs: Sequence[dict], config: ToffeConfig):
 
     models = []
     for st in ofs:
-        m = OFS(config.ofs_in_channels, config.ofs_kernel, float(st["threshold"]), float(st["leak"]))
+        m = OFS(config.ofs_in_channels, config.ofs_kernel, float(st["threshold"]), float(st["leak"]), reset=config.reset)
         with torch.no_grad():
             m.conv.weight.copy_(torch.from_numpy(np.asarray(st["weight"], dtype=np.float32)))
         models.append(m.eval())
