@@ -27,7 +27,7 @@ from .bundle import Bundle, check_output_dir, sha256_file, write_bundle
 from .parity import torch_threads
 from .quantize import quantize_stages
 
-DEFAULT_CHECKS = ("fixed_vs_float", "lava_vs_fixed", "onnx_vs_torch", "end_to_end")
+DEFAULT_CHECKS = ("fixed_vs_float", "lava_vs_fixed", "netx_vs_fixed", "onnx_vs_torch", "end_to_end")
 
 
 @dataclass
@@ -55,7 +55,7 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
     check_output_dir(out_dir, force=force)
-    if checks and "lava_vs_fixed" in checks:
+    if checks and ("lava_vs_fixed" in checks or "netx_vs_fixed" in checks):
         from .parity import _preload_lava
         _preload_lava()         # before the first tqdm bar (see runtime.loihi.import_lava)
     ckpt = load_checkpoint(ckpt_dir)
@@ -64,7 +64,7 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
     warnings = list(q.warnings)
 
     from . import onnx_export
-    from .netx_h5 import RESET_NOTE, write_ofs_netx
+    from .netx_h5 import NETX_RESET_OFFSET, RESET_NOTES, write_ofs_netx
     from .nir_graph import write_ofs_nir
 
     for v in variants:
@@ -101,7 +101,10 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
             "source": {"checkpoint": str(Path(ckpt_dir).resolve()), "files_sha256": _checkpoint_hashes(Path(ckpt_dir))},
             "ofs": {"quantization": q.report, "arithmetic": "toffe_deploy.fixed_point (see README.md)"},
             "ofpd": {**onnx_export.onnx_io_info(onnx_path), "variants": variant_info},
-            "netx": {"files": sorted(f for f in files if f.startswith("netx/")), "reset_note": RESET_NOTE},
+            "netx": {"files": sorted(f for f in files if f.startswith("netx/")),
+                     "reset_interval": config.n_bins, "reset_offset": NETX_RESET_OFFSET,
+                     "input_timing": "bin b of window i enters at Lava step i * n_bins + b + 1",
+                     "reproduces_bundle": config.reset == "zero", "reset_note": RESET_NOTES[config.reset]},
             "nir": {"file": "ofs.nir", "nir_version": _version("nir"),
                     "note": "reset by subtraction and the cascade masking are described in the graph metadata"},
             "warnings": warnings,
