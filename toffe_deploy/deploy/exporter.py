@@ -65,7 +65,7 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
 
     from . import onnx_export
     from .netx_h5 import NETX_RESET_OFFSET, RESET_NOTES, write_ofs_netx
-    from .nir_graph import write_ofs_nir
+    from .nir_graph import NIR_RESET, time_step_s, write_ofs_nir
 
     for v in variants:
         if v not in onnx_export.VARIANTS:
@@ -105,8 +105,10 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
                      "reset_interval": config.n_bins, "reset_offset": NETX_RESET_OFFSET,
                      "input_timing": "bin b of window i enters at Lava step i * n_bins + b + 1",
                      "reproduces_bundle": config.reset == "zero", "reset_note": RESET_NOTES[config.reset]},
-            "nir": {"file": "ofs.nir", "nir_version": _version("nir"),
-                    "note": "reset by subtraction and the cascade masking are described in the graph metadata"},
+            "nir": {"file": "ofs.nir", "nir_version": _version("nir"), "time_step_s": time_step_s(config),
+                    "reproduces_bundle": config.reset == "zero", "reset_note": NIR_RESET[config.reset],
+                    "note": "tau in seconds, r = 1, the gain in the conv weights; the cascade masking is "
+                            "described in the graph metadata"},
             "warnings": warnings,
         }
         staged = write_bundle(stage_root / "bundle", config, q.params, onnx_path, files=files, manifest=manifest,
