@@ -64,6 +64,7 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
     warnings = list(q.warnings)
 
     from . import onnx_export
+    from .parity import VARIANT_E2E_GOAL
     from .netx_h5 import NETX_RESET_OFFSET, RESET_NOTES, write_ofs_netx
     from .nir_graph import NIR_RESET, time_step_s, write_ofs_nir
 
@@ -88,14 +89,17 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
             from .windows import heldout_windows
             windows = heldout_windows(config, data=data, seed=seed, n_windows=n_windows, progress=progress)
         variant_info = {}
+        from .parity import variant_error
+        calib, held_out = _variant_inputs(windows, q.params, config) if variants else (None, None)
         for v in variants:
-            calib = None
-            if v == "int8":
-                from .parity import ofpd_inputs
-                calib = ofpd_inputs(windows, q.params, config)
-            p = onnx_export.make_variant(v, onnx_path, stage / f"ofpd_{v}.onnx", calib=calib)
+            p = onnx_export.make_variant(v, onnx_path, stage / f"ofpd_{v}.onnx", calib=calib if v == "int8" else None)
             files[p.name] = p
-            variant_info[v] = {"file": p.name, **_variant_doc(v)}
+            variant_info[v] = {"file": p.name, **_variant_doc(v),
+                               "error_vs_fp32": {**variant_error(onnx_path, p, held_out),
+                                                 "inputs_from": "objects of the held-out windows not used for calibration "
+                                                                "(runtime OFPD inputs, parity.runtime_ofpd_inputs)"}}
+            if v == "int8":
+                variant_info[v]["calibration_inputs"] = int(len(calib))
 
         manifest = {
             "source": {"checkpoint": str(Path(ckpt_dir).resolve()), "files_sha256": _checkpoint_hashes(Path(ckpt_dir))},
@@ -127,6 +131,13 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
                     warnings.append(f"ONNX variant {v}: {rep['non_finite_outputs']} non-finite outputs on held-out inputs")
             warnings += [f"parity {name}: {c['status']} ({c.get('headline')})" for name, c in parity["checks"].items()
                          if c["status"] == "fail"]
+            for v, rep in parity["checks"].get("end_to_end", {}).get("variants", {}).items():
+                variant_info[v]["end_to_end"] = rep
+                worse = {m: r for m, r in rep["relative_to_fp32"].items() if not r <= VARIANT_E2E_GOAL}
+                if worse:
+                    warnings.append(f"ONNX variant {v}: end to end " + ", ".join(
+                        f"{m} {rep['errors'][m]:.3g} ({r:.0%} off fp32)" for m, r in worse.items())
+                        + f": more than {VARIANT_E2E_GOAL:.0%} off the fp32 OFPD")
         bundle = write_bundle(out_dir, config, q.params, onnx_path, files=files, manifest=manifest,
                               float_params=ckpt.ofs, force=force)
         for rel, entry in staged.manifest["files"].items():
@@ -138,6 +149,22 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
         for w in warnings:
             print(f"toffe-deploy: warning: {w}", file=log)
     return ExportResult(bundle=bundle, parity=parity, warnings=warnings, seconds=time.perf_counter() - t_start)
+
+
+def _variant_inputs(windows, params, config):
+    """(calibration, held-out) OFPD inputs for the reduced-precision variants: the objects the
+    runtime crops from the even and the odd held-out windows (parity.runtime_ofpd_inputs);
+    whole stage frames (parity.ofpd_inputs) when the windows hold no object."""
+    from .parity import ofpd_inputs, runtime_ofpd_inputs
+
+    n = len(windows.windows)
+    calib = runtime_ofpd_inputs(windows, params, config, range(0, n, 2))
+    held_out = runtime_ofpd_inputs(windows, params, config, range(1, n, 2))
+    if len(calib) == 0:
+        calib = ofpd_inputs(windows, params, config)
+    if len(held_out) == 0:
+        held_out = calib
+    return calib, held_out
 
 
 def _parent(p: Path) -> Path:
@@ -161,4 +188,5 @@ def _version(name: str) -> str | None:
 def _variant_doc(v: str) -> dict:
     if v == "fp16":
         return {"precision": "float16 weights and activations, float32 inputs and outputs"}
-    return {"precision": "int8 QDQ (static, per-channel weights, activations calibrated on held-out frames)"}
+    return {"precision": "int8 QDQ (static: per-channel int8 weights, int8 activations with ranges calibrated on "
+                         "the runtime's OFPD inputs of held-out windows)"}

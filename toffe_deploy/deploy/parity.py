@@ -35,6 +35,7 @@ from .windows import HeldOut
 F1_GOAL = 0.99
 ONNX_GOAL = 1e-4
 E2E_GOAL = 0.02
+VARIANT_E2E_GOAL = 0.10   # a reduced-precision OFPD end to end vs the fp32 one (reported, not a pass/fail)
 LAVA_CROP = (48, 32)       # (width, height) of the crops the Lava simulator runs on
 
 
@@ -79,6 +80,48 @@ def ofpd_inputs(held: HeldOut, params: Sequence[LoihiOFSParams], config: ToffeCo
     if not frames:
         frames = [np.zeros((config.n_bins, 2, config.height, config.width), dtype=bool)]
     return ofpd_io.prepare(np.stack(frames), config)
+
+
+def runtime_ofpd_inputs(held: HeldOut, params: Sequence[LoihiOFSParams], config: ToffeConfig,
+                        windows: Sequence[int] | None = None) -> np.ndarray:
+    """The OFPD inputs (n, C, g, g) float32 the runtime's cpu pipeline builds on held-out windows:
+    the cascade's frames grouped into objects and cropped (runtime.ofpd_input.batch, as
+    Pipeline.objects_of), one row per object. ``windows``: indices of held.windows to use (all).
+    These are what int8 calibration and its error report must see: real objects, not frames."""
+    from ..compiled import new_scratch
+    from ..runtime import ofpd_input
+    from ..runtime.cpu import CpuCascade
+    from ..runtime.spikes import SpikeVolume
+
+    casc = CpuCascade(list(params), config.n_bins, config.mask_kernel, tuple(config.sensor_size))
+    scratch = new_scratch(config.width * config.height)
+    xs = []
+    for i in (range(len(held.windows)) if windows is None else windows):
+        vol = SpikeVolume.from_dense(np.asarray(held.windows[i]) > 0).front_end(config.input_norm)
+        _ks, x, _n = ofpd_input.batch(vol, casc.cascade_sparse(vol).frames, config, scratch)
+        xs.append(x)
+    from ..ofpd_io import input_shape
+
+    return np.concatenate(xs) if xs else np.zeros((0,) + tuple(input_shape(config)), np.float32)
+
+
+def variant_error(fp32_onnx, variant_onnx, x: np.ndarray) -> dict:
+    """A reduced-precision OFPD against fp32 on inputs x: pose error (px), direction error (deg),
+    speed ratio exp|ln v - ln v_fp32| (the speed head is ln speed), as max / p95 / mean."""
+    from ..metrics import angle_error_deg
+    from .onnx_export import ort_session, run_onnx
+
+    if len(x) == 0:
+        return {"inputs": 0}
+    ref, got = run_onnx(ort_session(fp32_onnx), x), run_onnx(ort_session(variant_onnx), x)
+    pose = np.hypot(*(got[0] - ref[0]).T)
+    ang = angle_error_deg(np.arctan2(got[1][:, 1], got[1][:, 0]), np.arctan2(ref[1][:, 1], ref[1][:, 0]))
+    ratio = np.exp(np.abs(got[2][:, 0] - ref[2][:, 0]))
+
+    def stats(v):
+        v = np.asarray(v, np.float64)
+        return {"max": float(v.max()), "p95": float(np.percentile(v, 95)), "mean": float(v.mean())}
+    return {"inputs": int(len(x)), "pose_px": stats(pose), "direction_deg": stats(ang), "speed_ratio": stats(ratio)}
 
 
 def _f1(tp: int, fp: int, fn: int) -> float:
@@ -371,9 +414,9 @@ def _predictions_fixed_reference(bundle: Bundle, held: HeldOut) -> list[list]:
     return [predict_window(w, run, lambda x: run_onnx(sess, x), bundle.config)[0] for w in held.windows]
 
 
-def _predictions_runtime(bundle: Bundle, held: HeldOut) -> list[list] | None:
-    """The runtime's cpu Pipeline on the bundle (what `toffe-deploy run --target cpu` computes);
-    None when the runtime is not importable."""
+def _predictions_runtime(bundle: Bundle, held: HeldOut, variant: str = "fp32") -> list[list] | None:
+    """The runtime's cpu Pipeline on the bundle (what `toffe-deploy run --target cpu` computes)
+    with OFPD ``variant``; None when the runtime is not importable."""
     from ..metrics import Prediction
 
     try:
@@ -381,7 +424,7 @@ def _predictions_runtime(bundle: Bundle, held: HeldOut) -> list[list] | None:
     except ImportError:
         return None
     preds = []
-    with Pipeline(bundle, "cpu") as p:
+    with Pipeline(bundle, "cpu", ofpd_variant=variant) as p:
         for r in p.process_stream((t0, w) for t0, w in zip(held.t0, held.windows)):
             preds.append([Prediction(int(o.speed_bin), float(o.x), float(o.y), float(o.direction_rad),
                                      float(o.speed_mps), float(o.speed_bin_mps)) for o in r.objects])
@@ -452,6 +495,12 @@ def check_end_to_end(bundle: Bundle, models, model, held: HeldOut) -> dict:
     out["relative_difference"] = rel
     out["relative_difference_fixed_reference"] = {m: _rel(sr[m], sf[m]) for m in metrics}
     ok = all(math.isfinite(v) and v <= E2E_GOAL for v in rel.values())
+    if run is not None:          # each reduced-precision OFPD end to end, against the fp32 deployment
+        out["variants"] = {}
+        for v in bundle.ofpd_variants:
+            sv = _scores(_predictions_runtime(bundle, held, v), held.truths)
+            out["variants"][v] = {"errors": sv, "relative_to_fp32": {m: _rel(sv[m], sd[m]) for m in metrics},
+                                  "goal": f"informational: within {VARIANT_E2E_GOAL:.0%} of fp32 to be worth shipping"}
     head = ", ".join(f"{m} {sd[m]:.3g} vs {sf[m]:.3g}" for m in metrics)
     if run is not None and not ok:
         head += " (fixed reference: " + ", ".join(f"{m} {sr[m]:.3g}" for m in metrics) + ")"
