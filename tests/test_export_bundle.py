@@ -197,6 +197,7 @@ def test_netx_loads_with_lava_dl(exported):
     w = layer.synapse.weight.init
     assert np.array_equal(w, p.weight[:, :, ::-1, ::-1].transpose(0, 3, 2, 1))
     assert "zero" in exported.manifest["netx"]["reset_note"]
+    assert exported.manifest["ofs"]["loihi2_footprint"]["cores"] == 4 * -(-CFG.width * CFG.height // 8192)
 
 
 def test_onnx_named_io_dynamic_batch(exported):

@@ -64,6 +64,7 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
     warnings = list(q.warnings)
 
     from . import onnx_export
+    from ..energy.cost_model import loihi2_footprint
     from .parity import VARIANT_E2E_GOAL
     from .netx_h5 import NETX_RESET_OFFSET, RESET_NOTES, write_ofs_netx
     from .nir_graph import NIR_RESET, time_step_s, write_ofs_nir
@@ -103,7 +104,10 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
 
         manifest = {
             "source": {"checkpoint": str(Path(ckpt_dir).resolve()), "files_sha256": _checkpoint_hashes(Path(ckpt_dir))},
-            "ofs": {"quantization": q.report, "arithmetic": "toffe_deploy.fixed_point (see README.md)"},
+            "ofs": {"quantization": q.report, "arithmetic": "toffe_deploy.fixed_point (see README.md)",
+                    "reset": config.reset,
+                    "loihi2_footprint": loihi2_footprint(config.width, config.height, config.n_speed_bins,
+                                                         config.ofs_kernel, config.ofs_in_channels)},
             "ofpd": {**onnx_export.onnx_io_info(onnx_path), "variants": variant_info},
             "netx": {"files": sorted(f for f in files if f.startswith("netx/")),
                      "reset_interval": config.n_bins, "reset_offset": NETX_RESET_OFFSET,
