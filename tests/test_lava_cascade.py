@@ -135,7 +135,7 @@ def test_killed_lava_process_is_reported_and_cleaned_up(rng):
 def test_bad_windows_and_settings_are_one_line_errors(rng):
     params = dotie_params()
     with pytest.raises(ToffeError, match="lava-loihi"):
-        with LavaCascade(params, n_bins=B, mask_kernel=5, sensor_size=(W, H), hardware=True) as lc:
+        with LavaCascade(zero_params(), n_bins=B, mask_kernel=5, sensor_size=(W, H), hardware=True) as lc:
             pass
     assert HW_MISSING.endswith("use --target loihi-sim")
     with pytest.raises(ToffeError, match="tag"):
