@@ -249,3 +249,13 @@ def test_loihi2_refuses_subtract_bundle_before_anything_else():
     assert str(e.value) == HW_SUBTRACT and "\n" not in HW_SUBTRACT
     with pytest.raises(ToffeError, match="lava-loihi"):    # zero: gets as far as the hardware check
         LavaCascade(zero_params(), n_bins=B, mask_kernel=5, sensor_size=(W, H), hardware=True)
+
+
+def test_run_ofs_lava_stock_fixed_is_bit_exact_and_stock_float_agrees(rng):
+    params = quantize_ofs(rng.normal(size=(1, 2, 3, 3)) + 0.25, threshold=0.6, leak=0.6, reset="zero")
+    wins = [(rng.random((B, 2, H, W)) < 0.2).astype(np.uint8) for _ in range(3)]
+    refs = [run_ofs_fixed(x, params) for x in wins]
+    assert sum(int(r.sum()) for r in refs) > 0
+    assert all(np.array_equal(a, b) for a, b in zip(run_ofs_lava(wins, params), refs))
+    flt = run_ofs_lava(wins, params, tag="floating_pt")     # LIFReset's float model, float W, vth
+    assert np.mean([np.mean(a == b) for a, b in zip(flt, refs)]) > 0.98
