@@ -115,6 +115,9 @@ def test_netx_files_reproduce_a_reset_zero_bundle_in_lava_dl_own_network(setup, 
     res = parity.check_netx_vs_fixed(zero, held, n_windows=1)
     assert res["status"] == "pass", res
     assert sum(s["spikes_reference"] for s in res["stages"]) > 50 and all(s["differing"] == 0 for s in res["stages"])
+    # the float model of a zero bundle resets to zero as well (exactly representable stages: F1 1)
+    flt = parity.check_fixed_vs_float(zero, parity.float_ofs_models(ck.ofs, zcfg), held, ck.ofs)
+    assert flt["status"] == "pass" and min(s["f1"] for s in flt["stages"]) == 1.0
     sub = parity.check_netx_vs_fixed(bundle, held, n_windows=1)
     assert sub["status"] == "informational" and bundle.manifest["netx"]["reproduces_bundle"] is False
     assert sum(s["differing"] for s in sub["stages"]) > 0 and "does NOT reproduce" in bundle.manifest["netx"]["reset_note"]

@@ -156,7 +156,7 @@ def float_ofs_potentials(model, inp: np.ndarray) -> tuple[np.ndarray, np.ndarray
         o = torch.zeros_like(cur[0])
         us, os_ = [], []
         for t in range(cur.shape[0]):
-            u, o = lif_step(u, o, cur[t], model.threshold, model.leak)
+            u, o = lif_step(u, o, cur[t], model.threshold, model.leak, model.reset)
             us.append(u.clone())
             os_.append(o > 0)
     return torch.stack(os_).numpy(), torch.stack(us).numpy()
