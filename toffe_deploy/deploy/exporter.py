@@ -193,4 +193,4 @@ def _variant_doc(v: str) -> dict:
     if v == "fp16":
         return {"precision": "float16 weights and activations, float32 inputs and outputs"}
     return {"precision": "int8 QDQ (static: per-channel int8 weights, int8 activations with ranges calibrated on "
-                         "the runtime's OFPD inputs of held-out windows)"}
+                         "the runtime's OFPD inputs of held-out windows; the three output heads fp32)"}

@@ -26,7 +26,7 @@ export/
   ofs_loihi.json       quantized OFS, one entry per speed bin (the form lava_procs builds processes from)
   ofpd.onnx            OFPD, fp32, ONNX opset 17, dynamic batch
   ofpd_fp16.onnx       optional (--variants fp16): weights and activations in float16, fp32 I/O
-  ofpd_int8.onnx       optional (--variants int8): static int8 QDQ (per-channel weights, activations calibrated on real OFPD inputs)
+  ofpd_int8.onnx       optional (--variants int8): static int8 QDQ (per-channel weights, activations calibrated on real OFPD inputs, heads fp32)
   ofs.nir              the OFS stages as a NIR graph (nir.read loads it)
   netx/ofs_stage<k>.net  lava-dl netx HDF5, one network per stage (conv + CUBA neuron)
   parity.json          the five parity checks of this export, with their goals
