@@ -214,3 +214,26 @@ def test_onnx_named_io_dynamic_batch(exported):
     for n in (1, 3):
         pose, direction, speed = run_onnx(s, np.zeros((n,) + input_shape(CFG), np.float32))
         assert pose.shape == (n, 2) and direction.shape == (n, 2) and speed.shape == (n, 1)
+
+
+def test_reset_mode_round_trips_and_older_files_load_as_subtract():
+    import dataclasses
+
+    from toffe_deploy.config import ToffeConfig
+
+    zero = [dataclasses.replace(p, reset="zero") for p in params()]
+    d = json.loads(json.dumps(ofs_to_json(zero)))
+    assert d["reset_mode"] == "zero" and "LIFReset" in d["reset"]
+    assert all(p.reset == "zero" for p in ofs_from_json(d, "o.json", expect_reset="zero"))
+    with pytest.raises(InputError, match="config.json says reset 'subtract'"):
+        ofs_from_json(d, "o.json", expect_reset="subtract")
+    old = json.loads(json.dumps(ofs_to_json(params())))
+    del old["reset_mode"]                                   # written before the key existed
+    assert all(p.reset == "subtract" for p in ofs_from_json(old, "o.json", expect_reset="subtract"))
+    cfg = ToffeConfig().to_dict()
+    del cfg["reset"]
+    assert ToffeConfig.from_dict(cfg).reset == "subtract"
+    with pytest.raises(InputError, match="reset must be one of"):
+        ToffeConfig.from_dict({**cfg, "reset": "soft"})
+    with pytest.raises(ValueError, match="disagree"):
+        ofs_to_json([zero[0], params()[1]])
