@@ -101,7 +101,7 @@ def bench_dense(bundle, windows) -> dict:
     times = []
     for i, (t0, ev) in enumerate(windows):
         a = time.perf_counter()
-        x = apply_dense(bin_window(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size), cfg.input_norm)
+        x = apply_dense(bin_window(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size), cfg.input_norm, cfg.input_min_cluster)
         res = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, bundle.ofs[k - 1]), cfg.n_speed_bins, cfg.mask_kernel)
         ks, merged = ofpd_io.merge_frames(np.stack(res.frames), cfg)
         for k, m in zip(ks, merged):                   # one OFPD call per object

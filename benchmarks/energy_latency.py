@@ -121,7 +121,7 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
         if len(ev) < args.min_events:
             return False
         # the counts the network sees: through the bundle's input front end (events/frontend.py)
-        out.append((int(t0), apply_dense(bin_window(ev, t0, dt, b, size), config.input_norm).astype(np.uint8)))
+        out.append((int(t0), apply_dense(bin_window(ev, t0, dt, b, size), config.input_norm, config.input_min_cluster).astype(np.uint8)))
         events.append(np.array(ev))
         counts.append(len(ev))
         return len(out) >= args.windows

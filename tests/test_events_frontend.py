@@ -50,3 +50,48 @@ def test_event_multiplicity_does_not_reach_the_network():
 def test_unknown_norm_is_refused():
     with pytest.raises(ValueError, match="input_norm"):
         apply_index(np.zeros(0, np.int64), (5, 2, 4, 4), "median")
+
+
+def _one_window(pixels, shape=(5, 2, 10, 12)):
+    vol = np.zeros(shape, bool)
+    for b, c, y, x in pixels:
+        vol[b, c, y, x] = True
+    return vol
+
+
+def test_min_cluster_drops_isolated_pixels_and_keeps_edges():
+    edge = [(b, 1, 2 + b, 3) for b in range(4)]                     # 4 pixels, diagonal-free column
+    diag = [(0, 0, 6, 6), (1, 1, 7, 7), (2, 0, 8, 8)]                # 3 pixels linked by corners
+    noise = [(3, 0, 0, 11), (0, 1, 9, 0)]                            # isolated
+    vol = _one_window(edge + diag + noise)
+    kept = apply_dense(vol, "none", 3)
+    assert {tuple(p) for p in np.argwhere(kept)} == set(edge + diag)
+    assert {tuple(p) for p in np.argwhere(apply_dense(vol, "none", 4))} == set(edge)
+    assert np.array_equal(apply_dense(vol, "none", 1), vol)
+
+
+def test_min_cluster_counts_pixels_not_spikes():
+    """Two spikes (both polarities) of one pixel are one pixel of its cluster."""
+    vol = _one_window([(0, 0, 4, 4), (2, 1, 4, 4), (1, 0, 4, 5)])
+    assert not apply_dense(vol, "none", 3).any()
+    assert apply_dense(vol, "none", 2).sum() == 3
+
+
+@pytest.mark.parametrize("n", [2, 3, 5])
+def test_min_cluster_dense_and_index_agree_and_are_idempotent(rng, n):
+    vol = rng.random((5, 2, 17, 23)) < 0.03
+    for norm in ("none", "first"):
+        dense = apply_dense(vol, norm, n)
+        idx = apply_index(np.flatnonzero(vol), vol.shape, norm, n)
+        assert np.array_equal(idx, np.flatnonzero(dense))
+        assert np.array_equal(apply_dense(dense, norm, n), dense)
+        sv = SpikeVolume.from_dense(vol)
+        assert np.array_equal(sv.front_end(norm, n).front_end(norm, n).idx, idx)
+    assert 0 < apply_dense(vol, "none", n).sum() < vol.sum()
+    batch = np.stack([vol, vol[:, :, ::-1]])
+    assert np.array_equal(apply_dense(batch, "first", n)[1], apply_dense(vol[:, :, ::-1], "first", n))
+
+
+def test_bad_min_cluster_is_refused():
+    with pytest.raises(ValueError, match="input_min_cluster"):
+        apply_dense(np.zeros((5, 2, 4, 4), bool), "first", 0)

@@ -171,7 +171,7 @@ def sample_windows(tmp_path_factory, make_bundle):
     out = []
     with open_events(SAMPLE) as src, CpuCascade(bundle.ofs, cfg.n_bins, cfg.mask_kernel, cfg.sensor_size) as cascade:
         for _, (t0, ev) in zip(range(40), src.iter_windows(cfg.dt_us, t_start=10_000)):
-            vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size).front_end(cfg.input_norm)
+            vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size).front_end(cfg.input_norm, cfg.input_min_cluster)
             out.append((vol, cascade.cascade_sparse(vol).frames))
     return bundle, out
 

@@ -132,7 +132,7 @@ def test_run_cli_writes_jsonl_and_summary_with_ground_truth(env, capsys, tmp_pat
     assert len(lines) == 24                   # 12 ms / 500 us
     assert lines[1]["t0_us"] - lines[0]["t0_us"] == 500 and lines[0]["t1_us"] == lines[0]["t0_us"] + 500
     objs = [o for ln in lines for o in ln["objects"]]
-    assert objs and set(objs[0]) == {"speed_bin", "speed_mps", "speed_bin_mps", "speed_px_s", "x", "y",
+    assert objs and set(objs[0]) == {"speed_bin", "ofs_bin", "speed_mps", "speed_bin_mps", "speed_px_s", "x", "y",
                                      "direction_rad", "direction_deg", "n_events"}
     assert all(1 <= o["speed_bin"] <= 4 for o in objs)
     assert all(abs(np.degrees(o["direction_rad"]) - o["direction_deg"]) < 1e-2 for o in objs)

@@ -1088,12 +1088,59 @@ def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
     return out
 
 
+@njit(cache=True, nogil=True)
+def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
+    """The motion planes of ofpd_io.prepare_xy (ofpd.motion "time_cov") into out[:, at] (x) and
+    out[:, at + 1] (y): per cell of each object's crop, 12 n cov(t, u) / P^2 over the n ones in
+    it (channel ch = 2 b + p < 2 n_bins), t = b / (B - 1) - 1/2, u = the x offset inside the
+    cell in cells, (x - x_cell + 1/2) / P - 1/2 (and v likewise for y). The 12 (= 1 / the
+    variance of a uniform on [-1/2, 1/2]) puts a cell whose ones are perfectly time ordered
+    along x at about its event density, the scale of the event planes.
+
+    Computed in integers, tt = 2b - (B - 1) and uu = 2 (x - x_cell) - (P - 1):
+    12 n cov = 3 (n * sum(tt uu) - sum(tt) sum(uu)) / (n P (B - 1)), divided by P^2 in the same
+    float64 division (exact integer numerator and denominator: the same result in any order of
+    the ones), stored as float32."""
+    n_obj, n_ch, g = out.shape[0], out.shape[1], out.shape[-1]
+    acc = np.zeros((n_obj, g, g, 6), np.int64)      # n, sum tt, sum uu, sum vv, sum tt uu, sum tt vv
+    for i in range(xs.shape[0]):
+        o = obj[i]
+        size = origins[o, 2]
+        pool = size // g
+        x = xs[i] - origins[o, 0]
+        y = ys[i] - origins[o, 1]
+        if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < 2 * n_bins:
+            cx = x // pool
+            cy = y // pool
+            tt = 2 * (ch[i] // 2) - (n_bins - 1)
+            uu = 2 * (x - cx * pool) - (pool - 1)
+            vv = 2 * (y - cy * pool) - (pool - 1)
+            a = acc[o, cy, cx]
+            a[0] += 1
+            a[1] += tt
+            a[2] += uu
+            a[3] += vv
+            a[4] += tt * uu
+            a[5] += tt * vv
+    for o in range(n_obj):
+        pool = origins[o, 2] // g
+        for cy in range(g):
+            for cx in range(g):
+                a = acc[o, cy, cx]
+                n = a[0]
+                if n > 1 and n_bins > 1:
+                    den = float(n * pool * (n_bins - 1) * pool * pool)
+                    out[o, at, cy, cx] = np.float32(3 * (n * a[4] - a[1] * a[2]) / den)
+                    out[o, at + 1, cy, cx] = np.float32(3 * (n * a[5] - a[1] * a[3]) / den)
+    return out
+
+
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops,
            in_rects,
-           cell_centres, fill_input)
+           cell_centres, fill_input, fill_motion)
 
 
 @njit(cache=True, nogil=True)
@@ -1127,7 +1174,7 @@ def warm_up() -> None:
     active, tap_target = active_set(uniq, 2, 2, 1, scratch)
     weight = np.ones((1, 1), np.int64)
     alive = np.ones(1, np.bool_)
-    spikes, fired = ofs_stage(alive, i64, i64, inverse, tap_target, weight, 1, active.shape[0], 0, 1)
+    spikes, fired = ofs_stage(alive, i64, i64, inverse, tap_target, weight, 1, active.shape[0], 0, 1, False)
     keep_r, keep_c, map_r, map_c, image = compact_image(active, 2, 2, 1)
     closed = compact_lookup(uniq, 2, keep_r, keep_c, map_r, map_c, image.view(np.bool_))
     split_closed(alive, inverse, closed)
@@ -1148,5 +1195,6 @@ def warm_up() -> None:
     crop_origin(i64, i64, 1, 2, 2)
     two_pass_centroid(i64, i64, 1.0, 2, 2)
     fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 1000.0)
+    fill_motion(np.zeros((1, 4, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 0)
     cell_centres(np.ones((1, 3)), 1, 1000.0)
     first_spikes(i64, 2, 1, np.zeros(1, np.uint8))

@@ -51,6 +51,7 @@ class ToffeConfig:
     focal_px: float = REFERENCE_FOCAL_PX   # the camera the speed bins in m/s are stated for
     depth_m: float = REFERENCE_DEPTH_M     # ... and the object depth
     input_norm: str = "none"               # OFS/OFPD input front end (events/frontend.py)
+    input_min_cluster: int = 1             # ... then keep pixels in 8-connected clusters of >= this many (1: all)
     reset: str = "subtract"                # OFS neuron reset (RESETS); configs without it: subtract
     ofpd: dict[str, Any] = field(default_factory=dict)
     dataset: dict[str, Any] = field(default_factory=dict)
@@ -106,7 +107,8 @@ class ToffeConfig:
                 kw["speed_bins"] = tuple((float(a), float(b)) for a, b in kw["speed_bins"])
             if "representative_speeds" in kw:
                 kw["representative_speeds"] = tuple(float(v) for v in kw["representative_speeds"])
-            for k in ("n_bins", "dt_us", "ofs_kernel", "ofs_in_channels", "mask_kernel", "format_version"):
+            for k in ("n_bins", "dt_us", "ofs_kernel", "ofs_in_channels", "mask_kernel", "format_version",
+                      "input_min_cluster"):
                 if k in kw:
                     kw[k] = int(kw[k])
             for k in ("focal_px", "depth_m"):
@@ -151,6 +153,8 @@ class ToffeConfig:
             bad(f"reset must be one of {', '.join(RESETS)}, got {self.reset!r}")
         if self.input_norm not in INPUT_NORMS:
             bad(f"input_norm must be one of {', '.join(INPUT_NORMS)}, got {self.input_norm!r}")
+        if self.input_min_cluster < 1:
+            bad(f"input_min_cluster must be >= 1, got {self.input_min_cluster}")
 
     def speed_bin_of(self, speed_mps: float) -> int:
         """1-based speed bin of a speed; 0 below the first bin, N above the last."""

@@ -13,7 +13,17 @@ object-centric crop and pooled to g x g cells (g = ofpd.crop_px / ofpd.pool):
     x[2b+p]  = mean over each P x P cell of crop[b, p] > 0                (P = S / g)
     x[2B]    = (x_px of the cell centre) / COORD_SCALE,  x[2B+1] = (y_px of the cell centre) / COORD_SCALE
 
-so C = 2B + 2 channels of g x g. The two coordinate planes carry where the crop sits on the
+    x[2B + 0], x[2B + 1] (ofpd.motion "time_cov", the motion planes; absent for "none"):
+               per cell, 12 n cov(t, u) / P^2 and 12 n cov(t, v) over its n ones, t = b / (B-1) - 1/2
+               the time bin, u, v = the position inside the cell in cells (-1/2 .. 1/2)
+
+so C = 2B + 2 (+ 2) channels of g x g. The motion planes say which way time runs inside a
+cell: the direction of motion, whatever the contrast sign (a dark object's leading edge is
+OFF, a bright one's ON; the time order of an edge's first spikes is the same for both). An
+object moves 1-6 px in a 500 us window, inside one cell of P = 4-16 px, so the binned event
+planes alone hide it (measured before them: dark objects read 143 deg off, backwards). Every
+sum is an integer and the result one float division, so it does not depend on the order of
+the ones. The two coordinate planes carry where the crop sits on the
 sensor and its cell size: the network reads the crop centre back as their mean and P from
 their spacing, and adds its own residual in cells (times P), so its ``pose`` output is already
 in full-resolution pixels while all learned features stay translation and scale invariant.
@@ -29,8 +39,14 @@ functions only extract coordinates (np.nonzero) and call that core, and the cpu 
 Output (``decode``): pose (N, 2) px; direction (N, 2) = (cos, sin) -> atan2, image-plane angle
 with y pointing down; speed (N, 1) = ln(image-plane speed in px/ms) (speed_unit "px_ms"; the
 module regresses ln(cells/ms) and adds ln P) or ln(m/s) ("mps", older checkpoints),
-exponentiated and clipped into the stage's speed bin (the OFS cascade already decided the bin;
-the head only refines within it); m/s and px/ms convert with config.speed_scale.
+exponentiated; m/s and px/ms convert with config.speed_scale. The reported speed bin
+(ofpd.bin_from): "ofs", the cascade's (the fastest stage that fired; the speed is clipped into
+it, the paper's rule and that of checkpoints before the motion planes), or "ofpd", the bin of
+the regressed speed (clipped only to the bins' overall range). Why "ofpd": one 5x5 LIF layer
+reads speed from how many pixels an edge sweeps in its field, which thins at low contrast and
+grows with texture; the OFPD sees the whole object and the time order inside each cell (the
+motion planes), a measurement of the speed rather than of its footprint. The cascade still
+finds and separates the objects; the stage each came from stays in the output as ``ofs_bin``.
 ``speed_bin_mps`` is the paper's bin-only estimate: the representative speed of stage k.
 """
 from __future__ import annotations
@@ -42,7 +58,7 @@ import cv2
 import numpy as np
 
 from .compiled import (blob_objects, box_mean, cell_centres, claimed_by, component_stats, crop_origin, crop_pool,
-                       density_groups, fill_input, in_rects, link_components, merge_blobs, two_pass_centroid)
+                       density_groups, fill_input, fill_motion, in_rects, link_components, merge_blobs, two_pass_centroid)
 from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
 
@@ -54,9 +70,13 @@ MAX_SPEED_PX_MS = 16.0     # the same cap in px/ms (150 m/s at 5 m seen with 554
 # The OFPD input/output layout. A config.ofpd written before these keys existed (a non-empty
 # dict without "grouping") keeps the layout its OFPD was trained on (LEGACY_LAYOUT); a config
 # without any OFPD settings, and every OFPD trained from now on, get CURRENT_LAYOUT.
-LEGACY_LAYOUT: dict[str, str] = {"grouping": "boxes", "crop": "fixed", "speed_unit": "mps"}
-CURRENT_LAYOUT: dict[str, str] = {"grouping": "blobs", "crop": "scaled", "speed_unit": "px_ms"}
-LAYOUT_CHOICES = {"grouping": ("boxes", "blobs"), "crop": ("fixed", "scaled"), "speed_unit": ("mps", "px_ms")}
+LEGACY_LAYOUT: dict[str, str] = {"grouping": "boxes", "crop": "fixed", "speed_unit": "mps", "motion": "none",
+                                 "bin_from": "ofs"}
+CURRENT_LAYOUT: dict[str, str] = {"grouping": "blobs", "crop": "scaled", "speed_unit": "px_ms", "motion": "time_cov",
+                                  "bin_from": "ofpd"}
+LAYOUT_CHOICES = {"grouping": ("boxes", "blobs"), "crop": ("fixed", "scaled"), "speed_unit": ("mps", "px_ms"),
+                  "motion": ("none", "time_cov"), "bin_from": ("ofs", "ofpd")}
+MOTION_PLANES = {"none": 0, "time_cov": 2}     # extra input planes of each ofpd.motion choice
 
 OFPD_DEFAULTS: dict[str, Any] = {
     "crop_px": 128,         # S: crop side in full-resolution pixels (crop "fixed"); S/P = the grid g
@@ -77,31 +97,35 @@ OFPD_DEFAULTS: dict[str, Any] = {
 
 def ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
     """config.ofpd over the defaults (a checkpoint written by an older version still loads, with
-    the layout it was trained on: LEGACY_LAYOUT)."""
+    the layout it was trained on: each layout key a non-empty config.ofpd lacks takes its
+    LEGACY_LAYOUT value, e.g. "motion": "none" for OFPDs trained before the motion planes)."""
     given = dict(config.ofpd or {})
     s = dict(OFPD_DEFAULTS)
-    if given and "grouping" not in given:
-        s.update(LEGACY_LAYOUT)
+    if given:
+        s.update({k: v for k, v in LEGACY_LAYOUT.items() if k not in given})
     s.update(given)
     if s["crop_px"] % s["pool"] != 0:
         raise ValueError(f"ofpd.crop_px {s['crop_px']} must be a multiple of ofpd.pool {s['pool']}")
     for key, choices in LAYOUT_CHOICES.items():
         if s[key] not in choices:
             raise ValueError(f"ofpd.{key} must be one of {', '.join(choices)}, got {s[key]!r}")
+    if s["bin_from"] == "ofpd" and s["speed_unit"] != "px_ms":
+        raise ValueError('ofpd.bin_from "ofpd" needs ofpd.speed_unit "px_ms"')
     return s
 
 
 def input_shape(config: ToffeConfig) -> tuple[int, int, int]:
-    """(C, h, w) of the OFPD input for this config."""
+    """(C, h, w) of the OFPD input for this config: 2B event planes, the motion planes
+    (ofpd.motion), 2 coordinate planes."""
     s = ofpd_settings(config)
     g = s["crop_px"] // s["pool"]
-    return 2 * config.n_bins + 2, g, g
+    return 2 * config.n_bins + MOTION_PLANES[s["motion"]] + 2, g, g
 
 
 def ofpd_param_shapes(config: ToffeConfig) -> dict[str, tuple[int, ...]]:
     """Shapes of the OFPD state dict (the torch module in model/ofpd.py builds exactly these).
 
-    conv1: 2B event planes -> c1, k1, stride 2;  conv2: c1 -> c2, k2, stride 2;  2x2 max pool;
+    conv1: 2B event planes and the motion planes -> c1, k1, stride 2;  conv2: c1 -> c2, k2, stride 2;  2x2 max pool;
     fc: c2 * (g/8)^2 -> hidden;  heads pose (2), direction (2), speed (1).
     """
     s = ofpd_settings(config)
@@ -442,13 +466,16 @@ def prepare_flat(obj: np.ndarray, xs: np.ndarray, ys: np.ndarray, ch: np.ndarray
                  config: ToffeConfig) -> np.ndarray:
     """prepare_xy of n frames whose ones are given as flat arrays: one (xs, ys, ch) of frame obj
     each (int64, any order)."""
-    g = input_shape(config)[1]
+    c, g, _ = input_shape(config)
     b = config.n_bins
-    out = np.zeros((n, 2 * b + 2, g, g), dtype=np.float32)
+    out = np.zeros((n, c, g, g), dtype=np.float32)
     if n == 0:
         return out
     origins = np.ascontiguousarray(np.asarray(origins, dtype=np.int64).reshape(n, 3))
-    fill_input(out, obj, xs, ys, ch, origins, 2 * b, COORD_SCALE)
+    obj, xs, ys, ch = (np.ascontiguousarray(a, dtype=np.int64) for a in (obj, xs, ys, ch))
+    fill_input(out, obj, xs, ys, ch, origins, c - 2, COORD_SCALE)      # event planes (ch < 2B) and coordinates
+    if c - 2 > 2 * b:
+        fill_motion(out, obj, xs, ys, ch, origins, b, 2 * b)
     return out
 
 
@@ -551,11 +578,13 @@ def speed_target(speed_px_ms: np.ndarray, config: ToffeConfig, speed_mps: np.nda
 def decode(pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: np.ndarray,
            config: ToffeConfig) -> dict[str, np.ndarray]:
     """OFPD outputs + 1-based stage per row -> x_px, y_px, direction_rad, speed_px_ms, speed_mps,
-    speed_bin_mps.
+    speed_bin (the reported 1-based bin), speed_bin_mps (its representative speed).
 
     speed_unit "px_ms": speed = ln(image-plane px/ms), exponentiated and clipped into the
     stage's bin in px/ms (speed_bounds_px_ms); speed_mps = config.speed_scale.to_mps of it.
     "mps": speed = ln(m/s), clipped into the bin in m/s; speed_px_ms = speed_scale.to_px_ms.
+    bin_from "ofpd" (px_ms only): speed_bin = the bin of the regressed px/ms, the speed clipped
+    to [lower edge of bin 1, upper edge of bin N] instead of the stage's bin.
     """
     pose = np.asarray(pose, dtype=np.float64).reshape(-1, 2)
     direction = np.asarray(direction, dtype=np.float64).reshape(-1, 2)
@@ -567,7 +596,13 @@ def decode(pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: 
         raise ValueError(f"stage_k must be in 1..{config.n_speed_bins}")
     reg = np.exp(np.clip(speed, -10.0, 10.0))
     scale = config.speed_scale
-    if ofpd_settings(config)["speed_unit"] == "px_ms":
+    s = ofpd_settings(config)
+    if s["speed_unit"] == "px_ms" and s["bin_from"] == "ofpd":
+        edges = speed_bounds_px_ms(config)
+        v_px = np.clip(reg, edges[0, 0], edges[-1, 1])
+        k = np.clip(np.searchsorted(edges[1:, 0], v_px, side="right") + 1, 1, len(edges)).astype(np.int64)
+        v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
+    elif s["speed_unit"] == "px_ms":
         bounds = speed_bounds_px_ms(config)[k - 1] if k.size else np.zeros((0, 2))
         v_px = np.clip(reg, bounds[:, 0], bounds[:, 1])
         v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
@@ -581,5 +616,6 @@ def decode(pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: 
         "direction_rad": np.arctan2(direction[:, 1], direction[:, 0]),
         "speed_px_ms": v_px,
         "speed_mps": v_mps,
+        "speed_bin": k,
         "speed_bin_mps": np.asarray(config.representative_speeds, dtype=np.float64)[k - 1] if k.size else np.zeros(0),
     }

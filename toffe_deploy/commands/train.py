@@ -31,6 +31,10 @@ def register(sub) -> None:
                    help="input front end of a new checkpoint: 'first' keeps each pixel's first spike per polarity "
                         "in a window (speed from swept area, not event density; default), 'none' every spike "
                         "(the paper's input)")
+    p.add_argument("--min-cluster", type=int, default=4, metavar="N",
+                   help="input front end of a new checkpoint: keep only the spikes of pixels in 8-connected "
+                        "clusters of >= N event pixels of the window (a background-activity filter; 1 keeps "
+                        "all; default 4)")
     p.add_argument("--ofs-kernel", type=int, default=3, metavar="K",
                    help="OFS conv kernel size of a new checkpoint (odd; default 3)")
     p.add_argument("--reset", choices=("subtract", "zero"), default=None,
@@ -56,6 +60,8 @@ def run(args) -> int:
             kernels = tuple(int(k) for k in args.ofpd_kernels.split(","))
         except ValueError:
             raise ToffeError(f"--ofpd-kernels needs two odd sizes like 3,3, got {args.ofpd_kernels!r}") from None
+    if args.min_cluster < 1:
+        raise ToffeError(f"--min-cluster must be >= 1, got {args.min_cluster}")
     if args.ofs_kernel < 1 or args.ofs_kernel % 2 == 0:
         raise ToffeError(f"--ofs-kernel must be an odd positive size, got {args.ofs_kernel}")
     for name in ("dt", "ofs_epochs", "epochs", "windows_per_seq"):
@@ -74,6 +80,7 @@ def run(args) -> int:
                              ofpd_epochs=args.epochs, seed=args.seed, resume=args.resume, dt_us=args.dt,
                              per_file=args.windows_per_seq, device=args.device, ofpd_pool=args.ofpd_pool,
                              ofpd_kernels=kernels, progress=not args.no_progress, input_norm=args.input_norm,
-                             ofs_kernel=args.ofs_kernel, reset=args.reset, init_from=args.init_from))
+                             ofs_kernel=args.ofs_kernel, min_cluster=args.min_cluster, reset=args.reset,
+                             init_from=args.init_from))
     print(f"checkpoint written to {out}")
     return 0

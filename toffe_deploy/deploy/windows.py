@@ -58,7 +58,8 @@ def _windows_of(events: np.ndarray, gt: dict | None, config: ToffeConfig, t_lo: 
     starts = starts[counts > 0]
     out = []
     for t0 in _pick(starts, n):
-        b = apply_dense(bin_window(events, int(t0), dt, config.n_bins, config.sensor_size), config.input_norm)
+        b = apply_dense(bin_window(events, int(t0), dt, config.n_bins, config.sensor_size), config.input_norm,
+                        config.input_min_cluster)
         out.append((int(t0), b, window_truth(gt, int(t0), dt) if gt is not None else None))
     return out
 

@@ -16,6 +16,16 @@ bins 1-3 came out one bin too fast). Keeping one spike per pixel and polarity le
 area and the order in which pixels were reached (the speed and the direction), and drops the
 multiplicity (the appearance). It is a per-pixel refractory period of one window, applied on
 the host before the spikes go to Loihi, so the chip side is unchanged.
+
+Then ``input_min_cluster`` (ToffeConfig, n >= 1; 1 keeps everything) drops the spikes of every
+pixel whose 8-connected cluster of the window's event pixels (any bin, any polarity) has fewer
+than n pixels: an area opening of the window's event image, a background-activity filter. A
+moving edge sweeps a connected band of pixels in a window, while sensor noise fires isolated
+pixels: at 20 Hz per pixel 1 % of the pixels fire in a 500 us window, and a cluster of 4 of
+them needs three noise neighbours next to each other. Before it, the first-spike front end kept
+every noise pixel's spike while thinning the object's (measured: recall 0.93 -> 0.44 at 50 Hz).
+Cluster sizes do not change when other clusters are dropped, so the filter is idempotent, like
+``first``.
 """
 from __future__ import annotations
 
@@ -23,6 +33,7 @@ import numpy as np
 
 INPUT_NORMS = ("none", "first")
 _SEEN: dict[int, np.ndarray] = {}     # first_spikes_index's scratch per H * W (reused: no page faults)
+_SLOTS: dict[int, np.ndarray] = {}    # min_cluster_index's scratch per H * W (compiled.new_scratch)
 
 
 def check_norm(norm: str) -> str:
@@ -57,15 +68,60 @@ def first_spikes_index(idx: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return idx[first_spikes(idx, int(shape[1]), n_pixels, seen)]
 
 
-def apply_dense(volume: np.ndarray, norm: str) -> np.ndarray:
+def check_min_cluster(n: int) -> int:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"input_min_cluster must be an integer >= 1, got {n!r}")
+    return int(n)
+
+
+def min_cluster_dense(volume: np.ndarray, n: int) -> np.ndarray:
+    """(..., B, C, H, W) bool: the spikes of the pixels whose 8-connected cluster of event
+    pixels (any b, c) has >= n pixels."""
+    import cv2
+
+    v = np.asarray(volume) > 0
+    if n <= 1:
+        return v
+    lead = v.shape[:-4]
+    flat = v.reshape((-1,) + v.shape[-4:])
+    out = np.zeros_like(flat)
+    for i in range(flat.shape[0]):
+        pix = flat[i].any(axis=(0, 1))
+        _n, labels, stats, _c = cv2.connectedComponentsWithStats(pix.view(np.uint8), connectivity=8)
+        keep = (stats[:, cv2.CC_STAT_AREA] >= n)[labels] & pix
+        out[i] = flat[i] & keep
+    return out.reshape(lead + v.shape[-4:])
+
+
+def min_cluster_index(idx: np.ndarray, shape: tuple[int, ...], n: int) -> np.ndarray:
+    """The same on a sorted unique linear index of ones into a (B, C, H, W) volume: the window's
+    unique pixels (compiled.dedupe), their 8-connected clusters (compiled.link_components with
+    link 1), the ones of pixels in clusters of >= n. Returns a sorted index."""
+    from ..compiled import dedupe, link_components, new_scratch
+
+    idx = np.asarray(idx, dtype=np.int64)
+    if n <= 1 or idx.size == 0:
+        return idx
+    w = int(shape[3])
+    n_pixels = int(shape[2]) * w
+    slots = _SLOTS.get(n_pixels)
+    if slots is None:                  # one all -1 scratch per sensor size, left so by dedupe
+        slots = _SLOTS[n_pixels] = new_scratch(n_pixels)
+    uniq, inverse = dedupe(idx % n_pixels, slots)
+    ys, xs = np.divmod(uniq, w)
+    labels, _count = link_components(xs, ys, 1, w)
+    size = np.bincount(labels)
+    return idx[(size[labels] >= n)[inverse]]
+
+
+def apply_dense(volume: np.ndarray, norm: str, min_cluster: int = 1) -> np.ndarray:
     """The front end on a dense (..., B, C, H, W) volume; returns a bool volume."""
-    if check_norm(norm) == "first":
-        return first_spikes_dense(volume)
-    return np.asarray(volume) > 0
+    out = first_spikes_dense(volume) if check_norm(norm) == "first" else np.asarray(volume) > 0
+    return min_cluster_dense(out, check_min_cluster(min_cluster))
 
 
-def apply_index(idx: np.ndarray, shape: tuple[int, ...], norm: str) -> np.ndarray:
+def apply_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluster: int = 1) -> np.ndarray:
     """The front end on a sorted unique linear index of ones into a (B, C, H, W) volume."""
     if check_norm(norm) == "first":
-        return first_spikes_index(idx, shape)
-    return idx
+        idx = first_spikes_index(idx, shape)
+    return min_cluster_index(idx, shape, check_min_cluster(min_cluster))

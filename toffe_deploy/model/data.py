@@ -87,7 +87,7 @@ class WindowSet:
 
 
 def crop_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, centre_xy: tuple[float, float],
-                crop: int, input_norm: str = "none") -> tuple[np.ndarray, np.ndarray]:
+                crop: int, input_norm: str = "none", min_cluster: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Bin the events of [t0, t0 + dt) inside the crop centred on centre_xy, through the input
     front end (events/frontend.py), as deployment sees them.
 
@@ -101,7 +101,8 @@ def crop_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, centre_xy:
     sub = events[inside].copy()
     sub["x"] = ex[inside]
     sub["y"] = ey[inside]
-    vol = apply_dense(bin_window(sub, t0, dt_us, n_bins, (crop, crop), dtype=np.uint8), input_norm)
+    vol = apply_dense(bin_window(sub, t0, dt_us, n_bins, (crop, crop), dtype=np.uint8), input_norm,
+                      min_cluster)
     return np.flatnonzero(vol.reshape(-1)).astype(np.int32), np.array([x0, y0], dtype=np.int64)
 
 
@@ -150,7 +151,8 @@ def load_windows(files: list[Path], config: ToffeConfig, dt_us: int | None = Non
                     continue
                 o = truth[0]
                 ev = src.read(int(t0), int(t0) + dt)
-                idx, org = crop_window(ev, int(t0), dt, config.n_bins, (o.x, o.y), crop, config.input_norm)
+                idx, org = crop_window(ev, int(t0), dt, config.n_bins, (o.x, o.y), crop, config.input_norm,
+                                       config.input_min_cluster)
                 if idx.size < min_events:
                     continue
                 cells.append(idx)

@@ -1,7 +1,8 @@
 """OFPD: the paper's two conv layers + one FC layer with pose, direction and speed heads.
 
-Input: ``toffe_deploy.ofpd_io.prepare`` output (N, 2B+2, g, g): 2B pooled event planes of an
-object-centric crop plus two coordinate planes (cell centres in px / COORD_SCALE).
+Input: ``toffe_deploy.ofpd_io.prepare`` output (N, C, g, g): 2B pooled event planes of an
+object-centric crop, the motion planes (ofpd.motion "time_cov": 2, "none": 0), then two
+coordinate planes (cell centres in px / COORD_SCALE).
 
     h      = ReLU(FC(MaxPool2(ReLU(conv2(ReLU(conv1(x_events)))))))   conv1, conv2 stride 2
     P      = round(COORD_SCALE * (x[x-plane, 0, g-1] - x[x-plane, 0, 0]) / (g - 1))   (cell size, px)
@@ -12,7 +13,7 @@ object-centric crop plus two coordinate planes (cell centres in px / COORD_SCALE
 
 With a fixed crop P = ofpd.pool and g P / 2 = crop_px / 2, as before the crop scaled.
 
-The convolutions see only the 2B event planes (translation invariant features); the crop centre comes from the coordinate planes inside the graph, so the exported ONNX model
+The convolutions see only the event and motion planes (translation invariant features); the crop centre comes from the coordinate planes inside the graph, so the exported ONNX model
 outputs full-resolution pixels and the runtime needs no side channel. Shapes are listed by
 ``ofpd_io.ofpd_param_shapes`` (torch-free, used to validate checkpoints).
 """

@@ -94,5 +94,6 @@ def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig):
     pose, direction, speed = ofpd(ofpd_io.prepare(merged, config))
     d = ofpd_io.decode(pose, direction, speed, ks, config)
     preds = [Prediction(int(k), float(d["x_px"][i]), float(d["y_px"][i]), float(d["direction_rad"][i]),
-                        float(d["speed_mps"][i]), float(d["speed_bin_mps"][i])) for i, k in enumerate(ks)]
+                        float(d["speed_mps"][i]), float(d["speed_bin_mps"][i]), float(d["speed_px_ms"][i]))
+             for i, k in enumerate(d["speed_bin"].tolist())]
     return preds, res

@@ -22,7 +22,7 @@ prepared by ofpd_io.prepare.
 Targets: sensor (x, y), (cos, sin) of the direction, ln(speed) (ofpd_io.speed_target: ln px/ms of
 the image-plane speed, the ground truth's speed_px_ms or its m/s through config.speed_scale;
 ln m/s for a legacy-layout OFPD). A fresh OFPD trains on ofpd_io.CURRENT_LAYOUT. Augmentation: the 8 flips and
-transposes of the crop (pose mirrored about the crop centre, direction mirrored likewise).
+transposes of the crop (pose mirrored about the crop centre, direction and motion planes mirrored likewise).
 Loss: SmoothL1(pose px / 4) + |d_pred - d_gt|^2 + |ln v_pred - ln v_gt|.
 """
 from __future__ import annotations
@@ -90,7 +90,7 @@ def noise_crops(n: int, n_bins: int, crop: int, rng: np.random.Generator) -> np.
 
 
 def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: bool = True,
-                          input_norm: str = "none"):
+                          input_norm: str = "none", min_cluster: int = 1):
     """Sparse rows of all training crops plus n/8 noise-only crops (through the same input front
     end as the crops); returns (SparseWindows, speed_bin) with speed_bin 0 for the noise crops (a
     negative for every stage)."""
@@ -108,7 +108,7 @@ def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: 
         for i in tqdm(range(len(windows)), desc="packing OFS windows", leave=False, disable=not progress):
             yield windows.dense([i])[0][:, :, c0:c0 + r, c0:c0 + r]
         for _ in range(n_noise):
-            yield apply_dense(noise_crops(1, windows.n_bins, r, rng)[0], input_norm)
+            yield apply_dense(noise_crops(1, windows.n_bins, r, rng)[0], input_norm, min_cluster)
 
     sw = pack_windows(vols(), kernel)
     return sw, np.concatenate([windows.speed_bin, np.zeros(n_noise, np.int64)])
@@ -237,10 +237,12 @@ def _closed(spikes: np.ndarray, config: ToffeConfig) -> np.ndarray:
 class OFPDSet:
     """Prepared OFPD samples: planes (N, 2B, g, g) uint16 = pooled fraction * P^2 (event counts
     per cell), origin (N, 3) = (x0, y0, S): sensor px of the prepare crop's top-left and its
-    side (P = S / g), targets x, y, direction, speed = the OFPD's speed target
-    (ofpd_io.speed_target: ln px/ms, or ln m/s for the "mps" layout), stage."""
+    side (P = S / g), motion (N, M, g, g) float32 = the motion planes (ofpd.motion; M = 0 for
+    "none"), targets x, y, direction, speed = the OFPD's speed target (ofpd_io.speed_target:
+    ln px/ms, or ln m/s for the "mps" layout), stage."""
 
     planes: np.ndarray
+    motion: np.ndarray
     origin: np.ndarray
     x: np.ndarray
     y: np.ndarray
@@ -253,9 +255,9 @@ def build_ofpd_set(windows: WindowSet, stages, config: ToffeConfig, progress: bo
     """Run the fixed-point cascade on every crop; each reported object (ofpd_io.merge_frames,
     as at inference) is a sample, labelled with the crop's ground truth (speed: the ground
     truth's px/ms where the data set has it, else its m/s through config.speed_scale)."""
-    g = ofpd_io.input_shape(config)[1]
+    c, g, _ = ofpd_io.input_shape(config)
     run = fixed_stage_fn(stages)
-    planes, origin, tx, ty, td, tv, tk = [], [], [], [], [], [], []
+    planes, motion, origin, tx, ty, td, tv, tk = [], [], [], [], [], [], [], []
     nb = 2 * config.n_bins
     for i in tqdm(range(len(windows)), desc="OFPD samples (fixed-point cascade)", leave=False, disable=not progress):
         vol = windows.dense([i])[0]
@@ -272,20 +274,27 @@ def build_ofpd_set(windows: WindowSet, stages, config: ToffeConfig, progress: bo
         for j, k in enumerate(ks):
             pool = int(org[j, 2]) // g
             planes.append(np.rint(x[j, :nb] * pool * pool).astype(np.uint16))
+            motion.append(x[j, nb:c - 2])
             origin.append(org[j])
             tx.append(windows.x[i]); ty.append(windows.y[i]); td.append(windows.direction[i])
             tv.append(float(ofpd_io.speed_target(v_px, config, windows.speed[i]))); tk.append(k)
-    return OFPDSet(np.asarray(planes, dtype=np.uint16).reshape(-1, nb, g, g), np.asarray(origin, dtype=np.float64).reshape(-1, 3),
+    return OFPDSet(np.asarray(planes, dtype=np.uint16).reshape(-1, nb, g, g),
+                   np.asarray(motion, dtype=np.float32).reshape(-1, c - 2 - nb, g, g),
+                   np.asarray(origin, dtype=np.float64).reshape(-1, 3),
                    np.asarray(tx), np.asarray(ty), np.asarray(td), np.asarray(tv), np.asarray(tk, dtype=np.int64))
 
 
 def ofpd_batch(ds: OFPDSet, idx: np.ndarray, rng: np.random.Generator | None):
-    """Model input (n, 2B+2, g, g) float32 and targets (pose px (n,2), dir (n,2), speed target (n,)),
-    with a random flip/transpose per batch when rng is given (see module docstring)."""
+    """Model input (n, C, g, g) float32 and targets (pose px (n,2), dir (n,2), speed target (n,)),
+    with a random flip/transpose per batch when rng is given (see module docstring). A flip
+    negates the motion plane of its axis (time runs the other way along it); a transpose swaps
+    the two motion planes."""
     g = ds.planes.shape[-1]
     org = ds.origin[idx]
     pool = (org[:, 2] // g).astype(np.float32)
     planes = ds.planes[idx].astype(np.float32) / (pool * pool)[:, None, None, None]
+    motion = ds.motion[idx]
+    has_motion = motion.shape[1] == 2
     cx = org[:, 0] + (org[:, 2] - 1) / 2.0
     cy = org[:, 1] + (org[:, 2] - 1) / 2.0
     dx, dy = ds.x[idx] - cx, ds.y[idx] - cy
@@ -293,14 +302,17 @@ def ofpd_batch(ds: OFPDSet, idx: np.ndarray, rng: np.random.Generator | None):
     if rng is not None:
         if rng.random() < 0.5:
             planes = planes[..., ::-1]; dx = -dx; c = -c
+            motion = motion[..., ::-1] * (np.array([-1, 1], np.float32)[:, None, None] if has_motion else 1)
         if rng.random() < 0.5:
             planes = planes[..., ::-1, :]; dy = -dy; s = -s
+            motion = motion[..., ::-1, :] * (np.array([1, -1], np.float32)[:, None, None] if has_motion else 1)
         if rng.random() < 0.5:
             planes = planes.swapaxes(-1, -2); dx, dy = dy, dx; c, s = s, c
+            motion = motion.swapaxes(-1, -2)[:, ::-1]
     px, py = ofpd_io.coordinate_planes(org, g)
     coord_x = px[:, None, :] * np.ones((1, g, 1))
     coord_y = py[:, :, None] * np.ones((1, 1, g))
-    x = np.concatenate([planes, coord_x[:, None], coord_y[:, None]], axis=1).astype(np.float32)
+    x = np.concatenate([planes, motion, coord_x[:, None], coord_y[:, None]], axis=1).astype(np.float32)
     pose = np.stack([cx + dx, cy + dy], axis=1)
     return (torch.from_numpy(np.ascontiguousarray(x)), torch.from_numpy(pose.astype(np.float32)),
             torch.from_numpy(np.stack([c, s], axis=1).astype(np.float32)),
@@ -334,6 +346,7 @@ class TrainOptions:
     ofpd_kernels: tuple[int, int] | None = None   # OFPD conv kernel sizes; None: likewise
     input_norm: str = "first"         # input front end of a new checkpoint (events/frontend.py)
     ofs_kernel: int = 3               # OFS conv kernel of a new checkpoint
+    min_cluster: int = 1              # input front end's cluster filter of a new checkpoint
     reset: str | None = None          # OFS neuron reset (config.RESETS); None: the checkpoint's, else subtract
     init_from: Path | None = None     # checkpoint whose config and OFS stages a new run starts from (fine-tune)
 
@@ -357,7 +370,8 @@ def _save_state(out: Path, state: dict, ofpd_model=None, opt=None) -> None:
         tmp.write_text(json.dumps(state, indent=1))
 
 
-def make_config(files, data: Path, dt_us: int, seed: int, input_norm: str = "first", ofs_kernel: int = 3) -> ToffeConfig:
+def make_config(files, data: Path, dt_us: int, seed: int, input_norm: str = "first", ofs_kernel: int = 3,
+                min_cluster: int = 1) -> ToffeConfig:
     """Config from the data set's sensor size and provenance."""
     from ..events.io import open_events
 
@@ -367,7 +381,7 @@ def make_config(files, data: Path, dt_us: int, seed: int, input_norm: str = "fir
     prov = {"data_dir": os.fspath(data), "train_sequences": len(files), "train_seed": seed,
             "generator": attrs.get("generator"), "first_sequence": files[0].name}
     return ToffeConfig(sensor_size=tuple(sensor), dt_us=int(dt_us), ofpd=dict(ofpd_io.OFPD_DEFAULTS), dataset=prov,
-                       input_norm=input_norm, ofs_kernel=int(ofs_kernel))
+                       input_norm=input_norm, ofs_kernel=int(ofs_kernel), input_min_cluster=int(min_cluster))
 
 
 def with_ofpd_settings(config: ToffeConfig, pool: int | None, kernels: tuple[int, int] | None
@@ -439,7 +453,8 @@ def train(opts: TrainOptions) -> Path:
     else:
         if opts.stage == "ofpd":
             raise InputError(out, "--stage ofpd needs a checkpoint with trained OFS stages in --out (run --stage ofs first)")
-        config = make_config(files, Path(opts.data), opts.dt_us, opts.seed, opts.input_norm, opts.ofs_kernel)
+        config = make_config(files, Path(opts.data), opts.dt_us, opts.seed, opts.input_norm, opts.ofs_kernel,
+                             opts.min_cluster)
         ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
         state = {}
     if opts.reset is not None and opts.reset != config.reset:
@@ -473,7 +488,8 @@ def train(opts: TrainOptions) -> Path:
     if opts.stage in ("ofs", "all"):
         done = set(state.get("ofs_done", []))
         if len(done) < config.n_speed_bins:
-            packed, bins = pack_training_windows(windows, config.ofs_kernel, opts.seed, opts.progress, config.input_norm)
+            packed, bins = pack_training_windows(windows, config.ofs_kernel, opts.seed, opts.progress, config.input_norm,
+                                                  config.input_min_cluster)
         for k in range(1, config.n_speed_bins + 1):
             if k in done:
                 continue

@@ -2,7 +2,7 @@
 
 JSON line per window (keys in this order)::
 
-    {"t0_us": 1000, "t1_us": 1500, "objects": [{"speed_bin": 2, "speed_mps": 27.1,
+    {"t0_us": 1000, "t1_us": 1500, "objects": [{"speed_bin": 2, "ofs_bin": 2, "speed_mps": 27.1,
       "speed_bin_mps": 30.0, "speed_px_s": 3004.1, "x": 120.4, "y": 88.0, "direction_rad": -1.2,
       "n_events": 310, "direction_deg": -68.75}]}
 

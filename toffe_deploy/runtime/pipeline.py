@@ -52,14 +52,17 @@ Window = Union[np.ndarray, SpikeVolume]
 
 @dataclass
 class ObjectFlow:
-    """One object in one window: speed bin k (the OFS stage that separated it), speed (m/s,
-    regressed within the bin; speed_bin_mps is the paper's bin-only estimate; both through the
+    """One object in one window: speed bin k (ofpd.bin_from: the bin of the OFPD's regressed
+    speed, or the OFS stage that separated it), ofs_bin (that stage: the fastest OFS that fired
+    on the object), speed (m/s, regressed; within the stage's bin for bin_from "ofs";
+    speed_bin_mps is the paper's bin-only estimate of speed_bin; both through the
     run's SpeedScale), the same regressed speed on the image plane (speed_px_s, px/s: what the
     camera measured, independent of depth and focal length), centre (x, y) in sensor pixels,
     direction of motion in rad (image plane, y down: atan2(dy, dx)) and the number of event ones
     (bin, polarity, pixel) in its speed-separated frame."""
 
     speed_bin: int
+    ofs_bin: int
     speed_mps: float
     speed_bin_mps: float
     speed_px_s: float
@@ -195,7 +198,7 @@ class Pipeline:
         pose, direction, speed = self.ofpd.run(x)
         dec = decode(pose, direction, speed, ks, self.config)
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
-        return [ObjectFlow(speed_bin=int(k), speed_mps=mps[i], speed_bin_mps=bin_mps[i],
+        return [ObjectFlow(speed_bin=int(dec["speed_bin"][i]), ofs_bin=int(k), speed_mps=mps[i], speed_bin_mps=bin_mps[i],
                            speed_px_s=px_ms[i] * 1000.0, x=float(dec["x_px"][i]),
                            y=float(dec["y_px"][i]), direction_rad=float(dec["direction_rad"][i]),
                            n_events=int(n_events[i]))
@@ -209,12 +212,12 @@ class Pipeline:
             return
         dt = self.config.dt_us
         n = self.config.n_speed_bins
-        norm = self.config.input_norm
+        norm, min_cluster = self.config.input_norm, self.config.input_min_cluster
         if self.sparse:
             for t0, x in windows:
                 self._check(x)
                 vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(np.asarray(x) > 0)
-                vol = vol.front_end(norm)
+                vol = vol.front_end(norm, min_cluster)
                 res = self.cascade.cascade_sparse(vol)
                 yield WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, res.frames))
             return
@@ -225,7 +228,8 @@ class Pipeline:
             for t0, x in windows:
                 self._check(x)
                 starts.append(int(t0))
-                x = x.front_end(norm).to_dense(np.uint8) if isinstance(x, SpikeVolume) else apply_dense(x, norm)
+                x = (x.front_end(norm, min_cluster).to_dense(np.uint8) if isinstance(x, SpikeVolume)
+                     else apply_dense(x, norm, min_cluster))
                 yield x.astype(np.uint8, copy=False)
 
         for res in self.cascade.cascade_stream(dense()):

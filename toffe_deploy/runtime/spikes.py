@@ -99,12 +99,12 @@ class SpikeVolume:
         idx = event_bin_index(events, t0, dt_us, n_bins, sensor_size)
         return cls(np.unique(idx), (int(n_bins), 2, height, width))
 
-    def front_end(self, norm: str) -> "SpikeVolume":
+    def front_end(self, norm: str, min_cluster: int = 1) -> "SpikeVolume":
         """The ones the network sees through the input front end (events/frontend.py); self
         when it keeps them all. Idempotent, so a caller may apply it again."""
-        if norm == "none":
+        if norm == "none" and min_cluster <= 1:
             return self
-        return SpikeVolume(apply_index(self.idx, self.shape, norm), self.shape)
+        return SpikeVolume(apply_index(self.idx, self.shape, norm, min_cluster), self.shape)
 
     def to_dense(self, dtype=bool) -> np.ndarray:
         out = np.zeros(int(np.prod(self.shape)), dtype=dtype)
