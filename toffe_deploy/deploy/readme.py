@@ -119,8 +119,8 @@ One graph: `input` (C_in, H, W) feeds, for every stage k, `stage<k>_conv` (nir.C
 padding K//2) -> `stage<k>_lif` (nir.LIF) -> `stage<k>_output`, in the float values the
 integers represent. NIR's LIF is continuous time, tau dv/dt = (v_leak - v) + r I with tau in
 seconds; readers integrate it with one forward-Euler step per time bin of dt = dt_us / B
-(metadata `time_step_s`, 1e-4 s for the shipped config, which is also snnTorch's fixed dt;
-give Norse `dt=time_step_s`). It is written as tau = dt / (1 - lambda), r = 1, v_leak = 0,
+(metadata `time_step_s`, 1e-4 s for the shipped config; snnTorch's importer assumes 1e-4 s, so
+it reads only bundles with dt_us / B = 100 us right; give Norse `dt=time_step_s`). It is written as tau = dt / (1 - lambda), r = 1, v_leak = 0,
 v_reset = 0 and conv weights W / (1 - lambda) (the gain tau / dt folded in, since readers
 differ on r), so v[t] = lambda v[t-1] + conv(W, s[t]); v_threshold is vth plus half a Loihi
 state unit (1 / (128 s)), which decides ties the way the integers do. Run one window (B steps)
