@@ -212,7 +212,7 @@ def test_stock_network_is_bit_exact_to_reference_and_cpu_target_and_differs_from
     with LavaCascade(params, n_bins=B, mask_kernel=5, sensor_size=(W, H)) as lc:
         results = list(lc.cascade_stream(wins))
         again = list(lc.cascade_stream(wins[:1]))       # a second stream: no state leaks across
-        pids = lc.child_pids
+        pids, shm = lc.child_pids, lc.shm_names
     assert len(results) == 4 and len(again) == 1
     cpu = CpuCascade(params, B, 5, (W, H))
     n_diff_subtract = 0
@@ -228,6 +228,7 @@ def test_stock_network_is_bit_exact_to_reference_and_cpu_target_and_differs_from
         n_diff_subtract += sum(int((a != b).sum()) for a, b in zip(sub.spikes, ref.spikes))
     assert n_diff_subtract > 0              # the two resets really differ on these windows
     assert all(gone(p) for p in pids)
+    assert shm and not [n for n in shm if os.path.exists(os.path.join("/dev/shm", n))]
 
 
 def test_stock_network_runs_only_stock_processes_besides_the_host_bridges():
