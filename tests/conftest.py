@@ -24,7 +24,7 @@ def random_events(rng):
     return make
 
 
-def _make_bundle(root, sensor=(64, 48), ofpd=None):
+def _make_bundle(root, sensor=(64, 48), ofpd=None, reset="subtract"):
     """init_checkpoint -> quantize -> ONNX -> write_bundle: a real bundle without the exporter."""
     import torch
 
@@ -35,10 +35,10 @@ def _make_bundle(root, sensor=(64, 48), ofpd=None):
     from toffe_deploy.fixed_point import quantize_ofs
     from toffe_deploy.model.ofpd import OFPD
 
-    cfg = ToffeConfig(sensor_size=sensor, ofpd=ofpd or {"crop_px": 32, "pool": 2, "min_events": 4})
+    cfg = ToffeConfig(sensor_size=sensor, ofpd=ofpd or {"crop_px": 32, "pool": 2, "min_events": 4}, reset=reset)
     ck = load_checkpoint(init_checkpoint(root / "ckpt", cfg, seed=1))
     # Low thresholds (0.25 .. 0.55, DOTIE's are 1.0 ..) so the sparse events of a tiny sensor make spikes.
-    ofs = [quantize_ofs(p["weight"], 0.25 + 0.1 * k, 0.7) for k, p in enumerate(ck.ofs)]
+    ofs = [quantize_ofs(p["weight"], 0.25 + 0.1 * k, 0.7, reset) for k, p in enumerate(ck.ofs)]
     model = OFPD.from_config(ck.config)
     model.load_state_dict({k: torch.from_numpy(v) for k, v in ck.ofpd_state.items()})
     model.eval()
@@ -67,8 +67,8 @@ def _make_recording(path, sensor=(64, 48), duration=0.012, index=0, seed=0):
 
 @pytest.fixture(scope="session")
 def make_bundle():
-    """Factory: make_bundle(root, sensor=(64, 48), ofpd=None) -> a real tiny deploy Bundle at root/bundle
-    (untrained DOTIE-initialised OFS with low thresholds, random OFPD in ONNX)."""
+    """Factory: make_bundle(root, sensor=(64, 48), ofpd=None, reset="subtract") -> a real tiny deploy
+    Bundle at root/bundle (untrained DOTIE-initialised OFS with low thresholds, random OFPD in ONNX)."""
     return _make_bundle
 
 

@@ -92,3 +92,14 @@ def test_every_constant_names_its_source():
     for name, const in cm.CONSTANTS.items():
         assert const.source and const.unit, name
     assert cm.HOST_LABEL.startswith("modelled") and cm.LOIHI_LABEL.startswith("modelled")
+
+
+def test_loihi2_footprint_of_the_paper_sensor_needs_two_chips():
+    from toffe_deploy.energy.cost_model import loihi2_footprint
+
+    f = loihi2_footprint(640, 480, 4, 3)
+    assert f["per_stage"] == {"neurons": 307_200, "synapses": 307_200 * 18, "shared_weights": 18, "cores": 38}
+    assert (f["neurons"], f["cores"], f["chips"], f["fits_one_chip"]) == (1_228_800, 152, 2, False)
+    assert f["max_pixels_one_chip"] == 262_144
+    one = loihi2_footprint(512, 512, 4, 5)          # exactly 32 cores a stage: one chip
+    assert (one["cores"], one["chips"], one["fits_one_chip"]) == (128, 1, True)

@@ -135,13 +135,53 @@ def test_nir_graph_loads_with_nir_read(exported):
     import nir
 
     g = nir.read(str(exported.root / "ofs.nir"))
+    dt = float(g.metadata["time_step_s"])
+    assert dt == CFG.dt_us / CFG.n_bins * 1e-6
     for k, p in enumerate(exported.ofs, start=1):
         conv, lif = g.nodes[f"stage{k}_conv"], g.nodes[f"stage{k}_lif"]
-        assert np.allclose(conv.weight, p.weight / p.weight_scale)
         lam = 1 - p.dv / 4096
-        assert np.allclose(1 - 1 / lif.tau, lam) and np.allclose(lif.v_threshold, p.vth_mant / p.weight_scale)
+        assert np.allclose(1 - dt / lif.tau, lam) and np.allclose(lif.r, 1.0)       # tau in seconds, r = 1
+        assert np.allclose(conv.weight, p.weight / p.weight_scale / (1 - lam))       # the gain tau / dt
+        # half a state unit (1 / (64 s)) above vth: ties fall the way Loihi's integers do
+        assert np.allclose(lif.v_threshold, (p.vth_mant + 1 / 128) / p.weight_scale) and np.allclose(lif.v_reset, 0)
         assert ("input", f"stage{k}_conv") in g.edges and (f"stage{k}_lif", f"stage{k}_output") in g.edges
-    assert "subtraction" in str(g.metadata["reset"])
+    assert "cannot express" in str(g.metadata["reset"]) and not exported.manifest["nir"]["reproduces_bundle"]
+
+
+def test_nir_graph_of_a_reset_zero_bundle_reproduces_it_under_nir_semantics(tmp_path, rng):
+    """A NIR reader's arithmetic (nir.read, forward Euler with the graph's dt, reset to v_reset)
+    against the bundle's own fixed-point stages. The stages are exactly representable (weights
+    and thresholds n / 128 with max |w| = 127 / 128, leak 0.5: the gain is 2 and Loihi's decay
+    truncates nothing within a window), so float and integers must agree spike for spike: any
+    wrong tau, dt, gain, kernel layout or reset timing shows."""
+    import dataclasses
+
+    import nir
+
+    from toffe_deploy.checkpoint import load_checkpoint, save_checkpoint
+    from toffe_deploy.deploy.exporter import export_bundle
+    from toffe_deploy.deploy.nir_graph import simulate_nir_stage
+    from toffe_deploy.fixed_point import run_ofs_fixed
+
+    zcfg = dataclasses.replace(CFG, reset="zero")
+    ofs = []
+    for k in range(4):
+        w = rng.integers(-20, 90, (1, 2, 3, 3)).astype(np.float32)
+        w[0, 0, 0, 2] = 127                                   # asymmetric: a flipped kernel shows
+        ofs.append(dict(weight=w / 128, threshold=(100 + 60 * k) / 128, leak=0.5))
+    init_checkpoint(tmp_path / "ck0", zcfg)
+    save_checkpoint(tmp_path / "ck", zcfg, ofs, load_checkpoint(tmp_path / "ck0").ofpd_state)
+    b = export_bundle(tmp_path / "ck", tmp_path / "b", checks=(), progress=False, log=None).bundle
+    g = nir.read(str(b.root / "ofs.nir"))
+    assert b.manifest["nir"]["reproduces_bundle"] and g.metadata["reset_mode"] == "zero"
+    wins = [(rng.random((CFG.n_bins, 2, CFG.height, CFG.width)) < 0.15).astype(np.uint8) for _ in range(3)]
+    n_ref = n_diff = 0
+    for k, p in enumerate(b.ofs, start=1):
+        assert p.weight_scale == 128 and p.dv == 2048
+        for x in wins:
+            a, r = simulate_nir_stage(g, k, x), run_ofs_fixed(x, p)
+            n_ref, n_diff = n_ref + int(r.sum()), n_diff + int((a != r).sum())
+    assert n_ref > 100 and n_diff == 0
 
 
 def test_netx_loads_with_lava_dl(exported):
@@ -157,6 +197,7 @@ def test_netx_loads_with_lava_dl(exported):
     w = layer.synapse.weight.init
     assert np.array_equal(w, p.weight[:, :, ::-1, ::-1].transpose(0, 3, 2, 1))
     assert "zero" in exported.manifest["netx"]["reset_note"]
+    assert exported.manifest["ofs"]["loihi2_footprint"]["cores"] == 4 * -(-CFG.width * CFG.height // 8192)
 
 
 def test_onnx_named_io_dynamic_batch(exported):
@@ -182,3 +223,26 @@ def test_repository_export_readme_is_the_generated_one():
     from toffe_deploy.deploy.readme import bundle_readme
 
     assert (Path(__file__).resolve().parent.parent / "export" / "README.md").read_text() == bundle_readme()
+
+
+def test_reset_mode_round_trips_and_older_files_load_as_subtract():
+    import dataclasses
+
+    from toffe_deploy.config import ToffeConfig
+
+    zero = [dataclasses.replace(p, reset="zero") for p in params()]
+    d = json.loads(json.dumps(ofs_to_json(zero)))
+    assert d["reset_mode"] == "zero" and "LIFReset" in d["reset"]
+    assert all(p.reset == "zero" for p in ofs_from_json(d, "o.json", expect_reset="zero"))
+    with pytest.raises(InputError, match="config.json says reset 'subtract'"):
+        ofs_from_json(d, "o.json", expect_reset="subtract")
+    old = json.loads(json.dumps(ofs_to_json(params())))
+    del old["reset_mode"]                                   # written before the key existed
+    assert all(p.reset == "subtract" for p in ofs_from_json(old, "o.json", expect_reset="subtract"))
+    cfg = ToffeConfig().to_dict()
+    del cfg["reset"]
+    assert ToffeConfig.from_dict(cfg).reset == "subtract"
+    with pytest.raises(InputError, match="reset must be one of"):
+        ToffeConfig.from_dict({**cfg, "reset": "soft"})
+    with pytest.raises(ValueError, match="disagree"):
+        ofs_to_json([zero[0], params()[1]])

@@ -1,4 +1,4 @@
-"""The four parity checks at small size, on hand-made windows where every stage fires, and
+"""The parity checks at small size, on hand-made windows where every stage fires, and
 each shown able to fail (a check that always passes proves nothing)."""
 try:   # Lava sets the multiprocessing start method at import: do it before any tqdm lock exists
     import lava.magma.core.process.process  # noqa: F401
@@ -96,6 +96,31 @@ def test_lava_simulator_is_bit_exact_on_spiking_crops(setup):
     assert res["status"] == "pass", res
     assert all(s["differing"] == 0 for s in res["stages"])
     assert sum(s["spikes_reference"] for s in res["stages"]) > 50   # not a vacuous comparison
+
+
+def test_netx_files_reproduce_a_reset_zero_bundle_in_lava_dl_own_network(setup, tmp_path):
+    """netx/ofs_stage<k>.net loaded by lava-dl's netx.hdf5.Network with the manifest's
+    reset_interval / reset_offset: 0 differing spikes for a reset-zero export of the same stages;
+    the subtract bundle's files do not reproduce it (netx cannot subtract), and the check says so."""
+    import dataclasses
+
+    pytest.importorskip("lava.lib.dl.netx")
+    ck, bundle, _model, held = setup
+    zcfg = dataclasses.replace(CFG, reset="zero")
+    save_checkpoint(tmp_path / "ck", zcfg, ck.ofs, ck.ofpd_state)
+    zero = export_bundle(tmp_path / "ck", tmp_path / "b", checks=(), progress=False, log=None).bundle
+    netx = zero.manifest["netx"]
+    assert netx["reproduces_bundle"] is True and netx["reset_interval"] == CFG.n_bins and netx["reset_offset"] == 1
+    assert all(p.reset == "zero" for p in zero.ofs)
+    res = parity.check_netx_vs_fixed(zero, held, n_windows=1)
+    assert res["status"] == "pass", res
+    assert sum(s["spikes_reference"] for s in res["stages"]) > 50 and all(s["differing"] == 0 for s in res["stages"])
+    # the float model of a zero bundle resets to zero as well (exactly representable stages: F1 1)
+    flt = parity.check_fixed_vs_float(zero, parity.float_ofs_models(ck.ofs, zcfg), held, ck.ofs)
+    assert flt["status"] == "pass" and min(s["f1"] for s in flt["stages"]) == 1.0
+    sub = parity.check_netx_vs_fixed(bundle, held, n_windows=1)
+    assert sub["status"] == "informational" and bundle.manifest["netx"]["reproduces_bundle"] is False
+    assert sum(s["differing"] for s in sub["stages"]) > 0 and "does NOT reproduce" in bundle.manifest["netx"]["reset_note"]
 
 
 def test_lava_crops_pick_where_the_reference_fires(setup):

@@ -1,7 +1,9 @@
 """The Lava cascade (lava_procs + toffe_deploy.runtime.loihi) against the numpy reference.
 
 Small sizes (32x24, B=5, 3 stages, a few windows): each network start costs about a second.
+Reset "zero" stages build from stock Lava processes (Conv + LIFReset): tested at the end.
 """
+import dataclasses
 import itertools
 import os
 import signal
@@ -19,7 +21,9 @@ from toffe_deploy.errors import ToffeError
 from toffe_deploy.fixed_point import quantize_ofs, run_ofs_fixed
 
 lava = pytest.importorskip("lava.magma.core.run_configs")
-from toffe_deploy.runtime.loihi import HW_MISSING, LavaCascade, run_ofs_lava  # noqa: E402
+from toffe_deploy.runtime.cpu import CpuCascade  # noqa: E402
+from toffe_deploy.runtime.loihi import HW_MISSING, HW_SUBTRACT, LavaCascade, run_ofs_lava  # noqa: E402
+from toffe_deploy.runtime.spikes import SpikeVolume  # noqa: E402
 
 H, W, B = 24, 32, 5
 
@@ -131,7 +135,7 @@ def test_killed_lava_process_is_reported_and_cleaned_up(rng):
 def test_bad_windows_and_settings_are_one_line_errors(rng):
     params = dotie_params()
     with pytest.raises(ToffeError, match="lava-loihi"):
-        with LavaCascade(params, n_bins=B, mask_kernel=5, sensor_size=(W, H), hardware=True) as lc:
+        with LavaCascade(zero_params(), n_bins=B, mask_kernel=5, sensor_size=(W, H), hardware=True) as lc:
             pass
     assert HW_MISSING.endswith("use --target loihi-sim")
     with pytest.raises(ToffeError, match="tag"):
@@ -188,3 +192,71 @@ def test_ctrl_c_or_kill_stops_runtime_without_orphans_or_shm(tmp_path, how):
         time.sleep(0.1)
     assert pids and all(not os.path.exists(f"/proc/{p}") for p in pids)
     assert shm and not [n for n in shm if os.path.exists(os.path.join("/dev/shm", n))]
+
+
+# ---------------------------------------------------------------- reset "zero": stock Lava processes
+HOST_PROCESSES = {"EventBinSource", "CascadeBridge"}     # host side of the hybrid (lava_procs)
+
+
+def zero_params():
+    return [dataclasses.replace(p, reset="zero") for p in dotie_params()]
+
+
+def reference(x, params):
+    return run_cascade(x, lambda k, inp: run_ofs_fixed(inp, params[k - 1]), len(params), 5)
+
+
+def test_stock_network_is_bit_exact_to_reference_and_cpu_target_and_differs_from_subtract(rng):
+    params = zero_params()
+    wins = [blob_window(rng) for _ in range(4)]
+    with LavaCascade(params, n_bins=B, mask_kernel=5, sensor_size=(W, H)) as lc:
+        results = list(lc.cascade_stream(wins))
+        again = list(lc.cascade_stream(wins[:1]))       # a second stream: no state leaks across
+        pids, shm = lc.child_pids, lc.shm_names
+    assert len(results) == 4 and len(again) == 1
+    cpu = CpuCascade(params, B, 5, (W, H))
+    n_diff_subtract = 0
+    for x, res in zip(wins + wins[:1], results + again):
+        ref = reference(x, params)
+        assert all(s.any() for s in ref.spikes)
+        assert_same(ref, res)
+        sparse = cpu.cascade_sparse(SpikeVolume.from_dense(x > 0))
+        for k in range(3):          # the cpu target's compiled loop, reset zero, on the same window
+            want = ref.frames[k].reshape(-1)[SpikeVolume.from_dense(x > 0).idx]
+            assert np.array_equal(np.asarray(sparse.frames[k]), want)
+        sub = reference(x, dotie_params())
+        n_diff_subtract += sum(int((a != b).sum()) for a, b in zip(sub.spikes, ref.spikes))
+    assert n_diff_subtract > 0              # the two resets really differ on these windows
+    assert all(gone(p) for p in pids)
+    assert shm and not [n for n in shm if os.path.exists(os.path.join("/dev/shm", n))]
+
+
+def test_stock_network_runs_only_stock_processes_besides_the_host_bridges():
+    with LavaCascade(zero_params(), n_bins=B, mask_kernel=5, sensor_size=(W, H)) as lc:
+        kinds = [(type(p).__module__, type(p).__name__) for p in lc.processes]
+    chip = [(m, n) for m, n in kinds if n not in HOST_PROCESSES]
+    assert sorted(n for _, n in chip) == ["Conv"] * 3 + ["LIFReset"] * 3
+    assert all(m.startswith(("lava.proc.conv.", "lava.proc.lif.")) for m, _ in chip)
+    host = [m for m, n in kinds if n in HOST_PROCESSES]
+    assert len(host) == 4 and all(m.startswith("lava_procs.") for m in host)
+    # the subtract network is the other way round: our own neuron process per stage
+    with LavaCascade(dotie_params(), n_bins=B, mask_kernel=5, sensor_size=(W, H)) as lc:
+        assert sum(type(p).__name__ == "OFSNeuron" for p in lc.processes) == 3
+
+
+def test_loihi2_refuses_subtract_bundle_before_anything_else():
+    with pytest.raises(ToffeError) as e:
+        LavaCascade(dotie_params(), n_bins=B, mask_kernel=5, sensor_size=(W, H), hardware=True)
+    assert str(e.value) == HW_SUBTRACT and "\n" not in HW_SUBTRACT
+    with pytest.raises(ToffeError, match="lava-loihi"):    # zero: gets as far as the hardware check
+        LavaCascade(zero_params(), n_bins=B, mask_kernel=5, sensor_size=(W, H), hardware=True)
+
+
+def test_run_ofs_lava_stock_fixed_is_bit_exact_and_stock_float_agrees(rng):
+    params = quantize_ofs(rng.normal(size=(1, 2, 3, 3)) + 0.25, threshold=0.6, leak=0.6, reset="zero")
+    wins = [(rng.random((B, 2, H, W)) < 0.2).astype(np.uint8) for _ in range(3)]
+    refs = [run_ofs_fixed(x, params) for x in wins]
+    assert sum(int(r.sum()) for r in refs) > 0
+    assert all(np.array_equal(a, b) for a, b in zip(run_ofs_lava(wins, params), refs))
+    flt = run_ofs_lava(wins, params, tag="floating_pt")     # LIFReset's float model, float W, vth
+    assert np.mean([np.mean(a == b) for a, b in zip(flt, refs)]) > 0.98

@@ -106,3 +106,31 @@ def test_resume_goes_on_with_the_interrupted_ofpd_settings():
         resolve_ofpd_settings(ck, 8, None, saved)
     same, fresh = resolve_ofpd_settings(cfg, None, None, saved)     # finished run: nothing changes
     assert not fresh and same is cfg
+
+
+def test_init_from_fine_tunes_in_the_zero_reset_arithmetic(data, tmp_path, capsys):
+    """--init-from CKPT --reset zero: the config says zero, the OFS stages start from CKPT's
+    (not DOTIE's) and change; --stage ofpd cannot switch the reset of trained stages."""
+    from toffe_deploy.checkpoint import dotie_ofs, init_checkpoint
+    from toffe_deploy.config import ToffeConfig
+
+    src = tmp_path / "src"
+    cfg = ToffeConfig(sensor_size=(640, 480), ofpd={"pool": 4})
+    init_checkpoint(src, cfg, seed=1)
+    base = load_checkpoint(src)
+    base.ofs[0]["threshold"] = 0.7                    # not DOTIE's: the start point must be visible
+    from toffe_deploy.checkpoint import save_checkpoint
+    save_checkpoint(src, base.config, base.ofs, base.ofpd_state)
+    ck = tmp_path / "ck"
+    assert main(["train", "--data", str(data), "--out", str(ck), "--stage", "ofs", "--init-from", str(src),
+                 "--reset", "zero", "--ofs-epochs", "1", "--windows-per-seq", "3", "--no-progress"]) == 0
+    got = load_checkpoint(ck)
+    assert got.config.reset == "zero" and got.config.dataset["init_from"] == str(src)
+    assert base.config.reset == "subtract"
+    assert any(not np.allclose(a["weight"], b["weight"]) for a, b in zip(got.ofs, dotie_ofs(cfg)))
+    trained = json.loads((ck / "train_log.json").read_text())["ofs_stage1"]["trained_threshold"]
+    assert abs(trained - 0.7) < abs(trained - dotie_ofs(cfg)[0]["threshold"])   # started from src's 0.7
+    capsys.readouterr()
+    assert main(["train", "--data", str(data), "--out", str(ck), "--stage", "ofpd", "--reset", "subtract",
+                 "--no-progress"]) == 2
+    assert "reset 'zero'" in capsys.readouterr().err

@@ -271,6 +271,26 @@ def test_loihi_sim_and_cpu_give_identical_object_flow(env, capsys, tmp_path):
     assert sum(len(json.loads(s)["objects"]) for s in out["cpu"].splitlines()) > 0
 
 
+def test_reset_zero_bundle_stock_lava_equals_cpu_and_reports_bridge_traffic(env, capsys, tmp_path, make_bundle):
+    """A reset-zero bundle: stock Conv + LIFReset in Lava, the same object flow as the cpu target;
+    the summary states the host <-> chip spikes per window, which the cpu target has no bridge for."""
+    pytest.importorskip("lava")
+    bundle = make_bundle(tmp_path, reset="zero")
+    out, summ = {}, {}
+    for target in ("cpu", "loihi-sim"):
+        rc, text, err = run_cli(capsys, bundle.root, "--target", target, "--events", env["rec"], "--max-windows", "6",
+                                "--out", tmp_path / f"{target}.jsonl", "--summary-json", tmp_path / f"{target}.json")
+        assert rc == 0, err
+        out[target] = (tmp_path / f"{target}.jsonl").read_text()
+        summ[target] = json.loads((tmp_path / f"{target}.json").read_text())
+    assert out["cpu"] == out["loihi-sim"]
+    assert summ["cpu"]["bridge_traffic"] is None
+    t = summ["loihi-sim"]["bridge_traffic"]
+    assert t["windows"] == 6 and t["per_window"]["to_chip_spikes"] > 0 and t["per_window"]["to_host_spikes"] > 0
+    assert t["per_window"]["to_chip_bytes"] == 4 * t["per_window"]["to_chip_spikes"]
+    assert "bridge traffic per window" in text
+
+
 def test_loihi_sim_and_cpu_agree_on_the_shipped_sample(tmp_path, make_bundle):
     """Full 640x480 on the shipped recording: first windows through both backends."""
     pytest.importorskip("lava")
@@ -308,9 +328,13 @@ def test_truth_index_equals_window_truth_on_the_whole_table(env):
     assert n > 0
 
 
-def test_loihi2_without_lava_loihi_and_tag_on_cpu_are_one_line_errors(env, capsys):
+def test_loihi2_without_lava_loihi_and_tag_on_cpu_are_one_line_errors(env, capsys, make_bundle, tmp_path):
     pytest.importorskip("lava")
+    # a subtract bundle: no stock Loihi 2 neuron runs it, whether or not lava-loihi is installed
     rc, out, err = run_cli(capsys, env["bundle"].root, "--target", "loihi2", "--events", env["rec"])
+    assert rc == 2 and out == "" and err.count("\n") == 1 and "reset: subtract" in err and "loihi-sim" in err
+    zero = make_bundle(tmp_path, reset="zero")
+    rc, out, err = run_cli(capsys, zero.root, "--target", "loihi2", "--events", env["rec"])
     assert rc == 2 and out == "" and err.count("\n") == 1 and "lava-loihi" in err and "loihi-sim" in err
     rc, out, err = run_cli(capsys, env["bundle"].root, "--tag", "floating_pt", "--events", env["rec"])
     assert rc == 2 and "--tag floating_pt" in err and err.count("\n") == 1

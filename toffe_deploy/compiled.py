@@ -94,13 +94,13 @@ def active_set(in_pix, width, height, kernel, slot_of):
 
 
 @njit(cache=True, nogil=True)
-def lif_window(a_in, dv, vth_mant):
+def lif_window(a_in, dv, vth_mant, reset_zero=False):
     """Spikes (B, M) of fixed_point.lif_step iterated over a window of a_in (B, M) int64 from
-    v = 0, o = 0 (the neuron of ofs_stage).
+    v = 0, o = 0 (the neuron of ofs_stage); ``reset_zero``: the stock "zero" reset, else "subtract".
 
     Branch free and time-step outer, so the M neurons of a step are independent iterations the
     compiler vectorizes: trunc0(x / 4096) = (x + (4095 if x < 0 else 0)) >> 12 (arithmetic
-    shift), the reset subtracts vth * o, and the clip is a min and a max.
+    shift), the reset subtracts vth * o (or zeroes v where o), and the clip is a min and a max.
     """
     n_bins, m = a_in.shape
     spikes = np.empty((n_bins, m), np.bool_)
@@ -109,11 +109,12 @@ def lif_window(a_in, dv, vth_mant):
     vth = np.int64(vth_mant) << STATE_SHIFT
     keep = np.int64(DECAY_UNITY - dv)
     bias = np.int64(DECAY_UNITY - 1)
+    zero = np.int64(1 if reset_zero else 0)
     for t in range(n_bins):
         for s in range(m):
-            x = v[s] * keep
+            x = v[s] * (1 - zero * o[s]) * keep
             x = (x + ((x >> 63) & bias)) >> DECAY_BITS            # trunc0(x / 4096)
-            x += (a_in[t, s] << STATE_SHIFT) - vth * o[s]
+            x += (a_in[t, s] << STATE_SHIFT) - (1 - zero) * vth * o[s]
             x = min(max(x, -STATE_MAX), STATE_MAX)
             v[s] = x
             o[s] = x > vth
@@ -122,12 +123,13 @@ def lif_window(a_in, dv, vth_mant):
 
 
 @njit(cache=True, nogil=True)
-def ofs_stage(alive, b, c, pix_inverse, tap_target, weight, n_bins, n_active, dv, vth_mant):
+def ofs_stage(alive, b, c, pix_inverse, tap_target, weight, n_bins, n_active, dv, vth_mant, reset_zero=False):
     """One OFS stage on a window's active set: (spikes (B, M) bool, fired (M,) bool = any over t).
 
     a_in[t, slot] = sum of weight[c, tap] over the alive ones (b = t, channel c) that reach the
     slot through the tap; then per slot, from v = 0, o = 0 (fixed_point.lif_step):
         v = clip24(trunc0(v * (4096 - dv) / 4096) + (a_in << 6) - (vth_mant << 6) * o);  o = v > vth
+    (with ``reset_zero``: v = clip24(trunc0((o ? 0 : v) * (4096 - dv) / 4096) + (a_in << 6)))
     """
     kk = tap_target.shape[1]
     a_in = np.zeros((n_bins, n_active), np.int64)
@@ -140,7 +142,7 @@ def ofs_stage(alive, b, c, pix_inverse, tap_target, weight, n_bins, n_active, dv
                 s = tap_target[q, k]
                 if s >= 0:
                     a_in[t, s] += weight[ch, k]
-    spikes = lif_window(a_in, dv, vth_mant)
+    spikes = lif_window(a_in, dv, vth_mant, reset_zero)
     fired = np.zeros(n_active, np.bool_)
     for t in range(n_bins):
         for s in range(n_active):
@@ -1216,7 +1218,7 @@ def warm_up() -> None:
     active, tap_target = active_set(uniq, 2, 2, 1, scratch)
     weight = np.ones((1, 1), np.int64)
     alive = np.ones(1, np.bool_)
-    spikes, fired = ofs_stage(alive, i64, i64, inverse, tap_target, weight, 1, active.shape[0], 0, 1)
+    spikes, fired = ofs_stage(alive, i64, i64, inverse, tap_target, weight, 1, active.shape[0], 0, 1, False)
     keep_r, keep_c, map_r, map_c, image = compact_image(active, 2, 2, 1)
     closed = compact_lookup(uniq, 2, keep_r, keep_c, map_r, map_c, image.view(np.bool_))
     split_closed(alive, inverse, closed)

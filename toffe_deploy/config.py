@@ -25,6 +25,9 @@ REQUIRED_KEYS = ("sensor_size", "n_bins", "dt_us", "speed_bins", "representative
                  "ofs_in_channels", "mask_kernel")
 SPEED_BINS_MPS: tuple[tuple[float, float], ...] = ((1.0, 18.0), (18.0, 42.0), (42.0, 84.0), (84.0, 500.0))
 CONFIG_FORMAT_VERSION = 1
+#: OFS neuron reset rules (fixed_point module docstring): "subtract" is the paper's eq. (1),
+#: "zero" Loihi 2's stock CUBA LIF (v = 0 after a spike), which netx, NIR and NeuroCores run.
+RESETS = ("subtract", "zero")
 
 
 
@@ -49,6 +52,7 @@ class ToffeConfig:
     depth_m: float = REFERENCE_DEPTH_M     # ... and the object depth
     input_norm: str = "none"               # OFS/OFPD input front end (events/frontend.py)
     input_min_cluster: int = 1             # ... then keep pixels in 8-connected clusters of >= this many (1: all)
+    reset: str = "subtract"                # OFS neuron reset (RESETS); configs without it: subtract
     ofpd: dict[str, Any] = field(default_factory=dict)
     dataset: dict[str, Any] = field(default_factory=dict)
     format_version: int = CONFIG_FORMAT_VERSION
@@ -145,6 +149,8 @@ class ToffeConfig:
             bad(f"focal_px must be > 0, got {self.focal_px}")
         if not (self.depth_m > 0 and math.isfinite(self.depth_m)):
             bad(f"depth_m must be > 0, got {self.depth_m}")
+        if self.reset not in RESETS:
+            bad(f"reset must be one of {', '.join(RESETS)}, got {self.reset!r}")
         if self.input_norm not in INPUT_NORMS:
             bad(f"input_norm must be one of {', '.join(INPUT_NORMS)}, got {self.input_norm!r}")
         if self.input_min_cluster < 1:

@@ -90,11 +90,11 @@ def evaluate(opts: EvalOptions) -> dict:
     cfg = ck.config
     files = split_files(opts.data, opts.split)
     if opts.ofs == "fixed":
-        run_stage = fixed_stage_fn(quantize_stages(ck.ofs))
+        run_stage = fixed_stage_fn(quantize_stages(ck.ofs, cfg.reset))
     else:
         models = []
         for p in ck.ofs:
-            m = OFS(cfg.ofs_in_channels, cfg.ofs_kernel, p["threshold"], p["leak"])
+            m = OFS(cfg.ofs_in_channels, cfg.ofs_kernel, p["threshold"], p["leak"], reset=cfg.reset)
             with torch.no_grad():
                 m.conv.weight.copy_(torch.from_numpy(p["weight"]))
             models.append(m.eval())

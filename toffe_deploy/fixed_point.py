@@ -5,13 +5,16 @@ host path of the ``cpu`` target. Per time step t of a window (state reset at win
 
     a_in[t] = sum_{c,i,j} w[c,i,j] * s_in[t, c, y+i-K//2, x+j-K//2]        (integer conv, zero pad)
     u[t]    = a_in[t] << 6                                                    (du = 4095: memoryless)
-    v[t]    = clip24( trunc0(v[t-1] * (4096 - dv) / 4096) + u[t] - (vth_mant << 6) * o[t-1] )
+    reset "subtract":  v[t] = clip24( trunc0(v[t-1] * (4096 - dv) / 4096) + u[t] - (vth_mant << 6) * o[t-1] )
+    reset "zero":      v[t] = clip24( trunc0((o[t-1] ? 0 : v[t-1]) * (4096 - dv) / 4096) + u[t] )
     o[t]    = v[t] > (vth_mant << 6)
 
-which is the paper's eq. (1)-(2) (reset by subtraction of vth * o[t-1], undecayed, at step t)
-with float quantities  W = w / s,  vth = vth_mant / s,  lambda = 1 - dv / 4096  and the state
-scaled by 64 * s. trunc0 truncates toward zero (Lava's PyLifModelBitAcc does the same);
-clip24 saturates to +-(2^23 - 1). Inputs are binary spikes (count > 0) per polarity.
+"subtract" is the paper's eq. (1)-(2) (reset by subtraction of vth * o[t-1], undecayed, at step
+t); "zero" is Loihi 2's stock CUBA LIF (Lava's PyLifModelBitAcc / LIFReset: v = 0 after a
+spike), what NeuroCores, netx and NIR run. Float quantities: W = w / s, vth = vth_mant / s,
+lambda = 1 - dv / 4096, the state scaled by 64 * s. trunc0 truncates toward zero (as Lava's
+bit-accurate LIF); clip24 saturates to +-(2^23 - 1). Inputs are binary spikes (count > 0) per
+polarity.
 """
 from __future__ import annotations
 
@@ -19,6 +22,8 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+
+from .config import RESETS
 
 WEIGHT_BITS = 8
 WEIGHT_MAX = 2 ** (WEIGHT_BITS - 1) - 1      # 127: symmetric int8 range
@@ -38,6 +43,7 @@ class LoihiOFSParams:
     dv: voltage decay, v <- trunc0(v * (4096 - dv) / 4096); lambda = 1 - dv / 4096.
     du: current decay; 4095 makes the synaptic current memoryless (u = a_in << 6).
     weight_scale: s, float weight = weight / s, float threshold = vth_mant / s.
+    reset: "subtract" (paper eq. 1) or "zero" (stock Loihi 2 LIF); see the module docstring.
     """
 
     weight: np.ndarray
@@ -46,6 +52,11 @@ class LoihiOFSParams:
     weight_scale: float
     du: int = DECAY_UNITY - 1
     notes: tuple[str, ...] = field(default=())
+    reset: str = "subtract"
+
+    def __post_init__(self) -> None:
+        if self.reset not in RESETS:
+            raise ValueError(f"reset must be one of {', '.join(RESETS)}, got {self.reset!r}")
 
     @property
     def kernel_size(self) -> int:
@@ -57,7 +68,7 @@ class LoihiOFSParams:
         return self.weight.astype(np.float64) / s, self.vth_mant / s, 1.0 - self.dv / DECAY_UNITY
 
 
-def quantize_ofs(weight: np.ndarray, threshold: float, leak: float) -> LoihiOFSParams:
+def quantize_ofs(weight: np.ndarray, threshold: float, leak: float, reset: str = "subtract") -> LoihiOFSParams:
     """Quantize a float OFS stage (weight (1, C, K, K), threshold, leak) to Loihi 2 fixed point.
 
     The weight scale s maps the largest |w| to 127, using the full 8-bit range; the threshold
@@ -91,7 +102,8 @@ def quantize_ofs(weight: np.ndarray, threshold: float, leak: float) -> LoihiOFSP
         # 12-bit field holds 0..4095; dv = 4096 (no memory) is the same as 4095 up to 1/4096.
         dv = DECAY_UNITY - 1
         notes.append("leak 0 represented as dv = 4095 (lambda = 1/4096)")
-    return LoihiOFSParams(weight=w_int, vth_mant=vth_mant, dv=dv, weight_scale=float(s), notes=tuple(notes))
+    return LoihiOFSParams(weight=w_int, vth_mant=vth_mant, dv=dv, weight_scale=float(s), notes=tuple(notes),
+                          reset=reset)
 
 
 def trunc_decay(v: np.ndarray, decay: int) -> np.ndarray:
@@ -116,9 +128,12 @@ def synaptic_input(spikes_in: np.ndarray, weight: np.ndarray) -> np.ndarray:
 
 
 def lif_step(v: np.ndarray, o_prev: np.ndarray, a_in: np.ndarray, p: LoihiOFSParams) -> tuple[np.ndarray, np.ndarray]:
-    """One fixed-point OFS neuron step (see module docstring). Returns (v, o)."""
+    """One fixed-point OFS neuron step (see module docstring; p.reset picks the rule). Returns (v, o)."""
     vth = p.vth_mant << STATE_SHIFT
-    v = trunc_decay(v, p.dv) + (a_in.astype(np.int64) << STATE_SHIFT) - vth * o_prev.astype(np.int64)
+    if p.reset == "zero":
+        v = trunc_decay(np.where(o_prev, 0, v), p.dv) + (a_in.astype(np.int64) << STATE_SHIFT)
+    else:
+        v = trunc_decay(v, p.dv) + (a_in.astype(np.int64) << STATE_SHIFT) - vth * o_prev.astype(np.int64)
     np.clip(v, -STATE_MAX, STATE_MAX, out=v)
     return v, v > vth
 

@@ -1,4 +1,5 @@
-"""Process model of the cascade bridge (binary logic: the same for fixed_pt and floating_pt)."""
+"""Process models of the cascade bridge (binary logic: the same for fixed_pt and floating_pt):
+``PyCascadeBridgeModel`` after our OFS neuron, ``PyCascadeBridgeStockModel`` after a stock LIF."""
 from __future__ import annotations
 
 import numpy as np
@@ -49,11 +50,38 @@ class PyCascadeBridgeModel(PyLoihiProcessModel):
         self.x_out.send(self._pending[b])
         self._spk[b] = self.s_in.csp_ports[0].recv()
         self._x[b] = self.x_in.csp_ports[0].recv()
-        if b != self._n_bins - 1:
-            return
+        if b == self._n_bins - 1:
+            self._close_window(step // self._n_bins)
+
+    def _close_window(self, period: int) -> None:
+        """Eq. 3-4 on the stored window of pipeline period ``period``; record it to the host
+        unless it is pipeline fill (a period before this stage's depth)."""
         fired = np.bitwise_or.reduce(self._spk, axis=0)
         self._closed[:] = pack(close_binary(unpack(fired, self._w), self._kernel))
         np.bitwise_and(self._x, self._closed, out=self._frame)
         np.bitwise_and(self._x, ~self._closed, out=self._pending)
-        if step // self._n_bins >= self._depth:      # a real window, not pipeline fill
+        if period >= self._depth:                    # a real window, not pipeline fill
             self.record_out.send(self._record)
+
+
+@implements(proc=CascadeBridge, protocol=LoihiProtocol)
+@requires(CPU)
+@tag("fixed_pt", "floating_pt")
+class PyCascadeBridgeStockModel(PyCascadeBridgeModel):
+    """The bridge between stock processes (CascadeBridge(stock=True)): dense (W, H, 1) spikes in
+    one step late, the next stage's input also as dense (W, H, C) for its Conv."""
+
+    s_in: PyInPort = LavaPyType(PyInPort.VEC_DENSE, np.int32, precision=24)
+    a_out: PyOutPort = LavaPyType(PyOutPort.VEC_DENSE, np.int32, precision=24)
+
+    def run_spk(self) -> None:
+        step = self.time_step - 1
+        b = step % self._n_bins
+        spk = self.s_in.csp_ports[0].recv()                  # bin b - 1 (Conv delay)
+        self._spk[(b - 1) % self._n_bins] = pack(np.asarray(spk)[:, :, 0].T != 0)
+        x = self.x_in.csp_ports[0].recv()
+        if b == 0 and step > 0:                              # the previous window is complete
+            self._close_window(step // self._n_bins - 1)
+        self._x[b] = x
+        self.x_out.send(self._pending[b])
+        self.a_out.send(unpack(self._pending[b], self._w).transpose(2, 1, 0).astype(np.int32))

@@ -13,6 +13,14 @@ running ``depth = N - k`` windows behind the source. Each finished window goes t
 one record through an external pipe, all planes bit-packed (lava_procs.packing):
 
     record = [o_k (n_bins), closed_k (1), x_k (n_bins * C), frame_k (n_bins * C)]   planes
+
+``stock=True`` sits between stock Lava processes (reset "zero" bundles: lava.proc.conv Conv ->
+lava.proc.lif LIFReset per stage): s_in then takes the LIF's dense (W, H, 1) spikes, which the
+Conv's one-step delay puts one step late (bin b of a window arrives at its step b + 1, the last
+bin at the next window's first step), and a second output ``a_out`` (W, H, C) dense feeds the
+next stage's Conv. The window is closed at the next window's first step, before that step's
+x_{k-1} goes out, so stage k - 1 still runs exactly one window behind stage k; the record of a
+window leaves one step later than without ``stock``.
 """
 from __future__ import annotations
 
@@ -37,19 +45,22 @@ class CascadeBridge(AbstractProcess):
     (records of windows before the first one, pipeline fill, are not sent).
     Ports: s_in (H, Wb) stage output; x_in (C, H, Wb) stage input; x_out (C, H, Wb) next stage's
     input; record_out (host side, external pipe): (record_planes, H, Wb) uint8.
+    stock: s_in is a stock LIF's (W, H, 1) output, plus a_out (W, H, C) (see module docstring).
     """
 
     def __init__(self, *, shape: tuple[int, int], channels: int, n_bins: int, mask_kernel: int,
-                 depth: int, buffer_size: int = 4, name: ty.Optional[str] = None,
+                 depth: int, buffer_size: int = 4, stock: bool = False, name: ty.Optional[str] = None,
                  log_config: ty.Optional[LogConfig] = None) -> None:
         h, w = (int(s) for s in shape)
         c = int(channels)
         super().__init__(shape=(h, w), channels=c, n_bins=int(n_bins), mask_kernel=int(mask_kernel),
-                         depth=int(depth), name=name, log_config=log_config)
+                         depth=int(depth), stock=bool(stock), name=name, log_config=log_config)
         wb = packed_width(w)
-        self.s_in = InPort(shape=(h, wb))
+        self.s_in = InPort(shape=(w, h, 1) if stock else (h, wb))
         self.x_in = InPort(shape=(c, h, wb))
         self.x_out = OutPort(shape=(c, h, wb))
+        if stock:
+            self.a_out = OutPort(shape=(w, h, c))
         self.record_out = OutPort(shape=(record_planes(n_bins, c), h, wb))
         self.record_out.flag_external_pipe(buffer_size=int(buffer_size))
 

@@ -10,6 +10,7 @@ from lava.magma.core.resources import CPU
 from lava.magma.core.sync.protocols.loihi_protocol import LoihiProtocol
 
 from lava_procs.event_source.process import EventBinSource
+from lava_procs.packing import unpack
 
 
 @implements(proc=EventBinSource, protocol=LoihiProtocol)
@@ -32,3 +33,21 @@ class PyEventBinSourceModel(PyLoihiProcessModel):
             # One external-pipe port, so take it directly (PyInPort.recv would add it to zeros).
             self._window = self.window_in.csp_ports[-1].recv()
         self.s_out.send(self._window[b])
+
+
+@implements(proc=EventBinSource, protocol=LoihiProtocol)
+@requires(CPU)
+@tag("fixed_pt", "floating_pt")
+class PyEventBinSourceStockModel(PyEventBinSourceModel):
+    """EventBinSource(stock=True): each bin also dense (W, H, C) int32 for a stock Conv."""
+
+    a_out: PyOutPort = LavaPyType(PyOutPort.VEC_DENSE, np.int32, precision=24)
+
+    def __init__(self, proc_params):
+        super().__init__(proc_params)
+        self._width = int(proc_params["shape"][2])
+
+    def run_spk(self) -> None:
+        super().run_spk()
+        b = (self.time_step - 1) % self._n_bins
+        self.a_out.send(unpack(self._window[b], self._width).transpose(2, 1, 0).astype(np.int32))

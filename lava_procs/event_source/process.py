@@ -22,15 +22,18 @@ class EventBinSource(AbstractProcess):
     shape: (C, H, W). window_in (host side, external pipe of ``buffer_size`` windows):
     (n_bins, C, H, ceil(W/8)) uint8 packed; s_out: (C, H, ceil(W/8)) packed, one bin per step.
     The model blocks on the host at each window start, which keeps host and network in step.
+    stock: also emit each bin dense on a_out (W, H, C), the input layout of lava.proc.conv Conv.
     """
 
-    def __init__(self, *, shape: tuple[int, int, int], n_bins: int, buffer_size: int = 4,
+    def __init__(self, *, shape: tuple[int, int, int], n_bins: int, buffer_size: int = 4, stock: bool = False,
                  name: ty.Optional[str] = None, log_config: ty.Optional[LogConfig] = None) -> None:
         c, h, w = (int(s) for s in shape)
-        super().__init__(shape=(c, h, w), n_bins=int(n_bins), name=name, log_config=log_config)
+        super().__init__(shape=(c, h, w), n_bins=int(n_bins), stock=bool(stock), name=name, log_config=log_config)
         self.window_in = InPort(shape=(int(n_bins), c, h, packed_width(w)))
         self.window_in.flag_external_pipe(buffer_size=int(buffer_size))
         self.s_out = OutPort(shape=(c, h, packed_width(w)))
+        if stock:
+            self.a_out = OutPort(shape=(w, h, c))
 
     def send(self, window_packed: np.ndarray) -> None:
         """Host side: queue one packed window (blocks only when ``buffer_size`` are queued)."""

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from . import add_progress_flag, show_progress
 
-CHECK_NAMES = ("fixed_vs_float", "lava_vs_fixed", "onnx_vs_torch", "end_to_end")
+CHECK_NAMES = ("fixed_vs_float", "lava_vs_fixed", "netx_vs_fixed", "onnx_vs_torch", "end_to_end")
 
 
 def register(sub) -> None:
@@ -11,7 +11,7 @@ def register(sub) -> None:
         "export", help="quantize a checkpoint for Loihi 2, export OFPD to ONNX, verify, write a bundle",
         description="Turn a trained checkpoint into a deploy bundle: the OFS stages in Loihi 2 fixed point "
                     "(ofs_loihi.json for lava_procs, lava-dl netx HDF5, a NIR graph), OFPD as ONNX (opset 17, "
-                    "dynamic batch), manifest.json with the sha256 of every file, and parity.json from four "
+                    "dynamic batch), manifest.json with the sha256 of every file, and parity.json from five "
                     "checks run on every export (fixed point vs float, Lava vs fixed point, ONNX vs torch, "
                     "end-to-end object flow). The output is written atomically.")
     p.add_argument("checkpoint", metavar="CKPT", help="checkpoint directory (config.json, ofs.safetensors, "
@@ -28,7 +28,7 @@ def register(sub) -> None:
     p.add_argument("--windows", type=int, default=16, metavar="N",
                    help="number of held-out windows for the parity checks (default: 16)")
     p.add_argument("--lava-windows", type=int, default=2, metavar="N",
-                   help="windows (48x32 crops) run on the Lava simulator for the bit-exactness check (default: 2)")
+                   help="windows (48x32 crops) run on the Lava simulator for the bit-exactness and netx checks (default: 2)")
     p.add_argument("--checks", default=",".join(CHECK_NAMES), metavar="LIST",
                    help=f"comma-separated parity checks to run, or 'none' (default: all: {','.join(CHECK_NAMES)})")
     p.add_argument("--seed", type=int, default=0, help="seed for choosing/generating held-out windows (default: 0)")

@@ -39,6 +39,12 @@ def register(sub) -> None:
                         "all; default 4)")
     p.add_argument("--ofs-kernel", type=int, default=3, metavar="K",
                    help="OFS conv kernel size of a new checkpoint (odd; default 3)")
+    p.add_argument("--reset", choices=("subtract", "zero"), default=None,
+                   help="OFS neuron reset: 'subtract' (the paper's eq. 1) or 'zero' (Loihi 2's stock CUBA LIF, "
+                        "what NeuroCores, netx and NIR run) (default: the checkpoint's, else subtract)")
+    p.add_argument("--init-from", type=Path, default=None, metavar="CKPT",
+                   help="start from this checkpoint's config and OFS stages (fine-tune them, e.g. with --reset zero; "
+                        "--stage all then retrains the OFPD on the new stages' outputs)")
     p.add_argument("--resume", action="store_true", help="continue from the training state saved in --out")
     p.add_argument("--device", default="auto", help="torch device: auto (CUDA when present, else CPU), cpu, cuda")
     add_progress_flag(p)
@@ -76,6 +82,7 @@ def run(args) -> int:
                              ofpd_epochs=args.epochs, seed=args.seed, resume=args.resume, dt_us=args.dt,
                              per_file=args.windows_per_seq, device=args.device, ofpd_pool=args.ofpd_pool,
                              ofpd_kernels=kernels, progress=show_progress(args), input_norm=args.input_norm,
-                             ofs_kernel=args.ofs_kernel, min_cluster=args.min_cluster))
+                             ofs_kernel=args.ofs_kernel, min_cluster=args.min_cluster, reset=args.reset,
+                             init_from=args.init_from))
     print(f"checkpoint written to {out}")
     return 0

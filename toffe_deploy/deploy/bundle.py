@@ -136,16 +136,36 @@ def ofs_to_json(ofs: Sequence[LoihiOFSParams], float_params: Sequence[Mapping[st
         "format_version": OFS_FORMAT_VERSION,
         "weight_layout": "(1, C_in, K, K), cross-correlation (torch Conv2d layout), zero padding K//2, stride 1",
         "state_shift": STATE_SHIFT,
-        "reset": "subtraction of (vth_mant << 6) * o[t-1] at step t, undecayed (paper eq. 1); "
-                 "state zero at each window start",
+        "reset_mode": _reset_mode(ofs),
+        "reset": RESET_TEXT[_reset_mode(ofs)],
         "input": "binary spikes per polarity channel (count > 0), one time step per bin",
         "stages": stages,
     }
 
 
+def _reset_mode(ofs: Sequence[LoihiOFSParams]) -> str:
+    modes = {p.reset for p in ofs}
+    if len(modes) != 1:
+        raise ValueError(f"OFS stages disagree on the reset rule: {sorted(modes)}")
+    return modes.pop()
+
+
+#: ofs_loihi.json ``reset``: the rule of each ``reset_mode`` in words (toffe_deploy.fixed_point).
+RESET_TEXT = {
+    "subtract": "subtraction of (vth_mant << 6) * o[t-1] at step t, undecayed (paper eq. 1); "
+                "state zero at each window start",
+    "zero": "v = 0 after a spike (Loihi 2's stock CUBA LIF, lava.proc.lif); u and v zeroed at each "
+            "window start (LIFReset, reset_interval = n_bins)",
+}
+
+
 def ofs_from_json(d: Any, path: str | os.PathLike, expect_channels: int | None = None,
-                  expect_kernel: int | None = None, expect_stages: int | None = None) -> list[LoihiOFSParams]:
-    """Parse and range-check ofs_loihi.json. Every problem is an InputError naming the field."""
+                  expect_kernel: int | None = None, expect_stages: int | None = None,
+                  expect_reset: str | None = None) -> list[LoihiOFSParams]:
+    """Parse and range-check ofs_loihi.json. Every problem is an InputError naming the field.
+
+    ``reset_mode`` ("subtract" or "zero") is absent from files written before it existed: they
+    hold subtract-reset stages."""
     if not isinstance(d, dict) or d.get("format") != OFS_FORMAT:
         raise InputError(path, f"not a quantized OFS file (format is not {OFS_FORMAT!r})")
     if d.get("format_version") != OFS_FORMAT_VERSION:
@@ -154,6 +174,11 @@ def ofs_from_json(d: Any, path: str | os.PathLike, expect_channels: int | None =
     if d.get("state_shift", STATE_SHIFT) != STATE_SHIFT:
         raise InputError(path, f"state_shift = {d.get('state_shift')!r} is not supported: every runtime "
                                f"(cpu fixed point, Lava) scales by 2**{STATE_SHIFT} (state_shift {STATE_SHIFT})")
+    reset = d.get("reset_mode", "subtract")
+    if reset not in RESET_TEXT:
+        raise InputError(path, f"reset_mode {reset!r} is not one of {', '.join(RESET_TEXT)}")
+    if expect_reset is not None and reset != expect_reset:
+        raise InputError(path, f"reset_mode {reset!r} but config.json says reset {expect_reset!r}")
     stages = d.get("stages")
     if not isinstance(stages, list) or not stages:
         raise InputError(path, "no OFS stages")
@@ -190,7 +215,7 @@ def ofs_from_json(d: Any, path: str | os.PathLike, expect_channels: int | None =
         if not np.isfinite(scale) or scale <= 0:
             raise InputError(path, f"{where}: weight_scale {scale!r} must be finite and > 0")
         out.append(LoihiOFSParams(weight=w.astype(np.int32), vth_mant=vth, dv=dv, du=du, weight_scale=scale,
-                                  notes=notes))
+                                  notes=notes, reset=reset))
     return out
 
 
@@ -437,7 +462,7 @@ def load_bundle(path: str | os.PathLike, verify: bool = True) -> Bundle:
     ofs_path = root / OFS_FILE
     ofs_d = read_json(ofs_path)
     ofs = ofs_from_json(ofs_d, ofs_path, expect_channels=config.ofs_in_channels, expect_kernel=config.ofs_kernel,
-                        expect_stages=config.n_speed_bins)
+                        expect_stages=config.n_speed_bins, expect_reset=config.reset)
     onnx_path = root / OFPD_ONNX
     if not onnx_path.is_file():
         raise InputError(onnx_path, "missing file")

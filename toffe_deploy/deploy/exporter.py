@@ -27,7 +27,7 @@ from .bundle import Bundle, check_output_dir, sha256_file, write_bundle
 from .parity import torch_threads
 from .quantize import quantize_stages
 
-DEFAULT_CHECKS = ("fixed_vs_float", "lava_vs_fixed", "onnx_vs_torch", "end_to_end")
+DEFAULT_CHECKS = ("fixed_vs_float", "lava_vs_fixed", "netx_vs_fixed", "onnx_vs_torch", "end_to_end")
 
 
 @dataclass
@@ -55,17 +55,19 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
     t_start = time.perf_counter()
     out_dir = Path(out_dir)
     check_output_dir(out_dir, force=force)
-    if checks and "lava_vs_fixed" in checks:
+    if checks and ("lava_vs_fixed" in checks or "netx_vs_fixed" in checks):
         from .parity import _preload_lava
         _preload_lava()         # before the first tqdm bar (see runtime.loihi.import_lava)
     ckpt = load_checkpoint(ckpt_dir)
     config = ckpt.config
-    q = quantize_stages(ckpt.ofs, Path(ckpt_dir) / "ofs.safetensors")
+    q = quantize_stages(ckpt.ofs, Path(ckpt_dir) / "ofs.safetensors", config.reset)
     warnings = list(q.warnings)
 
     from . import onnx_export
-    from .netx_h5 import RESET_NOTE, write_ofs_netx
-    from .nir_graph import write_ofs_nir
+    from ..energy.cost_model import loihi2_footprint
+    from .parity import VARIANT_E2E_GOAL
+    from .netx_h5 import NETX_RESET_OFFSET, RESET_NOTES, write_ofs_netx
+    from .nir_graph import NIR_RESET, time_step_s, write_ofs_nir
 
     for v in variants:
         if v not in onnx_export.VARIANTS:
@@ -88,22 +90,33 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
             from .windows import heldout_windows
             windows = heldout_windows(config, data=data, seed=seed, n_windows=n_windows, progress=progress)
         variant_info = {}
+        from .parity import variant_error
+        calib, held_out = _variant_inputs(windows, q.params, config) if variants else (None, None)
         for v in variants:
-            calib = None
-            if v == "int8":
-                from .parity import ofpd_inputs
-                calib = ofpd_inputs(windows, q.params, config)
-            p = onnx_export.make_variant(v, onnx_path, stage / f"ofpd_{v}.onnx", calib=calib)
+            p = onnx_export.make_variant(v, onnx_path, stage / f"ofpd_{v}.onnx", calib=calib if v == "int8" else None)
             files[p.name] = p
-            variant_info[v] = {"file": p.name, **_variant_doc(v)}
+            variant_info[v] = {"file": p.name, **_variant_doc(v),
+                               "error_vs_fp32": {**variant_error(onnx_path, p, held_out),
+                                                 "inputs_from": "objects of the held-out windows not used for calibration "
+                                                                "(runtime OFPD inputs, parity.runtime_ofpd_inputs)"}}
+            if v == "int8":
+                variant_info[v]["calibration_inputs"] = int(len(calib))
 
         manifest = {
             "source": {"checkpoint": str(Path(ckpt_dir).resolve()), "files_sha256": _checkpoint_hashes(Path(ckpt_dir))},
-            "ofs": {"quantization": q.report, "arithmetic": "toffe_deploy.fixed_point (see README.md)"},
+            "ofs": {"quantization": q.report, "arithmetic": "toffe_deploy.fixed_point (see README.md)",
+                    "reset": config.reset,
+                    "loihi2_footprint": loihi2_footprint(config.width, config.height, config.n_speed_bins,
+                                                         config.ofs_kernel, config.ofs_in_channels)},
             "ofpd": {**onnx_export.onnx_io_info(onnx_path), "variants": variant_info},
-            "netx": {"files": sorted(f for f in files if f.startswith("netx/")), "reset_note": RESET_NOTE},
-            "nir": {"file": "ofs.nir", "nir_version": _version("nir"),
-                    "note": "reset by subtraction and the cascade masking are described in the graph metadata"},
+            "netx": {"files": sorted(f for f in files if f.startswith("netx/")),
+                     "reset_interval": config.n_bins, "reset_offset": NETX_RESET_OFFSET,
+                     "input_timing": "bin b of window i enters at Lava step i * n_bins + b + 1",
+                     "reproduces_bundle": config.reset == "zero", "reset_note": RESET_NOTES[config.reset]},
+            "nir": {"file": "ofs.nir", "nir_version": _version("nir"), "time_step_s": time_step_s(config),
+                    "reproduces_bundle": config.reset == "zero", "reset_note": NIR_RESET[config.reset],
+                    "note": "tau in seconds, r = 1, the gain in the conv weights; the cascade masking is "
+                            "described in the graph metadata"},
             "warnings": warnings,
         }
         staged = write_bundle(stage_root / "bundle", config, q.params, onnx_path, files=files, manifest=manifest,
@@ -122,6 +135,13 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
                     warnings.append(f"ONNX variant {v}: {rep['non_finite_outputs']} non-finite outputs on held-out inputs")
             warnings += [f"parity {name}: {c['status']} ({c.get('headline')})" for name, c in parity["checks"].items()
                          if c["status"] == "fail"]
+            for v, rep in parity["checks"].get("end_to_end", {}).get("variants", {}).items():
+                variant_info[v]["end_to_end"] = rep
+                worse = {m: r for m, r in rep["relative_to_fp32"].items() if not r <= VARIANT_E2E_GOAL}
+                if worse:
+                    warnings.append(f"ONNX variant {v}: end to end " + ", ".join(
+                        f"{m} {rep['errors'][m]:.3g} ({r:.0%} off fp32)" for m, r in worse.items())
+                        + f": more than {VARIANT_E2E_GOAL:.0%} off the fp32 OFPD")
         bundle = write_bundle(out_dir, config, q.params, onnx_path, files=files, manifest=manifest,
                               float_params=ckpt.ofs, force=force)
         for rel, entry in staged.manifest["files"].items():
@@ -133,6 +153,22 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
         for w in warnings:
             print(f"toffe-deploy: warning: {w}", file=log)
     return ExportResult(bundle=bundle, parity=parity, warnings=warnings, seconds=time.perf_counter() - t_start)
+
+
+def _variant_inputs(windows, params, config):
+    """(calibration, held-out) OFPD inputs for the reduced-precision variants: the objects the
+    runtime crops from the even and the odd held-out windows (parity.runtime_ofpd_inputs);
+    whole stage frames (parity.ofpd_inputs) when the windows hold no object."""
+    from .parity import ofpd_inputs, runtime_ofpd_inputs
+
+    n = len(windows.windows)
+    calib = runtime_ofpd_inputs(windows, params, config, range(0, n, 2))
+    held_out = runtime_ofpd_inputs(windows, params, config, range(1, n, 2))
+    if len(calib) == 0:
+        calib = ofpd_inputs(windows, params, config)
+    if len(held_out) == 0:
+        held_out = calib
+    return calib, held_out
 
 
 def _parent(p: Path) -> Path:
@@ -156,4 +192,5 @@ def _version(name: str) -> str | None:
 def _variant_doc(v: str) -> dict:
     if v == "fp16":
         return {"precision": "float16 weights and activations, float32 inputs and outputs"}
-    return {"precision": "int8 QDQ (static, per-channel weights, activations calibrated on held-out frames)"}
+    return {"precision": "int8 QDQ (static: per-channel int8 weights, int8 activations with ranges calibrated on "
+                         "the runtime's OFPD inputs of held-out windows; the three output heads fp32)"}

@@ -29,14 +29,16 @@ class QuantizedOFS:
     warnings: list[str]
 
 
-def quantize_stages(stages: Sequence[dict[str, Any]], source: str | os.PathLike = "ofs.safetensors") -> QuantizedOFS:
-    """Quantize every stage dict(weight, threshold, leak); InputError(source, ...) if impossible."""
+def quantize_stages(stages: Sequence[dict[str, Any]], source: str | os.PathLike = "ofs.safetensors",
+                    reset: str = "subtract") -> QuantizedOFS:
+    """Quantize every stage dict(weight, threshold, leak) with the neuron ``reset`` (config.RESETS);
+    InputError(source, ...) if impossible."""
     params, report, warnings = [], [], []
     for k, st in enumerate(stages, start=1):
         w = np.asarray(st["weight"], dtype=np.float64)
         th, leak = float(st["threshold"]), float(st["leak"])
         try:
-            p = quantize_ofs(w, th, leak)
+            p = quantize_ofs(w, th, leak, reset)
         except ValueError as exc:
             raise InputError(source, f"stage{k}: cannot be represented on Loihi 2: {exc}") from None
         wmax = float(np.max(np.abs(w)))

@@ -26,10 +26,10 @@ export/
   ofs_loihi.json       quantized OFS, one entry per speed bin (the form lava_procs builds processes from)
   ofpd.onnx            OFPD, fp32, ONNX opset 17, dynamic batch
   ofpd_fp16.onnx       optional (--variants fp16): weights and activations in float16, fp32 I/O
-  ofpd_int8.onnx       optional (--variants int8): dynamic int8 quantization (weights int8)
+  ofpd_int8.onnx       optional (--variants int8): static int8 QDQ (per-channel weights, activations calibrated on real OFPD inputs, heads fp32)
   ofs.nir              the OFS stages as a NIR graph (nir.read loads it)
   netx/ofs_stage<k>.net  lava-dl netx HDF5, one network per stage (conv + CUBA neuron)
-  parity.json          the four parity checks of this export, with their goals
+  parity.json          the five parity checks of this export, with their goals
   README.md            this file
 ```
 
@@ -38,18 +38,24 @@ export/
 Stage k (speed bin k, k = 1..N) is one conv layer (C_in = 2 polarity channels -> 1, K x K,
 zero padding K//2, stride 1, no bias) into one population of LIF neurons. Per time step t of a
 window (B steps, one per time bin; state zero at the window start; input s_in = 1 where the
-bin holds at least one event of that polarity):
+bin holds at least one event of that polarity), with the bundle's `reset` (config.json,
+ofs_loihi.json `reset_mode`):
 
 ```
 a_in[t] = sum_{c,i,j} w[c,i,j] * s_in[t, c, y+i-K//2, x+j-K//2]
-v[t]    = clip24( trunc0(v[t-1] * (4096 - dv) / 4096) + (a_in[t] << 6) - (vth_mant << 6) * o[t-1] )
+subtract: v[t] = clip24( trunc0(v[t-1] * (4096 - dv) / 4096) + (a_in[t] << 6) - (vth_mant << 6) * o[t-1] )
+zero:     v[t] = clip24( trunc0((o[t-1] ? 0 : v[t-1]) * (4096 - dv) / 4096) + (a_in[t] << 6) )
 o[t]    = v[t] > (vth_mant << 6)
 ```
 
-trunc0 truncates toward zero, clip24 saturates at +-(2^23 - 1). This is the paper's eq. (1)-(2)
-with reset by subtraction of vth * o[t-1], undecayed, at step t, in float units
-W = w / weight_scale, vth = vth_mant / weight_scale, lambda = 1 - dv / 4096. The current is
-memoryless (du = 4095). The cascade (eq. 3-4) runs stage N first; each stage's spikes, OR-ed
+trunc0 truncates toward zero, clip24 saturates at +-(2^23 - 1). `subtract` is the paper's eq.
+(1)-(2) with reset by subtraction of vth * o[t-1], undecayed, at step t; it runs only in our own
+Lava process model (`lava_procs`, a Python model: on a Loihi system it runs on the host).
+`zero` is Loihi 2's stock CUBA LIF (`lava.proc.lif` LIF / LIFReset, bit-accurate model
+`PyLifResetModelBitAcc`: v = 0 after a spike), what NeuroCores, netx and NIR run; a `zero` bundle
+builds each stage from stock `lava.proc.conv.Conv` + `lava.proc.lif.LIFReset` (reset_interval =
+B). Float units: W = w / weight_scale, vth = vth_mant / weight_scale, lambda = 1 - dv / 4096.
+The current is memoryless (du = 4095). The cascade (eq. 3-4) runs stage N first; each stage's spikes, OR-ed
 over the window, are closed with a `mask_kernel` square and inverted to mask the next
 (slower) stage's input.
 
@@ -60,6 +66,7 @@ over the window, are closed with a `mask_kernel` square and inverted to mask the
 | `format`, `format_version` | `"toffe-ofs-loihi"`, 1 |
 | `weight_layout` | `(1, C_in, K, K)`, cross-correlation (torch Conv2d layout) |
 | `state_shift` | 6: a_in and vth are shifted left by 6 bits into the 24-bit state (any other value is refused) |
+| `reset_mode` | `"subtract"` or `"zero"` (above); absent in files written before it: subtract. Must equal config.json's `reset` |
 | `reset`, `input` | the reset rule and input encoding above, in words |
 | `stages[k-1].stage` | k (1 = slowest speed bin) |
 | `stages[k-1].weight` | int weights in [-127, 127], nested lists (1, C_in, K, K) |
@@ -107,22 +114,45 @@ legacy value: boxes / fixed / mps / no motion planes / bin from the OFS). Checke
 `inChannels`, `outChannels = 1`, `kernelSize`, `stride = 1`, `padding = K//2`, `dilation = 1`,
 `groups = 1`, `weight` (1, C_in, K, K) int (the same integers as ofs_loihi.json) and
 `neuron/{type = CUBA, iDecay = 4096, vDecay = dv, vThMant = vth_mant, refDelay = 1}`;
-`simulation/{Ts = 1, tSample = B}`. Load with `lava.lib.dl.netx.hdf5.Network(net_config=path)`.
-**netx's stock CUBA neuron resets to zero after a spike, not by subtraction**: a netx network
-is for interoperability only; the faithful path is `lava_procs` (reset by subtraction), which
-builds from ofs_loihi.json. Stages are separate files because the cascade's masking between
-them (closing, inversion) is not a netx layer.
+`simulation/{Ts = 1, tSample = B}`; file attributes `reset_note`, `reset_interval`, `reset_offset`.
+netx's stock CUBA neuron resets to zero after a spike. For a **`reset: zero` bundle the files
+reproduce the bundle bit for bit** when loaded with the periodic reset the manifest states
+(`netx.reset_interval` = B, `netx.reset_offset` = 1) and fed bin b of window i at Lava step
+i * B + b + 1 (spikes of that bin come out one step later):
+
+```python
+from lava.lib.dl.netx.hdf5 import Network
+net = Network(net_config="export/netx/ofs_stage4.net", reset_interval=5, reset_offset=1)
+# connect a source of (W, H, 2) spikes to net.inp and net.out (W, H, 1) to a sink; run on
+# Loihi2SimCfg(select_tag="fixed_pt") (or Loihi2HwCfg): toffe_deploy.deploy.netx_h5.run_netx_stage does this
+```
+
+Measured by the parity check `netx_vs_fixed` (lava-dl's own Network on Loihi2SimCfg fixed_pt):
+0 differing spikes on every stage; reset_offset 2 gives wrong spikes. **A `reset: subtract`
+bundle's files do not reproduce it** (netx cannot subtract; `netx.reproduces_bundle` is false,
+the check reports the spike F1 for information). Stages are separate files because the
+cascade's masking between them (closing, inversion) is not a netx layer: it runs on the host.
 
 ## ofs.nir (Neuromorphic Intermediate Representation)
 
-One graph: `input` (C_in, H, W) feeds, for every stage k, `stage<k>_conv` (nir.Conv2d, float
-weights W = w / s, padding K//2) -> `stage<k>_lif` (nir.LIF) -> `stage<k>_output`. The float
-values are the ones the quantized integers represent exactly. NIR's LIF is continuous-time,
-tau dv/dt = (v_leak - v) + r I; for one step of dt = 1 it is set as tau = 1 / (1 - lambda),
-r = tau, v_leak = 0, so v[t] = lambda v[t-1] + I[t]. NIR has no reset-by-subtraction field:
-graph `metadata` says `reset = subtraction` (paper eq. 1, vth * o[t-1] at step t), holds the
-integer parameters, the time step (dt_us / B) and the cascade rule (stage N first, closing
-with mask_kernel, inversion) which NIR cannot express.
+One graph: `input` (C_in, H, W) feeds, for every stage k, `stage<k>_conv` (nir.Conv2d,
+padding K//2) -> `stage<k>_lif` (nir.LIF) -> `stage<k>_output`, in the float values the
+integers represent. NIR's LIF is continuous time, tau dv/dt = (v_leak - v) + r I with tau in
+seconds; readers integrate it with one forward-Euler step per time bin of dt = dt_us / B
+(metadata `time_step_s`, 1e-4 s for the shipped config; snnTorch's importer assumes 1e-4 s, so
+it reads only bundles with dt_us / B = 100 us right; give Norse `dt=time_step_s`). It is written as tau = dt / (1 - lambda), r = 1, v_leak = 0,
+v_reset = 0 and conv weights W / (1 - lambda) (the gain tau / dt folded in, since readers
+differ on r), so v[t] = lambda v[t-1] + conv(W, s[t]); v_threshold is vth plus half a Loihi
+state unit (1 / (128 s)), which decides ties the way the integers do. Run one window (B steps)
+at a time from rest. NIR's LIF resets to v_reset in the step it fires: **a `reset: zero`
+bundle's graph reproduces it** (metadata `reproduces_bundle`; checked in snnTorch 1.0 and
+Norse 1.1 by `benchmarks/nir_check.py`); **NIR cannot express reset by subtraction**, so a
+`reset: subtract` bundle's graph says so in `metadata.reset` and its readers run a zero-reset
+network instead. `metadata` also holds the integer parameters and the cascade rule (stage N
+first, closing with mask_kernel, inversion), which NIR cannot express. Readers that open the
+file: snnTorch 1.0 (`snntorch.import_nir.import_from_nir`, one stage per subgraph is practical
+at 640x480) and Norse 1.1 (`norse.torch.from_nir(graph, dt=...)`); sinabs and Rockpool pin
+nir <= 1.0.4, which cannot read `v_reset`.
 
 ## parity.json
 
@@ -130,12 +160,14 @@ with mask_kernel, inversion) which NIR cannot express.
 |---|---|---|
 | `windows` | where the held-out windows came from (data set or generator, seed, sizes) | |
 | `fixed_vs_float` | numpy fixed-point OFS vs float torch OFS, per stage on the full binary windows: spike agreement, precision, recall, F1 (float = reference); `quantization_band` (bound on the float-vs-integer potential difference), `differing_in_band` (differences at pixels whose float potential came that close to the threshold, i.e. explained by 8-bit weights / 17-bit threshold) and `f1_outside_band` | F1 >= 0.99 |
-| `lava_vs_fixed` | Lava simulator (Loihi2SimCfg, fixed_pt, lava_procs) vs numpy fixed point, per stage on small crops (48x32) placed where the reference fires most: differing spikes, spikes compared | 0 |
+| `lava_vs_fixed` | Lava simulator (Loihi2SimCfg, fixed_pt; `reset: zero`: stock Conv + LIFReset, else lava_procs) vs numpy fixed point, per stage on small crops (48x32) placed where the reference fires most: differing spikes, spikes compared | 0 |
+| `netx_vs_fixed` | each `netx/ofs_stage<k>.net` (layer shapes set to the crop, same integers) in lava-dl's own `netx.hdf5.Network` with `reset_interval` B, `reset_offset` 1 vs numpy fixed point on the same crops: differing spikes, F1 | 0 for `reset: zero`; `informational` for subtract |
 | `onnx_vs_torch` | onnxruntime vs torch OFPD: max abs difference of pose, direction, speed (and per variant) | < 1e-4 |
-| `end_to_end` | deployed pipeline (the runtime's cpu target: fixed point + onnxruntime) vs float pipeline (torch OFS + torch OFPD), both scored against ground truth with `toffe_deploy.metrics`: pixE, dirE, speedE, relative differences; `agreement` compares the two pipelines' objects directly | within 2 % |
+| `end_to_end` | deployed pipeline (the runtime's cpu target: fixed point + onnxruntime) vs float pipeline (torch OFS + torch OFPD), both scored against ground truth with `toffe_deploy.metrics`: pixE, dirE, speedE, relative differences; `agreement` compares the two pipelines' objects directly; `variants`: the same deployed pipeline with each OFPD variant, errors and relative difference to fp32 (informational, 10 % is the bar to be worth shipping) | within 2 % |
 
-Each check has `status` (`pass`, `fail` or `skipped: reason`), its measured figures and its
-`goal`. A check that cannot run says why instead of passing silently.
+Each check has `status` (`pass`, `fail`, `informational` or `skipped: reason`), its measured
+figures and its `goal`. A check that cannot run says why instead of passing silently;
+`all_pass` counts `informational` as passed.
 
 ## manifest.json
 
@@ -148,9 +180,10 @@ Each check has `status` (`pass`, `fail` or `skipped: reason`), its measured figu
 | `config_summary` | sensor_size, n_bins (B), dt_us, speed bins (m/s and px/ms), representative speeds, focal_px, depth_m, kernels |
 | `camera` | the camera the bundle was trained for and what its speed bins mean (below) |
 | `config` | the full ToffeConfig (also config.json) |
-| `ofs` | per stage vth_mant, dv, du, weight_scale, clamps, and `quantization` errors (max abs / relative weight error, threshold and leak error) |
-| `ofpd` | opset, input/output names and shapes, `variants` with their files (each must also be listed in `files`) |
-| `netx`, `nir` | their files and the reset caveat |
+| `ofs` | per stage vth_mant, dv, du, weight_scale, clamps, and `quantization` errors (max abs / relative weight error, threshold and leak error); `reset`; `loihi2_footprint`: neurons, synapses (fan-in, H W C K^2), shared weights and cores per stage (8192 neurons per core, a lower bound), total cores, chips (128 cores each), `fits_one_chip`, `max_pixels_one_chip` (640x480 x 4 stages: 1,228,800 neurons, 152 cores, 2 chips) |
+| `ofpd` | opset, input/output names and shapes, `variants` with their files (each must also be listed in `files`), precision, `error_vs_fp32` (pose px, direction deg, speed ratio exp(abs(ln v - ln v_fp32)): max / p95 / mean over the objects of held-out windows not used for calibration), int8 `calibration_inputs`, and `end_to_end` (the parity check's per-variant errors) |
+| `netx` | its files, `reset_interval` / `reset_offset` to pass to `netx.hdf5.Network`, `input_timing`, `reproduces_bundle` (true for `reset: zero`) and `reset_note` |
+| `nir` | its file, nir version, `time_step_s`, `reproduces_bundle`, `reset_note` |
 | `parity` | status and headline figure of each check |
 | `warnings` | every clamp and every missed parity goal, also printed at export |
 | `files` | `{path: {sha256, bytes}}` for every file of the bundle except manifest.json; paths are relative, stay inside the bundle (no `..`, no absolute path, no symbolic link leading out) and are all verified on load |

@@ -307,3 +307,26 @@ class LoihiActivity:
 
 def constants_table() -> dict:
     return {k: dataclasses.asdict(v) for k, v in CONSTANTS.items()}
+
+
+def loihi2_footprint(width: int, height: int, n_stages: int, kernel: int, channels: int = 2) -> dict:
+    """Neurons, synapses, cores and chips the OFS cascade takes on Loihi 2 at a sensor size.
+
+    One neuron per pixel and stage; synapses per stage = H W C K^2 (each neuron's fan-in, the
+    conv stores only C K^2 shared weights); cores per stage = ceil(H W / 8192) at the densest
+    placement (8192 neurons per core, so a lower bound: synapse and axon memory can need more);
+    chips = ceil(cores / 128). ``max_pixels_one_chip`` is the sensor area (H W) at which all
+    stages would fit one chip at that density.
+    """
+    per_core, per_chip = int(c("loihi2_neurons_per_core")), int(c("loihi2_cores_per_chip"))
+    neurons = int(width) * int(height)
+    cores = int(math.ceil(neurons / per_core))
+    total = cores * int(n_stages)
+    return {"sensor": [int(width), int(height)], "stages": int(n_stages),
+            "per_stage": {"neurons": neurons, "synapses": neurons * int(channels) * int(kernel) ** 2,
+                          "shared_weights": int(channels) * int(kernel) ** 2, "cores": cores},
+            "neurons": neurons * int(n_stages), "cores": total, "chips": int(math.ceil(total / per_chip)),
+            "fits_one_chip": total <= per_chip,
+            "max_pixels_one_chip": (per_chip // int(n_stages)) * per_core,
+            "note": f"{per_core} neurons per core (densest placement: cores are a lower bound), "
+                    f"{per_chip} cores per chip (Intel Loihi 2 brief)"}

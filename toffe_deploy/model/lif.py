@@ -1,7 +1,10 @@
 """LIF neuron of the paper, eq. (1)-(2), as a pure step function plus a surrogate spike.
 
-    u[t] = lambda * u[t-1] + I[t] - vth * o[t-1]          (eq. 1, reset by subtraction)
+    u[t] = lambda * u[t-1] + I[t] - vth * o[t-1]          (eq. 1, reset "subtract")
+    u[t] = lambda * (1 - o[t-1]) * u[t-1] + I[t]          (reset "zero": Loihi 2's stock LIF)
     o[t] = H(u[t] / vth - 1)                               (eq. 2, strict: fires when u > vth)
+
+The zero reset's (1 - o[t-1]) is detached (no gradient through the reset, as snnTorch does).
 
 The backward pass of H uses a fast-sigmoid surrogate. State starts at zero in every window.
 """
@@ -30,18 +33,22 @@ spike = SpikeFn.apply
 
 
 def lif_step(u: torch.Tensor, o_prev: torch.Tensor, current: torch.Tensor, vth: torch.Tensor,
-             leak: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """One step of eq. (1)-(2). Returns (u, o)."""
-    u = leak * u + current - vth * o_prev
+             leak: torch.Tensor, reset: str = "subtract") -> tuple[torch.Tensor, torch.Tensor]:
+    """One step of eq. (1)-(2) with the given reset (module docstring). Returns (u, o)."""
+    if reset == "zero":
+        u = leak * (1.0 - o_prev.detach()) * u + current
+    else:
+        u = leak * u + current - vth * o_prev
     return u, spike(u / vth - 1.0)
 
 
-def lif_sequence(currents: torch.Tensor, vth: torch.Tensor, leak: torch.Tensor) -> torch.Tensor:
+def lif_sequence(currents: torch.Tensor, vth: torch.Tensor, leak: torch.Tensor,
+                 reset: str = "subtract") -> torch.Tensor:
     """Run eq. (1)-(2) over currents (T, ...) from zero state; returns spikes (T, ...)."""
     u = torch.zeros_like(currents[0])
     o = torch.zeros_like(currents[0])
     out = []
     for t in range(currents.shape[0]):
-        u, o = lif_step(u, o, currents[t], vth, leak)
+        u, o = lif_step(u, o, currents[t], vth, leak, reset)
         out.append(o)
     return torch.stack(out)

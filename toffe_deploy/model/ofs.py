@@ -18,8 +18,9 @@ class OFS(nn.Module):
     """Forward: spikes (B, N, 1, H, W) from binary input (B, N, C_in, H, W), time first."""
 
     def __init__(self, in_channels: int = 2, kernel_size: int = 3, threshold: float = DOTIE_THRESHOLD,
-                 leak: float = DOTIE_LEAK):
+                 leak: float = DOTIE_LEAK, reset: str = "subtract"):
         super().__init__()
+        self.reset = reset            # "subtract" (paper eq. 1) or "zero" (stock Loihi 2 LIF)
         self.conv = nn.Conv2d(in_channels, 1, kernel_size, padding=kernel_size // 2, bias=False)
         with torch.no_grad():
             self.conv.weight.fill_(DOTIE_WEIGHT)
@@ -36,4 +37,4 @@ class OFS(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         t, n = x.shape[:2]
         cur = self.conv(x.flatten(0, 1)).unflatten(0, (t, n))
-        return lif_sequence(cur, self.threshold, self.leak)
+        return lif_sequence(cur, self.threshold, self.leak, self.reset)

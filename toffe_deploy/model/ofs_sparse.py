@@ -87,12 +87,14 @@ def pack_windows(vols, kernel: int) -> SparseWindows:
                          kernel, c)
 
 
-def sparse_ofs_spikes(feats: torch.Tensor, weight: torch.Tensor, vth: torch.Tensor, leak: torch.Tensor) -> torch.Tensor:
+def sparse_ofs_spikes(feats: torch.Tensor, weight: torch.Tensor, vth: torch.Tensor, leak: torch.Tensor,
+                      reset: str = "subtract") -> torch.Tensor:
     """Spikes (B, M) of eq. (1)-(2) with current = feats @ W.flatten()."""
-    return lif_sequence(feats @ weight.reshape(-1), vth, leak)
+    return lif_sequence(feats @ weight.reshape(-1), vth, leak, reset)
 
 
-def sparse_ofs_margin(feats: torch.Tensor, weight: torch.Tensor, vth: torch.Tensor, leak: torch.Tensor) -> torch.Tensor:
+def sparse_ofs_margin(feats: torch.Tensor, weight: torch.Tensor, vth: torch.Tensor, leak: torch.Tensor,
+                      reset: str = "subtract") -> torch.Tensor:
     """d (M,) = max_t u[t] / vth - 1 of eq. (1)-(2) (d > 0 iff the neuron fired in the window).
 
     A margin rather than spikes: it has a gradient for silent neurons too, so training cannot
@@ -103,7 +105,7 @@ def sparse_ofs_margin(feats: torch.Tensor, weight: torch.Tensor, vth: torch.Tens
     o = torch.zeros_like(cur[0])
     best = None
     for t in range(cur.shape[0]):
-        u, o = lif_step(u, o, cur[t], vth, leak)
+        u, o = lif_step(u, o, cur[t], vth, leak, reset)
         z = u / vth - 1.0
         best = z if best is None else torch.maximum(best, z)
     return best

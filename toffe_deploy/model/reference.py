@@ -22,9 +22,10 @@ from ..metrics import Prediction
 from .. import ofpd_io
 
 
-def quantize_stages(ofs: list[dict]) -> list[LoihiOFSParams]:
-    """Checkpoint OFS stages (weight, threshold, leak) -> Loihi fixed-point parameters."""
-    return [quantize_ofs(p["weight"], p["threshold"], p["leak"]) for p in ofs]
+def quantize_stages(ofs: list[dict], reset: str = "subtract") -> list[LoihiOFSParams]:
+    """Checkpoint OFS stages (weight, threshold, leak) -> Loihi fixed-point parameters with the
+    config's neuron ``reset``."""
+    return [quantize_ofs(p["weight"], p["threshold"], p["leak"], reset) for p in ofs]
 
 
 def on_event_bbox(run: Callable[[np.ndarray], np.ndarray], inp: np.ndarray, margin: int) -> np.ndarray:

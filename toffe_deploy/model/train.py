@@ -115,8 +115,10 @@ def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: 
 
 
 def train_ofs_stage(k: int, packed, speed_bin: np.ndarray, epochs: int, seed: int, device: torch.device,
-                    batch: int = 64, lr: float = 0.02, init: dict | None = None, progress: bool = True) -> dict:
-    """Train OFS stage k on packed windows; returns dict(weight (1,C,K,K) f32, threshold, leak, loss_curve)."""
+                    batch: int = 64, lr: float = 0.02, init: dict | None = None, progress: bool = True,
+                    reset: str = "subtract") -> dict:
+    """Train OFS stage k on packed windows with the neuron's ``reset`` rule (model/lif.py);
+    returns dict(weight (1,C,K,K) f32, threshold, leak, loss_curve)."""
     from .ofs_sparse import sparse_ofs_margin
 
     torch.manual_seed(seed + 1000 * k)
@@ -138,7 +140,7 @@ def train_ofs_stage(k: int, packed, speed_bin: np.ndarray, epochs: int, seed: in
         for s in bar:
             idx = order[s:s + batch]
             feats, event, owner = packed.batch(idx, device)
-            margin = sparse_ofs_margin(feats, model.conv.weight, model.threshold, model.leak)
+            margin = sparse_ofs_margin(feats, model.conv.weight, model.threshold, model.leak, reset)
             loss = ofs_loss(margin, event, owner, torch.from_numpy(labels[idx]).to(device))
             opt.zero_grad()
             loss.backward()
@@ -185,7 +187,7 @@ def calibrate_threshold(k: int, params: dict, windows: WindowSet, config: ToffeC
     curve = []
 
     def score(sc: float) -> None:
-        p = quantize_ofs(params["weight"], params["threshold"] * sc, params["leak"])
+        p = quantize_ofs(params["weight"], params["threshold"] * sc, params["leak"], config.reset)
         fired = np.zeros(idx.size, bool)
         for i in range(idx.size):
             spikes = on_event_bbox(lambda x: run_ofs_fixed(x, p), vols[i], p.kernel_size // 2)
@@ -345,6 +347,8 @@ class TrainOptions:
     input_norm: str = "first"         # input front end of a new checkpoint (events/frontend.py)
     ofs_kernel: int = 3               # OFS conv kernel of a new checkpoint
     min_cluster: int = 1              # input front end's cluster filter of a new checkpoint
+    reset: str | None = None          # OFS neuron reset (config.RESETS); None: the checkpoint's, else subtract
+    init_from: Path | None = None     # checkpoint whose config and OFS stages a new run starts from (fine-tune)
 
 
 def _state_path(out: Path) -> Path:
@@ -430,9 +434,22 @@ def train(opts: TrainOptions) -> Path:
     files = find_sequences(opts.data, "train")
     state = _load_state(out) if opts.resume else {}
     have_ckpt = (out / CONFIG_FILE).is_file()
+    init_ofs = None                  # OFS stages the OFS training starts from (--init-from), else DOTIE's
+    if opts.init_from is not None:
+        if opts.stage == "ofpd":
+            raise ToffeError("--init-from starts the OFS stages from another checkpoint: use --stage ofs or all")
+        init = load_checkpoint(opts.init_from)
+        init_ofs = [dict(p) for p in init.ofs]
     if have_ckpt and (opts.resume or opts.stage == "ofpd"):
         ck = load_checkpoint(out)
         config, ofs_params, ofpd_state = ck.config, ck.ofs, ck.ofpd_state
+        if opts.reset is not None and opts.reset != config.reset and opts.stage == "ofpd":
+            raise InputError(out, f"its OFS stages were trained with reset {config.reset!r}; --reset {opts.reset} "
+                                  "needs them retrained (--stage all)")
+    elif init_ofs is not None:
+        config = dataclasses.replace(init.config, dataset={**init.config.dataset, "init_from": os.fspath(opts.init_from)})
+        ofs_params, ofpd_state = [dict(p) for p in init_ofs], init.ofpd_state
+        state = {}
     else:
         if opts.stage == "ofpd":
             raise InputError(out, "--stage ofpd needs a checkpoint with trained OFS stages in --out (run --stage ofs first)")
@@ -440,6 +457,8 @@ def train(opts: TrainOptions) -> Path:
                              opts.min_cluster)
         ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
         state = {}
+    if opts.reset is not None and opts.reset != config.reset:
+        config = dataclasses.replace(config, reset=opts.reset)
     if opts.stage in ("ofpd", "all") and not (opts.resume and state.get("ofpd_settings")):
         config = with_current_layout(config)      # a fresh OFPD trains on today's input/output layout
     try:
@@ -474,8 +493,9 @@ def train(opts: TrainOptions) -> Path:
         for k in range(1, config.n_speed_bins + 1):
             if k in done:
                 continue
-            r = train_ofs_stage(k, packed, bins, opts.ofs_epochs, opts.seed, device, init=dotie_ofs(config)[0],
-                                progress=opts.progress)
+            r = train_ofs_stage(k, packed, bins, opts.ofs_epochs, opts.seed, device,
+                                init=init_ofs[k - 1] if init_ofs is not None else dotie_ofs(config)[0],
+                                progress=opts.progress, reset=config.reset)
             cal, curve = calibrate_threshold(k, dict(weight=r["weight"], threshold=r["threshold"], leak=r["leak"]),
                                              windows, config, seed=opts.seed)
             ofs_params[k - 1] = snap_to_loihi(cal)
@@ -485,12 +505,12 @@ def train(opts: TrainOptions) -> Path:
             state["ofs_done"] = sorted(done)
             save_checkpoint(out, config, ofs_params, ofpd_state)
             _save_state(out, state)
-        stages = quantize_stages(ofs_params)
+        stages = quantize_stages(ofs_params, config.reset)
         log["ofs_separation_train"] = separation_scores(stages, windows, config, seed=opts.seed)
         _save_state(out, state)
 
     if opts.stage in ("ofpd", "all"):
-        stages = quantize_stages(ofs_params)
+        stages = quantize_stages(ofs_params, config.reset)
         ds = build_ofpd_set(windows, stages, config, progress=opts.progress)
         log["ofpd_samples"] = int(ds.planes.shape[0])
         torch.manual_seed(opts.seed)             # before the init: the same OFPD for a seed, however we got here

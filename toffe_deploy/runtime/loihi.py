@@ -8,7 +8,16 @@ Network (lava_procs), for N stages at pipeline depth d_k = N - k:
 
 Time step t of the network is time bin (t - 1) mod B of window (t - 1) // B - d_k at stage k: the
 bridges replay the masked input one window later, so all N stages run concurrently on
-successive windows. The host drives the network one window (B steps, ``RunSteps``) at a time,
+successive windows.
+
+Reset "zero" bundles build each stage from stock Lava processes only, what Loihi2HwCfg maps to
+NeuroCores (the paper's hybrid: the bridges, i.e. closing, inversion and masking, run on the host):
+
+    EventBinSource --a_out--> Conv_N (lava.proc.conv) --> LIFReset_N (lava.proc.lif) --> CascadeBridge_N --a_out--> Conv_N-1 ...
+
+The Conv delivers one step late, so the LIF sees bin b of a window at the window's step b + 2
+(LIFReset zeroes u and v where time_step mod B == STOCK_RESET_OFFSET), and each record reaches
+the host one step later (one more pipeline period to flush). The host drives the network one window (B steps, ``RunSteps``) at a time,
 which keeps the network paused in the host phase between windows: stopping it is then always
 clean. While the network computes window p, the host pulls window p + 1 from its iterator and
 the consumer works on the results of earlier windows. After the last window, N - 1 empty
@@ -41,6 +50,27 @@ from . import lava_host
 
 TAGS = ("fixed_pt", "floating_pt")
 HW_MISSING = "loihi2 target needs lava-loihi (Intel's NRC package), not installed; use --target loihi-sim"
+HW_SUBTRACT = ("loihi2 target runs only stock Loihi 2 neurons, which reset to zero: this bundle's OFS resets by "
+               "subtraction (reset: subtract); export a checkpoint trained with --reset zero, or use --target loihi-sim")
+#: LIFReset's reset_offset in the stock network: the source emits bin 0 at a window's first step
+#: (time_step = w * B + 1) and the Conv adds one step, so the LIF's window starts at w * B + 2.
+STOCK_RESET_OFFSET = 2
+
+
+def lava_conv_weight(weight: np.ndarray) -> np.ndarray:
+    """Our (1, C, K, K) cross-correlation kernel as lava.proc.conv's (C_out, kW, kH, C_in) true
+    convolution kernel: both spatial axes flipped, then x first."""
+    return np.ascontiguousarray(np.flip(np.asarray(weight), axis=(2, 3)).transpose(0, 3, 2, 1))
+
+
+def stock_neuron_kwargs(p: LoihiOFSParams, n_bins: int, tag: str = "fixed_pt") -> dict:
+    """LIFReset parameters of one stage: the integers of ``p`` for fixed_pt (bit exact to
+    fixed_point.lif_step with reset "zero"), or the float values they stand for (floating_pt)."""
+    common = dict(bias_mant=0, reset_interval=int(n_bins), reset_offset=STOCK_RESET_OFFSET % int(n_bins))
+    if tag == "fixed_pt":
+        return dict(du=int(p.du), dv=int(p.dv), vth=int(p.vth_mant), bias_exp=0, **common)
+    _w, vth, lam = p.float_equivalent()
+    return dict(du=1.0, dv=1.0 - lam, vth=float(vth), **common)
 
 
 class LavaRuntimeError(ToffeError):
@@ -77,12 +107,14 @@ def check_hardware() -> None:
         raise ToffeError(HW_MISSING)
 
 
-def run_config(tag: str = "fixed_pt", hardware: bool = False):
+def run_config(tag: str = "fixed_pt", hardware: bool = False, stock: bool = False):
     """Loihi2SimCfg (or Loihi2HwCfg with lava-loihi) selecting our process models by ``tag``.
 
     Our Processes are named in exception_proc_model_map so that the choice never depends on
-    model discovery order. On Loihi2HwCfg these are still Python models (we have no NeuroCore
-    microcode for the OFS neuron): they run on the host of the Loihi system.
+    model discovery order. ``stock`` (reset "zero" bundles): the OFS is Lava's Conv + LIFReset,
+    their ``tag`` models in simulation (fixed_pt: Lava's bit-accurate ones); on Loihi2HwCfg the
+    compiler maps them to NeuroCores and only our source and bridges run on the host. Without
+    ``stock`` the OFS neuron is ours, a Python model with no NeuroCore microcode.
     """
     if tag not in TAGS:
         raise ToffeError(f"unknown Lava model tag {tag!r}; choose one of {', '.join(TAGS)}")
@@ -96,8 +128,23 @@ def run_config(tag: str = "fixed_pt", hardware: bool = False):
     from lava_procs.ofs_neuron.models import PyOFSNeuronModelFixed, PyOFSNeuronModelFloat
     from lava_procs.ofs_neuron.process import OFSNeuron
 
-    models = {EventBinSource: PyEventBinSourceModel, CascadeBridge: PyCascadeBridgeModel,
-              OFSNeuron: PyOFSNeuronModelFixed if tag == "fixed_pt" else PyOFSNeuronModelFloat}
+    if stock:
+        from lava.proc.conv.models import PyConvModelFixed, PyConvModelFloat
+        from lava.proc.conv.process import Conv
+        from lava.proc.lif.models import PyLifResetModelBitAcc, PyLifResetModelFloat
+        from lava.proc.lif.process import LIFReset
+
+        from lava_procs.bridge.models import PyCascadeBridgeStockModel
+        from lava_procs.event_source.models import PyEventBinSourceStockModel
+
+        models = {EventBinSource: PyEventBinSourceStockModel, CascadeBridge: PyCascadeBridgeStockModel}
+        if not hardware:     # on Loihi2HwCfg the stock processes take their NeuroCore models
+            fixed = tag == "fixed_pt"
+            models.update({Conv: PyConvModelFixed if fixed else PyConvModelFloat,
+                           LIFReset: PyLifResetModelBitAcc if fixed else PyLifResetModelFloat})
+    else:
+        models = {EventBinSource: PyEventBinSourceModel, CascadeBridge: PyCascadeBridgeModel,
+                  OFSNeuron: PyOFSNeuronModelFixed if tag == "fixed_pt" else PyOFSNeuronModelFloat}
     if hardware:
         check_hardware()
         return Loihi2HwCfg(select_tag=tag, exception_proc_model_map=models)
@@ -182,6 +229,14 @@ class LavaCascade:
         channels = {int(p.weight.shape[1]) for p in self.params}
         if len(channels) != 1:
             raise ToffeError(f"OFS stages disagree on input channels: {sorted(channels)}")
+        resets = {p.reset for p in self.params}
+        if len(resets) != 1:
+            raise ToffeError(f"OFS stages disagree on the reset rule: {sorted(resets)}")
+        self.reset = resets.pop()
+        self.stock = self.reset == "zero"     # stock Conv + LIFReset (module docstring)
+        self._lag = 1 if self.stock else 0    # extra pipeline periods before a record reaches the host
+        if hardware and not self.stock:
+            raise ToffeError(HW_SUBTRACT)
         self.n_stages = len(self.params)
         self.n_bins = int(n_bins)
         self.mask_kernel = int(mask_kernel)
@@ -201,6 +256,7 @@ class LavaCascade:
         self.reclaimed: lava_host.Reclaimed | None = None   # leftovers of dead hosts removed by start()
         self._runtime = None
         self._source = None
+        self.processes: list[Any] = []       # every Process of the network (source first)
         self._bridges: list[Any] = []        # index k - 1
         self._record_ports: list[Any] = []
         self._old_sigterm: Any = None
@@ -242,29 +298,30 @@ class LavaCascade:
     def _start(self) -> None:
         import multiprocessing as mp
 
-        cfg = run_config(self.tag, self.hardware)
+        cfg = run_config(self.tag, self.hardware, self.stock)
         from lava_procs.bridge.process import CascadeBridge
         from lava_procs.event_source.process import EventBinSource
-        from lava_procs.ofs_neuron.process import OFSNeuron
 
         self.reclaimed = lava_host.reclaim()
         lava_host.ensure_reaper()
         n, b = self.n_stages, self.n_bins
         self._source = EventBinSource(shape=(self.channels, self.height, self.width), n_bins=b,
-                                      buffer_size=2, name="event_source")
+                                      buffer_size=2, stock=self.stock, name="event_source")
+        procs: list[Any] = [self._source]
         bridges: list[Any] = [None] * n
         x_port = self._source.s_out
+        a_port = getattr(self._source, "a_out", None)
         for k in range(n, 0, -1):
-            p = self.params[k - 1]
-            neuron = OFSNeuron(shape=(self.height, self.width), weight=p.weight, vth=p.vth_mant, dv=p.dv,
-                               du=p.du, weight_scale=p.weight_scale, n_bins=b, name=f"ofs{k}")
             bridge = CascadeBridge(shape=(self.height, self.width), channels=self.channels, n_bins=b,
-                                   mask_kernel=self.mask_kernel, depth=n - k, buffer_size=2, name=f"bridge{k}")
-            x_port.connect([neuron.s_in, bridge.x_in])
-            neuron.s_out.connect(bridge.s_in)
-            x_port = bridge.x_out
+                                   mask_kernel=self.mask_kernel, depth=n - k, buffer_size=2, stock=self.stock,
+                                   name=f"bridge{k}")
+            stage = self._stage_processes(k, x_port, a_port, bridge)
+            x_port.connect(bridge.x_in)
+            procs += [*stage, bridge]
+            x_port, a_port = bridge.x_out, getattr(bridge, "a_out", None)
             bridges[k - 1] = bridge
         self._bridges = bridges
+        self.processes = procs
         self.shm_prefix = lava_host.next_runtime_prefix()
         before = set(mp.active_children())
         try:
@@ -292,6 +349,36 @@ class LavaCascade:
             if isinstance(e, ToffeError) or not isinstance(e, Exception):
                 raise
             raise LavaRuntimeError(f"could not start the Lava network: {type(e).__name__}: {e}") from e
+
+    def _stage_processes(self, k: int, x_port, a_port, bridge) -> list[Any]:
+        """Build stage k between its input and its bridge; returns its processes.
+
+        Stock: Conv (weights lava_conv_weight, zero padding K // 2) into LIFReset (shape
+        (W, H, 1)), fed dense spikes on ``a_port``. Otherwise our fused OFSNeuron, fed the packed
+        ``x_port``."""
+        p = self.params[k - 1]
+        if not self.stock:
+            from lava_procs.ofs_neuron.process import OFSNeuron
+
+            neuron = OFSNeuron(shape=(self.height, self.width), weight=p.weight, vth=p.vth_mant, dv=p.dv,
+                               du=p.du, weight_scale=p.weight_scale, n_bins=self.n_bins, name=f"ofs{k}")
+            x_port.connect(neuron.s_in)
+            neuron.s_out.connect(bridge.s_in)
+            return [neuron]
+        from lava.proc.conv.process import Conv
+        from lava.proc.lif.process import LIFReset
+
+        weight = lava_conv_weight(p.weight)
+        if self.tag != "fixed_pt":
+            weight = weight / p.weight_scale
+        conv = Conv(weight=weight, input_shape=(self.width, self.height, self.channels),
+                    padding=p.kernel_size // 2, name=f"conv{k}")
+        lif = LIFReset(shape=(self.width, self.height, 1), name=f"lif{k}",
+                       **stock_neuron_kwargs(p, self.n_bins, self.tag))
+        a_port.connect(conv.s_in)
+        conv.a_out.connect(lif.a_in)
+        lif.s_out.connect(bridge.s_in)
+        return [conv, lif]
 
     def _manager_process(self):
         """The process of Lava's SharedMemoryManager (a multiprocessing Process), or None."""
@@ -369,13 +456,13 @@ class LavaCascade:
             p = self._period - 1 - base               # the period now running
             nxt = pull()                               # overlaps with the network's steps
             for k, rec in self._end_period():
-                w = p - (n - k)
+                w = p - (n - k) - self._lag
                 if 0 <= w < n_in - (nxt is not None):
                     pending.setdefault(w, [None] * n)[k - 1] = rec
-            more = nxt is not None or p < n_in - 1 + n - 1
+            more = nxt is not None or p < n_in - 1 + n - 1 + self._lag
             if more:
                 self._begin_period(nxt if nxt is not None else zeros)
-            done = p - (n - 1)
+            done = p - (n - 1) - self._lag
             if done in pending:
                 recs = pending.pop(done)
                 yield self._result(recs, unpack)
@@ -399,7 +486,7 @@ class LavaCascade:
         from lava.magma.core.run_conditions import RunSteps
 
         period = self._period
-        owed = [k for k in range(1, self.n_stages + 1) if period - (self.n_stages - k) >= 0]
+        owed = [k for k in range(1, self.n_stages + 1) if period - (self.n_stages - k) - self._lag >= 0]
         self._check_alive(f"window {period}")
         with _signals_deferred():
             self._runtime.start(RunSteps(num_steps=self.n_bins, blocking=False))

@@ -59,7 +59,8 @@ class SparseOFSWindow:
             raise ValueError(f"stage kernel {params.kernel_size} != window kernel {self.kernel_size}")
         weight = np.ascontiguousarray(params.weight[0].reshape(params.weight.shape[1], -1), dtype=np.int64)
         return compiled.ofs_stage(alive, self.b, self.c, self.pix_inverse, self.tap_target, weight,
-                                  self.n_bins, self.n_active, int(params.dv), int(params.vth_mant))
+                                  self.n_bins, self.n_active, int(params.dv), int(params.vth_mant),
+                                  params.reset == "zero")
 
 
 def run_ofs_sparse(spikes_in: np.ndarray, params: LoihiOFSParams) -> np.ndarray:

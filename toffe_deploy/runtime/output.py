@@ -27,6 +27,7 @@ import numpy as np
 from ..errors import InputError
 from ..fileio import atomic_path
 from .pipeline import WindowResult
+from .traffic import Traffic
 
 
 @contextlib.contextmanager
@@ -82,6 +83,7 @@ class RunSummary:
     skipped_windows: int = 0
     skipped_gaps: int = 0
     longest_gap_us: int = 0
+    traffic: Traffic | None = None          # host <-> chip bridge traffic (Lava targets)
 
     def skip(self, n_windows: int, dt_us: int) -> None:
         """Record a stretch of ``n_windows`` empty windows the run jumped over (see --skip-empty-after)."""
@@ -95,6 +97,10 @@ class RunSummary:
         for o in result.objects:
             self.objects_per_bin[o.speed_bin] = self.objects_per_bin.get(o.speed_bin, 0) + 1
         self.latencies_s.append(latency_s)
+        if result.cascade is not None:
+            if self.traffic is None:
+                self.traffic = Traffic()
+            self.traffic.add(result.cascade.inputs, result.cascade.spikes)
 
     @property
     def windows_per_s(self) -> float:
@@ -106,7 +112,8 @@ class RunSummary:
                 "wall_s": self.wall_s, "startup_s": self.startup_s, "windows_per_s": self.windows_per_s,
                 "latency_ms": percentiles_ms(self.latencies_s), "errors": self.errors, "camera": self.camera_json,
                 "skipped": {"windows": self.skipped_windows, "gaps": self.skipped_gaps,
-                            "longest_gap_s": self.longest_gap_us / 1e6}}
+                            "longest_gap_s": self.longest_gap_us / 1e6},
+                "bridge_traffic": self.traffic.to_json() if self.traffic is not None else None}
 
     def lines(self) -> list[str]:
         lat = percentiles_ms(self.latencies_s)
@@ -119,6 +126,8 @@ class RunSummary:
                f"{what} p50 {lat['p50']:.2f} ms, p90 {lat['p90']:.2f} ms, p99 {lat['p99']:.2f} ms"]
         if self.camera:
             out.append(self.camera)
+        if self.traffic is not None:
+            out.append(self.traffic.line())
         if self.skipped_windows:
             out.append(f"skipped {self.skipped_windows} empty windows in {self.skipped_gaps} gap(s) without events "
                        f"(longest {self.longest_gap_us / 1e6:.3f} s); no JSON line for them")

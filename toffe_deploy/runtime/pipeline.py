@@ -28,7 +28,7 @@ from __future__ import annotations
 import collections
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Iterable, Iterator, Union
+from typing import Any, Iterable, Iterator, Union
 
 import numpy as np
 
@@ -88,6 +88,7 @@ class WindowResult:
     t0_us: int
     t1_us: int
     objects: list[ObjectFlow] = field(default_factory=list)
+    cascade: Any = None      # Lava targets: the window's CascadeResult (bridge traffic, runtime/traffic.py)
 
     def to_json(self) -> dict:
         return {"t0_us": int(self.t0_us), "t1_us": int(self.t1_us), "objects": [o.to_json() for o in self.objects]}
@@ -235,4 +236,4 @@ class Pipeline:
             t0 = starts.popleft()
             vol = SpikeVolume.from_dense(res.inputs[n - 1])          # the window's ones
             frames = [np.asarray(f).reshape(-1)[vol.idx] for f in res.frames]
-            yield WindowResult(t0, t0 + dt, self.objects_of(vol, frames))
+            yield WindowResult(t0, t0 + dt, self.objects_of(vol, frames), cascade=res)

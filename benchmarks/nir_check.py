@@ -1,0 +1,127 @@
+"""Check a bundle's ofs.nir in NIR's own readers: snnTorch and Norse (not project dependencies).
+
+Each stage's branch (input -> conv -> LIF -> output) is imported on its own (a 4-branch graph
+imports very slowly in snnTorch) and run one window at a time from rest, one time bin per step;
+its spikes are compared with the bundle's fixed-point stage (toffe_deploy.fixed_point, what
+every runtime runs) and with toffe_deploy.deploy.nir_graph.simulate_nir_stage (NIR's semantics
+in numpy). Reset "zero" bundles should agree (F1 >= 0.999); "subtract" ones cannot (NIR's LIF
+resets to v_reset) and the F1 says by how much.
+
+    pip install --target /tmp/nirpkgs --no-deps snntorch==1.0.0 norse==1.1.0 nirtorch
+    PYTHONPATH=.:/tmp/nirpkgs python benchmarks/nir_check.py export/ --windows 4 [--data data/synth]
+
+Readers that are not importable are reported as such. Prints one line per stage and reader and
+writes ``--json`` when given.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from toffe_deploy.deploy.bundle import load_bundle  # noqa: E402
+from toffe_deploy.deploy.nir_graph import simulate_nir_stage  # noqa: E402
+from toffe_deploy.fixed_point import run_ofs_fixed  # noqa: E402
+
+
+def stage_graph(graph, k: int):
+    """Branch k of the bundle's graph as its own NIRGraph (input -> conv -> lif -> output)."""
+    import nir
+
+    nodes = {"input": graph.nodes["input"], "conv": graph.nodes[f"stage{k}_conv"],
+             "lif": graph.nodes[f"stage{k}_lif"], "output": graph.nodes[f"stage{k}_output"]}
+    return nir.NIRGraph(nodes=nodes, edges=[("input", "conv"), ("conv", "lif"), ("lif", "output")],
+                        metadata=graph.metadata)
+
+
+def readers(dt_s: float) -> dict:
+    """name -> (import a stage graph -> module, or the reason it is unavailable)."""
+    out = {}
+    try:
+        from snntorch.import_nir import import_from_nir
+
+        def snn(g):
+            with contextlib.redirect_stdout(io.StringIO()):      # it prints its threshold rescaling
+                return import_from_nir(g)
+        out["snntorch"] = snn
+    except ImportError as exc:
+        out["snntorch"] = f"not importable: {exc}"
+    try:
+        import norse.torch as nt
+
+        out["norse"] = lambda g: nt.from_nir(g, dt=dt_s)
+    except ImportError as exc:
+        out["norse"] = f"not importable: {exc}"
+    return out
+
+
+def run_module(module, window: np.ndarray) -> np.ndarray:
+    """Spikes (B, H, W) of an imported stage on one window (B, C, H, W), from rest."""
+    import torch
+
+    x = torch.from_numpy((np.asarray(window) > 0).astype(np.float32))
+    state, out = None, []
+    with torch.no_grad():
+        for t in range(x.shape[0]):
+            o, state = module(x[t:t + 1]) if state is None else module(x[t:t + 1], state)
+            out.append(o[0, 0].numpy() > 0)
+    return np.stack(out)
+
+
+def f1(a: list[np.ndarray], b: list[np.ndarray]) -> dict:
+    tp = sum(int((x & y).sum()) for x, y in zip(a, b))
+    na, nb = sum(int(x.sum()) for x in a), sum(int(y.sum()) for y in b)
+    return {"f1": 2 * tp / (na + nb) if na + nb else 1.0, "differing": sum(int((x != y).sum()) for x, y in zip(a, b)),
+            "spikes": na, "spikes_reference": nb}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("bundle", type=Path)
+    ap.add_argument("--windows", type=int, default=4, help="held-out windows (default 4)")
+    ap.add_argument("--data", type=Path, default=None, help="data set whose test split gives the windows")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    import nir
+
+    from toffe_deploy.deploy.windows import heldout_windows
+
+    bundle = load_bundle(args.bundle)
+    graph = nir.read(str(bundle.root / "ofs.nir"))
+    dt = float(graph.metadata["time_step_s"])
+    held = heldout_windows(bundle.config, data=args.data, n_windows=args.windows, progress=False)
+    wins = [np.asarray(w) > 0 for w in held.windows]
+    report = {"bundle": str(args.bundle), "reset": bundle.config.reset, "time_step_s": dt, "windows": len(wins),
+              "readers": {}}
+    for name, load in readers(dt).items():
+        if isinstance(load, str):
+            report["readers"][name] = load
+            print(f"{name}: {load}")
+            continue
+        stages = []
+        for k, p in enumerate(bundle.ofs, start=1):
+            g = stage_graph(graph, k)
+            module = load(g)
+            got = [run_module(module, w) for w in wins]
+            ref = [run_ofs_fixed(w, p) for w in wins]
+            sim = [simulate_nir_stage(graph, k, w) for w in wins]
+            row = {"stage": k, "vs_fixed_point": f1(got, ref), "vs_nir_semantics": f1(got, sim)}
+            stages.append(row)
+            print(f"{name} stage {k}: F1 {row['vs_fixed_point']['f1']:.4f} vs the bundle's fixed point "
+                  f"({row['vs_fixed_point']['differing']} differing of {row['vs_fixed_point']['spikes_reference']} "
+                  f"spikes), F1 {row['vs_nir_semantics']['f1']:.4f} vs NIR semantics in numpy")
+        report["readers"][name] = stages
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
