@@ -85,6 +85,11 @@ def register(sub) -> None:
                    help="OFPD model of the bundle: fp32 (default, the reference) or the fp16 / int8 variant "
                         "written by `toffe-deploy export --variants`")
     p.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON (atomically)")
+    p.add_argument("--dump-spikes", metavar="FILE.npz",
+                   help="also write every window's OFS stage inputs and output spikes (t0_us (n,), stage_input "
+                        "(n, N, B, 2, H, W), stage_output (n, N, B, H, W) bool; index k-1 = OFS_k) to a compressed "
+                        ".npz, to compare a deployment with another runtime; needs --max-windows (about 18 MB per "
+                        "640x480 window in memory)")
     add_progress_flag(p)
     p.set_defaults(func=run_command)
 
@@ -175,7 +180,7 @@ def check_run_outputs(args, bundle) -> None:
               ("the bundle manifest", bundle.root / "manifest.json")]
     inputs += [("bundle file", bundle.root / rel) for rel in bundle.manifest["files"]]
     inputs += [("bundle file", p) for p in bundle.ofpd_variants.values()]
-    check_outputs(files=[("--out", args.out), ("--summary-json", args.summary_json)],
+    check_outputs(files=[("--out", args.out), ("--summary-json", args.summary_json), ("--dump-spikes", args.dump_spikes)],
                   dirs=[("--render", args.render)], inputs=inputs)
 
 
@@ -204,13 +209,16 @@ def sensor_origin(args, src) -> str:
 
 def run_command(args) -> int:
     from ..deploy.bundle import load_bundle
-    from ..runtime.output import RunSummary, jsonl_sink, write_window
+    from ..runtime.output import (DUMP_MAX_BYTES, RunSummary, SpikeDump, dump_bytes_per_window, jsonl_sink,
+                                  write_window)
     from ..runtime.pipeline import Pipeline
     from ..runtime.run_camera import resolve_camera
     from ..runtime.spikes import SpikeVolume
 
     if args.max_windows is not None and args.max_windows < 1:
         raise ToffeError("--max-windows must be >= 1")
+    if args.dump_spikes and args.max_windows is None:
+        raise ToffeError("--dump-spikes needs --max-windows N (it holds every window's dense stage arrays)")
     from ..events.validate import MAX_TIME_US
 
     if args.start_us is not None and not 0 <= args.start_us <= MAX_TIME_US:
@@ -267,8 +275,16 @@ def run_command(args) -> int:
 
         summary = RunSummary(target=args.target, camera=camera.describe(cfg), camera_json=camera.to_json(cfg))
         t_setup = time.perf_counter()
+        dump = None
+        if args.dump_spikes:
+            need = n_total * dump_bytes_per_window(cfg.n_speed_bins, cfg.n_bins, *sensor)
+            if need > DUMP_MAX_BYTES:
+                raise ToffeError(f"--dump-spikes: {n_total} windows of {sensor[0]}x{sensor[1]} need "
+                                 f"{need / 2**30:.1f} GiB in memory (limit {DUMP_MAX_BYTES / 2**30:.0f}); "
+                                 "lower --max-windows")
+            dump = SpikeDump(args.dump_spikes)
         pipe = Pipeline(bundle, args.target, tag=args.tag, ofpd_variant=args.ofpd, sensor_size=sensor,
-                        speed_scale=camera.scale)
+                        speed_scale=camera.scale, keep_stages=dump is not None)
         ok = False
         stream_out = args.out is None
         try:
@@ -291,8 +307,12 @@ def run_command(args) -> int:
                                               truth.window(res.t0_us, cfg.dt_us), focal_px)
                         if renderer is not None:
                             renderer.add(vol, res.objects, res.t0_us)
+                        if dump is not None:
+                            dump.add(res)
                         bar.update(1)
                 summary.wall_s = time.perf_counter() - t_run
+                if dump is not None:
+                    dump.write()
             ok = True
         finally:
             if renderer is not None:

@@ -154,3 +154,46 @@ def truth_lines(e: dict) -> list[str]:
         out += [f"matched objects: pixE {e['pixE']:.3f} px, dirE {e['dirE']:.3f} deg, speedE {e['speedE']:.3f} m/s"
                 f"{px_ms} (bin-only {e['speedE_bin_only']:.3f} m/s); bins true->predicted: {cells}"]
     return out
+
+
+#: what --dump-spikes may hold in memory before it writes (dense bool arrays, one byte each)
+DUMP_MAX_BYTES = 4 << 30
+
+
+def dump_bytes_per_window(n_stages: int, n_bins: int, width: int, height: int) -> int:
+    """Bytes of one window's stage_input (N, B, 2, H, W) and stage_output (N, B, H, W) bool."""
+    return n_stages * n_bins * width * height * 3
+
+
+class SpikeDump:
+    """`run --dump-spikes FILE.npz`: every window's OFS stage inputs and outputs, written once at
+    the end (atomically, compressed) as
+
+        t0_us         (n,) int64           window starts
+        stage_input   (n, N, B, 2, H, W)   bool: the masked input OFS_k received (index k - 1)
+        stage_output  (n, N, B, H, W)      bool: its output spikes
+
+    the same arrays on every target (cpu, loihi-sim, loihi2): what a user compares with another
+    runtime (netx, NIR, hardware) when a deployment disagrees."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.t0: list[int] = []
+        self.inputs: list[np.ndarray] = []
+        self.outputs: list[np.ndarray] = []
+
+    def add(self, result: WindowResult) -> None:
+        stage_input, stage_output = result.stages
+        self.t0.append(int(result.t0_us))
+        self.inputs.append(stage_input)
+        self.outputs.append(stage_output)
+
+    def write(self) -> None:
+        try:
+            with atomic_path(self.path) as tmp:
+                with open(tmp, "wb") as f:
+                    np.savez_compressed(f, t0_us=np.asarray(self.t0, dtype=np.int64),
+                                        stage_input=np.asarray(self.inputs, dtype=bool),
+                                        stage_output=np.asarray(self.outputs, dtype=bool))
+        except OSError as exc:
+            raise InputError(self.path, f"cannot write: {exc.strerror or exc}") from None

@@ -89,6 +89,8 @@ class WindowResult:
     t1_us: int
     objects: list[ObjectFlow] = field(default_factory=list)
     cascade: Any = None      # Lava targets: the window's CascadeResult (bridge traffic, runtime/traffic.py)
+    stages: Any = None       # Pipeline(keep_stages=True): (stage_input (N, B, 2, H, W), stage_output (N, B, H, W)) bool
+
 
     def to_json(self) -> dict:
         return {"t0_us": int(self.t0_us), "t1_us": int(self.t1_us), "objects": [o.to_json() for o in self.objects]}
@@ -144,7 +146,10 @@ class Pipeline:
 
     def __init__(self, bundle, target: str = "cpu", tag: str = "fixed_pt", ofpd_threads: int | None = 1,
                  ofpd_variant: str = "fp32", sensor_size: tuple[int, int] | None = None,
-                 speed_scale: SpeedScale | None = None):
+                 speed_scale: SpeedScale | None = None, keep_stages: bool = False):
+        """keep_stages: each WindowResult also carries the masked input and the output spikes of
+        every OFS stage as dense arrays (``stages``; for `run --dump-spikes`: about 18 MB per
+        640x480 window, so for short runs only)."""
         if target not in TARGETS:
             raise ValueError(f"unknown target {target!r}; choose one of {', '.join(TARGETS)}")
         if tag not in TAGS:
@@ -162,6 +167,7 @@ class Pipeline:
         self.speed_scale = self.config.speed_scale if speed_scale is None else speed_scale
         self.cascade = _make_cascade(bundle, target, tag, self.sensor_size)
         self._scratch = new_scratch(self.sensor_size[0] * self.sensor_size[1])   # for ofpd_input's O(n) de-duplication
+        self.keep_stages = bool(keep_stages)
         self._entered = False
 
     def __enter__(self) -> "Pipeline":
@@ -219,7 +225,8 @@ class Pipeline:
                 vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(np.asarray(x) > 0)
                 vol = vol.front_end(norm, min_cluster)
                 res = self.cascade.cascade_sparse(vol)
-                yield WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, res.frames))
+                yield WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, res.frames),
+                                   stages=_stage_arrays(res.to_dense()) if self.keep_stages else None)
             return
         # Lava backends take dense windows and may pipeline them: remember each window's t0.
         starts: collections.deque = collections.deque()
@@ -236,4 +243,12 @@ class Pipeline:
             t0 = starts.popleft()
             vol = SpikeVolume.from_dense(res.inputs[n - 1])          # the window's ones
             frames = [np.asarray(f).reshape(-1)[vol.idx] for f in res.frames]
-            yield WindowResult(t0, t0 + dt, self.objects_of(vol, frames), cascade=res)
+            yield WindowResult(t0, t0 + dt, self.objects_of(vol, frames), cascade=res,
+                               stages=_stage_arrays(res) if self.keep_stages else None)
+
+
+def _stage_arrays(res) -> tuple[np.ndarray, np.ndarray]:
+    """(stage_input (N, B, 2, H, W), stage_output (N, B, H, W)) bool of a dense CascadeResult,
+    index k - 1 = OFS_k: what `run --dump-spikes` writes."""
+    return (np.stack([np.asarray(x) > 0 for x in res.inputs]),
+            np.stack([np.asarray(s) > 0 for s in res.spikes]))
