@@ -84,7 +84,8 @@ def bench_cpu(bundle, windows, repeats: int, warmup: int) -> dict:
                 n_obj += len(res.objects)
                 n_ev.append(len(ev))
     return {"events_to_flow": pct(total), "pipeline": pct(pipe_only), "events_to_flow_best_of_repeats": pct(best), "objects_per_window": n_obj / len(total),
-            "events_per_window_median": float(np.median(n_ev)), "windows_per_s": len(total) / sum(total)}
+            "events_per_window_median": float(np.median(n_ev)), "windows_per_s": len(total) / sum(total),
+            "realtime_factor": len(total) * cfg.dt_us * 1e-6 / sum(total)}
 
 
 def bench_dense(bundle, windows) -> dict:
@@ -175,6 +176,7 @@ def bench_lava(bundle, windows, n: int) -> dict:
     total = stamps[-1] - started
     gaps = np.diff([started] + stamps)
     return {"startup_s": started - a, "windows": len(stamps), "windows_per_s": len(stamps) / total,
+            "realtime_factor": len(stamps) * bundle.config.dt_us * 1e-6 / total,
             "wall_per_window": pct(gaps[1:]) if len(gaps) > 2 else None,
             "note": "simulator wall time on this machine, not Loihi latency"}
 
@@ -246,7 +248,8 @@ def main(argv=None) -> int:
     print()
     if "cpu" in out:
         c = out["cpu"]
-        print(f"cpu: {c['windows_per_s']:.0f} windows/s on one core, {c['events_per_window_median']:.0f} events and "
+        print(f"cpu: {c['windows_per_s']:.0f} windows/s on one core (real-time factor {c['realtime_factor']:.2f}: "
+              f"sensor time / wall time), {c['events_per_window_median']:.0f} events and "
               f"{c['objects_per_window']:.2f} objects per window; speed-up over the dense reference "
               f"(p50) {out['cpu_speedup_p50']:.1f}x")
     if "cpu_memory" in out:
@@ -257,7 +260,8 @@ def main(argv=None) -> int:
               f"({m['long_recording']['events']} events, {m['wall_s_long']:.0f} s wall)")
     if "loihi-sim" in out:
         s = out["loihi-sim"]
-        print(f"loihi-sim: {s['windows_per_s']:.1f} windows/s over {s['windows']} windows, start-up {s['startup_s']:.1f} s "
+        print(f"loihi-sim: {s['windows_per_s']:.1f} windows/s (real-time factor {s['realtime_factor']:.3f}) over "
+              f"{s['windows']} windows, start-up {s['startup_s']:.1f} s "
               "(simulator wall time, not Loihi latency)")
     print(f"\nsaved {args.out}")
     return 0

@@ -371,3 +371,14 @@ def test_simulator_timing_is_never_called_latency():
     cpu = RunSummary("cpu", windows=2, wall_s=0.1, latencies_s=[0.002, 0.003]).lines()[1]
     assert "simulator wall time per window (not Loihi 2 latency)" in sim and "latency per window" not in sim
     assert "latency per window p50 2.50 ms" in cpu
+
+
+def test_summary_reports_the_real_time_factor():
+    from toffe_deploy.runtime.output import RunSummary
+
+    s = RunSummary("cpu", windows=2000, wall_s=0.5, dt_us=500, latencies_s=[0.0002] * 2000)
+    assert s.realtime_factor == pytest.approx(2.0) and s.to_json()["realtime_factor"] == pytest.approx(2.0)
+    assert "real-time factor 2.00" in s.lines()[1]
+    s.skip(2000, 500)                          # a gap jumped over is sensor time too
+    assert s.realtime_factor == pytest.approx(4.0)
+    assert "real-time factor" not in RunSummary("cpu", windows=2, wall_s=0.1).lines()[1]   # no dt: not stated

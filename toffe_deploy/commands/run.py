@@ -273,7 +273,8 @@ def run_command(args) -> int:
                 pending.append((t0, vol, time.perf_counter()))
                 yield t0, vol
 
-        summary = RunSummary(target=args.target, camera=camera.describe(cfg), camera_json=camera.to_json(cfg))
+        summary = RunSummary(target=args.target, camera=camera.describe(cfg), camera_json=camera.to_json(cfg),
+                             dt_us=cfg.dt_us)
         t_setup = time.perf_counter()
         dump = None
         if args.dump_spikes:

@@ -80,6 +80,7 @@ class RunSummary:
     startup_s: float = 0.0
     camera: str | None = None
     camera_json: dict | None = None
+    dt_us: int = 0                  # window length: the sensor time each window covers (realtime_factor)
     skipped_windows: int = 0
     skipped_gaps: int = 0
     longest_gap_us: int = 0
@@ -106,10 +107,19 @@ class RunSummary:
     def windows_per_s(self) -> float:
         return self.windows / self.wall_s if self.wall_s > 0 else math.nan
 
+    @property
+    def realtime_factor(self) -> float:
+        """Sensor time processed / wall time (> 1: faster than the sensor makes the windows).
+        Windows skipped over gaps (--skip-empty-after) count as sensor time too."""
+        if not (self.wall_s > 0 and self.dt_us > 0):
+            return math.nan
+        return (self.windows + self.skipped_windows) * self.dt_us * 1e-6 / self.wall_s
+
     def to_json(self) -> dict:
         return {"target": self.target, "windows": self.windows, "objects": self.objects,
                 "objects_per_bin": {str(k): v for k, v in sorted(self.objects_per_bin.items())},
                 "wall_s": self.wall_s, "startup_s": self.startup_s, "windows_per_s": self.windows_per_s,
+                "realtime_factor": self.realtime_factor,
                 "latency_ms": percentiles_ms(self.latencies_s), "errors": self.errors, "camera": self.camera_json,
                 "skipped": {"windows": self.skipped_windows, "gaps": self.skipped_gaps,
                             "longest_gap_s": self.longest_gap_us / 1e6},
@@ -122,7 +132,9 @@ class RunSummary:
         what = ("simulator wall time per window (not Loihi 2 latency)" if self.target == "loihi-sim"
                 else "latency per window")
         out = [f"target {self.target}: {self.windows} windows, {self.objects} objects ({bins})",
-               f"{self.windows_per_s:.1f} windows/s over {self.wall_s:.2f} s (start-up {self.startup_s:.2f} s); "
+               f"{self.windows_per_s:.1f} windows/s over {self.wall_s:.2f} s (start-up {self.startup_s:.2f} s"
+               + (f"; real-time factor {self.realtime_factor:.2f}" if math.isfinite(self.realtime_factor) else "")
+               + "); "
                f"{what} p50 {lat['p50']:.2f} ms, p90 {lat['p90']:.2f} ms, p99 {lat['p99']:.2f} ms"]
         if self.camera:
             out.append(self.camera)
