@@ -37,8 +37,9 @@ def register(sub) -> None:
                    help="input front end of a new checkpoint: keep only the spikes of pixels in 8-connected "
                         "clusters of >= N event pixels of the window (a background-activity filter; 1 keeps "
                         "all; default 4)")
-    p.add_argument("--ofs-kernel", type=int, default=3, metavar="K",
-                   help="OFS conv kernel size of a new checkpoint (odd; default 3)")
+    p.add_argument("--ofs-kernel", type=int, default=5, metavar="K",
+                   help="OFS conv kernel size of a new checkpoint (odd; default 5, the shipped one's: slow edges move "
+                        "under a pixel per time bin; the paper's is 3)")
     p.add_argument("--reset", choices=("subtract", "zero"), default=None,
                    help="OFS neuron reset: 'subtract' (the paper's eq. 1) or 'zero' (Loihi 2's stock CUBA LIF, "
                         "what NeuroCores, netx and NIR run) (default: the checkpoint's, else subtract)")

@@ -345,7 +345,7 @@ class TrainOptions:
     ofpd_pool: int | None = None      # OFPD cell size P; None: the checkpoint's (or OFPD_DEFAULTS')
     ofpd_kernels: tuple[int, int] | None = None   # OFPD conv kernel sizes; None: likewise
     input_norm: str = "first"         # input front end of a new checkpoint (events/frontend.py)
-    ofs_kernel: int = 3               # OFS conv kernel of a new checkpoint
+    ofs_kernel: int = 5               # OFS conv kernel of a new checkpoint
     min_cluster: int = 1              # input front end's cluster filter of a new checkpoint
     reset: str | None = None          # OFS neuron reset (config.RESETS); None: the checkpoint's, else subtract
     init_from: Path | None = None     # checkpoint whose config and OFS stages a new run starts from (fine-tune)
