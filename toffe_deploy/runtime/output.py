@@ -133,7 +133,7 @@ class RunSummary:
                 else "latency per window")
         out = [f"target {self.target}: {self.windows} windows, {self.objects} objects ({bins})",
                f"{self.windows_per_s:.1f} windows/s over {self.wall_s:.2f} s (start-up {self.startup_s:.2f} s"
-               + (f"; real-time factor {self.realtime_factor:.2f}" if math.isfinite(self.realtime_factor) else "")
+               + (f"; real-time factor {self.realtime_factor:.3g}" if math.isfinite(self.realtime_factor) else "")
                + "); "
                f"{what} p50 {lat['p50']:.2f} ms, p90 {lat['p90']:.2f} ms, p99 {lat['p99']:.2f} ms"]
         if self.camera:
