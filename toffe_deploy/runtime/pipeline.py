@@ -91,7 +91,6 @@ class WindowResult:
     cascade: Any = None      # Lava targets: the window's CascadeResult (bridge traffic, runtime/traffic.py)
     stages: Any = None       # Pipeline(keep_stages=True): (stage_input (N, B, 2, H, W), stage_output (N, B, H, W)) bool
 
-
     def to_json(self) -> dict:
         return {"t0_us": int(self.t0_us), "t1_us": int(self.t1_us), "objects": [o.to_json() for o in self.objects]}
 
