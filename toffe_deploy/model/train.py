@@ -346,7 +346,7 @@ class TrainOptions:
     ofpd_kernels: tuple[int, int] | None = None   # OFPD conv kernel sizes; None: likewise
     input_norm: str = "first"         # input front end of a new checkpoint (events/frontend.py)
     ofs_kernel: int = 5               # OFS conv kernel of a new checkpoint
-    min_cluster: int = 1              # input front end's cluster filter of a new checkpoint
+    min_cluster: int = 4              # input front end's cluster filter of a new checkpoint (the CLI default)
     reset: str | None = None          # OFS neuron reset (config.RESETS); None: the checkpoint's, else subtract
     init_from: Path | None = None     # checkpoint whose config and OFS stages a new run starts from (fine-tune)
 
