@@ -370,8 +370,8 @@ def _save_state(out: Path, state: dict, ofpd_model=None, opt=None) -> None:
         tmp.write_text(json.dumps(state, indent=1))
 
 
-def make_config(files, data: Path, dt_us: int, seed: int, input_norm: str = "first", ofs_kernel: int = 3,
-                min_cluster: int = 1) -> ToffeConfig:
+def make_config(files, data: Path, dt_us: int, seed: int, input_norm: str, ofs_kernel: int,
+                min_cluster: int) -> ToffeConfig:
     """Config from the data set's sensor size and provenance."""
     from ..events.io import open_events
 

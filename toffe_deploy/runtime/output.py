@@ -201,11 +201,8 @@ class SpikeDump:
         self.outputs.append(stage_output)
 
     def write(self) -> None:
-        try:
-            with atomic_path(self.path) as tmp:
-                with open(tmp, "wb") as f:
-                    np.savez_compressed(f, t0_us=np.asarray(self.t0, dtype=np.int64),
-                                        stage_input=np.asarray(self.inputs, dtype=bool),
-                                        stage_output=np.asarray(self.outputs, dtype=bool))
-        except OSError as exc:
-            raise InputError(self.path, f"cannot write: {exc.strerror or exc}") from None
+        """One compressed .npz, atomically (atomic_path reports a refused write naming the file)."""
+        with atomic_path(self.path) as tmp, open(tmp, "wb") as f:
+            np.savez_compressed(f, t0_us=np.asarray(self.t0, dtype=np.int64),
+                                stage_input=np.asarray(self.inputs, dtype=bool),
+                                stage_output=np.asarray(self.outputs, dtype=bool))
