@@ -154,8 +154,9 @@ def register(sub) -> None:
     s.set_defaults(func=_synth)
 
     w = dsub.add_parser("show", help="render accumulated event frames with ground truth to PNG (as Fig. 5b)",
-                        description="Accumulate the events of a few windows into frames (ON red, OFF blue) "
-                        "and draw each object's ground truth: centre, motion direction, speed and bin.")
+                        description="Accumulate the events of a few windows into frames (ON bright, OFF dim) "
+                        "and draw each object's ground truth: outline, motion direction (hue = direction), "
+                        "speed and bin, in the style of `run --render`.")
     w.add_argument("file", type=Path, help="an events file with ground truth (written by `dataset synth`)")
     w.add_argument("--out", type=Path, default=None,
                    help="PNG to write (default: FILE with the extension .png)")
@@ -167,6 +168,8 @@ def register(sub) -> None:
     w.add_argument("--stride-us", type=_positive_int, default=None,
                    help="time between window starts (default: spread the frames over the file)")
     w.add_argument("--cols", type=_positive_int, default=2, help="panels per row (default: 2)")
+    w.add_argument("--theme", choices=("dark", "light"), default="dark",
+                   help="events on black (dark, default) or on white (light); the style of run --render")
     w.set_defaults(func=_show)
 
 
@@ -257,6 +260,6 @@ def _show(args) -> int:
     out = args.out or args.file.with_suffix(".png")
     check_outputs(files=[("--out", out)], inputs=[("the input file", args.file)])
     info = show_file(args.file, out, t0_us=args.t0_us, dt_us=args.dt_us, n_frames=args.frames,
-                     stride_us=args.stride_us, cols=args.cols)
+                     stride_us=args.stride_us, cols=args.cols, theme=args.theme)
     print(f"{out}: {info}", file=sys.stdout)
     return 0

@@ -72,6 +72,11 @@ def register(sub) -> None:
     p.add_argument("--video", action="store_true", help="with --render: one MP4 (DIR/object_flow.mp4) "
                                                         "instead of PNG frames")
     p.add_argument("--fps", type=float, default=10.0, help="frame rate of the --video file (default: 10)")
+    p.add_argument("--theme", choices=("dark", "light"), default="dark",
+                   help="with --render: events on black (dark, default) or on white (light)")
+    p.add_argument("--report", metavar="FILE.html",
+                   help="also write one self-contained HTML page (atomically): tracks over time, speed per "
+                        "track, a per-bin summary and the summary figures")
     p.add_argument("--max-windows", type=int, metavar="N", help="stop after N windows")
     p.add_argument("--start-us", type=int, metavar="T", help="first window starts at T >= 0 (default: recording start)")
     p.add_argument("--skip-empty-after", type=int, default=SKIP_EMPTY_AFTER, metavar="N",
@@ -180,7 +185,8 @@ def check_run_outputs(args, bundle) -> None:
               ("the bundle manifest", bundle.root / "manifest.json")]
     inputs += [("bundle file", bundle.root / rel) for rel in bundle.manifest["files"]]
     inputs += [("bundle file", p) for p in bundle.ofpd_variants.values()]
-    check_outputs(files=[("--out", args.out), ("--summary-json", args.summary_json), ("--dump-spikes", args.dump_spikes)],
+    check_outputs(files=[("--out", args.out), ("--summary-json", args.summary_json), ("--dump-spikes", args.dump_spikes),
+                         ("--report", args.report)],
                   dirs=[("--render", args.render)], inputs=inputs)
 
 
@@ -254,9 +260,14 @@ def run_command(args) -> int:
             focal_px = sequence_focal_px(src.attrs)
         renderer = None
         if args.render:
-            from ..runtime.render import FrameRenderer
+            from ..render.frames import FrameRenderer
 
-            renderer = FrameRenderer(args.render, video=args.video, fps=args.fps)
+            renderer = FrameRenderer(args.render, video=args.video, fps=args.fps, theme=args.theme, attrs=src.attrs)
+        report = None
+        if args.report:
+            from ..render.report import RunReport
+
+            report = RunReport(sensor, source=str(args.events or args.synthetic or SAMPLE))
 
         pending: collections.deque = collections.deque()   # (t0, volume, time the window was ready)
 
@@ -306,8 +317,12 @@ def run_command(args) -> int:
                                                           o.speed_bin_mps, o.speed_px_s / 1000.0)
                                                for o in res.objects],
                                               truth.window(res.t0_us, cfg.dt_us), focal_px)
-                        if renderer is not None:
-                            renderer.add(vol, res.objects, res.t0_us)
+                        if renderer is not None or report is not None:
+                            win = res.to_json()
+                            if renderer is not None:
+                                renderer.add(vol, win, truth.window(res.t0_us, cfg.dt_us) if truth else ())
+                            if report is not None:
+                                report.add(win)
                         if dump is not None:
                             dump.add(res)
                         bar.update(1)
@@ -330,4 +345,6 @@ def run_command(args) -> int:
 
         with atomic_path(args.summary_json) as tmp:
             tmp.write_text(json.dumps(summary.to_json(), indent=2) + "\n", encoding="utf-8")
+    if report is not None:
+        report.write(args.report, summary.to_json())
     return 0
