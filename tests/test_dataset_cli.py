@@ -57,16 +57,20 @@ def test_show_writes_png_with_truth(synth_dir, tmp_path, capsys):
     assert main(["dataset", "show", str(f), "--out", str(png), "--dt-us", "2000", "--frames", "3", "--cols", "3"]) == 0
     img = cv2.imread(str(png))
     assert img.shape == (480, 3 * 640, 3)
-    assert (img[..., 1] > 120).sum() < img[..., 1].size  # something drawn on white
-    assert (np.abs(img[..., 2].astype(int) - img[..., 0]) > 100).any()  # red or blue events
+    grey = (img[..., 0] == img[..., 1]) & (img[..., 1] == img[..., 2])
+    assert ((img[..., 0] == 225) & grey).any() and ((img[..., 0] == 115) & grey).any()  # ON and OFF events
+    assert (img.max(2).astype(int) - img.min(2) > 60).any()          # coloured truth outline and arrow
     assert "3 object truths drawn" in capsys.readouterr().out
+    light = tmp_path / "light.png"
+    assert main(["dataset", "show", str(f), "--out", str(light), "--frames", "1", "--theme", "light"]) == 0
+    assert (cv2.imread(str(light)) == 255).all(2).mean() > 0.5                  # mostly white background
 
 
 def test_show_file_without_ground_truth(tmp_path, random_events):
     f = tmp_path / "plain.h5"
     write_events_h5(f, random_events(500, (64, 48), 10_000), (64, 48))
     assert main(["dataset", "show", str(f), "--out", str(tmp_path / "p.png"), "--frames", "1"]) == 0
-    assert cv2.imread(str(tmp_path / "p.png")).shape == (48, 64, 3)
+    assert cv2.imread(str(tmp_path / "p.png")).shape == (48 * 8, 64 * 8, 3)   # small sensors upscaled (render.draw)
 
 
 @pytest.mark.parametrize("argv, needle", [

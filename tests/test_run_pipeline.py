@@ -180,26 +180,13 @@ def test_render_png_frames_and_video(env, capsys, tmp_path):
     pngs = sorted((tmp_path / "png").glob("frame_*.png"))
     assert len(pngs) == 4
     img = cv2.imread(str(pngs[0]))
-    assert img.shape == (48, 64, 3) and img.any()
+    assert img.shape == (48 * 8, 64 * 8, 3) and img.any()      # a 64x48 sensor is drawn 8x (render.draw)
     rc, _, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--max-windows", "4",
                          "--render", tmp_path / "vid", "--video", "--out", tmp_path / "b.jsonl")
     assert rc == 0, err
-    cap = cv2.VideoCapture(str(tmp_path / "vid" / "object_flow.mp4"))
-    n = 0
-    while cap.read()[0]:
-        n += 1
-    assert n == 4
+    from toffe_deploy.render.video import video_info
 
-
-def test_flow_colour_wheel_hue_is_direction():
-    import cv2
-
-    from toffe_deploy.runtime.render import flow_color
-
-    cols = flow_color(np.radians([0.0, 90.0, 180.0, 270.0]))
-    hues = cv2.cvtColor(cols.reshape(-1, 1, 3), cv2.COLOR_BGR2HSV)[:, 0, 0].astype(int) * 2
-    assert hues.tolist() == [0, 90, 180, 270]
-    assert tuple(cols[0]) == (0, 0, 255)      # moving right: red, as the optical-flow wheel
+    assert video_info(tmp_path / "vid" / "object_flow.mp4") == ("h264", "yuv420p", 4)
 
 
 def test_synthetic_recording_runs(env, capsys, tmp_path):

@@ -12,8 +12,8 @@ Marks: a detected object is a thick arrow from its centre along its direction (`
 speed bin, unit = min(W, H) / 24 sensor px, 20 px on 640x480), a dot at the centre, an optional
 trail (its last centres) and a label "#id b<bin> <speed> m/s" placed beside it (the free side
 among four, away from its arrow, other labels and objects). Ground truth is a dashed outline in its
-direction's colour, 4 px outside the object (not over its edge events), and a thin arrow. Frames of small sensors are upscaled by an
-integer factor (``frame_scale``) so labels stay legible.
+direction's colour, 4 px outside the object (not over its edge events), and a thin arrow.
+Frames of small sensors are upscaled by an integer factor (``frame_scale``) so labels stay legible.
 """
 from __future__ import annotations
 
@@ -238,7 +238,8 @@ def shape_outline(shape: str, cx: float, cy: float, r: float, margin: float = 0.
 def draw_truth(img: np.ndarray, truths: Iterable[TruthMark], scale: int, unit: float, theme: Theme,
                labels: bool, taken: list) -> None:
     """Ground truth: dashed outline in the direction's colour (on a dark rim on light backgrounds),
-    4 px outside the object's edge (a circle of ``unit`` px when the shape is unknown), thin arrow, and with ``labels`` "#id b<bin> <speed> m/s" beside it."""
+    4 px outside the object's edge (a circle of ``unit`` px when the shape is unknown), thin arrow,
+    and with ``labels`` "#id b<bin> <speed> m/s" beside it."""
     h, w = img.shape[:2]
     fs = font_scale(img)
     for t in truths:
@@ -279,8 +280,8 @@ def draw_marks(img: np.ndarray, marks: Sequence[Mark], scale: int, unit: float, 
         if pts and len(pts) > 1:
             for (xa, ya, _), (xb, yb, db) in zip(pts[:-1], pts[1:]):
                 pa, pb = to_px(xa, ya, scale), to_px(xb, yb, scale)
-                cv2.line(img, pa, pb, HALO, 3, cv2.LINE_AA)
-                cv2.line(img, pa, pb, bgr(db), 1, cv2.LINE_AA)
+                cv2.line(img, pa, pb, HALO, thick + 1, cv2.LINE_AA)
+                cv2.line(img, pa, pb, bgr(db), thick - 1, cv2.LINE_AA)
     heads = []
     for m in marks:
         c = to_px(m.x, m.y, scale)
