@@ -238,13 +238,17 @@ class RunReport:
         for i, k in enumerate(order):
             idx = _thin(series[k])
             u, v = ax2.px(c["x"][idx], c["y"][idx])
-            pts = " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(u, v))
             colour = series_colour(i)
-            body.append(f'<polyline points="{pts}" fill="none" stroke="{colour}" stroke-width="1.5"/>')
+            if tracked:
+                pts = " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(u, v))
+                body.append(f'<polyline points="{pts}" fill="none" stroke="{colour}" stroke-width="1.5"/>')
+            else:                               # a bin holds several objects: positions, not a path
+                body += [f'<circle cx="{a:.1f}" cy="{b:.1f}" r="1.5" fill="{colour}"/>' for a, b in zip(u, v)]
             body.append(f'<circle cx="{u[-1]:.1f}" cy="{v[-1]:.1f}" r="3" fill="{colour}"/>')
             body.append(f'<text x="{u[-1] + 4:.1f}" y="{v[-1] - 4:.1f}">{"#" if tracked else ""}{html.escape(str(k))}'
                         "</text>")
-        out += "<p>Paths on the sensor (the dot marks the last position).</p>"
+        out += ("<p>Paths on the sensor (the larger dot marks the last position).</p>" if tracked
+                else "<p>Positions on the sensor per speed bin.</p>")
         out += _svg(ax2.w, ax2.h, "".join(body), "paths on the sensor")
         return out + "</section>"
 
@@ -268,6 +272,8 @@ class RunReport:
             if u.size:
                 pts = " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(u, v))
                 body.append(f'<polyline points="{pts}" fill="none" stroke="{series_colour(i)}" stroke-width="1.5"/>')
+                body.append(f'<text x="{min(u[-1] + 3, ax.w - 40):.1f}" y="{v[-1] - 3:.1f}" style="fill:{series_colour(i)}">'
+                            f'{"#" if tracked else ""}{html.escape(str(k))}</text>')
         out += _svg(900, 300, "".join(body), "speed per track")
         rows = []
         for k in keys[:MAX_TABLE_ROWS]:
