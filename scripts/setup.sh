@@ -5,7 +5,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV=${VENV:-.venv}
-EXTRAS=${EXTRAS:-lava,test}
+EXTRAS=${EXTRAS:-lava,test,video}
 
 find_python310() {
     local cand
