@@ -10,7 +10,7 @@ than OFF on dark, darker on light), so colour only ever means direction.
 
 Marks: a detected object is a thick arrow from its centre along its direction (``unit`` px per
 speed bin, unit = min(W, H) / 24 sensor px, 20 px on 640x480), a dot at the centre, an optional
-trail (its last centres) and a label "#id b<bin> <speed> m/s" placed beside it (the free side
+trail (its last centres; no segment longer than TRAIL_JUMP units) and a label "#id b<bin> <speed> m/s" placed beside it (the free side
 among four, away from its arrow, other labels and objects). Ground truth is a dashed outline in its
 direction's colour, 4 px outside the object (not over its edge events), and a thin arrow.
 Frames of small sensors are upscaled by an integer factor (``frame_scale``) so labels stay legible.
@@ -29,6 +29,8 @@ PALETTE_SAT = 0.7
 #: frames are upscaled until their shorter side is at least this many pixels (integer factor)
 MIN_SIDE_PX = 360
 MAX_SCALE = 16
+#: trail segments longer than this many units (min(W, H) / 24 px) are not drawn (an id switch)
+TRAIL_JUMP = 6
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 HALO = (24, 24, 24)
 
@@ -53,17 +55,30 @@ def theme_of(name: str) -> Theme:
     return THEMES[name]
 
 
+def _wheel_table(saturation: float) -> np.ndarray:
+    """(180, 3) BGR of OpenCV's 180 hue steps (2 deg each) at ``saturation``, full value."""
+    hsv = np.stack([np.arange(180), np.full(180, round(255 * saturation)), np.full(180, 255)], axis=-1)
+    return cv2.cvtColor(hsv.astype(np.uint8).reshape(-1, 1, 3), cv2.COLOR_HSV2BGR).reshape(180, 3)
+
+
+_TABLE = _wheel_table(PALETTE_SAT)
+_TUPLES = [tuple(int(v) for v in c) for c in _TABLE]
+
+
+def _hue_step(direction_rad) -> np.ndarray:
+    deg = np.mod(np.degrees(np.asarray(direction_rad, dtype=np.float64)), 360.0)
+    return (np.round(deg / 2.0) % 180).astype(np.intp)
+
+
 def flow_color(direction_rad: np.ndarray | float, saturation: float = PALETTE_SAT) -> np.ndarray:
     """BGR uint8 colour(s) of direction(s) on the flow colour wheel: hue = direction (module doc)."""
-    deg = np.mod(np.degrees(np.asarray(direction_rad, dtype=np.float64)), 360.0)
-    hsv = np.stack([np.round(deg / 2.0) % 180, np.full_like(deg, round(255 * saturation)), np.full_like(deg, 255)],
-                   axis=-1)
-    return cv2.cvtColor(hsv.astype(np.uint8).reshape(-1, 1, 3), cv2.COLOR_HSV2BGR).reshape(hsv.shape)
+    table = _TABLE if saturation == PALETTE_SAT else _wheel_table(saturation)
+    return table[_hue_step(direction_rad)]
 
 
 def bgr(direction_rad: float) -> tuple[int, int, int]:
     """One direction's colour as the int tuple OpenCV draws with."""
-    return tuple(int(v) for v in flow_color(direction_rad))
+    return _TUPLES[int(_hue_step(direction_rad))]
 
 
 def hex_colour(c: Sequence[int]) -> str:
@@ -91,8 +106,7 @@ def event_image(pix: np.ndarray, on: np.ndarray, sensor_size: tuple[int, int], t
     """(H*scale, W*scale, 3) image of a window's events: ``pix`` flat pixel indices (y * W + x),
     ``on`` their polarity; ON wins where both fired."""
     w, h = sensor_size
-    img = np.empty((h * w, 3), dtype=np.uint8)
-    img[:] = theme.bg
+    img = np.zeros((h * w, 3), dtype=np.uint8) if not any(theme.bg) else np.tile(np.uint8(theme.bg), (h * w, 1))
     pix = np.asarray(pix, dtype=np.int64)
     on = np.asarray(on, dtype=bool)
     img[pix[~on]] = theme.off
@@ -279,6 +293,8 @@ def draw_marks(img: np.ndarray, marks: Sequence[Mark], scale: int, unit: float, 
         pts = (trails or {}).get(m.track_id) if m.track_id is not None else None
         if pts and len(pts) > 1:
             for (xa, ya, _), (xb, yb, db) in zip(pts[:-1], pts[1:]):
+                if math.hypot(xb - xa, yb - ya) > TRAIL_JUMP * unit:
+                    continue                      # a jump of a whole object or more: an id switch, not motion
                 pa, pb = to_px(xa, ya, scale), to_px(xb, yb, scale)
                 cv2.line(img, pa, pb, HALO, thick + 1, cv2.LINE_AA)
                 cv2.line(img, pa, pb, bgr(db), thick - 1, cv2.LINE_AA)
