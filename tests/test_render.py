@@ -216,3 +216,12 @@ def test_report_refused_onto_an_input(tmp_path, make_bundle, capsys):
     rc = main(["run", str(bundle.root), "--report", str(bundle.root / "manifest.json"), "--no-progress"])
     err = capsys.readouterr().err
     assert rc == 2 and "--report would overwrite" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("fps", ["0", "nan", "inf"])
+def test_bad_fps_is_one_line_error_and_leaves_nothing(tmp_path, make_bundle, capsys, fps):
+    bundle = make_bundle(tmp_path)
+    rc = main(["run", str(bundle.root), "--render", str(tmp_path / "v"), "--video", "--fps", fps, "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--fps must be in" in err and err.count("\n") == 1
+    assert not (tmp_path / "v").exists()

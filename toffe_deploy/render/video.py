@@ -13,6 +13,7 @@ removes the stage, and a directory the sink created stays only when something wa
 """
 from __future__ import annotations
 
+import contextlib
 import fractions
 import os
 import shutil
@@ -28,6 +29,7 @@ VIDEO_NAME = "object_flow.mp4"
 #: x264 quality (constant rate factor; 23 is x264's default, lower = better) and speed preset
 CRF = 23
 PRESET = "veryfast"
+MAX_FPS = 1000
 
 
 def even(frame: np.ndarray) -> np.ndarray:
@@ -101,8 +103,8 @@ class FrameSink:
     def __init__(self, out_dir: str | os.PathLike, video: bool = False, fps: float = 10.0):
         self.out_dir = Path(out_dir)
         self._created = not self.out_dir.exists()
-        if video and not fps > 0:
-            raise ToffeError(f"--fps must be > 0, got {fps:g}")
+        if video and not 0 < fps <= MAX_FPS:
+            raise ToffeError(f"--fps must be in (0, {MAX_FPS}], got {fps:g}")
         try:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             self._stage = Path(tempfile.mkdtemp(prefix=".frames-", suffix=".tmp", dir=self.out_dir))
@@ -134,8 +136,6 @@ class FrameSink:
 
     def _video_errors(self):
         """FFmpeg's own I/O failing (a full disk) as one InputError naming the video."""
-        import contextlib
-
         av = self._writer._av
 
         @contextlib.contextmanager
@@ -152,10 +152,13 @@ class FrameSink:
         """Move the frames (or the checked video) into ``out_dir`` when ``ok``; always drop the stage."""
         try:
             if self._writer is not None:
-                with self._video_errors():
-                    self._writer.close()
                 if ok:
+                    with self._video_errors():
+                        self._writer.close()
                     self._check_video(self._stage / VIDEO_NAME)
+                else:                   # the run failed: its error (or signal) is the one to report
+                    with contextlib.suppress(Exception):
+                        self._writer.close()
             if ok:
                 with write_errors(self.out_dir):
                     for f in sorted(self._stage.iterdir()):
