@@ -118,7 +118,7 @@ def test_truth_outlines_follow_shape_and_size_from_the_file_attrs():
     colour = tuple(int(v) for v in draw.flow_color(0.0))
     right_side = {tuple(int(v) for v in img[80 + dy, x]) for dy in range(-20, 21) for x in (123, 124, 125)}
     assert colour in right_side                             # the dashed outline, in the direction's colour
-    assert not img[62:70, 105:118].any()                    # inside the outline (off its arrow): object pixels stay free
+    assert not img[62:70, 105:118].any()                    # inside the outline, off its arrow: nothing drawn
 
 
 @pytest.mark.parametrize("size", [(64, 48), (65, 47)])

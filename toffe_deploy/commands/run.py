@@ -185,8 +185,8 @@ def check_run_outputs(args, bundle) -> None:
               ("the bundle manifest", bundle.root / "manifest.json")]
     inputs += [("bundle file", bundle.root / rel) for rel in bundle.manifest["files"]]
     inputs += [("bundle file", p) for p in bundle.ofpd_variants.values()]
-    check_outputs(files=[("--out", args.out), ("--summary-json", args.summary_json), ("--dump-spikes", args.dump_spikes),
-                         ("--report", args.report)],
+    check_outputs(files=[("--out", args.out), ("--summary-json", args.summary_json),
+                         ("--dump-spikes", args.dump_spikes), ("--report", args.report)],
                   dirs=[("--render", args.render)], inputs=inputs)
 
 

@@ -5,15 +5,15 @@ direction of motion in degrees on the image plane, y down (0 = moving right, 90 
 image, 180 = left, 270 = up), at fixed saturation ``PALETTE_SAT`` and full value. At full
 saturation blue (hue 240) has a luma of 29/255 and vanishes on black; at 0.7 the darkest hue has
 97 and the brightest (yellow) 235, and every coloured stroke and label gets a dark halo, so the
-palette reads on black (``dark`` theme) and white (``light`` theme) alike. Events are grey levels (ON brighter
-than OFF on dark, darker on light), so colour only ever means direction.
+palette reads on black (``dark`` theme) and white (``light`` theme) alike. Events are grey levels
+(ON brighter than OFF on dark, darker on light), so colour only ever means direction.
 
 Marks: a detected object is a thick arrow from its centre along its direction (``unit`` px per
 speed bin, unit = min(W, H) / 24 sensor px, 20 px on 640x480), a dot at the centre, an optional
-trail (its last centres; no segment longer than TRAIL_JUMP units) and a label "#id b<bin> <speed> m/s" placed beside it (the free side
-among four, away from its arrow, other labels and objects). Ground truth is a dashed outline in its
-direction's colour, 4 px outside the object (not over its edge events), and a thin arrow.
-Frames of small sensors are upscaled by an integer factor (``frame_scale``) so labels stay legible.
+trail (its last centres; no segment longer than TRAIL_JUMP units) and a label "#id b<bin> <speed>
+m/s" placed beside it (the free side among four, away from its arrow, other labels and objects).
+Ground truth is a dashed outline in its direction's colour, 4 px outside the object (not over its
+edge events), and a thin arrow. Frames of small sensors are upscaled by an integer factor (``frame_scale``) so labels stay legible.
 """
 from __future__ import annotations
 
@@ -122,6 +122,11 @@ def to_px(x: float, y: float, scale: int) -> tuple[int, int]:
     return int(round((x + 0.5) * scale - 0.5)), int(round((y + 0.5) * scale - 0.5))
 
 
+def tip_of(c: tuple[int, int], length: float, direction_rad: float) -> tuple[int, int]:
+    """The end of an arrow of ``length`` px from ``c`` along ``direction_rad`` (y down)."""
+    return int(round(c[0] + length * math.cos(direction_rad))), int(round(c[1] + length * math.sin(direction_rad)))
+
+
 def text(img: np.ndarray, s: str, org: tuple[int, int], colour, halo, fs: float) -> None:
     """Text with a rim of ``halo`` around every glyph (readable on any background)."""
     cv2.putText(img, s, org, FONT, fs, halo, 3, cv2.LINE_AA)
@@ -176,7 +181,7 @@ def place_label(size: tuple[int, int], centre: tuple[int, int], gap: int, tip: t
     best, best_cost = None, math.inf
     for x0, y0 in cands:
         x0 = int(np.clip(x0, 0, max(0, frame[0] - w)))
-        y0 = int(np.clip(y0, h, max(h, frame[1] - 2)) - h)
+        y0 = int(np.clip(y0, 0, max(0, frame[1] - h - 2)))
         box = (x0, y0, x0 + w, y0 + h)
         cost = sum(_overlap(box, t) for t in taken) + (2 * _overlap(box, arrow_box) if arrow_box else 0)
         if cost < best_cost:
@@ -270,7 +275,7 @@ def draw_truth(img: np.ndarray, truths: Iterable[TruthMark], scale: int, unit: f
             cv2.polylines(img, [np.round(pts).astype(np.int32)], True, HALO, 3, cv2.LINE_AA)
         dashed(img, pts, colour, dash=5.0 * max(1, scale // 2), thickness=2)
         length = unit * scale * max(t.speed_bin, 1)
-        tip = (int(round(c[0] + length * math.cos(t.direction_rad))), int(round(c[1] + length * math.sin(t.direction_rad))))
+        tip = tip_of(c, length, t.direction_rad)
         arrow(img, c, tip, colour, 1)
         rr = int(r)
         taken.append((c[0] - rr, c[1] - rr, c[0] + rr, c[1] + rr))
@@ -302,7 +307,7 @@ def draw_marks(img: np.ndarray, marks: Sequence[Mark], scale: int, unit: float, 
     for m in marks:
         c = to_px(m.x, m.y, scale)
         length = unit * scale * max(m.speed_bin, 1)
-        tip = (int(round(c[0] + length * math.cos(m.direction_rad))), int(round(c[1] + length * math.sin(m.direction_rad))))
+        tip = tip_of(c, length, m.direction_rad)
         colour = bgr(m.direction_rad)
         arrow(img, c, tip, colour, thick)
         cv2.circle(img, c, thick + 1, HALO, -1, cv2.LINE_AA)

@@ -272,8 +272,8 @@ class RunReport:
             if u.size:
                 pts = " ".join(f"{a:.1f},{b:.1f}" for a, b in zip(u, v))
                 body.append(f'<polyline points="{pts}" fill="none" stroke="{series_colour(i)}" stroke-width="1.5"/>')
-                body.append(f'<text x="{min(u[-1] + 3, ax.w - 40):.1f}" y="{v[-1] - 3:.1f}" style="fill:{series_colour(i)}">'
-                            f'{"#" if tracked else ""}{html.escape(str(k))}</text>')
+                body.append(f'<text x="{min(u[-1] + 3, ax.w - 40):.1f}" y="{v[-1] - 3:.1f}" '
+                            f'style="fill:{series_colour(i)}">{"#" if tracked else ""}{html.escape(str(k))}</text>')
         out += _svg(900, 300, "".join(body), "speed per track")
         rows = []
         for k in keys[:MAX_TABLE_ROWS]:
