@@ -13,7 +13,8 @@ speed bin, unit = min(W, H) / 24 sensor px, 20 px on 640x480), a dot at the cent
 trail (its last centres; no segment longer than TRAIL_JUMP units) and a label "#id b<bin> <speed>
 m/s" placed beside it (the free side among four, away from its arrow, other labels and objects).
 Ground truth is a dashed outline in its direction's colour, 4 px outside the object (not over its
-edge events), and a thin arrow. Frames of small sensors are upscaled by an integer factor (``frame_scale``) so labels stay legible.
+edge events), and a thin arrow. Frames of small sensors are upscaled by an integer factor
+(``frame_scale``) so labels stay legible.
 """
 from __future__ import annotations
 
