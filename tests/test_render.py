@@ -110,13 +110,13 @@ def test_truth_outlines_follow_shape_and_size_from_the_file_attrs():
               ObjectTruth(5, 50.0, 50.0, 0.0, 5.0, 1)]                    # unknown object: nominal circle
     marks = TruthShapes(attrs).marks(truths)
     assert [(m.shape, m.radius_px) for m in marks] == [("square", 20.0), ("circle", 12.5), (None, None)]
-    pts = draw.shape_outline("square", 100.0, 80.0, 20.0, margin=4.0)
+    pts = draw.shape_outline("square", 100.0, 80.0, 20.0, margin=3.5)
     cheb = np.abs(pts - [100.0, 80.0]).max(1)
-    assert np.all(np.abs(cheb - 24.0) <= 1.5)               # the square grown by the margin
+    assert np.all(np.abs(cheb - 23.5) <= 1.5)               # the square grown by the margin
     img = np.zeros((200, 300, 3), np.uint8)
     draw.draw_truth(img, marks, 1, 10.0, draw.THEMES["dark"], labels=True, taken=[])
     colour = tuple(int(v) for v in draw.flow_color(0.0))
-    right_side = {tuple(int(v) for v in img[80 + dy, x]) for dy in range(-20, 21) for x in (123, 124, 125)}
+    right_side = {tuple(int(v) for v in img[80 + dy, x]) for dy in range(-20, 21) for x in (122, 123, 124, 125)}
     assert colour in right_side                             # the dashed outline, in the direction's colour
     assert not img[62:70, 105:118].any()                    # inside the outline, off its arrow: nothing drawn
 

@@ -12,8 +12,8 @@ Marks: a detected object is a thick arrow from its centre along its direction (`
 speed bin, unit = min(W, H) / 24 sensor px, 20 px on 640x480), a dot at the centre, an optional
 trail (its last centres; no segment longer than TRAIL_JUMP units) and a label "#id b<bin> <speed>
 m/s" placed beside it (the free side among four, away from its arrow, other labels and objects).
-Ground truth is a dashed outline in its direction's colour, 4 px outside the object (not over its
-edge events), and a thin arrow. Frames of small sensors are upscaled by an integer factor
+Ground truth is a dashed outline in its direction's colour, 2 px + 1.5 sensor px outside the
+object (not over its edge events), and a thin arrow. Frames of small sensors are upscaled by an integer factor
 (``frame_scale``) so labels stay legible.
 """
 from __future__ import annotations
@@ -258,13 +258,13 @@ def shape_outline(shape: str, cx: float, cy: float, r: float, margin: float = 0.
 def draw_truth(img: np.ndarray, truths: Iterable[TruthMark], scale: int, unit: float, theme: Theme,
                labels: bool, taken: list) -> None:
     """Ground truth: dashed outline in the direction's colour (on a dark rim on light backgrounds),
-    4 px outside the object's edge (a circle of ``unit`` px when the shape is unknown), thin arrow,
+    2 px + 1.5 sensor px outside the object's edge (a circle of ``unit`` px when the shape is unknown), thin arrow,
     and with ``labels`` "#id b<bin> <speed> m/s" beside it."""
     h, w = img.shape[:2]
     fs = font_scale(img)
     for t in truths:
         c = to_px(t.x, t.y, scale)
-        margin = 4.0 * scale
+        margin = 2.0 + 1.5 * scale               # screen px: clear of the edge's own event pixels
         r = (t.radius_px if t.radius_px else unit) * scale
         pts = shape_outline(t.shape, c[0], c[1], r, margin) if t.shape and t.radius_px else None
         r += margin

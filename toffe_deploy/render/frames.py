@@ -44,7 +44,8 @@ class FrameRenderer:
         t0 = window.get("t0_us")
         header = None
         if t0 is not None:
-            header = f"t = {t0 / 1000:.1f} ms, {len(marks)} objects" + (", dashed: ground truth" if truth_marks else "")
+            header = (f"t = {t0 / 1000:.1f} ms, {len(marks)} object{'' if len(marks) == 1 else 's'}"
+                      + (", dashed: ground truth" if truth_marks else ""))
         return draw.compose(img, marks, truth_marks, scale=scale, unit=draw.unit_px((w, h)), theme=self.theme,
                             header=header, trails=self.trails.update(marks))
 
