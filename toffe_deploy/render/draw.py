@@ -32,6 +32,8 @@ MIN_SIDE_PX = 360
 MAX_SCALE = 16
 #: trail segments longer than this many units (min(W, H) / 24 px) are not drawn (an id switch)
 TRAIL_JUMP = 6
+#: clearance (px) a label keeps from other labels, objects and its arrow
+LABEL_PAD = 3
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 HALO = (24, 24, 24)
 
@@ -181,9 +183,9 @@ def place_label(size: tuple[int, int], centre: tuple[int, int], gap: int, tip: t
         arrow_box = (min(cx, tip[0]) - 2, min(cy, tip[1]) - 2, max(cx, tip[0]) + 2, max(cy, tip[1]) + 2)
     best, best_cost = None, math.inf
     for x0, y0 in cands:
-        x0 = int(np.clip(x0, 0, max(0, frame[0] - w)))
-        y0 = int(np.clip(y0, 0, max(0, frame[1] - h - 2)))
-        box = (x0, y0, x0 + w, y0 + h)
+        x0 = int(np.clip(x0, 2, max(2, frame[0] - w - 2)))
+        y0 = int(np.clip(y0, 2, max(2, frame[1] - h - 2)))
+        box = (x0 - LABEL_PAD, y0 - LABEL_PAD, x0 + w + LABEL_PAD, y0 + h + LABEL_PAD)
         cost = sum(_overlap(box, t) for t in taken) + (2 * _overlap(box, arrow_box) if arrow_box else 0)
         if cost < best_cost:
             best, best_cost = (x0, y0), cost
