@@ -1,0 +1,168 @@
+"""ROS1 bags (.bag) and ROS2 bag directories (metadata.yaml + .db3 / .mcap) of event camera
+messages, through ``rosbags`` (Apache-2.0, pure Python; no ROS installation needed).
+
+Messages read (the first topic, by name, of one of these types; ``attrs`` names it):
+
+- ``dvs_msgs/EventArray`` (rpg_dvs_ros, ROS1 and ROS2): header, height, width, events[] of
+  (x u16, y u16, ts time, polarity bool); t = ts in us (nanoseconds floored).
+- ``event_camera_msgs/EventPacket`` (ros-event-camera's metavision_driver / libcaer_driver):
+  header, height, width, seq, time_base, encoding, is_bigendian, events (bytes). Encodings:
+  ``mono`` (64-bit words: dt in bits 0-31, x 32-47, y 48-62, polarity 63; t = (time_base + dt)
+  ns, floored to us) and ``evt3`` (a Prophesee EVT 3.0 stream continued from packet to packet,
+  decoded by fmt_prophesee; t = sensor time in us). Other encodings (``trigger``, ``libcaer``)
+  are refused.
+
+The sensor size is the first message's width x height. dvs_msgs events are Python objects after
+deserialization, so such bags read at about 1 M events/s; EventPacket bags decode in numpy.
+Both ROS1 and ROS2 bags carry their message definitions, which ``rosbags`` uses; the two types
+above are also registered, for ROS2 bags written without definitions.
+"""
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .convert import to_events
+from .core import EVENT_DTYPE
+from .sequential import SequentialSource
+from .validate import check_sensor_size
+
+DVS_ARRAY = "dvs_msgs/msg/EventArray"
+EVENT_PACKET = "event_camera_msgs/msg/EventPacket"
+#: Public message definitions (ROS2 syntax) of the message types read here.
+MSG_DEFS = {
+    "dvs_msgs/msg/Event": "uint16 x\nuint16 y\nbuiltin_interfaces/Time ts\nbool polarity\n",
+    DVS_ARRAY: "std_msgs/Header header\nuint32 height\nuint32 width\ndvs_msgs/Event[] events\n",
+    EVENT_PACKET: ("std_msgs/Header header\nuint32 height\nuint32 width\nuint64 seq\nuint64 time_base\n"
+                   "string encoding\nbool is_bigendian\nuint8[] events\n"),
+}
+ENCODINGS = ("mono", "evt3")
+
+
+def typestore(store: str = "ROS2_HUMBLE"):
+    """A rosbags typestore with the standard ROS types plus the event messages of MSG_DEFS."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    ts = get_typestore(getattr(Stores, store))
+    types = {}
+    for name, text in MSG_DEFS.items():
+        types.update(get_types_from_msg(text, name))
+    ts.register(types)
+    return ts
+
+
+@contextlib.contextmanager
+def _reader(path):
+    """An open rosbags AnyReader; a bag it cannot open is an InputError."""
+    try:
+        from rosbags.highlevel import AnyReader
+    except ImportError:
+        raise InputError(path, "reading ROS bags needs the rosbags package (pip install rosbags)") from None
+    reader = AnyReader([Path(path)], default_typestore=typestore())
+    try:
+        reader.open()
+    except Exception as exc:   # rosbags raises its own errors (and struct/sqlite ones) on bad bags
+        raise InputError(path, f"cannot read ROS bag (truncated or corrupt?): {_msg(exc)}") from None
+    try:
+        yield reader
+    finally:
+        reader.close()
+
+
+def _msg(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _dvs_columns(msg) -> tuple[np.ndarray, ...]:
+    evs = msg.events
+    n = len(evs)
+    x = np.fromiter((e.x for e in evs), np.int64, n)
+    y = np.fromiter((e.y for e in evs), np.int64, n)
+    t = np.fromiter((e.ts.sec * 1_000_000 + e.ts.nanosec // 1000 for e in evs), np.int64, n)
+    p = np.fromiter((e.polarity for e in evs), np.uint8, n)
+    return x, y, t, p
+
+
+def _mono_columns(msg) -> tuple[np.ndarray, ...]:
+    data = np.asarray(msg.events, np.uint8)
+    if data.shape[0] % 8:
+        raise ValueError(f"mono packet of {data.shape[0]} bytes is not a whole number of 8-byte events")
+    w = data.view(">u8" if msg.is_bigendian else "<u8").astype(np.uint64)
+    t_ns = np.uint64(msg.time_base) + (w & np.uint64(0xFFFFFFFF))
+    return ((w >> np.uint64(32)) & np.uint64(0xFFFF)).astype(np.int64), \
+        ((w >> np.uint64(48)) & np.uint64(0x7FFF)).astype(np.int64), \
+        (t_ns // np.uint64(1000)).astype(np.int64), (w >> np.uint64(63)).astype(np.uint8)
+
+
+class RosbagSource(SequentialSource):
+    """Events of one event topic of a ROS1 or ROS2 bag, decoded message by message."""
+
+    format_name = "rosbag"
+
+    def __init__(self, path, sensor_size=None):
+        self.path = path
+        with self._open() as reader:
+            conns = sorted((c for c in reader.connections if c.msgtype in (DVS_ARRAY, EVENT_PACKET)),
+                           key=lambda c: c.topic)
+            if not conns:
+                found = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
+                raise InputError(path, f"no event topic ({DVS_ARRAY} or {EVENT_PACKET}) in the bag; "
+                                       f"topics: {found}")
+            self._topic, self._msgtype = conns[0].topic, conns[0].msgtype
+            first = next(self._messages(reader), None)
+        own = (int(first.width), int(first.height)) if first is not None else (0, 0)
+        if sensor_size is None and 0 in own:
+            raise InputError(path, f"{self._topic}: messages give no sensor size (width x height "
+                                   f"{own[0]}x{own[1]}); pass --sensor-size W H")
+        self._encoding = getattr(first, "encoding", None)
+        super().__init__(path, check_sensor_size(path, sensor_size or own))
+
+    def _open(self):
+        return _reader(self.path)
+
+    def _messages(self, reader):
+        conns = [c for c in reader.connections if c.topic == self._topic and c.msgtype == self._msgtype]
+        try:
+            for conn, _, raw in reader.messages(connections=conns):
+                yield reader.deserialize(raw, conn.msgtype)
+        except InputError:
+            raise
+        except Exception as exc:
+            raise InputError(self.path, f"cannot read ROS bag message on {self._topic} (truncated or "
+                                        f"corrupt?): {_msg(exc)}") from None
+
+    def _packets(self):
+        from .fmt_prophesee import Evt3Decoder, decode_evt3
+
+        evt3 = Evt3Decoder()
+        offset = 0
+        with self._open() as reader:
+            for msg in self._messages(reader):
+                if self._msgtype == DVS_ARRAY:
+                    cols = _dvs_columns(msg)
+                elif msg.encoding == "mono":
+                    try:
+                        cols = _mono_columns(msg)
+                    except ValueError as exc:
+                        raise InputError(self.path, f"{self._topic}: {exc}") from None
+                elif msg.encoding == "evt3":
+                    ev = decode_evt3(self.path, evt3, np.asarray(msg.events, np.uint8).tobytes(), offset)
+                    offset += int(ev.shape[0])
+                    yield ev
+                    continue
+                else:
+                    raise InputError(self.path, f"{self._topic}: event encoding {msg.encoding!r} is not "
+                                                f"supported ({', '.join(ENCODINGS)} are)")
+                ev = to_events(self.path, *cols, offset) if cols[0].shape[0] else np.empty(0, EVENT_DTYPE)
+                offset += int(ev.shape[0])
+                yield ev
+
+    @property
+    def attrs(self):
+        out = {"topic": self._topic, "msgtype": self._msgtype}
+        if self._encoding is not None:
+            out["encoding"] = self._encoding
+        return out

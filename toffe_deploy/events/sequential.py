@@ -1,0 +1,89 @@
+"""SequentialSource: the EventSource of formats without a seek index (AEDAT4, Prophesee RAW and
+DAT, ROS bags), which can only be decoded from the start.
+
+Windows stream packet by packet (memory: one decoded packet plus one window); metadata (event
+count, time span) costs one decoding pass, done lazily and cached; random access by index or
+time decodes from the start. A format says only how to decode its packets, in file order.
+"""
+from __future__ import annotations
+
+import abc
+from typing import Iterator
+
+import numpy as np
+
+from .core import EVENT_DTYPE
+from .source import EventSource
+from .validate import check_chunk
+
+
+class SequentialSource(EventSource):
+    """An EventSource over ``_packets()``: converted, unvalidated EVENT_DTYPE arrays in file order."""
+
+    _meta = None
+
+    @abc.abstractmethod
+    def _packets(self) -> Iterator[np.ndarray]:
+        """Decoded events of each packet, in file order (unvalidated)."""
+
+    def _scan(self):
+        if self._meta is None:
+            n, first, last = 0, None, None
+            for ev in self._packets():
+                if ev.shape[0]:
+                    first = int(ev["t"][0]) if first is None else first
+                    last = int(ev["t"][-1])
+                    n += int(ev.shape[0])
+            self._meta = (n, first if first is not None else 0, last + 1 if last is not None else 0)
+        return self._meta
+
+    @property
+    def num_events(self):
+        return self._scan()[0]
+
+    @property
+    def t_start_us(self):
+        return self._scan()[1]
+
+    @property
+    def t_end_us(self):
+        return self._scan()[2]
+
+    def iter_chunks(self, t_start=None, t_end=None):
+        t_start = self.t_start_us if t_start is None else int(t_start)
+        t_end = self.t_end_us if t_end is None else int(t_end)
+        offset, prev_t = 0, None
+        for ev in self._packets():
+            check_chunk(self.path, ev, self.sensor_size, offset=offset, prev_t=prev_t)
+            offset += int(ev.shape[0])
+            if ev.shape[0] == 0:
+                continue
+            prev_t = int(ev["t"][-1])
+            if prev_t < t_start:
+                continue
+            if int(ev["t"][0]) >= t_end:
+                return
+            i0, i1 = np.searchsorted(ev["t"], [t_start, t_end], side="left")
+            if i1 > i0:
+                yield ev[i0:i1]
+
+    def read(self, t0, t1):
+        parts = list(self.iter_chunks(t0, t1)) if t1 > t0 else []
+        return np.concatenate(parts) if parts else np.empty(0, EVENT_DTYPE)
+
+    def _read_index(self, i0, i1):
+        # No seek index: decode the packets and slice (the base class validates).
+        return self.read_unordered()[max(0, i0):max(0, i1)]
+
+    def _t_at(self, i):
+        return int(self.read_unordered()["t"][i])
+
+    def read_unordered(self):
+        parts = list(self._packets())
+        ev = np.concatenate(parts) if parts else np.empty(0, EVENT_DTYPE)
+        check_chunk(self.path, ev, self.sensor_size, check_order=False)
+        return ev
+
+    def _index_of_time(self, t):
+        # No seek index: a full decode, then a search (read() and iter_chunks() stream instead).
+        return int(np.searchsorted(self.read_unordered()["t"], t, side="left"))
