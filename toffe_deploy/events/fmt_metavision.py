@@ -56,7 +56,7 @@ class MetavisionH5Source(EventSource):
 
     @property
     def attrs(self):
-        return dict(self._meta)
+        return {"metadata": dict(self._meta)}     # nested: 'format', 'version' name our own file attrs
 
     def close(self):
         try:
