@@ -88,11 +88,15 @@ def raw_encoding(fields: dict[str, str]) -> str | None:
     return {"EVT2": "evt2", "EVT21": "evt2.1", "EVT3": "evt3"}.get(fmt, fmt.lower() or None)
 
 
-def _ffill(mask: np.ndarray, values: np.ndarray, init: int) -> np.ndarray:
-    """At each position, values[j] of the last j <= i where mask[j], else ``init``."""
-    j = np.where(mask, np.arange(mask.shape[0]), -1)
-    np.maximum.accumulate(j, out=j)
-    return np.where(j >= 0, values[np.maximum(j, 0)], init)
+def _last(pos: np.ndarray, values: np.ndarray, init: int, q: np.ndarray) -> np.ndarray:
+    """At each query word index q: values[j] of the last setter pos[j] <= q, else ``init``.
+
+    Decoder state (y, time, x base) looked up only where events are, by binary search over
+    the words that set it: no array the length of the chunk per state variable."""
+    k = np.searchsorted(pos, q, side="right") - 1
+    if values.shape[0] == 0:
+        return np.full(q.shape[0], init, np.int64)
+    return np.where(k >= 0, values[np.maximum(k, 0)], init)
 
 
 class _Unwrap:
@@ -156,16 +160,15 @@ class Evt2Decoder(_WordDecoder):
         self._unwrap = _Unwrap(28)
 
     def _decode(self, w, typ):
-        w = w.astype(np.int64)
-        is_th = typ == 8
-        th_all = np.zeros(w.shape[0], np.int64)
-        th_all[is_th] = self._unwrap(w[is_th] & 0x0FFFFFFF)
-        th = _ffill(is_th, th_all, self._th)
-        if w.shape[0]:
-            self._th = int(th[-1])
-        cd = (typ <= 1) & (th >= 0)
-        wc = w[cd]
-        return (wc >> 11) & 0x7FF, wc & 0x7FF, (th[cd] << 6) | ((wc >> 22) & 0x3F), typ[cd]
+        pos_th = np.flatnonzero(typ == 8)
+        th_vals = self._unwrap(w[pos_th] & 0x0FFFFFFF)
+        cd = np.flatnonzero(typ <= 1)
+        th = _last(pos_th, th_vals, self._th, cd)
+        if th_vals.shape[0]:
+            self._th = int(th_vals[-1])
+        ok = th >= 0
+        wc = w[cd][ok].astype(np.int64)
+        return (wc >> 11) & 0x7FF, wc & 0x7FF, (th[ok] << 6) | ((wc >> 22) & 0x3F), typ[cd][ok].astype(np.int64)
 
 
 class Evt3Decoder(_WordDecoder):
@@ -180,44 +183,47 @@ class Evt3Decoder(_WordDecoder):
         self._unwrap = _Unwrap(12)
 
     def _decode(self, w, typ):
-        n = w.shape[0]
-        if n == 0:
-            return (np.empty(0, np.int64),) * 4
-        pay = (w & 0xFFF).astype(np.int64)
-        y = _ffill(typ == 0, pay & 0x7FF, self._y)
-        tl = _ffill(typ == 6, pay, self._tl)
-        is_th = typ == 8
-        th_all = np.zeros(n, np.int64)
-        th_all[is_th] = self._unwrap(pay[is_th])
-        th = _ffill(is_th, th_all, self._th)
-        t = np.where((th >= 0) & (tl >= 0), (th << 12) | tl, -1)
-        # VECT_BASE_X sets the base; each VECT_12 / VECT_8 after it moves it by 12 / 8.
-        is_b = typ == 3
-        inc = np.where(typ == 4, 12, 0) + np.where(typ == 5, 8, 0)
-        before = np.cumsum(inc) - inc
-        j = np.where(is_b, np.arange(n), -1)
-        np.maximum.accumulate(j, out=j)
-        jj = np.maximum(j, 0)
-        base = np.where(j >= 0, (pay[jj] & 0x7FF) + before - before[jj], self._base + before)
-        pol = _ffill(is_b, (pay >> 11) & 1, self._pol)
-        self._y, self._tl, self._th, self._pol = int(y[-1]), int(tl[-1]), int(th[-1]), int(pol[-1])
-        self._base = int(base[-1] + inc[-1]) if base[-1] >= 0 else _UNKNOWN
-        # single events (EVT_ADDR_X)
-        ia = np.flatnonzero(typ == 2)
-        xa, pa = pay[ia] & 0x7FF, (pay[ia] >> 11) & 1
-        # vectors: one event per set bit of the mask, at base + bit
+        pay = w & 0xFFF
+        pos = {k: np.flatnonzero(typ == k) for k in (0, 2, 3, 6, 8)}
+        ia = pos[2]
         iv = np.flatnonzero((typ == 4) | (typ == 5))
-        mask = np.where(typ[iv] == 4, pay[iv], pay[iv] & 0xFF)
-        bits = (mask[:, None] >> np.arange(12)) & 1
-        row, k = np.nonzero(bits)
+        # vectors: one event per set bit of the mask, at x base + bit; VECT_BASE_X sets the base
+        # (and polarity), each VECT_12 / VECT_8 after it moves it by 12 / 8
+        is12 = typ[iv] == 4
+        mask = np.where(is12, pay[iv], pay[iv] & 0xFF).astype(np.int64)
+        cs = np.concatenate([[0], np.cumsum(np.where(is12, 12, 8))])
+        pb, vb = pos[3], pay[pos[3]].astype(np.int64)
+        kb = np.searchsorted(pb, iv, side="right") - 1
+        since = np.searchsorted(iv, pb)                   # vectors before each VECT_BASE_X
+        base = np.where(kb >= 0, (vb[np.maximum(kb, 0)] & 0x7FF) - cs[since[np.maximum(kb, 0)]] if pb.size
+                        else 0, self._base) + cs[:-1]
+        pol_v = _last(pb, vb >> 11, self._pol, iv)
+        row, k = np.nonzero((mask[:, None] >> np.arange(12)) & 1)
         iv_ev = iv[row]
-        idx = np.concatenate([ia, iv_ev])
         order = np.argsort(np.concatenate([ia * 16, iv_ev * 16 + 1 + k]), kind="stable")
-        x = np.concatenate([xa, base[iv_ev] + k])[order]
-        p = np.concatenate([pa, pol[iv_ev]])[order]
-        idx = idx[order]
-        ok = (x >= 0) & (y[idx] >= 0) & (t[idx] >= 0) & (p >= 0)
-        return x[ok], y[idx][ok], t[idx][ok], p[ok]
+        idx = np.concatenate([ia, iv_ev])[order]
+        x = np.concatenate([pay[ia] & 0x7FF, base[row] + k])[order]
+        p = np.concatenate([(pay[ia] >> 11) & 1, pol_v[row]])[order]
+        # time and row of every event word
+        th_vals = self._unwrap(pay[pos[8]])
+        th = _last(pos[8], th_vals, self._th, idx)
+        tl = _last(pos[6], pay[pos[6]].astype(np.int64), self._tl, idx)
+        y = _last(pos[0], (pay[pos[0]] & 0x7FF).astype(np.int64), self._y, idx)
+        t = np.where((th >= 0) & (tl >= 0), (th << 12) | tl, -1)
+        # state for the next chunk
+        if pos[0].size:
+            self._y = int(pay[pos[0][-1]] & 0x7FF)
+        if pos[6].size:
+            self._tl = int(pay[pos[6][-1]])
+        if th_vals.size:
+            self._th = int(th_vals[-1])
+        if pb.size:
+            self._pol = int(vb[-1] >> 11)
+            self._base = int((vb[-1] & 0x7FF) + cs[-1] - cs[since[-1]])
+        elif self._base >= 0:
+            self._base += int(cs[-1])
+        ok = (x >= 0) & (y >= 0) & (t >= 0) & (p >= 0)
+        return x[ok], y[ok], t[ok], p[ok]
 
 
 class PropheseeRawSource(SequentialSource):

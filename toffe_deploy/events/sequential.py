@@ -50,6 +50,9 @@ class SequentialSource(EventSource):
         return self._scan()[2]
 
     def iter_chunks(self, t_start=None, t_end=None):
+        if t_start is None and t_end is None and self._meta is None:
+            yield from self._iter_all()       # the whole file: no scan pass first, the metadata after
+            return
         t_start = self.t_start_us if t_start is None else int(t_start)
         t_end = self.t_end_us if t_end is None else int(t_end)
         offset, prev_t = 0, None
@@ -66,6 +69,17 @@ class SequentialSource(EventSource):
             i0, i1 = np.searchsorted(ev["t"], [t_start, t_end], side="left")
             if i1 > i0:
                 yield ev[i0:i1]
+
+    def _iter_all(self):
+        offset, first, prev_t = 0, None, None
+        for ev in self._packets():
+            check_chunk(self.path, ev, self.sensor_size, offset=offset, prev_t=prev_t)
+            offset += int(ev.shape[0])
+            if ev.shape[0]:
+                first = int(ev["t"][0]) if first is None else first
+                prev_t = int(ev["t"][-1])
+                yield ev
+        self._meta = (offset, first if first is not None else 0, prev_t + 1 if prev_t is not None else 0)
 
     def read(self, t0, t1):
         parts = list(self.iter_chunks(t0, t1)) if t1 > t0 else []
