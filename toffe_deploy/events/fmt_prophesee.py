@@ -1,8 +1,8 @@
 """Prophesee RAW (EVT 2.0, EVT 3.0) and DAT files: what Metavision / OpenEB and EVK cameras record.
 
-Decoded here in numpy (vectorized, one chunk of words at a time, the decoder state carried from
-chunk to chunk), because the permissive Python packages only decode EVT3 and the one that also
-writes every format is GPL. Checked against files written by ``faery`` and decoded by ``evt3``
+Decoded here (a compiled word loop, evt_compiled, one chunk of words at a time, the decoder state
+carried from chunk to chunk; DAT in numpy), because the permissive Python packages only decode
+EVT3 and the one that also writes every format is GPL. Checked against files written by ``faery`` and decoded by ``evt3``
 (tests/test_events_formats.py).
 
 Both start with ASCII header lines ``% key value`` (ending at ``% end`` or the first line that
@@ -33,6 +33,7 @@ import re
 import numpy as np
 
 from ..errors import InputError
+from . import evt_compiled
 from .convert import to_events
 from .core import EVENT_DTYPE
 from .sequential import SequentialSource
@@ -42,7 +43,6 @@ from .validate import check_sensor_size
 CHUNK_BYTES = 1 << 22
 #: A header longer than this is not a Prophesee header (a binary file starting with '%').
 MAX_HEADER_BYTES = 1 << 20
-_UNKNOWN = -(1 << 40)        # decoder state not yet set by the stream (a negative result marks it)
 
 
 def read_header(path, fh) -> tuple[dict[str, str], int]:
@@ -88,17 +88,6 @@ def raw_encoding(fields: dict[str, str]) -> str | None:
     return {"EVT2": "evt2", "EVT21": "evt2.1", "EVT3": "evt3"}.get(fmt, fmt.lower() or None)
 
 
-def _last(pos: np.ndarray, values: np.ndarray, init: int, q: np.ndarray) -> np.ndarray:
-    """At each query word index q: values[j] of the last setter pos[j] <= q, else ``init``.
-
-    Decoder state (y, time, x base) looked up only where events are, by binary search over
-    the words that set it: no array the length of the chunk per state variable."""
-    k = np.searchsorted(pos, q, side="right") - 1
-    if values.shape[0] == 0:
-        return np.full(q.shape[0], init, np.int64)
-    return np.where(k >= 0, values[np.maximum(k, 0)], init)
-
-
 class _Unwrap:
     """Unwraps a counter of ``bits`` bits that counts up and wraps: each decrease adds a period."""
 
@@ -118,14 +107,14 @@ class _Unwrap:
 
 
 class _WordDecoder:
-    """Bytes -> (x, y, t, p) columns, keeping a partial word and the state between calls."""
+    """Bytes -> (x, y, t, p) columns through a compiled word loop (evt_compiled), keeping a
+    partial word and the decoder state between calls."""
 
     word_dtype = np.dtype("<u2")
-    #: word types the encoding defines (any other is corrupt data)
-    known_types: frozenset = frozenset()
 
     def __init__(self):
         self._rest = b""
+        self._state = evt_compiled.new_state()
         self.offset = 0          # bytes consumed so far (for error messages)
 
     def feed(self, data: bytes) -> tuple[np.ndarray, ...]:
@@ -134,15 +123,17 @@ class _WordDecoder:
         cut = len(data) - len(data) % size
         self._rest = data[cut:]
         words = np.frombuffer(data, self.word_dtype, cut // size)
-        typ = words >> (8 * size - 4)
-        bad = np.flatnonzero(~np.isin(typ, list(self.known_types)))
-        if bad.size:
-            i = int(bad[0])
-            raise ValueError(f"word type {int(typ[i]):#x} at byte {self.offset + i * size} is not "
+        cap = self._bound(words)
+        x, y, p = np.empty(cap, np.uint16), np.empty(cap, np.uint16), np.empty(cap, np.uint8)
+        t = np.empty(cap, np.int64)
+        n = self._kernel(words, self._state, x, y, t, p)
+        bad = int(self._state[evt_compiled.BAD])
+        if bad >= 0:
+            typ = int(words[bad]) >> (8 * size - 4)
+            raise ValueError(f"word type {typ:#x} at byte {self.offset + bad * size} is not "
                              f"{self.name} data (corrupt file?)")
-        out = self._decode(words, typ.astype(np.int64))
         self.offset += cut
-        return out
+        return x[:n], y[:n], t[:n], p[:n]
 
     def finish(self) -> None:
         if self._rest:
@@ -152,78 +143,18 @@ class _WordDecoder:
 class Evt2Decoder(_WordDecoder):
     name = "EVT 2.0"
     word_dtype = np.dtype("<u4")
-    known_types = frozenset({0, 1, 8, 10, 14, 15})
+    _kernel = staticmethod(evt_compiled.evt2_decode)
 
-    def __init__(self):
-        super().__init__()
-        self._th = _UNKNOWN
-        self._unwrap = _Unwrap(28)
-
-    def _decode(self, w, typ):
-        pos_th = np.flatnonzero(typ == 8)
-        th_vals = self._unwrap(w[pos_th] & 0x0FFFFFFF)
-        cd = np.flatnonzero(typ <= 1)
-        th = _last(pos_th, th_vals, self._th, cd)
-        if th_vals.shape[0]:
-            self._th = int(th_vals[-1])
-        ok = th >= 0
-        wc = w[cd][ok].astype(np.int64)
-        return (wc >> 11) & 0x7FF, wc & 0x7FF, (th[ok] << 6) | ((wc >> 22) & 0x3F), typ[cd][ok].astype(np.int64)
+    @staticmethod
+    def _bound(words):
+        return words.shape[0]
 
 
 class Evt3Decoder(_WordDecoder):
     name = "EVT 3.0"
     word_dtype = np.dtype("<u2")
-    known_types = frozenset({0, 2, 3, 4, 5, 6, 7, 8, 10, 14, 15})
-
-    def __init__(self):
-        super().__init__()
-        self._y = self._tl = self._th = self._pol = -1
-        self._base = _UNKNOWN
-        self._unwrap = _Unwrap(12)
-
-    def _decode(self, w, typ):
-        pay = w & 0xFFF
-        pos = {k: np.flatnonzero(typ == k) for k in (0, 2, 3, 6, 8)}
-        ia = pos[2]
-        iv = np.flatnonzero((typ == 4) | (typ == 5))
-        # vectors: one event per set bit of the mask, at x base + bit; VECT_BASE_X sets the base
-        # (and polarity), each VECT_12 / VECT_8 after it moves it by 12 / 8
-        is12 = typ[iv] == 4
-        mask = np.where(is12, pay[iv], pay[iv] & 0xFF).astype(np.int64)
-        cs = np.concatenate([[0], np.cumsum(np.where(is12, 12, 8))])
-        pb, vb = pos[3], pay[pos[3]].astype(np.int64)
-        kb = np.searchsorted(pb, iv, side="right") - 1
-        since = np.searchsorted(iv, pb)                   # vectors before each VECT_BASE_X
-        base = np.where(kb >= 0, (vb[np.maximum(kb, 0)] & 0x7FF) - cs[since[np.maximum(kb, 0)]] if pb.size
-                        else 0, self._base) + cs[:-1]
-        pol_v = _last(pb, vb >> 11, self._pol, iv)
-        row, k = np.nonzero((mask[:, None] >> np.arange(12)) & 1)
-        iv_ev = iv[row]
-        order = np.argsort(np.concatenate([ia * 16, iv_ev * 16 + 1 + k]), kind="stable")
-        idx = np.concatenate([ia, iv_ev])[order]
-        x = np.concatenate([pay[ia] & 0x7FF, base[row] + k])[order]
-        p = np.concatenate([(pay[ia] >> 11) & 1, pol_v[row]])[order]
-        # time and row of every event word
-        th_vals = self._unwrap(pay[pos[8]])
-        th = _last(pos[8], th_vals, self._th, idx)
-        tl = _last(pos[6], pay[pos[6]].astype(np.int64), self._tl, idx)
-        y = _last(pos[0], (pay[pos[0]] & 0x7FF).astype(np.int64), self._y, idx)
-        t = np.where((th >= 0) & (tl >= 0), (th << 12) | tl, -1)
-        # state for the next chunk
-        if pos[0].size:
-            self._y = int(pay[pos[0][-1]] & 0x7FF)
-        if pos[6].size:
-            self._tl = int(pay[pos[6][-1]])
-        if th_vals.size:
-            self._th = int(th_vals[-1])
-        if pb.size:
-            self._pol = int(vb[-1] >> 11)
-            self._base = int((vb[-1] & 0x7FF) + cs[-1] - cs[since[-1]])
-        elif self._base >= 0:
-            self._base += int(cs[-1])
-        ok = (x >= 0) & (y >= 0) & (t >= 0) & (p >= 0)
-        return x[ok], y[ok], t[ok], p[ok]
+    _kernel = staticmethod(evt_compiled.evt3_decode)
+    _bound = staticmethod(evt_compiled.evt3_bound)
 
 
 class PropheseeRawSource(SequentialSource):
