@@ -290,6 +290,16 @@ def test_dvs_msgs_bag(events, tmp_path, capsys, ros1):
     _convert_round_trip(tmp_path, path, ev)
 
 
+def test_dvs_msgs_deserialized_when_the_byte_layout_is_not_the_expected_one(events, tmp_path, monkeypatch):
+    pytest.importorskip("rosbags")
+    from toffe_deploy.events import fmt_rosbag
+
+    ev = events[:1000]
+    path = _write_bag(tmp_path / "dvs_bag", "dvs_msgs/msg/EventArray", _dvs_messages(ev), False)
+    monkeypatch.setattr(fmt_rosbag, "_dvs_raw", lambda raw, is2: None)   # the object-per-event path
+    np.testing.assert_array_equal(read_events(path).events, ev)
+
+
 @pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
 def test_event_packet_mono_bag(events, tmp_path, ros1):
     pytest.importorskip("rosbags")

@@ -193,7 +193,7 @@ class RosbagSource(SequentialSource):
             first = next(self._raw_messages(reader), None)
             own = _raw_size(first, reader.is2) if first is not None else (0, 0)
             if own is None or (self._msgtype == EVENT_PACKET and first is not None):
-                msg = reader.deserialize(first, self._msgtype)
+                msg = self._deserialize(reader, first)
                 own = (int(msg.width), int(msg.height))
                 self._encoding = msg.encoding if self._msgtype == EVENT_PACKET else None
         if sensor_size is None and 0 in own:
@@ -219,14 +219,14 @@ class RosbagSource(SequentialSource):
         parsed from the bytes where their layout allows it."""
         for raw in self._raw_messages(reader):
             cols = _dvs_raw(raw, reader.is2) if raw_dvs else None
-            if cols is not None:
-                yield cols
-                continue
-            try:
-                yield reader.deserialize(raw, self._msgtype)
-            except Exception as exc:
-                raise InputError(self.path, f"cannot deserialize a {self._msgtype} message on {self._topic} "
-                                            f"(corrupt?): {_msg(exc)}") from None
+            yield cols if cols is not None else self._deserialize(reader, raw)
+
+    def _deserialize(self, reader, raw: bytes):
+        try:
+            return reader.deserialize(raw, self._msgtype)
+        except Exception as exc:   # struct / index / value errors of a short or garbled message
+            raise InputError(self.path, f"cannot deserialize a {self._msgtype} message on {self._topic} "
+                                        f"(corrupt?): {_msg(exc)}") from None
 
     def _packets(self):
         from .fmt_prophesee import Evt3Decoder, decode_evt3
