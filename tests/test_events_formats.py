@@ -224,20 +224,20 @@ def test_metavision_ecf_without_the_plugin_names_the_filter(events, tmp_path, ca
 
 # ------------------------------------------------------------------ ROS bags
 
-def _ros_writer(path, ros1: bool):
+def _ros_writer(path, ros1: bool, mcap: bool = False):
     if ros1:
         from rosbags.rosbag1 import Writer
         return Writer(path)
-    from rosbags.rosbag2 import Writer
-    return Writer(path, version=9)
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    return Writer(path, version=9, storage_plugin=StoragePlugin.MCAP if mcap else StoragePlugin.SQLITE3)
 
 
-def _write_bag(path, msgtype, messages, ros1: bool, topic="/event_camera/events"):
+def _write_bag(path, msgtype, messages, ros1: bool, topic="/event_camera/events", mcap=False):
     """Write (stamp_ns, message) pairs with rosbags' own writer and serializer."""
     from toffe_deploy.events.fmt_rosbag import typestore
 
     ts = typestore("ROS1_NOETIC" if ros1 else "ROS2_HUMBLE")
-    with _ros_writer(path, ros1) as w:
+    with _ros_writer(path, ros1, mcap) as w:
         conn = w.add_connection(topic, msgtype, typestore=ts)
         for stamp, make in messages:
             msg = make(ts)
@@ -275,13 +275,18 @@ def _packet_messages(chunks, encoding, time_bases):
     return [(10 ** 9 + k, make(d, k, tb)) for k, (d, tb) in enumerate(zip(chunks, time_bases))]
 
 
-@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
-def test_dvs_msgs_bag(events, tmp_path, capsys, ros1):
+@pytest.mark.parametrize("ros1, mcap", [(True, False), (False, False), (False, True)],
+                         ids=["ros1", "ros2-sqlite3", "ros2-mcap"])
+def test_dvs_msgs_bag(events, tmp_path, capsys, ros1, mcap):
     pytest.importorskip("rosbags")
     ev = events[:2000]
     path = _write_bag(tmp_path / ("dvs.bag" if ros1 else "dvs_bag"), "dvs_msgs/msg/EventArray",
-                      _dvs_messages(ev), ros1)
+                      _dvs_messages(ev), ros1, mcap=mcap)
     assert detect_format(path) == "rosbag"
+    if not ros1:                                   # the bag's storage file names the bag too
+        storage = next(path.glob("*.mcap" if mcap else "*.db3"))
+        assert detect_format(storage) == "rosbag"
+        np.testing.assert_array_equal(read_events(storage).events, ev)
     with open_events(path) as src:
         assert src.sensor_size == SIZE and src.attrs["msgtype"] == "dvs_msgs/msg/EventArray"
         np.testing.assert_array_equal(src.read_all().events, ev)

@@ -1,5 +1,5 @@
-"""ROS1 bags (.bag) and ROS2 bag directories (metadata.yaml + .db3 / .mcap) of event camera
-messages, through ``rosbags`` (Apache-2.0, pure Python; no ROS installation needed).
+"""ROS1 bags (.bag) and ROS2 bag directories (metadata.yaml + .db3 / .mcap, or one of those files,
+which names its directory) of event camera messages, through ``rosbags`` (Apache-2.0, pure Python; no ROS installation needed).
 
 Messages read (the first topic, by name, of one of these types; ``attrs`` names it):
 
@@ -57,14 +57,22 @@ def typestore(store: str = "ROS2_HUMBLE"):
     return ts
 
 
+def bag_root(path) -> Path:
+    """The bag to open: a ROS2 bag's directory when ``path`` names one of its .db3 / .mcap files."""
+    path = Path(path)
+    if path.suffix.lower() in (".db3", ".mcap") and (path.parent / "metadata.yaml").is_file():
+        return path.parent
+    return path
+
+
 @contextlib.contextmanager
-def _reader(path):
-    """An open rosbags AnyReader; a bag it cannot open is an InputError."""
+def _reader(bag, path):
+    """An open rosbags AnyReader of ``bag``; one it cannot open is an InputError naming ``path``."""
     try:
         from rosbags.highlevel import AnyReader
     except ImportError:
         raise InputError(path, "reading ROS bags needs the rosbags package (pip install rosbags)") from None
-    reader = AnyReader([Path(path)], default_typestore=typestore())
+    reader = AnyReader([Path(bag)], default_typestore=typestore())
     try:
         reader.open()
     except Exception as exc:   # rosbags raises its own errors (and struct/sqlite ones) on bad bags
@@ -182,6 +190,7 @@ class RosbagSource(SequentialSource):
 
     def __init__(self, path, sensor_size=None):
         self.path = path
+        self._bag = bag_root(path)
         with self._open() as reader:
             conns = sorted((c for c in reader.connections if c.msgtype in (DVS_ARRAY, EVENT_PACKET)),
                            key=lambda c: c.topic)
@@ -202,7 +211,7 @@ class RosbagSource(SequentialSource):
         super().__init__(path, check_sensor_size(path, sensor_size or own))
 
     def _open(self):
-        return _reader(self.path)
+        return _reader(self._bag, self.path)
 
     def _raw_messages(self, reader):
         """The serialized messages of our topic, in bag order."""

@@ -90,8 +90,9 @@ def _h5_kind(path: Path, h5) -> str:
 def detect_format(path: str | os.PathLike) -> str:
     """The format name of an event file (one of FORMATS), from its content."""
     path = Path(path)
-    if path.is_dir() and (path / "metadata.yaml").is_file():
-        return "rosbag"           # a ROS2 bag is a directory
+    if (path.is_dir() and (path / "metadata.yaml").is_file()) or \
+            (path.suffix.lower() in (".db3", ".mcap") and (path.parent / "metadata.yaml").is_file()):
+        return "rosbag"           # a ROS2 bag is a directory (or named by one of its files)
     head = _sniff(path)
     if head.startswith(HDF5_MAGIC) or (path.suffix.lower() in (".h5", ".hdf5", ".hdf") and _is_h5(path)):
         h5 = _open_h5(path)
