@@ -367,3 +367,24 @@ def test_input_error_names_the_file(prophesee_files, tmp_path):
     with pytest.raises(InputError) as ei:
         read_events(path)
     assert ei.value.path == str(path)
+
+
+def test_metavision_layout_errors_are_one_line(events, tmp_path, capsys):
+    bad_p = _metavision_h5(tmp_path / "pol.hdf5", events[:500])
+    with h5py.File(bad_p, "r+") as f:
+        rec = f["CD/events"][()]
+        rec["p"][9] = 2
+        f["CD/events"][...] = rec
+    assert "polarity p = 2 at event 9" in _cli_error(capsys, bad_p)
+    flat = tmp_path / "flat.hdf5"
+    with h5py.File(flat, "w") as f:
+        f.attrs["geometry"] = "64x48"
+        f["CD/events"] = np.zeros((10, 4), np.int64)
+    assert "compound dataset with fields x, y, p, t" in _cli_error(capsys, flat)
+    nogeo = _metavision_h5(tmp_path / "nogeo.hdf5", events[:100])
+    with h5py.File(nogeo, "r+") as f:
+        del f.attrs["geometry"]
+    assert "--sensor-size" in _cli_error(capsys, nogeo)
+    cut = tmp_path / "cut.hdf5"
+    cut.write_bytes(_metavision_h5(tmp_path / "whole.hdf5", events).read_bytes()[:3000])
+    assert "HDF5" in _cli_error(capsys, cut)
