@@ -265,10 +265,10 @@ def _dvs_messages(ev, per_msg=700):
     return [(int(ev["t"][k]) * 1000, make(ev[k:k + per_msg], k)) for k in range(0, len(ev), per_msg)]
 
 
-def _packet_messages(chunks, encoding, time_bases):
+def _packet_messages(chunks, encoding, time_bases, msgtype="event_camera_msgs/msg/EventPacket"):
     def make(data, k, tb):
         def f(ts):
-            return ts.types["event_camera_msgs/msg/EventPacket"](
+            return ts.types[msgtype](
                 header=_header(ts, tb // 1000, k), height=SIZE[1], width=SIZE[0], seq=k, time_base=tb,
                 encoding=encoding, is_bigendian=False, events=np.frombuffer(data, np.uint8))
         return f
@@ -305,8 +305,11 @@ def test_dvs_msgs_deserialized_when_the_byte_layout_is_not_the_expected_one(even
     np.testing.assert_array_equal(read_events(path).events, ev)
 
 
-@pytest.mark.parametrize("ros1", [True, False], ids=["ros1", "ros2"])
-def test_event_packet_mono_bag(events, tmp_path, ros1):
+@pytest.mark.parametrize("ros1, msgtype", [(True, "event_camera_msgs/msg/EventPacket"),
+                                           (False, "event_camera_msgs/msg/EventPacket"),
+                                           (False, "event_array_msgs/msg/EventArray")],
+                         ids=["ros1", "ros2", "ros2-event_array_msgs"])
+def test_event_packet_mono_bag(events, tmp_path, ros1, msgtype):
     pytest.importorskip("rosbags")
     chunks, bases = [], []
     # one message per 900 events or 4 s, whichever first: dt is 32 bits of nanoseconds
@@ -322,8 +325,8 @@ def test_event_packet_mono_bag(events, tmp_path, ros1):
             | part["p"].astype(np.uint64) << np.uint64(63)
         chunks.append(w.astype("<u8").tobytes())
         bases.append(tb)
-    path = _write_bag(tmp_path / ("mono.bag" if ros1 else "mono_bag"), "event_camera_msgs/msg/EventPacket",
-                      _packet_messages(chunks, "mono", bases), ros1)
+    path = _write_bag(tmp_path / ("mono.bag" if ros1 else "mono_bag"), msgtype,
+                      _packet_messages(chunks, "mono", bases, msgtype), ros1)
     with open_events(path) as src:
         assert src.attrs["encoding"] == "mono" and src.sensor_size == SIZE
         np.testing.assert_array_equal(src.read_all().events, events)

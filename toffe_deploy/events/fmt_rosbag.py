@@ -5,7 +5,8 @@ Messages read (the first topic, by name, of one of these types; ``attrs`` names 
 
 - ``dvs_msgs/EventArray`` (rpg_dvs_ros, ROS1 and ROS2): header, height, width, events[] of
   (x u16, y u16, ts time, polarity bool); t = ts in us (nanoseconds floored).
-- ``event_camera_msgs/EventPacket`` (ros-event-camera's metavision_driver / libcaer_driver):
+- ``event_camera_msgs/EventPacket`` (ros-event-camera's metavision_driver / libcaer_driver; also
+  under its earlier name ``event_array_msgs/EventArray``):
   header, height, width, seq, time_base, encoding, is_bigendian, events (bytes). Encodings:
   ``mono`` (64-bit words: dt in bits 0-31, x 32-47, y 48-62, polarity 63; t = (time_base + dt)
   ns, floored to us) and ``evt3`` (a Prophesee EVT 3.0 stream continued from packet to packet,
@@ -34,6 +35,9 @@ from .validate import check_sensor_size
 
 DVS_ARRAY = "dvs_msgs/msg/EventArray"
 EVENT_PACKET = "event_camera_msgs/msg/EventPacket"
+#: The same message under its earlier package name (event_array_msgs, 2022-2023 drivers).
+EVENT_ARRAY_LEGACY = "event_array_msgs/msg/EventArray"
+PACKET_TYPES = (EVENT_PACKET, EVENT_ARRAY_LEGACY)
 #: Public message definitions (ROS2 syntax) of the message types read here.
 MSG_DEFS = {
     "dvs_msgs/msg/Event": "uint16 x\nuint16 y\nbuiltin_interfaces/Time ts\nbool polarity\n",
@@ -41,6 +45,7 @@ MSG_DEFS = {
     EVENT_PACKET: ("std_msgs/Header header\nuint32 height\nuint32 width\nuint64 seq\nuint64 time_base\n"
                    "string encoding\nbool is_bigendian\nuint8[] events\n"),
 }
+MSG_DEFS[EVENT_ARRAY_LEGACY] = MSG_DEFS[EVENT_PACKET]
 ENCODINGS = ("mono", "evt3")
 
 
@@ -192,19 +197,19 @@ class RosbagSource(SequentialSource):
         self.path = path
         self._bag = bag_root(path)
         with self._open() as reader:
-            conns = sorted((c for c in reader.connections if c.msgtype in (DVS_ARRAY, EVENT_PACKET)),
+            conns = sorted((c for c in reader.connections if c.msgtype in (DVS_ARRAY,) + PACKET_TYPES),
                            key=lambda c: c.topic)
             if not conns:
                 found = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
-                raise InputError(path, f"no event topic ({DVS_ARRAY} or {EVENT_PACKET}) in the bag; "
+                raise InputError(path, f"no event topic ({', '.join((DVS_ARRAY,) + PACKET_TYPES)}) in the bag; "
                                        f"topics: {found}")
             self._topic, self._msgtype = conns[0].topic, conns[0].msgtype
             first = next(self._raw_messages(reader), None)
             own = _raw_size(first, reader.is2) if first is not None else (0, 0)
-            if own is None or (self._msgtype == EVENT_PACKET and first is not None):
+            if own is None or (self._msgtype in PACKET_TYPES and first is not None):
                 msg = self._deserialize(reader, first)
                 own = (int(msg.width), int(msg.height))
-                self._encoding = msg.encoding if self._msgtype == EVENT_PACKET else None
+                self._encoding = msg.encoding if self._msgtype in PACKET_TYPES else None
         if sensor_size is None and 0 in own:
             raise InputError(path, f"{self._topic}: messages give no sensor size (width x height "
                                    f"{own[0]}x{own[1]}); pass --sensor-size W H")
