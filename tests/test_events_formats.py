@@ -56,7 +56,8 @@ def prophesee_files(tmp_path_factory, events):
     root = tmp_path_factory.mktemp("prophesee")
     return {"evt2": _faery_file(root / "rec_evt2.raw", events, version="evt2"),
             "evt3": _faery_file(root / "rec_evt3.raw", events, version="evt3"),
-            "dat": _faery_file(root / "rec_td.dat", events)}
+            "dat": _faery_file(root / "rec_td.dat", events),
+            "dat1": _faery_file(root / "rec_v1.dat", events, version="dat1")}
 
 
 def _info(capsys, path, *extra):
@@ -81,12 +82,13 @@ def _convert_round_trip(tmp_path, path, ev, size=SIZE):
 
 # ------------------------------------------------------------------ Prophesee RAW / DAT
 
-@pytest.mark.parametrize("kind", ["evt2", "evt3", "dat"])
+@pytest.mark.parametrize("kind", ["evt2", "evt3", "dat", "dat1"])
 def test_prophesee_files_written_by_faery_read_back_exactly(prophesee_files, events, kind, capsys, tmp_path):
     path = prophesee_files[kind]
-    assert detect_format(path) == ("dat" if kind == "dat" else "raw")
+    dat = kind.startswith("dat")
+    assert detect_format(path) == ("dat" if dat else "raw")
     with open_events(path) as src:
-        assert src.format_name == ("dat" if kind == "dat" else f"raw-{kind}")
+        assert src.format_name == ("dat" if dat else f"raw-{kind}")
         assert src.sensor_size == SIZE                       # from the header, no argument
         assert src.num_events == len(events)
         assert (src.t_start_us, src.t_end_us) == (int(events["t"][0]), int(events["t"][-1]) + 1)

@@ -19,7 +19,8 @@ EVT3;height=H;width=W`` or DAT's ``% Width W`` / ``% Height H``; a file with non
   EVT_TIME_HIGH 8 (timestamp bits 0-11 and 12-23); triggers and vendor words (7, 10, 14, 15)
   are skipped.
 - DAT: after the header, a byte event type (0 or 12: CD events) and a byte event size (8), then
-  records of uint32 t (us) and uint32 x | y << 14 | p << 28.
+  records of uint32 t (us) and uint32 x | y << 14 | p << 28 (``% Version 2``), or
+  x | y << 9 | p << 17 (version 1, and files that name no version, as Prophesee's loader reads them).
 
 Timestamps are in microseconds; a counter that wraps (EVT3's 24 bits every 16.8 s, EVT2's 34
 bits, DAT's 32 bits) is unwrapped. Events before the first time base (EVT_TIME_HIGH) are dropped,
@@ -202,6 +203,10 @@ class PropheseeDatSource(SequentialSource):
         if self._size < 8:
             raise InputError(path, f"DAT event size {self._size} bytes is less than 8 (corrupt header?)")
         self._data_start = pos + 2
+        version = self._fields.get("version", "0").strip()
+        self.version = int(version) if version.isdigit() else 0
+        if self.version > 2:
+            raise InputError(path, f"DAT version {self.version} is not supported (1 and 2 are)")
         own = header_geometry(self._fields)
         if sensor_size is None and own is None:
             raise InputError(path, "DAT header gives no sensor size ('% Width W', '% Height H'); "
@@ -224,7 +229,11 @@ class PropheseeDatSource(SequentialSource):
                 rec = np.frombuffer(data, np.dtype([("t", "<u4"), ("d", "<u4"), ("pad", f"V{size - 8}")])
                                     if size > 8 else np.dtype([("t", "<u4"), ("d", "<u4")]))
                 d = rec["d"].astype(np.int64)
-                yield to_events(self.path, d & 0x3FFF, (d >> 14) & 0x3FFF, unwrap(rec["t"]), d >> 28, offset)
+                if self.version >= 2:
+                    x, y, p = d & 0x3FFF, (d >> 14) & 0x3FFF, d >> 28
+                else:
+                    x, y, p = d & 0x1FF, (d >> 9) & 0xFF, d >> 17
+                yield to_events(self.path, x, y, unwrap(rec["t"]), p, offset)
                 offset += rec.shape[0]
 
     @property
