@@ -294,6 +294,8 @@ def test_dvs_msgs_bag(events, tmp_path, capsys, ros1, mcap):
         np.testing.assert_array_equal(src.read_all().events, ev)
     info = _info(capsys, path)
     assert info["format"] == "rosbag" and info["events"] == len(ev)
+    assert main(["events", "info", "--no-progress", str(path)]) == 0
+    assert "topic:           /event_camera/events (dvs_msgs/msg/EventArray)" in capsys.readouterr().out
     _convert_round_trip(tmp_path, path, ev)
 
 
