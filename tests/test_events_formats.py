@@ -151,7 +151,7 @@ def test_corrupt_raw_word_and_missing_geometry_are_one_line(prophesee_files, tmp
     data[start + 41] = 0x90                        # word 20: type 9 does not exist in EVT 3.0
     bad = tmp_path / "bad.raw"
     bad.write_bytes(bytes(data))
-    assert f"word type 0x9 at byte {40}" in _cli_error(capsys, bad)
+    assert f"word type 0x9 at byte {start + 40} " in _cli_error(capsys, bad)
     nogeo = tmp_path / "nogeo.raw"
     nogeo.write_bytes(b"% evt 3.0\n" + src.read_bytes()[start:])
     assert "--sensor-size" in _cli_error(capsys, nogeo)
@@ -161,7 +161,7 @@ def test_corrupt_raw_word_and_missing_geometry_are_one_line(prophesee_files, tmp
     assert "no event encoding" in _cli_error(capsys, noenc)
 
 
-def test_dat_polarity_and_sensor_checks(prophesee_files, tmp_path, capsys):
+def test_dat_polarity_order_and_sensor_checks(prophesee_files, events, tmp_path, capsys):
     src = prophesee_files["dat"]
     data = bytearray(src.read_bytes())
     start = _header_end(src) + 2
@@ -169,6 +169,10 @@ def test_dat_polarity_and_sensor_checks(prophesee_files, tmp_path, capsys):
     bad = tmp_path / "pol.dat"
     bad.write_bytes(bytes(data))
     assert "polarity p = 3 at event 5" in _cli_error(capsys, bad)
+    data = bytearray(src.read_bytes())              # event 7 earlier than event 6: reported, not unwrapped
+    data[start + 8 * 7: start + 8 * 7 + 4] = np.uint32(int(events["t"][6]) - 1).tobytes()
+    bad.write_bytes(bytes(data))
+    assert "timestamps decrease at event 7" in _cli_error(capsys, bad)
     assert "outside the 16x16 sensor" in _cli_error(capsys, src, "--sensor-size", "16", "16")
 
 

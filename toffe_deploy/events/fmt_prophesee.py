@@ -90,7 +90,8 @@ def raw_encoding(fields: dict[str, str]) -> str | None:
 
 
 class _Unwrap:
-    """Unwraps a counter of ``bits`` bits that counts up and wraps: each decrease adds a period."""
+    """Unwraps a counter of ``bits`` bits that counts up and wraps: a drop of more than half the
+    period adds a period (a smaller drop stays, for the time-order check to report)."""
 
     def __init__(self, bits: int):
         self.period = 1 << bits
@@ -102,7 +103,7 @@ class _Unwrap:
             return raw.astype(np.int64)
         raw = raw.astype(np.int64)
         prev = np.concatenate([[raw[0] if self.last is None else self.last], raw])
-        loops = self.loops + np.cumsum(np.diff(prev) < 0)
+        loops = self.loops + np.cumsum(np.diff(prev) < -(self.period // 2))
         self.last, self.loops = int(raw[-1]), int(loops[-1])
         return raw + self.period * loops
 
@@ -251,6 +252,7 @@ def _open(path):
 def _decode_stream(path, start: int, dec: _WordDecoder):
     """EVENT_DTYPE packets of a RAW file's data, CHUNK_BYTES at a time."""
     n = 0
+    dec.offset = start            # byte offsets in errors count from the start of the file
     with _open(path) as fh:
         fh.seek(start)
         while True:
