@@ -104,9 +104,20 @@ def test_prophesee_files_written_by_faery_read_back_exactly(prophesee_files, eve
 
 
 @pytest.mark.parametrize("kind", ["evt2", "evt3", "dat"])
-def test_decoder_state_carries_across_chunk_borders(prophesee_files, events, kind, monkeypatch):
-    monkeypatch.setattr(fmt_prophesee, "CHUNK_BYTES", 1001)    # odd: every border splits a word
+def test_decoder_state_carries_across_chunk_borders_and_seeks(prophesee_files, events, kind, monkeypatch):
+    monkeypatch.setattr(fmt_prophesee, "CHUNK_BYTES", 101)     # odd: every border splits a word
     np.testing.assert_array_equal(read_events(prophesee_files[kind]).events, events)
+    t = events["t"]
+    with open_events(prophesee_files[kind]) as src:
+        assert len(src._points) > 10                # one restart point per packet, from the open pass
+        calls = []
+        packets = src._packets
+        monkeypatch.setattr(src, "_packets", lambda resume=None: calls.append(resume) or packets(resume))
+        for t0, t1 in [(t[0], t[5]), (t[1000] + 1, t[1300]), (t[-40], t[-1] + 1), (t[-1] + 1, t[-1] + 9)]:
+            np.testing.assert_array_equal(src.read(int(t0), int(t1)), events[(t >= t0) & (t < t1)])
+        assert calls[0] is not None and calls[1][-1] > 0      # the later reads restart mid-file
+        windows = list(src.iter_windows(1_000_000, t_start=int(t[1500])))
+    np.testing.assert_array_equal(np.concatenate([w for _, w in windows]), events[t >= t[1500]])
 
 
 def test_evt3_agrees_with_the_evt3_decoder(prophesee_files):

@@ -42,7 +42,7 @@ class AedatSource(SequentialSource):
         own = (int(info.get("width", 0)), int(info.get("height", 0)))
         super().__init__(path, check_sensor_size(path, sensor_size or own))
 
-    def _packets(self) -> Iterator[np.ndarray]:
+    def _packets(self, resume=None) -> Iterator[np.ndarray]:
         """Converted events of each packet of our stream, in file order (unvalidated)."""
         dec = _decoder(self.path)
         while True:

@@ -178,9 +178,31 @@ class PropheseeRawSource(SequentialSource):
             raise InputError(path, "RAW header gives no sensor size ('% geometry WxH'); pass --sensor-size W H")
         super().__init__(path, check_sensor_size(path, sensor_size or own))
 
-    def _packets(self):
+    def _packets(self, resume=None):
+        """Packets of CHUNK_BYTES; restart point: (file position, decoder state, partial word,
+        events before)."""
         dec = Evt3Decoder() if self.encoding == "evt3" else Evt2Decoder()
-        yield from _decode_stream(self.path, self._data_start, dec)
+        pos, n = self._data_start, 0
+        if resume is not None:
+            pos, state, dec._rest, n = resume
+            dec._state = state.copy()
+        with _open(self.path) as fh:
+            fh.seek(pos)
+            while True:
+                self._cursor = (pos, dec._state.copy(), dec._rest, n)
+                data = fh.read(CHUNK_BYTES)
+                dec.offset = pos - len(dec._rest)     # byte offsets in errors count from the file start
+                try:
+                    if not data:
+                        dec.finish()
+                        return
+                    x, y, t, p = dec.feed(data)
+                except ValueError as exc:
+                    raise InputError(self.path, str(exc)) from None
+                pos += len(data)
+                if x.shape[0]:
+                    yield to_events(self.path, x, y, t, p, n)
+                    n += int(x.shape[0])
 
     @property
     def attrs(self):
@@ -214,14 +236,19 @@ class PropheseeDatSource(SequentialSource):
                                    "pass --sensor-size W H")
         super().__init__(path, check_sensor_size(path, sensor_size or own))
 
-    def _packets(self):
+    def _packets(self, resume=None):
+        """Packets of whole records; restart point: (file position, time unwrap state, events before)."""
         size = self._size
         unwrap = _Unwrap(32)
-        offset = 0
+        pos, offset = self._data_start, 0
+        if resume is not None:
+            pos, (unwrap.last, unwrap.loops), offset = resume
         with _open(self.path) as fh:
-            fh.seek(self._data_start)
+            fh.seek(pos)
             while True:
+                self._cursor = (pos, (unwrap.last, unwrap.loops), offset)
                 data = fh.read(CHUNK_BYTES - CHUNK_BYTES % size)
+                pos += len(data)
                 if not data:
                     return
                 if len(data) % size:
@@ -247,26 +274,6 @@ def _open(path):
         return open(path, "rb")
     except OSError as exc:
         raise InputError(path, f"cannot read: {exc.strerror or exc}") from None
-
-
-def _decode_stream(path, start: int, dec: _WordDecoder):
-    """EVENT_DTYPE packets of a RAW file's data, CHUNK_BYTES at a time."""
-    n = 0
-    dec.offset = start            # byte offsets in errors count from the start of the file
-    with _open(path) as fh:
-        fh.seek(start)
-        while True:
-            data = fh.read(CHUNK_BYTES)
-            try:
-                if not data:
-                    dec.finish()
-                    return
-                x, y, t, p = dec.feed(data)
-            except ValueError as exc:
-                raise InputError(path, str(exc)) from None
-            if x.shape[0]:
-                yield to_events(path, x, y, t, p, n)
-                n += int(x.shape[0])
 
 
 def decode_evt3(path, decoder: Evt3Decoder, data: bytes, offset: int = 0) -> np.ndarray:

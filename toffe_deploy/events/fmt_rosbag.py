@@ -242,7 +242,7 @@ class RosbagSource(SequentialSource):
             raise InputError(self.path, f"cannot deserialize a {self._msgtype} message on {self._topic} "
                                         f"(corrupt?): {_msg(exc)}") from None
 
-    def _packets(self):
+    def _packets(self, resume=None):
         from .fmt_prophesee import Evt3Decoder, decode_evt3
 
         evt3 = Evt3Decoder()

@@ -2,10 +2,18 @@
 DAT, ROS bags), which can only be decoded from the start.
 
 Windows stream packet by packet (memory: one decoded packet plus one window); metadata (event
-count, time span) costs one decoding pass, done lazily and cached; random access by index or
-time decodes from the start. A format says only how to decode its packets, in file order.
+count, time span) costs one decoding pass, done lazily and cached; random access by index
+decodes from the start. A format says only how to decode its packets, in file order.
+
+Seeking by time: a format that can restart decoding at a packet (RAW, DAT: a byte position and
+the decoder state) sets ``_cursor`` to that restart point before decoding each packet and
+accepts it back as ``_packets(resume=...)``. The metadata pass then keeps one restart point per
+packet (a few numbers per 4 MiB), and a window or ``read`` starting at time t decodes from the
+first packet that reaches t instead of from the start.
 """
 from __future__ import annotations
+
+import bisect
 
 import abc
 from typing import Iterator
@@ -21,20 +29,20 @@ class SequentialSource(EventSource):
     """An EventSource over ``_packets()``: converted, unvalidated EVENT_DTYPE arrays in file order."""
 
     _meta = None
+    #: restart point of the packet being decoded (formats that can seek set it; see module docstring)
+    _cursor = None
+    #: per packet with events: (restart point, events before it, last time before it, its last time)
+    _points = None
 
     @abc.abstractmethod
-    def _packets(self) -> Iterator[np.ndarray]:
-        """Decoded events of each packet, in file order (unvalidated)."""
+    def _packets(self, resume=None) -> Iterator[np.ndarray]:
+        """Decoded events of each packet, in file order (unvalidated), from the start or from
+        a restart point ``resume`` (only formats that set ``_cursor`` get one)."""
 
     def _scan(self):
         if self._meta is None:
-            n, first, last = 0, None, None
-            for ev in self._packets():
-                if ev.shape[0]:
-                    first = int(ev["t"][0]) if first is None else first
-                    last = int(ev["t"][-1])
-                    n += int(ev.shape[0])
-            self._meta = (n, first if first is not None else 0, last + 1 if last is not None else 0)
+            for _ in self._iter_all(check=False):
+                pass
         return self._meta
 
     @property
@@ -55,8 +63,14 @@ class SequentialSource(EventSource):
             return
         t_start = self.t_start_us if t_start is None else int(t_start)
         t_end = self.t_end_us if t_end is None else int(t_end)
-        offset, prev_t = 0, None
-        for ev in self._packets():
+        offset, prev_t, packets = 0, None, None
+        if self._points:
+            k = bisect.bisect_left([pt[3] for pt in self._points], t_start)
+            if k == len(self._points):
+                return
+            resume, offset, prev_t, _ = self._points[k]
+            packets = self._packets(resume=resume)
+        for ev in packets if packets is not None else self._packets():
             check_chunk(self.path, ev, self.sensor_size, offset=offset, prev_t=prev_t)
             offset += int(ev.shape[0])
             if ev.shape[0] == 0:
@@ -70,16 +84,23 @@ class SequentialSource(EventSource):
             if i1 > i0:
                 yield ev[i0:i1]
 
-    def _iter_all(self):
-        offset, first, prev_t = 0, None, None
+    def _iter_all(self, check: bool = True):
+        """Every packet (validated when ``check``); records the metadata and restart points."""
+        offset, first, prev_t, points, ordered = 0, None, None, [], True
         for ev in self._packets():
-            check_chunk(self.path, ev, self.sensor_size, offset=offset, prev_t=prev_t)
-            offset += int(ev.shape[0])
+            if check:
+                check_chunk(self.path, ev, self.sensor_size, offset=offset, prev_t=prev_t)
             if ev.shape[0]:
+                # seeking needs time order (unchecked here for sort=True): a disorder disables it
+                ordered = ordered and (prev_t is None or int(ev["t"][0]) >= prev_t) \
+                    and bool(np.all(ev["t"][1:] >= ev["t"][:-1]))
+                points.append((self._cursor, offset, prev_t, int(ev["t"][-1])))
                 first = int(ev["t"][0]) if first is None else first
                 prev_t = int(ev["t"][-1])
+                offset += int(ev.shape[0])
                 yield ev
         self._meta = (offset, first if first is not None else 0, prev_t + 1 if prev_t is not None else 0)
+        self._points = points if ordered and points and all(pt[0] is not None for pt in points) else None
 
     def read(self, t0, t1):
         parts = list(self.iter_chunks(t0, t1)) if t1 > t0 else []
