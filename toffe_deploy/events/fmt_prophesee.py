@@ -2,8 +2,8 @@
 
 Decoded here (a compiled word loop, evt_compiled, one chunk of words at a time, the decoder state
 carried from chunk to chunk; DAT in numpy), because the permissive Python packages only decode
-EVT3 and the one that also writes every format is GPL. Checked against files written by ``faery`` and decoded by ``evt3``
-(tests/test_events_formats.py).
+EVT3 and the one that also writes every format is GPL. Checked against files written by
+``faery`` and decoded by ``evt3`` (tests/test_events_formats.py).
 
 Both start with ASCII header lines ``% key value`` (ending at ``% end`` or the first line that
 does not start with ``%``). The sensor size comes from ``% geometry WxH``, ``% format
@@ -210,7 +210,7 @@ class PropheseeRawSource(SequentialSource):
 
 
 class PropheseeDatSource(SequentialSource):
-    """A Prophesee .dat file of CD events (DAT version 2)."""
+    """A Prophesee .dat file of CD events (DAT versions 1 and 2)."""
 
     format_name = "dat"
 
@@ -285,7 +285,7 @@ def decode_evt3(path, decoder: Evt3Decoder, data: bytes, offset: int = 0) -> np.
     return to_events(path, x, y, t, p, offset) if x.shape[0] else np.empty(0, EVENT_DTYPE)
 
 
-def prophesee_kind(path, head: bytes) -> str | None:
+def prophesee_kind(path) -> str | None:
     """'raw' or 'dat' for a file starting with '%' header lines, by extension then header."""
     suffix = str(path).lower().rsplit(".", 1)[-1]
     if suffix in ("raw", "dat"):

@@ -110,7 +110,7 @@ def detect_format(path: str | os.PathLike) -> str:
         return "rosbag"
     if head.startswith(b"%"):
         from .fmt_prophesee import prophesee_kind
-        kind = prophesee_kind(path, head)
+        kind = prophesee_kind(path)
         if kind:
             return kind
     suffix = path.suffix.lower()
