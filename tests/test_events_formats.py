@@ -410,3 +410,14 @@ def test_metavision_layout_errors_are_one_line(events, tmp_path, capsys):
     cut = tmp_path / "cut.hdf5"
     cut.write_bytes(_metavision_h5(tmp_path / "whole.hdf5", events).read_bytes()[:3000])
     assert "HDF5" in _cli_error(capsys, cut)
+
+
+def test_prophesee_files_without_their_extension_are_recognised_by_header(prophesee_files, tmp_path):
+    for kind, want in (("evt3", "raw"), ("evt2", "raw"), ("dat", "dat")):
+        path = tmp_path / f"recording_{kind}"
+        shutil.copy(prophesee_files[kind], path)
+        assert detect_format(path) == want
+    text = tmp_path / "notes"
+    text.write_bytes(b"% just a comment\nplain text\n")
+    with pytest.raises(InputError, match="unknown event file format"):
+        read_events(text)
