@@ -421,3 +421,18 @@ def test_prophesee_files_without_their_extension_are_recognised_by_header(prophe
     text.write_bytes(b"% just a comment\nplain text\n")
     with pytest.raises(InputError, match="unknown event file format"):
         read_events(text)
+
+
+def test_evt3_time_high_drops_wrap_unless_tiny():
+    def words(*w):
+        return np.array(w, "<u2").tobytes()
+
+    TH, TL, Y, X = 0x8000, 0x6000, 0x0000, 0x2000
+    dec = fmt_prophesee.Evt3Decoder()
+    x, y, t, p = dec.feed(words(X | 1, TH | 100, TL | 7, Y | 3, X | 0x800 | 5,   # before the time base: dropped
+                                TH | 95, X | 6,                                 # a 5-step drop: a glitch
+                                TH | 50, X | 7))                                # a 45-step drop: a wrap
+    assert x.tolist() == [5, 6, 7] and y.tolist() == [3, 3, 3] and p.tolist() == [1, 0, 0]
+    assert t.tolist() == [100 << 12 | 7, 95 << 12 | 7, (4096 + 50) << 12 | 7]
+    with pytest.raises(ValueError, match="word type 0x9 at byte 2"):
+        fmt_prophesee.Evt3Decoder().feed(words(TH, 0x9000))

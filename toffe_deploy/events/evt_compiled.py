@@ -18,6 +18,12 @@ from numba import njit
 
 Y, TL, TH, TH_RAW, LOOPS, BASE, POL, BAD = range(8)
 STATE_LEN = 8
+#: A time-high word that drops by more than this many steps is a wrap of the counter; a smaller
+#: drop stays a drop (a glitch, which the time-order check reports). Prophesee's reference decoders
+#: count a wrap only for a drop of nearly the whole range, which a camera's time-high every
+#: 4096 us gives; a file or a ROS stream with gaps between time-high words (faery's encoder, lost
+#: packets) wraps with any drop, so any clear drop counts here.
+LOOP_MARGIN = 10
 
 
 def new_state() -> np.ndarray:
@@ -82,7 +88,7 @@ def evt3_decode(w, state, x, y, t, p):
         elif typ == 6:                    # EVT_TIME_LOW
             tl = pay
         elif typ == 8:                    # EVT_TIME_HIGH (12 bits of 24: unwrap)
-            if thraw >= 0 and pay < thraw:
+            if thraw >= 0 and thraw - pay > LOOP_MARGIN:
                 loops += 1
             thraw = pay
             th = pay + 4096 * loops
@@ -115,7 +121,7 @@ def evt2_decode(w, state, x, y, t, p):
                 n += 1
         elif typ == 8:                    # EVT_TIME_HIGH (28 bits of 34: unwrap)
             raw = v & 0x0FFFFFFF
-            if thraw >= 0 and raw < thraw:
+            if thraw >= 0 and thraw - raw > LOOP_MARGIN:
                 loops += 1
             thraw = raw
             th = raw + (loops << 28)

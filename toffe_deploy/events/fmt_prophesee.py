@@ -23,7 +23,8 @@ EVT3;height=H;width=W`` or DAT's ``% Width W`` / ``% Height H``; a file with non
   x | y << 9 | p << 17 (version 1, and files that name no version, as Prophesee's loader reads them).
 
 Timestamps are in microseconds; a counter that wraps (EVT3's 24 bits every 16.8 s, EVT2's 34
-bits, DAT's 32 bits) is unwrapped. Events before the first time base (EVT_TIME_HIGH) are dropped,
+bits, DAT's 32 bits) is unwrapped (EVT: a time-high drop of more than evt_compiled.LOOP_MARGIN
+steps; DAT: a drop of more than half the range). Events before the first time base (EVT_TIME_HIGH) are dropped,
 as Prophesee's decoders do. A word type that the encoding does not define, or a truncated last
 word or record, is an InputError naming the byte offset.
 """
