@@ -412,3 +412,37 @@ def test_huge_synthetic_duration_is_bounded(env, capsys, tmp_path):
     one_line_error(*cli(capsys, "dataset", "synth", "--out", tmp_path / "ds", "--duration-s", "1e9")[::2],
                    "longer than 10 s")
     assert not (tmp_path / "ds").exists()
+
+
+# ------------------------------------------------------------------ 11. camera recordings (RAW, DAT)
+
+def _faery_copy(env, path, **kw):
+    faery = pytest.importorskip("faery", reason="faery (test extra) writes Prophesee RAW / DAT files")
+    ev = _events(env)
+    arr = np.zeros(len(ev), faery.EVENTS_DTYPE)
+    arr["t"], arr["x"], arr["y"], arr["on"] = ev["t"], ev["x"], ev["y"], ev["p"].astype(bool)
+    faery.events_stream_from_array(arr, SENSOR).to_file(str(path), zero_t0=False, **kw)
+    return path
+
+
+@pytest.mark.parametrize("name, kw", [("rec.raw", {"version": "evt3"}), ("rec.dat", {})])
+def test_run_on_a_camera_file_matches_run_on_the_same_events(env, capsys, tmp_path, name, kw):
+    path = _faery_copy(env, tmp_path / name, **kw)
+    outs = []
+    for events in (env["rec"], path):
+        out = tmp_path / f"{len(outs)}.jsonl"
+        rc, _, err = cli(capsys, *run_args(env, "--target", "cpu", "--start-us", "0", "--max-windows", "10",
+                                           "--out", out, events=events))
+        assert rc == 0, err
+        outs.append(out.read_text())
+    assert outs[0] == outs[1] and outs[0].count("\n") == 10
+
+
+@pytest.mark.parametrize("cut", [1, 3])
+def test_run_on_a_truncated_raw_file_is_one_line(env, capsys, tmp_path, cut):
+    path = _faery_copy(env, tmp_path / "rec.raw", version="evt3")
+    path.write_bytes(path.read_bytes()[:-cut])
+    with unchanged(path, env["bundle"]):
+        one_line_error(*cli(capsys, *run_args(env, "--out", tmp_path / "o.jsonl", events=path))[::2],
+                       str(path), "truncated")
+    assert not (tmp_path / "o.jsonl").exists()

@@ -7,14 +7,16 @@ import sys
 
 from . import add_progress_flag, show_progress
 
-FORMATS_HELP = ("our HDF5 layout (toffe-events), DSEC HDF5, MVSEC HDF5, .npz, .npy, AEDAT4; "
+FORMATS_HELP = ("our HDF5 layout (toffe-events), DSEC HDF5, MVSEC HDF5, .npz, .npy, AEDAT4, "
+                "Prophesee RAW (EVT2/EVT3) and DAT, Metavision HDF5, ROS1 .bag / ROS2 bag directory; "
                 "recognised by content")
 
 
 def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensor-size", nargs=2, type=int, metavar=("W", "H"), default=None,
                    help="sensor width and height in pixels; overrides the file's (defaults for files "
-                        "without one: DSEC 640 480, MVSEC 346 260, npz/npy inferred from the coordinates)")
+                        "without one: DSEC 640 480, MVSEC 346 260, npz/npy inferred from the coordinates; "
+                        "RAW, DAT, Metavision HDF5 and ROS bags carry theirs)")
     p.add_argument("--sort", action="store_true",
                    help="sort events by time instead of rejecting decreasing timestamps "
                         "(loads the whole file into memory)")

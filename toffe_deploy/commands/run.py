@@ -42,7 +42,8 @@ def register(sub) -> None:
                         "hardware through lava-loihi); default: cpu")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--events", metavar="FILE",
-                     help="event recording (our HDF5, npz/npy, DSEC/MVSEC HDF5, AEDAT4); "
+                     help="event recording (our HDF5, npz/npy, DSEC/MVSEC HDF5, AEDAT4, Prophesee RAW/DAT, "
+                          "Metavision HDF5, ROS1 .bag or ROS2 bag directory); "
                           "default: the shipped multi-object sample")
     src.add_argument("--synthetic", metavar="SPEC",
                      help="generate the recording on the fly with the data-set generator: "

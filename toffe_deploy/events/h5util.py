@@ -7,7 +7,11 @@ import numpy as np
 from ..errors import InputError
 
 #: Filters real data sets use that plain h5py lacks (DSEC ships Blosc-compressed files).
-_FILTER_NAMES = {32001: "Blosc", 32004: "LZ4", 32008: "bitshuffle", 32015: "Zstandard"}
+_FILTER_NAMES = {32001: "Blosc", 32004: "LZ4", 32008: "bitshuffle", 32015: "Zstandard",
+                 36559: "ECF (Prophesee)"}
+#: How to get a filter that hdf5plugin does not ship.
+_FILTER_HINTS = {36559: "install Prophesee's hdf5_ecf plugin and point HDF5_PLUGIN_PATH at it, or export "
+                        "the recording as RAW"}
 
 
 def require_filters(path, ds: h5py.Dataset) -> None:
@@ -21,8 +25,9 @@ def require_filters(path, ds: h5py.Dataset) -> None:
         fid = dcpl.get_filter(i)[0]
         if not h5py.h5z.filter_avail(fid):
             name = _FILTER_NAMES.get(fid, f"id {fid}")
+            hint = _FILTER_HINTS.get(fid, "pip install hdf5plugin")
             raise InputError(path, f"{ds.name} is compressed with the HDF5 {name} filter, which is not "
-                                   "installed here (pip install hdf5plugin)")
+                                   f"installed here ({hint})")
 
 
 def dataset(path, h5: h5py.File, name: str) -> h5py.Dataset:

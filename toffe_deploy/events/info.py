@@ -116,6 +116,10 @@ def format_info(info: dict) -> str:
         if "visible_rows_per_speed_bin" in gt:
             lines.append("  speed bins:    " + ", ".join(f"bin {b}: {c:,}" for b, c in
                                                        gt["visible_rows_per_speed_bin"].items()))
+    if "topic" in info["attrs"]:          # a ROS bag: which topic, message type and encoding
+        a = info["attrs"]
+        lines.append(f"topic:           {a['topic']} ({a['msgtype']}"
+                     + (f", encoding {a['encoding']})" if a.get("encoding") else ")"))
     for k in ("generator", "seed"):
         if k in info["attrs"]:
             v = info["attrs"][k]

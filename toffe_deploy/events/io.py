@@ -8,7 +8,10 @@ HDF5 is reported as corrupt, not guessed at):
 - MVSEC-style HDF5 (/davis/{left,right}/events, N x 4 float: x, y, t [s], p [+-1]), 346x260;
 - .npz (arrays x, y, t, p [+ sensor_size]) and .npy (structured array with x, y, t, p, or
   N x 4: x, y, t, p); written by ``write_events_npz``;
-- AEDAT4 (iniVation DV) through the ``aedat`` package.
+- AEDAT4 (iniVation DV) through the ``aedat`` package;
+- Prophesee RAW (EVT 2.0 / 3.0) and DAT (header lines starting with ``%``; fmt_prophesee),
+  Metavision HDF5 (/CD/events; fmt_metavision), ROS1 bags and ROS2 bag directories of
+  dvs_msgs/EventArray or event_camera_msgs/EventPacket (fmt_rosbag, through ``rosbags``).
 
 Refused for every format: a path that is not a regular file (a FIFO or device would block or
 never end), timestamps beyond 2**53 us or a span over 7 days (validate.MAX_TIME_US,
@@ -38,8 +41,9 @@ HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 NPY_MAGIC = b"\x93NUMPY"
 ZIP_MAGIC = b"PK\x03\x04"
 AEDAT4_MAGIC = b"#!AER-DAT4.0"
+ROSBAG1_MAGIC = b"#ROSBAG V2.0"
 #: Formats ``detect_format`` can answer, for ``--help`` texts.
-FORMATS = (FORMAT_NAME, "dsec", "mvsec", "npz", "npy", "aedat4")
+FORMATS = (FORMAT_NAME, "dsec", "mvsec", "npz", "npy", "aedat4", "raw", "dat", "metavision", "rosbag")
 
 
 def _sniff(path: Path) -> bytes:
@@ -76,13 +80,19 @@ def _h5_kind(path: Path, h5) -> str:
         return "dsec"          # /t_offset and /ms_to_idx are optional
     if "davis" in h5:
         return "mvsec"
+    if "CD" in h5 and hasattr(h5["CD"], "keys") and "events" in h5["CD"]:
+        return "metavision"
     raise InputError(path, "HDF5 file without an event layout we know (expected our "
-                           "toffe-events layout, DSEC /events/{x,y,t,p} or MVSEC /davis/left/events)")
+                           "toffe-events layout, DSEC /events/{x,y,t,p}, MVSEC /davis/left/events "
+                           "or Metavision /CD/events)")
 
 
 def detect_format(path: str | os.PathLike) -> str:
     """The format name of an event file (one of FORMATS), from its content."""
     path = Path(path)
+    if (path.is_dir() and (path / "metadata.yaml").is_file()) or \
+            (path.suffix.lower() in (".db3", ".mcap") and (path.parent / "metadata.yaml").is_file()):
+        return "rosbag"           # a ROS2 bag is a directory (or named by one of its files)
     head = _sniff(path)
     if head.startswith(HDF5_MAGIC) or (path.suffix.lower() in (".h5", ".hdf5", ".hdf") and _is_h5(path)):
         h5 = _open_h5(path)
@@ -96,8 +106,15 @@ def detect_format(path: str | os.PathLike) -> str:
         return "npz"
     if head.startswith(AEDAT4_MAGIC):
         return "aedat4"
+    if head.startswith(ROSBAG1_MAGIC):
+        return "rosbag"
+    if head.startswith(b"%"):
+        from .fmt_prophesee import prophesee_kind
+        kind = prophesee_kind(path)
+        if kind:
+            return kind
     suffix = path.suffix.lower()
-    if suffix in (".h5", ".hdf5", ".hdf", ".npz", ".npy", ".aedat4", ".aedat"):
+    if suffix in (".h5", ".hdf5", ".hdf", ".npz", ".npy", ".aedat4", ".aedat", ".raw", ".dat", ".bag"):
         raise InputError(path, f"does not look like a {suffix} file (truncated or corrupt?)")
     raise InputError(path, f"unknown event file format (supported: {', '.join(FORMATS)})")
 
@@ -120,7 +137,7 @@ def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = N
     """
     path = Path(path)
     kind = detect_format(path)
-    if kind in (FORMAT_NAME, "dsec", "mvsec"):
+    if kind in (FORMAT_NAME, "dsec", "mvsec", "metavision"):
         h5 = _open_h5(path)
         try:
             if kind == FORMAT_NAME:
@@ -128,6 +145,9 @@ def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = N
             elif kind == "dsec":
                 from .fmt_dsec import DsecSource
                 src = DsecSource(path, h5, sensor_size)
+            elif kind == "metavision":
+                from .fmt_metavision import MetavisionH5Source
+                src = MetavisionH5Source(path, h5, sensor_size)
             else:
                 from .fmt_mvsec import MvsecSource
                 src = MvsecSource(path, h5, sensor_size)
@@ -137,6 +157,12 @@ def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = N
     elif kind in ("npz", "npy"):
         from .fmt_numpy import open_numpy
         src = open_numpy(path, kind, sensor_size)
+    elif kind in ("raw", "dat"):
+        from .fmt_prophesee import PropheseeDatSource, PropheseeRawSource
+        src = (PropheseeRawSource if kind == "raw" else PropheseeDatSource)(path, sensor_size)
+    elif kind == "rosbag":
+        from .fmt_rosbag import RosbagSource
+        src = RosbagSource(path, sensor_size)
     else:
         from .fmt_aedat import AedatSource
         src = AedatSource(path, sensor_size)
