@@ -345,7 +345,7 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
 
         ctx = BenchContext(windows=windows, events=events, bundle=bundle, config=cfg, pipe=cpu_pipe,
                            counts={"toffe": toffe_counts, "dotie": dotie_counts, "dotie_cluster": dotie_cl_counts})
-        lfl = like_for_like(args, ctx, machine)
+        lfl = like_for_like(args, ctx, machine, reader)
 
     # ---- cpu: DOTIE without / with clustering and TOFFE (deployed pipeline), timed in turn ------
     # Every timed inference starts from the window's events: DOTIE bins its count frames, TOFFE
@@ -447,7 +447,7 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
     return 0
 
 
-def like_for_like(args, ctx, machine: dict) -> dict:
+def like_for_like(args, ctx, machine: dict, reader=None) -> dict:
     """Every model of baselines/registry.py at both levels on the same windows: interleaved
     blocks of wall and CPU time, energy under both counting rules and time x power, quality
     (gated matching of `eval`) on the same windows; ratios only within a level."""
@@ -480,6 +480,11 @@ def like_for_like(args, ctx, machine: dict) -> dict:
                "wall": block_summary(t["wall"]), "cpu": block_summary(t["cpu"]), "thread": block_summary(t["thread"]),
                "energy": rules.mean_work_energy(m.works) if m.works else None}
         row["energy_time_power_uj"] = rules.time_power(row["cpu"]["median_ms"] * 1e-3, power)
+        if reader is not None:                   # a counter: measured first, the models beside it
+            from toffe_deploy.energy.measure import measure_dynamic
+
+            dyn = measure_dynamic(reader, m.run, n, min_run_s=args.energy_s, idle_s=args.idle_s)
+            row["energy_measured"] = dyn.to_dict()
         if m.predict is not None and truth is not None:
             fe = FlowErrors(n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
             for i, (t0, _x) in enumerate(ctx.windows):

@@ -141,4 +141,8 @@ def test_quick_run_with_a_counter_reports_measured_or_below_noise(tiny_bundle, t
     for r in res["rows"]:
         assert r["E_kind"].startswith("below noise (RAPL") and r["E_mj"] is None
         assert r["energy_measured"]["k"] >= 1 and r["E_model_mj"] > 0
-    assert "below noise [b]" in (out / "energy_latency.md").read_text()
+    md = (out / "energy_latency.md").read_text()
+    assert "below noise [b]" in md
+    for r in res["like_for_like"]["rows"]:           # like for like: the counter first, never a number here
+        assert r["energy_measured"]["status"] == "below noise" and r["energy"]["event"]["total_uj"] > 0
+    assert "below noise (RAPL" in md.split("Like for like")[1]

@@ -262,8 +262,8 @@ def _window(t, xs, ys, t0, dt, n_bins, width, height, w, leak, th, u, s, act, n_
     per = np.zeros(n_bins + 1, np.int64)
     for i in range(n):
         b = ((t[i] - t0) * n_bins) // dt
-        if b < 0 or b >= n_bins:
-            b = -1
+        if b < 0 or b >= n_bins or xs[i] < 0 or xs[i] >= width or ys[i] < 0 or ys[i] >= height:
+            b = -1                                 # outside the window (or the sensor): not an input
         else:
             per[b + 1] += 1
         step_of[i] = b

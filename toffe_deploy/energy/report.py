@@ -287,7 +287,7 @@ def like_for_like_markdown(lfl: dict | None) -> str:
     for w in lfl.get("warnings", []):
         lines += [f"**Warning:** {w}.", ""]
     head = ["model", "level", "CPU ms/window median [min-max]", "wall ms median [min-max]",
-            "E event rule uJ (compute + memory)", "E dense rule uJ (compute + memory)",
+            "E measured uJ (counter)", "E event rule uJ (compute + memory)", "E dense rule uJ (compute + memory)",
             f"E time x {lfl['power_w']:.1f} W mJ", "recall", "pixE px", "dirE deg", "speedE m/s", "FP/window",
             "recall by bin 1/2/3/4"]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -302,10 +302,18 @@ def like_for_like_markdown(lfl: dict | None) -> str:
         x = en[rule]
         return f"{fmt(x['total_uj'])} ({fmt(x['compute_uj'])} + {fmt(x['memory_uj'])})"
 
+    def measured(row):
+        d = row.get("energy_measured")
+        if not d:
+            return "no counter"
+        if d["per_inference_j"] is None:
+            return f"below noise ({d['source']})"
+        return f"{fmt(d['per_inference_j'] * 1e6)} ({d['source']})"
+
     for r in lfl["rows"]:
         qb = r.get("quality_by_bin")
         lines.append("| " + " | ".join([
-            r["label"], r["level"], t(r["cpu"]), t(r["wall"]), e(r, "event"), e(r, "dense"),
+            r["label"], r["level"], t(r["cpu"]), t(r["wall"]), measured(r), e(r, "event"), e(r, "dense"),
             fmt(r["energy_time_power_uj"] * 1e-3), _q(r, "recall"), _q(r, "pixE"), _q(r, "dirE"), _q(r, "speedE"),
             _q(r, "fp_per_window"), "/".join(fmt(v, 2) for v in qb.values()) if qb else "-"]) + " |")
     lines += ["", "Ratios, each within one level, same run, same windows (block by block: median [min-max]):", "",
