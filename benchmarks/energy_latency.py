@@ -18,6 +18,14 @@ windows:
   with idle measured in the same run, else modelled from counted operations; every row says
   which ("measured (source)", "below noise (source)", "modelled (constants ...)").
 
+On cpu, the like-for-like table (issue 14) comes first: every model of
+toffe_deploy/baselines/registry.py at both optimisation levels (reference: plain numpy /
+OpenCV / scikit-learn; optimised: compiled, event driven), timed in --blocks interleaved blocks
+(CPU time beside wall time, median and min-max), priced by the same counting rules
+(energy/rules.py: event-driven and dense, compute and memory apart; time x --power-w), with
+quality (recall, pixE, dirE, speedE by eval's gated matching) on the same windows; ratios only
+within one level. --dotie-code also scores DOTIE as its code runs (2 ms bins, carried membrane).
+
 Writes energy_latency.{md,json,png} to --out (default benchmarks/results/, --quick:
 benchmarks/results/quick/) and prints the markdown table.
 """
