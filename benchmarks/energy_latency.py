@@ -18,6 +18,14 @@ windows:
   with idle measured in the same run, else modelled from counted operations; every row says
   which ("measured (source)", "below noise (source)", "modelled (constants ...)").
 
+On cpu, the like-for-like table (issue 14) comes first: every model of
+toffe_deploy/baselines/registry.py at both optimisation levels (reference: plain numpy /
+OpenCV / scikit-learn; optimised: compiled, event driven), timed in --blocks interleaved blocks
+(CPU time beside wall time, median and min-max), priced by the same counting rules
+(energy/rules.py: event-driven and dense, compute and memory apart; time x --power-w), with
+quality (recall, pixE, dirE, speedE by eval's gated matching) on the same windows; ratios only
+within one level. --dotie-code also scores DOTIE as its code runs (2 ms bins, carried membrane).
+
 Writes energy_latency.{md,json,png} to --out (default benchmarks/results/, --quick:
 benchmarks/results/quick/) and prints the markdown table.
 """
@@ -74,6 +82,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help=f"windows run through the Lava simulator for its wall time (default {FULL['sim_windows']}, quick 0)")
     ap.add_argument("--energy-s", type=float, help="minimum run length (s) of each counter measurement (default 3)")
     ap.add_argument("--idle-s", type=float, help="idle time (s) measured around each counter measurement (default 2)")
+    ap.add_argument("--blocks", type=int, default=5,
+                    help="like-for-like timing: interleaved blocks, each a pass of every model over the windows "
+                         "(default 5; median and min-max over blocks are reported)")
+    ap.add_argument("--dotie-code", action="store_true",
+                    help="also run DOTIE as its own code does (2 ms bins, membrane carried across the stream) "
+                         "for its quality; the comparison with TOFFE stays per window (baselines/dotie.py)")
+    ap.add_argument("--power-w", type=float, default=None,
+                    help="stated power (W) for the time x power energy (default 42.6 W, the power implied by "
+                         "the paper's i9 TOFFE row)")
     ap.add_argument("--min-events", type=int, default=1, help="skip windows with fewer events (default 1)")
     ap.add_argument("--sysfs-root", default="/sys", help="where to look for RAPL/INA3221 counters (default /sys)")
     ap.add_argument("--out", help="output directory (default benchmarks/results/, quick: benchmarks/results/quick/)")
@@ -84,7 +101,7 @@ def parse_args(argv=None) -> argparse.Namespace:
             setattr(args, k, v)
     if args.out is None:
         args.out = str(DEFAULT_OUT / "quick") if args.quick else str(DEFAULT_OUT)
-    for k in ("windows", "repeats", "count_windows", "block"):
+    for k in ("windows", "repeats", "count_windows", "block", "blocks"):
         if getattr(args, k) < 1:
             ap.error(f"--{k.replace('_', '-')} must be >= 1")
     args.targets = [t.strip() for t in args.targets.split(",") if t.strip()]
@@ -107,7 +124,8 @@ def load_bundle_or_explain(path: str):
 
 def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.ndarray], dict]:
     """The first ``args.windows`` windows with events: (t0, binned (B, 2, H, W)) and each
-    window's events. Timed runs start from the events (each model builds its own input, as
+    window's events; the input's ground truth (runtime.truth.TruthIndex, or None) and camera
+    focal length go to ``args.truth`` / ``args.focal_px`` for the quality columns. Timed runs start from the events (each model builds its own input, as
     ``toffe-deploy run`` does); the binned copies feed the op counting and the Lava simulator."""
     from toffe_deploy.events.binning import bin_window, window_slice
     from toffe_deploy.events.frontend import apply_dense
@@ -134,7 +152,8 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
         from toffe_deploy.dataset.synth import generate_sequence
 
         spec = split_specs("multi", seed=args.synthetic, duration_s=(args.windows + 4) * dt * 1e-6)[0]
-        ev, _gt, gen_size = generate_sequence(spec, seed=args.synthetic)
+        ev, gt, gen_size = generate_sequence(spec, seed=args.synthetic)
+        args.truth, args.focal_px = _truth_index(gt), None
         if tuple(gen_size) != size:
             raise ToffeError(f"the generator makes {gen_size[0]}x{gen_size[1]} windows but the bundle expects "
                              f"{size[0]}x{size[1]}; pass --events FILE at the bundle's sensor size")
@@ -153,6 +172,9 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
             raise InputError(path, f"sensor size {src.sensor_size[0]}x{src.sensor_size[1]} differs from the bundle's "
                                    f"{size[0]}x{size[1]}")
         desc = {"source": str(path)}
+        from toffe_deploy.runtime.truth import sequence_focal_px
+
+        args.truth, args.focal_px = _truth_index(src.ground_truth), sequence_focal_px(src.attrs)
         for t0, ev in src.iter_windows(dt):
             if take(t0, ev):
                 break
@@ -162,6 +184,14 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
     desc.update({"sensor_size": list(size), "n_bins": b, "dt_us": dt, "windows": len(out),
                  "events_per_window": {"mean": float(c.mean()), "p50": float(np.median(c)), "max": int(c.max())}})
     return out, events, desc
+
+
+def _truth_index(gt):
+    if gt is None or not len(gt.get("t", [])):
+        return None
+    from toffe_deploy.runtime.truth import TruthIndex
+
+    return TruthIndex(gt)
 
 
 # ------------------------------------------------------------------------------------ timing
@@ -316,6 +346,15 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
                 "cores_total": sum(s["cores"] for s in stages),
                 "chips_needed": int(np.ceil(sum(s["cores"] for s in stages) / cm.c("loihi2_cores_per_chip")))}
 
+    # ---- like for like (issue 14): both levels, same rules, CPU time, quality -----------------
+    lfl = None
+    if "cpu" in args.targets:
+        from toffe_deploy.baselines.registry import BenchContext
+
+        ctx = BenchContext(windows=windows, events=events, bundle=bundle, config=cfg, pipe=cpu_pipe,
+                           counts={"toffe": toffe_counts, "dotie": dotie_counts, "dotie_cluster": dotie_cl_counts})
+        lfl = like_for_like(args, ctx, machine, reader)
+
     # ---- cpu: DOTIE without / with clustering and TOFFE (deployed pipeline), timed in turn ------
     # Every timed inference starts from the window's events: DOTIE bins its count frames, TOFFE
     # builds its spike volume (SpikeVolume.from_events, as `toffe-deploy run` does).
@@ -398,7 +437,7 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         "bundle": {"path": str(bundle.root), "sensor_size": list(cfg.sensor_size), "n_stages": len(bundle.ofs),
                    "ofpd_macs": macs},
         "constants": cm.constants_table(), "paper_table2": report.PAPER_TABLE2,
-        "rows": rows, "ratios": report.ratios(rows), "goals": report.goals(rows),
+        "rows": rows, "ratios": report.ratios(rows), "goals": report.goals(rows), "like_for_like": lfl,
         "wall_s": round(time.perf_counter() - t_start, 1),
     }
     md = render_markdown(result, report, short_name(machine))
@@ -410,10 +449,111 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         tmp.write_text(md)
     with atomic_path(out / "energy_latency.png", suffix=".png") as tmp:
         report.plot(rows, tmp, f"Energy and latency per inference ({short_name(machine)}; "
-                               f"{cfg.sensor_size[0]}x{cfg.sensor_size[1]}, B={cfg.n_bins})")
+                               f"{cfg.sensor_size[0]}x{cfg.sensor_size[1]}, B={cfg.n_bins})", lfl)
     print(md)
     log(f"wrote {out}/energy_latency.{{md,json,png}} in {result['wall_s']} s")
     return 0
+
+
+def like_for_like(args, ctx, machine: dict, reader=None) -> dict:
+    """Every model of baselines/registry.py at both levels on the same windows: interleaved
+    blocks of wall and CPU time, energy under both counting rules and time x power, quality
+    (gated matching of `eval`) on the same windows; ratios only within a level."""
+    from toffe_deploy.baselines.registry import LEVELS, build_models
+    from toffe_deploy.energy import rules
+    from toffe_deploy.energy.measure import block_ratio, block_summary, time_blocks
+    from toffe_deploy.metrics import FlowErrors
+
+    cfg = ctx.config
+    n = len(ctx.windows)
+    models = build_models(ctx)
+    cores = os.cpu_count() or 1
+    load0 = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    warnings = []
+    if load0 is not None and load0 > cores:
+        warnings.append(f"load average {load0:.1f} > {cores} cores at start: wall times are inflated; "
+                        "read the CPU-time columns")
+        log("WARNING: " + warnings[-1])
+    log(f"like for like: {len(models)} models x {args.blocks} interleaved blocks of {n} windows")
+    times = time_blocks({m.key: m.run for m in models}, n, args.blocks, warmup=min(args.warmup, 3))
+    load1 = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    if load1 is not None and load1 > cores and not warnings:
+        warnings.append(f"load average {load1:.1f} > {cores} cores at end: wall times are inflated")
+    power = args.power_w if args.power_w is not None else PAPER_CPU_POWER_W
+    truth = getattr(args, "truth", None)
+    rows = []
+    for m in models:
+        t = times[m.key]
+        row = {"key": m.key, "family": m.family, "level": m.level, "label": m.label,
+               "wall": block_summary(t["wall"]), "cpu": block_summary(t["cpu"]), "thread": block_summary(t["thread"]),
+               "energy": rules.mean_work_energy(m.works) if m.works else None}
+        row["energy_time_power_uj"] = rules.time_power(row["cpu"]["median_ms"] * 1e-3, power)
+        if reader is not None:                   # a counter: measured first, the models beside it
+            from toffe_deploy.energy.measure import measure_dynamic
+
+            dyn = measure_dynamic(reader, m.run, n, min_run_s=args.energy_s, idle_s=args.idle_s)
+            row["energy_measured"] = dyn.to_dict()
+        if m.predict is not None and truth is not None:
+            fe = FlowErrors(n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
+            for i, (t0, _x) in enumerate(ctx.windows):
+                fe.add_window(m.predict(m.run(i)), truth.window(t0, cfg.dt_us), getattr(args, "focal_px", None))
+            q = fe.summary()
+            q.pop("confusion", None)
+            row["quality"] = q
+            row["quality_by_bin"] = {str(k): fe.summary(k)["recall"] for k in range(1, cfg.n_speed_bins + 1)}
+        rows.append(row)
+    by = {r["key"]: r for r in rows}
+    ratios = {}
+    for lvl in LEVELS:
+        for num in ("dotie_cluster", "dotie"):
+            a, b = by.get(f"{num}@{lvl}"), by.get(f"toffe@{lvl}")
+            if not (a and b):
+                continue
+            ta, tb = times[a["key"]], times[b["key"]]
+            r = {"cpu": block_ratio(ta["cpu"], tb["cpu"]), "wall": block_ratio(ta["wall"], tb["wall"])}
+            if a["energy"] and b["energy"]:
+                for rule in rules.RULES:
+                    r[f"energy_{rule}"] = a["energy"][rule]["total_uj"] / b["energy"][rule]["total_uj"]
+            ratios[f"{num}/toffe@{lvl}"] = r
+    code = dotie_code_protocol(args, ctx) if args.dotie_code else None
+    return {"rows": rows, "ratios": ratios, "power_w": power, "blocks": args.blocks, "windows": n,
+            "loadavg": [load0, load1], "cores": cores, "warnings": warnings, "dotie_code": code,
+            "energy_note": rules.ENERGY_NOTE, "rule_labels": rules.RULE_LABELS}
+
+
+def dotie_code_protocol(args, ctx) -> dict:
+    """DOTIE as its code runs it: one stream of 2 ms bins, membrane carried (optimised level,
+    identical to the reference with a carried DotieState). A window's objects are the boxes of
+    the 2 ms bin holding its midpoint (the best-aligned bin DOTIE has: favourable to it)."""
+    from toffe_deploy.baselines.dotie_fast import FastDotie
+    from toffe_deploy.baselines.registry import window_objects
+    from toffe_deploy.metrics import FlowErrors
+
+    cfg = ctx.config
+    step = 2000
+    ev = np.concatenate(ctx.events) if ctx.events else np.zeros(0)
+    t_first = ctx.windows[0][0]
+    t_last = ctx.windows[-1][0] + cfg.dt_us
+    fast = FastDotie(tuple(cfg.sensor_size), 1, step, carry=True)
+    boxes, cpu = {}, []
+    for tb in range(t_first, t_last, step):
+        sel = ev[(ev["t"] >= tb) & (ev["t"] < tb + step)]
+        c0 = time.process_time()
+        boxes[tb] = fast.detect(sel, tb)
+        cpu.append(time.process_time() - c0)
+    out = {"bin_us": step, "steps": len(cpu), "cpu_ms_per_step_median": float(np.median(cpu) * 1e3) if cpu else None}
+    truth = getattr(args, "truth", None)
+    if truth is not None:
+        fe = FlowErrors(n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
+        for t0, _x in ctx.windows:
+            mid = t0 + cfg.dt_us // 2
+            tb = t_first + ((mid - t_first) // step) * step
+            fe.add_window(window_objects(boxes.get(tb, [[]])), truth.window(t0, cfg.dt_us), getattr(args, "focal_px", None))
+        q = fe.summary()
+        q.pop("confusion", None)
+        out["quality"] = q
+        out["quality_by_bin"] = {str(k): fe.summary(k)["recall"] for k in range(1, cfg.n_speed_bins + 1)}
+    return out
 
 
 PAPER_CPU_POWER_W = 92.5 / 2.17   # W: TOFFE's E / L on the paper's i9-12700KF (Table 2)
@@ -607,18 +747,31 @@ def render_markdown(result: dict, report, machine_name: str) -> str:
         "",
         report.legend(),
         "",
+        "## Like for like: both optimisation levels, the same counting rules, CPU time, quality",
+        "",
+        report.like_for_like_markdown(result.get("like_for_like")),
+        "",
         "## TOFFE on Loihi 2 + host: the split",
         "",
         report.hybrid_split_table(toffe_loihi),
         "",
-        "## Goals (same-run ratios on cpu, DOTIE with clustering / TOFFE)",
+        "## Goals, like for like (DOTIE with clustering / TOFFE, within one level, CPU time)",
         "",
     ]
+    lfl = result.get("like_for_like") or {}
+    for lvl in ("optimised", "reference"):
+        r = (lfl.get("ratios") or {}).get(f"dotie_cluster/toffe@{lvl}")
+        if r:
+            lat = r["cpu"]["median"]
+            lines.append(f"- {lvl} level: CPU time {report.fmt(lat)}x (goal >= {report.fmt(report.GOALS['cpu_latency_ratio'])}x: "
+                         f"{'met' if lat >= report.GOALS['cpu_latency_ratio'] else 'NOT met'}); modelled energy "
+                         f"{report.fmt(r.get('energy_event'))}x by the event-driven rule, {report.fmt(r.get('energy_dense'))}x "
+                         f"by the dense rule (goal >= {report.fmt(report.GOALS['cpu_energy_ratio'])}x)")
+    lines += ["", "## The first goals, across levels (DOTIE reference port / TOFFE optimised: not like for like)", ""]
     if g.get("evaluated"):
-        lines += [f"- latency: {report.fmt(g['cpu_latency_ratio'])}x (goal >= {report.fmt(g['cpu_latency_goal'])}x): "
-                  f"{'met' if g['cpu_latency_met'] else 'NOT met'}",
-                  f"- energy, modelled from counted operations: {report.fmt(g['cpu_energy_ratio_modelled'])}x "
-                  f"(goal >= {report.fmt(g['cpu_energy_goal'])}x): {'met' if g['cpu_energy_met'] else 'NOT met'}",
+        lines += [f"- latency (p50 wall): {report.fmt(g['cpu_latency_ratio'])}x, across levels",
+                  f"- energy, modelled from counted operations, DOTIE by the dense rule and TOFFE by the "
+                  f"event-driven one: {report.fmt(g['cpu_energy_ratio_modelled'])}x, across counting rules",
                   f"- energy, modelled as p50 wall time x one CPU power (so equal to the latency ratio): "
                   f"{report.fmt(g.get('cpu_energy_ratio_time_power'))}x",
                   f"- against one DBSCAN per window instead of DOTIE's per-step clustering (not the goal's baseline): "

@@ -86,6 +86,17 @@ def test_quick_run_writes_table_json_and_png(tiny_bundle, tiny_events, tmp_path,
     assert win["status"] == "ok" and win["extra"]["dbscan_runs"] <= 1          # one DBSCAN per window at most
     assert per_step["extra"]["dbscan_runs"] >= win["extra"]["dbscan_runs"]      # DOTIE's code: one per step
     assert "cpu_latency_ratio_window" in res["goals"] and "one DBSCAN per window" in md
+    lfl = res["like_for_like"]                 # issue 14: both levels, both rules, CPU time, quality
+    keys = {r["key"] for r in lfl["rows"]}
+    for fam in ("dotie", "dotie_cluster", "toffe"):
+        assert {f"{fam}@reference", f"{fam}@optimised"} <= keys
+    for r in lfl["rows"]:
+        assert r["cpu"]["blocks"] == 5 and 0 < r["cpu"]["min_ms"] <= r["cpu"]["median_ms"] <= r["cpu"]["max_ms"]
+        ev, de = r["energy"]["event"], r["energy"]["dense"]
+        assert 0 < ev["total_uj"] < de["total_uj"]          # sparse input: the event rule counts less
+        assert ev["total_uj"] == pytest.approx(ev["compute_uj"] + ev["memory_uj"])
+    assert set(lfl["ratios"]) == {f"{m}/toffe@{lvl}" for m in ("dotie", "dotie_cluster") for lvl in ("reference", "optimised")}
+    assert "Like for like" in md and "E event rule" in md
     lo = rows[("toffe", "loihi-sim")]["loihi"]
     assert len(lo["stages"]) == 4 and lo["latency_ms"] > 0
     assert "cpu" in res["ratios"] and res["goals"]["evaluated"]
@@ -130,4 +141,8 @@ def test_quick_run_with_a_counter_reports_measured_or_below_noise(tiny_bundle, t
     for r in res["rows"]:
         assert r["E_kind"].startswith("below noise (RAPL") and r["E_mj"] is None
         assert r["energy_measured"]["k"] >= 1 and r["E_model_mj"] > 0
-    assert "below noise [b]" in (out / "energy_latency.md").read_text()
+    md = (out / "energy_latency.md").read_text()
+    assert "below noise [b]" in md
+    for r in res["like_for_like"]["rows"]:           # like for like: the counter first, never a number here
+        assert r["energy_measured"]["status"] == "below noise" and r["energy"]["event"]["total_uj"] > 0
+    assert "below noise (RAPL" in md.split("Like for like")[1]

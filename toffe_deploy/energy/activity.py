@@ -14,6 +14,7 @@ Per model and inference:
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,6 +26,7 @@ from ..ofpd_io import has_object
 from ..fixed_point import LoihiOFSParams, lif_step, synaptic_input
 from .cost_model import (HostOps, LoihiActivity, ann_ops, dbscan_ops, dense_conv_ops, dense_lif_ops, event_conv_ops,
                          event_index_ops, fixed_lif_ops, mask_ops, morphology_ops, sort_unique_ops, synop_count)
+from .rules import LayerWork, Work
 
 
 @dataclass
@@ -33,6 +35,7 @@ class ModelCount:
     host_all: HostOps = field(default_factory=HostOps)
     host_hybrid: HostOps = field(default_factory=HostOps)
     extra: dict = field(default_factory=dict)
+    work: Work | None = None           # what the inference computes, for the counting rules (rules.py)
 
 
 def counted_ofs_stage(inp: np.ndarray, p: LoihiOFSParams, act: LoihiActivity) -> tuple[np.ndarray, int]:
@@ -77,15 +80,18 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
     # Host side as the cpu target runs it (runtime/cpu.py): masks over the window's ones only,
     # closing only over the bounding box of the stage's spikes grown by the kernel.
     masks = HostOps()
+    morph, mask_event = [], 0.0
     for k in range(n):
         ones = int(np.count_nonzero(res.inputs[k]))
         masks = masks + HostOps(op_int8=2 * ones, sram_bytes=10 * ones)
+        mask_event += 2 * ones
         fired = res.spikes[k].any(axis=0)
         if fired.any():
             ys, xs = np.nonzero(fired)
             bh = min(int(ys.max() - ys.min()) + 1 + 2 * mask_kernel, h)
             bw = min(int(xs.max() - xs.min()) + 1 + 2 * mask_kernel, w)
             masks = masks + morphology_ops(bh, bw, mask_kernel, 2)
+            morph.append((bh * bw, mask_kernel, 2))
     ofpd = (ann_ops(ofpd_macs, ofpd_params, ofpd_activations) + HostOps(sram_bytes=8 * ofpd_in_elems)).scaled(ofpd_calls)
     # the cpu target builds its window from the events (SpikeVolume.from_events: index, then
     # np.unique), never scanning a dense volume
@@ -94,8 +100,13 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
     ofs_host = HostOps()
     for k in range(n):
         ofs_host = ofs_host + event_conv_ops(sum(acts[k].synops)) + fixed_lif_ops(host_updates[k])
+    work = Work(frame_px=h * w, steps=b, channels=ch, input_events=n_raw,
+                layers=[LayerWork(h * w, b, ch, params[k].kernel_size, float(sum(acts[k].synops)), float(host_updates[k]))
+                        for k in range(n)],
+                morph=morph, mask_event=mask_event, mask_dense=float(2 * n * b * ch * h * w),
+                post=ofpd + sort_unique_ops(n_raw))
     mc = ModelCount(loihi=acts, host_all=binarize + ofs_host + masks + ofpd, host_hybrid=masks + ofpd,
-                    extra={"ofpd_calls": ofpd_calls, "input_events": int(np.count_nonzero(binned))})
+                    extra={"ofpd_calls": ofpd_calls, "input_events": int(np.count_nonzero(binned))}, work=work)
     return res, mc
 
 
@@ -121,12 +132,20 @@ def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()
     frames = event_index_ops(n_raw) + HostOps(add_int32=n_raw, sram_bytes=2 * b * h * w + 4 * n_raw)
     host_layer = frames + dense_conv_ops(h, w, 1, 1, 3, b) + dense_lif_ops(h * w, b)
     post = mask_ops(b * h * w)                       # any(S[t]) per step
+    morph, mask_event = [], float(n_raw)
+    reach = p.dilate_kernel + p.close_kernel        # how far Close(Dilate(S)) reaches from a spike
     for t in range(b):
         if spikes[t].any():                          # dilate + close (3 passes of 12x12), AND with x[t] > 0
             post = post + morphology_ops(h, w, p.dilate_kernel, 1) + morphology_ops(h, w, p.close_kernel, 2) \
                 + mask_ops(3 * h * w)
+            ys, xs = np.nonzero(spikes[t])
+            box = (min(int(ys.max() - ys.min()) + 1 + 2 * reach, h) * min(int(xs.max() - xs.min()) + 1 + 2 * reach, w))
+            morph += [(box, p.dilate_kernel, 1), (box, p.close_kernel, 2)]
+    layer = LayerWork(h * w, b, 1, p.weight.shape[0], float(sum(act.synops)), float(sum(act.active)))
+    work = Work(frame_px=h * w, steps=b, channels=1, input_events=n_raw, layers=[layer], morph=morph,
+                mask_event=mask_event, mask_dense=float(4 * b * h * w))
     plain = ModelCount(loihi=[act], host_all=host_layer + post, host_hybrid=post,
-                       extra={"separated_px": int(out.sum())})
+                       extra={"separated_px": int(out.sum())}, work=work)
     cl = HostOps()
     totals = {"dbscan_points": 0, "dbscan_runs": 0, "dbscan_neighbour_pairs": 0, "boxes": 0}
     for t in range(b):
@@ -135,7 +154,8 @@ def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()
         for k, v in stats.items():
             totals[k] += v
     cluster = ModelCount(loihi=[act], host_all=plain.host_all + cl, host_hybrid=post + cl,
-                         extra={"separated_px": int(out.sum()), **totals})
+                         extra={"separated_px": int(out.sum()), **totals},
+                         work=dataclasses.replace(work, post=work.post + cl))
     window_ops, window_stats = count_clustering(out.any(axis=0), p)
     window = ModelCount(loihi=[act], host_all=plain.host_all + HostOps(op_int8=out.size) + window_ops,
                         host_hybrid=post + window_ops, extra={"separated_px": int(out.sum()), **window_stats})

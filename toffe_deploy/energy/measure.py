@@ -167,3 +167,48 @@ def time_interleaved(fns: dict[str, Callable[[int], None]], n_items: int, warmup
         if was_enabled:
             gc.enable()
     return out
+
+
+def time_blocks(fns: dict[str, Callable[[int], None]], n_items: int, blocks: int = 5,
+                warmup: int = 2) -> dict[str, dict[str, list[float]]]:
+    """Wall and CPU time per item of several models, interleaved: in each of ``blocks`` blocks
+    every model runs once over all items (A, B, C, then the next block starts one model later:
+    B, C, A, ...), so the machine's load changes hit every model alike. Per model and block:
+    the mean per item of wall time (perf_counter), process CPU time (process_time: all the
+    process's threads) and thread CPU time (thread_time). Returns {name: {"wall": [...],
+    "cpu": [...], "thread": [...]}} in seconds, one value per block."""
+    for fn in fns.values():
+        for i in range(warmup):
+            fn(i % n_items)
+    names = list(fns)
+    out = {n: {"wall": [], "cpu": [], "thread": []} for n in names}
+    was_enabled = gc.isenabled()
+    gc.collect()
+    gc.disable()
+    try:
+        for b in range(max(int(blocks), 1)):
+            for name in names[b % len(names):] + names[:b % len(names)]:
+                fn = fns[name]
+                w0, c0, t0 = time.perf_counter(), time.process_time(), time.thread_time()
+                for i in range(n_items):
+                    fn(i)
+                out[name]["wall"].append((time.perf_counter() - w0) / n_items)
+                out[name]["cpu"].append((time.process_time() - c0) / n_items)
+                out[name]["thread"].append((time.thread_time() - t0) / n_items)
+                gc.collect()
+    finally:
+        if was_enabled:
+            gc.enable()
+    return out
+
+
+def block_summary(values: list[float]) -> dict[str, float]:
+    """median, min, max (ms) of per-block times in seconds."""
+    a = np.asarray(values, float) * 1e3
+    return {"median_ms": float(np.median(a)), "min_ms": float(a.min()), "max_ms": float(a.max()), "blocks": int(a.size)}
+
+
+def block_ratio(num: list[float], den: list[float]) -> dict[str, float]:
+    """The ratio num / den block by block (same block: same load), as median and min-max."""
+    r = np.asarray(num, float) / np.maximum(np.asarray(den, float), 1e-12)
+    return {"median": float(np.median(r)), "min": float(r.min()), "max": float(r.max())}

@@ -135,7 +135,8 @@ def markdown_table(rows: list[dict], machine_name: str) -> str:
         return (f"{fmt(p['dotie_cluster'][col][0] / p['toffe'][col][0])}x / "
                 f"{fmt(p['dotie_cluster'][col][1] / p['toffe'][col][1])}x")
 
-    lines.append("| **ratio DOTIE with clustering / TOFFE** | " + " | ".join(
+    lines.append("| ratio DOTIE with clustering / TOFFE (across levels: DOTIE reference, TOFFE optimised; "
+                 "see the like-for-like table) | " + " | ".join(
         [pr("cpu"), rcell("cpu"), pr("cuda"), rcell("cuda"), pr("loihi"), rcell("loihi-sim"), rcell("loihi2")]) + " |")
     return "\n".join(lines)
 
@@ -207,40 +208,133 @@ def goals(rows: list[dict]) -> dict:
             "cpu_energy_ratio_headline": r["energy"], "cpu_energy_headline_kind": r["energy_kind"]}
 
 
-def plot(rows: list[dict], path, title: str) -> None:
-    """Energy and latency per model and target (ours beside the paper's), log scale, PNG."""
+def plot(rows: list[dict], path, title: str, lfl: dict | None = None) -> None:
+    """Four panels, one kind of figure each (log scale, PNG): the paper's measured energy and
+    latency (Table 2, its machines); our energies *modelled* from counted operations under each
+    counting rule (lower bounds, uJ), with any counter measurement marked apart; our CPU time per
+    window at each optimisation level. Modelled and measured never share an axis."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
-    idx = index_rows(rows)
-    series = [("paper CPU", lambda m: PAPER_TABLE2[m]["cpu"] if m in PAPER_TABLE2 else (None, None)),
-              ("paper Loihi 2 + TX2", lambda m: PAPER_TABLE2[m]["loihi"] if m in PAPER_TABLE2 else (None, None))]
-    for t in TARGETS:
-        if any(idx.get((m, t), {}).get("status") == "ok" for m in MODELS):
-            kinds = {energy_tag(idx.get((m, t), {}).get("E_kind", "")) for m in MODELS
-                     if idx.get((m, t), {}).get("status") == "ok"}
-            series.append((f"ours {t}" + (" (Loihi 2 model + host)" if t == "loihi-sim" else "")
-                           + (", E modelled" if kinds == {"m"} else ""),
-                           lambda m, t=t: (idx.get((m, t), {}).get("E_mj"), idx.get((m, t), {}).get("L_ms"))
-                           if idx.get((m, t), {}).get("status") == "ok" else (None, None)))
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    x = np.arange(len(MODELS))
-    width = 0.8 / len(series)
-    for ax, which, label in ((axes[0], 0, "dynamic energy per inference (mJ)"), (axes[1], 1, "latency per inference (ms)")):
-        for i, (name, get) in enumerate(series):
-            vals = [get(m)[which] for m in MODELS]
-            vals = [v if (v is not None and v > 0) else np.nan for v in vals]
-            ax.bar(x + (i - (len(series) - 1) / 2) * width, vals, width, label=name,
-                   hatch="//" if name.startswith("paper") else None, alpha=0.85)
-        ax.set_yscale("log")
+    fig, axes = plt.subplots(2, 2, figsize=(13, 8))
+    paper_models = [m for m in MODELS if m in PAPER_TABLE2]
+    cols = ("cpu", "cuda", "jetson", "loihi")
+    x = np.arange(len(paper_models))
+    width = 0.8 / len(cols)
+    for ax, which, label in ((axes[0, 0], 0, "paper: measured dynamic energy (mJ)"),
+                             (axes[0, 1], 1, "paper: measured latency (ms)")):
+        for i, col in enumerate(cols):
+            ax.bar(x + (i - (len(cols) - 1) / 2) * width, [PAPER_TABLE2[m][col][which] for m in paper_models], width,
+                   label=PAPER_TABLE2["hardware"][col], hatch="//", alpha=0.85)
         ax.set_xticks(x)
-        ax.set_xticklabels([MODEL_TICKS[m] for m in MODELS], fontsize=8)
-        ax.set_ylabel(label)
-        ax.grid(True, which="both", axis="y", alpha=0.3)
-    axes[1].legend(fontsize=8, loc="best")
+        ax.set_xticklabels([MODEL_TICKS[m] for m in paper_models], fontsize=8)
+        ax.set_title(label, fontsize=9)
+    axes[0, 1].legend(fontsize=7)
+    lrows = (lfl or {}).get("rows") or []
+    fams = list(dict.fromkeys(r["family"] for r in lrows))
+    xs = np.arange(len(fams))
+    ax = axes[1, 0]
+    series = [("event rule, compute + memory", "event"), ("dense rule, compute + memory", "dense")]
+    for i, (name, rule) in enumerate(series):
+        vals = []
+        for f in fams:
+            r = next((r for r in lrows if r["family"] == f and r.get("energy")), None)
+            vals.append(r["energy"][rule]["total_uj"] if r else np.nan)
+        ax.bar(xs + (i - 0.5) * 0.4, vals, 0.4, label=name, alpha=0.85)
+    measured = [r for r in rows if r.get("status") == "ok" and r.get("target") == "cpu"
+                and str(r.get("E_kind", "")).startswith("measured")]
+    for r in measured:
+        if r["model"] in fams:
+            ax.plot(fams.index(r["model"]), r["E_mj"] * 1e3, "k*", ms=10, label=f"measured ({r['E_kind'][10:-1]})")
+    ax.set_xticks(xs)
+    ax.set_xticklabels(fams, fontsize=8)
+    ax.set_title("ours: energy per inference MODELLED from counted ops (uJ, lower bounds)", fontsize=9)
+    ax.legend(fontsize=7)
+    ax = axes[1, 1]
+    from ..baselines.registry import LEVELS
+    for i, lvl in enumerate(LEVELS):
+        vals = []
+        for f in fams:
+            r = next((r for r in lrows if r["family"] == f and r["level"] == lvl), None)
+            vals.append(r["cpu"]["median_ms"] if r else np.nan)
+        ax.bar(xs + (i - 0.5) * 0.4, vals, 0.4, label=f"{lvl} level", alpha=0.85)
+    ax.set_xticks(xs)
+    ax.set_xticklabels(fams, fontsize=8)
+    ax.set_title("ours: measured CPU time per window (ms, median over blocks)", fontsize=9)
+    ax.legend(fontsize=7)
+    for a in axes.ravel():
+        a.set_yscale("log")
+        a.grid(True, which="both", axis="y", alpha=0.3)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)
+
+
+def _q(row: dict, key: str, digits: int = 3) -> str:
+    q = row.get("quality")
+    return fmt(q.get(key), digits) if q else "-"
+
+
+def like_for_like_markdown(lfl: dict | None) -> str:
+    """The like-for-like tables (issue 14): per model and level, time (CPU and wall, median and
+    min-max over blocks), energy under both counting rules and time x power, and quality."""
+    if not lfl:
+        return "(not run: needs the cpu target)"
+    lines = []
+    for w in lfl.get("warnings", []):
+        lines += [f"**Warning:** {w}.", ""]
+    head = ["model", "level", "CPU ms/window median [min-max]", "wall ms median [min-max]",
+            "E measured uJ (counter)", "E event rule uJ (compute + memory)", "E dense rule uJ (compute + memory)",
+            f"E time x {lfl['power_w']:.1f} W mJ", "recall", "pixE px", "dirE deg", "speedE m/s", "FP/window",
+            "recall by bin 1/2/3/4"]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+
+    def t(d):
+        return f"{fmt(d['median_ms'])} [{fmt(d['min_ms'])}-{fmt(d['max_ms'])}]"
+
+    def e(row, rule):
+        en = row.get("energy")
+        if not en:
+            return "-"
+        x = en[rule]
+        return f"{fmt(x['total_uj'])} ({fmt(x['compute_uj'])} + {fmt(x['memory_uj'])})"
+
+    def measured(row):
+        d = row.get("energy_measured")
+        if not d:
+            return "no counter"
+        if d["per_inference_j"] is None:
+            return f"below noise ({d['source']})"
+        return f"{fmt(d['per_inference_j'] * 1e6)} ({d['source']})"
+
+    for r in lfl["rows"]:
+        qb = r.get("quality_by_bin")
+        lines.append("| " + " | ".join([
+            r["label"], r["level"], t(r["cpu"]), t(r["wall"]), measured(r), e(r, "event"), e(r, "dense"),
+            fmt(r["energy_time_power_uj"] * 1e-3), _q(r, "recall"), _q(r, "pixE"), _q(r, "dirE"), _q(r, "speedE"),
+            _q(r, "fp_per_window"), "/".join(fmt(v, 2) for v in qb.values()) if qb else "-"]) + " |")
+    lines += ["", "Ratios, each within one level, same run, same windows (block by block: median [min-max]):", "",
+              "| ratio | level | CPU time | wall time | E event rule | E dense rule |", "|---|---|---|---|---|---|"]
+    for k, r in lfl["ratios"].items():
+        name, lvl = k.split("@")
+        lines.append(f"| {name.replace('/', ' / ')} | {lvl} | {fmt(r['cpu']['median'])}x "
+                     f"[{fmt(r['cpu']['min'])}-{fmt(r['cpu']['max'])}] | {fmt(r['wall']['median'])}x "
+                     f"[{fmt(r['wall']['min'])}-{fmt(r['wall']['max'])}] | {fmt(r.get('energy_event'))}x | "
+                     f"{fmt(r.get('energy_dense'))}x |")
+    code = lfl.get("dotie_code")
+    if code and code.get("quality"):
+        q = code["quality"]
+        lines += ["", f"DOTIE as its code runs it ({code['bin_us']} us bins, membrane carried; objects of the bin "
+                      f"holding each window's midpoint): recall {fmt(q['recall'])}, pixE {fmt(q['pixE'])} px, "
+                      f"FP/window {fmt(q['fp_per_window'])}, recall by bin "
+                      + "/".join(fmt(v, 2) for v in code["quality_by_bin"].values())
+                      + f"; {fmt(code['cpu_ms_per_step_median'])} ms CPU per 2 ms step (optimised level)."]
+    lines += ["", f"Energies: {lfl['energy_note']}; the same rule is applied to every model "
+                  f"(energy/rules.py). Time x power: median CPU time x {lfl['power_w']:.1f} W (stated, "
+                  "not measured). Load average " + ", ".join(fmt(v) for v in lfl["loadavg"] if v is not None)
+              + f" (start, end) on {lfl['cores']} cores. Quality: gated matching of `eval` (20 px) on the same "
+                "windows; DOTIE reports boxes only (no direction, speed or bin: '-')."]
+    return "\n".join(lines)

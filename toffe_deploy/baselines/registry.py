@@ -1,0 +1,155 @@
+"""The models of the like-for-like benchmark (benchmarks/energy_latency.py, issue 14).
+
+Each model family gives one ``BenchModel`` per optimisation level it has:
+
+    reference  the authors' algorithm as plain numpy / OpenCV / scikit-learn / torch
+    optimised  compiled and event driven, as TOFFE's cpu target
+
+and each BenchModel gives, for window i of the benchmark's windows, the timed call ``run(i)``,
+its object predictions (``predict(output)``, metrics.Prediction; None for a model that reports
+no objects) and its counted ``Work`` (energy/rules.py) on the counted windows. A ratio is only
+ever taken between two models of the same level. To add a baseline, add a factory
+``fn(ctx: BenchContext) -> list[BenchModel]`` to ``FACTORIES``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from ..metrics import Prediction
+from .dotie import Detection, DotieParams, dotie_detect_x, dotie_frames, dotie_separate_x
+
+LEVELS = ("reference", "optimised")
+
+
+@dataclass
+class BenchContext:
+    """What every factory may use: windows (t0, front-end binned (B, 2, H, W)), their events,
+    the bundle and its config, the cpu Pipeline (or None), and the counted ModelCounts per
+    family ("toffe", "dotie", "dotie_cluster"), index i = window i."""
+
+    windows: list
+    events: list
+    bundle: Any
+    config: Any
+    pipe: Any
+    counts: dict = field(default_factory=dict)
+
+
+@dataclass
+class BenchModel:
+    family: str                                  # the row group: toffe, dotie, dotie_cluster, ...
+    level: str                                   # reference | optimised
+    label: str
+    run: Callable[[int], Any]
+    predict: Callable[[Any], list[Prediction]] | None = None
+    works: list | None = None                    # energy.rules.Work per counted window
+
+    @property
+    def key(self) -> str:
+        return f"{self.family}@{self.level}"
+
+
+def window_objects(steps: list[list[Detection]]) -> list[Prediction]:
+    """One DOTIE window's objects from its per-step boxes: boxes that overlap (inclusive pixel
+    bounds) across or within steps are one object, at the point-weighted mean of their centres.
+    DOTIE reports no direction or speed (NaN) and no speed bin (stage 0)."""
+    boxes = [d for s in steps for d in s]
+    n = len(boxes)
+    parent = list(range(n))
+
+    def root(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for i in range(n):
+        for j in range(i + 1, n):
+            a, b = boxes[i], boxes[j]
+            if a.x0 <= b.x1 and b.x0 <= a.x1 and a.y0 <= b.y1 and b.y0 <= a.y1:
+                parent[root(i)] = root(j)
+    groups: dict[int, list[Detection]] = {}
+    for i in range(n):
+        groups.setdefault(root(i), []).append(boxes[i])
+    out = []
+    for g in groups.values():
+        w = float(sum(d.n_points for d in g))
+        out.append(Prediction(0, sum(d.cx * d.n_points for d in g) / w, sum(d.cy * d.n_points for d in g) / w,
+                              math.nan, math.nan, math.nan))
+    return out
+
+
+def dotie_models(ctx: BenchContext) -> list[BenchModel]:
+    from .dotie_fast import FastDotie
+
+    cfg = ctx.config
+    dt, nb, size = cfg.dt_us, cfg.n_bins, tuple(cfg.sensor_size)
+    p = DotieParams()
+    t0s = [t0 for t0, _x in ctx.windows]
+    ev = ctx.events
+    fast = FastDotie(size, nb, dt, p)
+
+    def works(fam):
+        return [c.work for c in ctx.counts[fam]] if fam in ctx.counts else None
+
+    return [
+        BenchModel("dotie", "reference", "DOTIE w/o clustering (numpy + OpenCV, dense)",
+                   lambda i: dotie_separate_x(dotie_frames(ev[i], t0s[i], dt, nb, size), p), None, works("dotie")),
+        BenchModel("dotie", "optimised", "DOTIE w/o clustering (numba, event driven)",
+                   lambda i: fast.separate(ev[i], t0s[i]), None, works("dotie")),
+        BenchModel("dotie_cluster", "reference", "DOTIE with clustering (numpy + OpenCV + scikit-learn DBSCAN)",
+                   lambda i: dotie_detect_x(dotie_frames(ev[i], t0s[i], dt, nb, size), p), window_objects,
+                   works("dotie_cluster")),
+        BenchModel("dotie_cluster", "optimised", "DOTIE with clustering (numba, event driven, grid DBSCAN)",
+                   lambda i: fast.detect(ev[i], t0s[i]), window_objects, works("dotie_cluster")),
+    ]
+
+
+def toffe_predictions(objects) -> list[Prediction]:
+    return [Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps, o.speed_bin_mps, o.speed_px_s / 1000.0)
+            for o in objects]
+
+
+def toffe_models(ctx: BenchContext) -> list[BenchModel]:
+    """TOFFE: reference = the numpy fixed-point cascade (model/reference.py, as `eval` runs it)
+    with OFPD in onnxruntime; optimised = the deployed cpu Pipeline (numba, event driven)."""
+    if ctx.pipe is None:
+        return []
+    from ..events.binning import bin_window
+    from ..events.frontend import apply_dense
+    from ..model.reference import fixed_stage_fn, predict_window
+    from ..runtime.spikes import SpikeVolume
+
+    cfg = ctx.config
+    dt, nb, size = cfg.dt_us, cfg.n_bins, tuple(cfg.sensor_size)
+    t0s = [t0 for t0, _x in ctx.windows]
+    ev = ctx.events
+    stage = fixed_stage_fn(list(ctx.bundle.ofs))
+    pipe = ctx.pipe
+
+    def run_ref(i):
+        binned = apply_dense(bin_window(ev[i], t0s[i], dt, nb, size, dtype=np.uint8), cfg.input_norm,
+                             cfg.input_min_cluster)
+        return predict_window(binned, stage, pipe.ofpd.run, cfg)[0]
+
+    def run_opt(i):
+        vol = SpikeVolume.from_events(ev[i], t0s[i], dt, nb, size)
+        return list(pipe.process_stream([(t0s[i], vol)]))[0].objects
+
+    w = [c.work for c in ctx.counts["toffe"]] if "toffe" in ctx.counts else None
+    return [BenchModel("toffe", "reference", "TOFFE (numpy fixed-point cascade, onnxruntime OFPD)", run_ref,
+                       lambda preds: preds, w),
+            BenchModel("toffe", "optimised", "TOFFE (deployed cpu Pipeline: numba, event driven)", run_opt,
+                       toffe_predictions, w)]
+
+
+#: family -> factory; the benchmark builds every model of every factory.
+FACTORIES: dict[str, Callable[[BenchContext], list[BenchModel]]] = {"dotie": dotie_models, "toffe": toffe_models}
+
+
+def build_models(ctx: BenchContext) -> list[BenchModel]:
+    return [m for f in FACTORIES.values() for m in f(ctx)]
