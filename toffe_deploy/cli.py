@@ -53,6 +53,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"toffe-deploy: {exc}", file=sys.stderr)
             return exc.exit_code
         except BrokenPipeError:
+            # the reader of our stdout went away (`| head`): stop quietly, and point stdout at
+            # /dev/null so the interpreter's final flush does not report the closed pipe
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
             return 0
         except OSError as exc:
             # A write (or read) the system refused: full disk (ENOSPC, EDQUOT), read-only file
