@@ -26,6 +26,7 @@ from __future__ import annotations
 import abc
 import collections
 import os
+import select
 import socket
 import struct
 import sys
@@ -85,6 +86,7 @@ class LiveStats:
     dropped_events: int = 0
     dropped_chunks: int = 0
     late_events: int = 0
+    invalid_events: int = 0         # UDP: addresses outside the sensor (dropped, not fatal)
     queue_events: int = 0
     peak_queue_events: int = 0
 
@@ -326,6 +328,8 @@ class StdinSource(LiveSource):
         rec = EVENT_DTYPE.itemsize
         rest = b""
         while not self._stop.is_set():
+            if not select.select([self.fd], [], [], _POLL_S)[0]:
+                continue
             data = os.read(self.fd, 1 << 20)
             if not data:
                 if rest:
@@ -353,15 +357,17 @@ class UdpAerSource(LiveSource):
     """``--events udp://HOST:PORT``: listens on HOST:PORT for aestream's UDP AER packets
     (``aestream input ... output udp HOST PORT [--include-timestamp true]``; see ``aer_words``).
     With timestamps, the 32-bit microsecond times are unwrapped (they wrap every 71.6 min);
-    without, each packet's events get its arrival time. The stream ends after ``idle_timeout_s``
-    without a packet, or on Ctrl-C."""
+    without, each packet's events get its arrival time. Addresses outside the sensor are dropped
+    and counted (``invalid_events``: a datagram socket takes packets from anyone, and aestream
+    0.6.4 pads its last timestamped packet with stale words). The stream ends after
+    ``idle_timeout_s`` without a packet, or on Ctrl-C."""
 
     format_name = "udp-aer"
 
     def __init__(self, spec: str, sensor_size, **kw):
+        host, port = _host_port(spec, "udp://")
         if sensor_size is None:
             raise InputError(spec, "an AER stream does not carry its sensor size: give --sensor-size WxH")
-        host, port = _host_port(spec, "udp://")
         super().__init__(spec, sensor_size, **kw)
         try:
             self.sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
@@ -382,7 +388,7 @@ class UdpAerSource(LiveSource):
             return np.empty(0, EVENT_DTYPE)
         if words[0] >> 31:                                  # no timestamps: arrival time
             addr = words
-            t = np.full(words.size, int((arrival - self._t0_host) * 1e6), np.int64)
+            t = np.full(words.size, round((arrival - self._t0_host) * 1e6), np.int64)
         else:
             addr, t32 = words[0:words.size // 2 * 2:2], words[1::2].astype(np.int64)
             prev = t32[0] if self._last32 is None else self._last32
@@ -395,6 +401,10 @@ class UdpAerSource(LiveSource):
         out["y"] = addr & 0x7FFF
         out["p"] = (addr >> 15) & 1
         out["t"] = t
+        ok = (out["x"] < self.sensor_size[0]) & (out["y"] < self.sensor_size[1])
+        if not ok.all():
+            self.stats.invalid_events += int((~ok).sum())
+            out = out[ok]
         return out
 
     def _produce(self) -> None:

@@ -212,7 +212,8 @@ def live_line(stats: dict, latencies_s: list[float]) -> str:
     return (f"live: newest event -> JSON line p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms; "
             f"{stats['received_events']} events in {stats['received_chunks']} chunks received, "
             f"{stats['dropped_events']} dropped in {stats['dropped_chunks']} chunks (queue of "
-            f"{stats['queue_events']} events, peak {stats['peak_queue_events']}), {stats['late_events']} late")
+            f"{stats['queue_events']} events, peak {stats['peak_queue_events']}), {stats['late_events']} late"
+            + (f", {stats['invalid_events']} outside the sensor" if stats.get("invalid_events") else ""))
 
 
 def truth_lines(e: dict) -> list[str]:
