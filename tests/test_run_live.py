@@ -96,6 +96,35 @@ def test_aer_words_round_trip_with_32_bit_wrap_and_without_timestamps():
 
 
 # ------------------------------------------------------------------ real sockets, in process
+def test_a_run_behind_its_source_drops_the_oldest_and_jumps_to_the_newest(env):
+    """Queue of 250 events; 7 packets of 100 arrive while the run is busy: the 5 oldest are
+    dropped, the run jumps over their windows (no line for them) and every event is accounted for."""
+    ev = events_of(env)[:800]
+    packets = [ev[i:i + 100] for i in range(0, 800, 100)]
+    src = open_live("udp://127.0.0.1:0", SENSOR, queue_events=250, idle_timeout_s=0.5)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    with src:
+        src.start()
+        tx.sendto(aer_words(packets[0]).tobytes(), ("127.0.0.1", src.port))
+        gen = src.iter_windows(500)
+        wins = [next(gen)]                                   # the run is at its first window
+        for p in packets[1:]:
+            tx.sendto(aer_words(p).tobytes(), ("127.0.0.1", src.port))
+        time.sleep(0.3)
+        wins += list(gen)
+    tx.close()
+    s = src.stats
+    assert s.received_events == 800 and s.dropped_chunks == 5
+    got = np.concatenate([w for _, w in wins])
+    assert len(got) + s.dropped_events == 800
+    assert np.array_equal(got[-200:], ev[600:])             # the newest two packets, whole
+    steps = np.diff([t0 for t0, _ in wins])
+    assert (steps > 500).sum() == 1 and s.dropped_windows == (steps.max() - 500) // 500 > 0
+    t_jump = wins[int(np.argmax(steps)) + 1][0]
+    assert t_jump <= ev["t"][600] < t_jump + 500
+
+
+
 def test_udp_source_receives_real_packets_and_cuts_windows_by_event_time(env):
     ev = events_of(env)
     src = open_live("udp://127.0.0.1:0", SENSOR, idle_timeout_s=0.5)

@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError, ToffeError
-from ..events.live import QUEUE_EVENTS, is_live
+from ..events.live import GRACE_S, QUEUE_EVENTS, is_live
 from . import add_progress_flag, show_progress
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
@@ -77,6 +77,10 @@ def register(sub) -> None:
     p.add_argument("--idle-timeout", type=float, default=0.0, metavar="S",
                    help="live sources: end the run after S seconds without an event (default: 0, never; "
                         "stdin ends at end of file, dv:// when the sender stops, every source on Ctrl-C)")
+    p.add_argument("--window-grace-ms", type=float, default=GRACE_S * 1e3, metavar="MS",
+                   help=f"live sources: how long past a window's end (in host time, the source's clock mapped "
+                        f"at its first event) the run waits for late events when nothing newer came; events "
+                        f"that come later are dropped and counted (default: {GRACE_S * 1e3:g})")
     p.add_argument("--render", metavar="DIR", help="also write one frame per window (events and flow arrows "
                                                    "coloured by the flow colour wheel) into DIR")
     p.add_argument("--video", action="store_true", help="with --render: one MP4 (DIR/object_flow.mp4) "
@@ -204,7 +208,8 @@ def open_source(args, bundle_sensor: tuple[int, int]):
     if is_live(args.events):
         from ..events.live import open_live
 
-        return open_live(args.events, args.sensor_size, args.queue_events, args.idle_timeout)
+        return open_live(args.events, args.sensor_size, args.queue_events, args.idle_timeout,
+                         args.window_grace_ms / 1e3)
     path = Path(args.events) if args.events else SAMPLE
     if not args.events and not SAMPLE.is_file():
         raise InputError(SAMPLE, "the shipped sample recording is missing (reinstall, or pass --events FILE)")
@@ -244,8 +249,8 @@ def run_command(args) -> int:
         raise ToffeError("--skip-empty-after must be >= 0 (0: never skip)")
     if is_live(args.events) and args.start_us is not None:
         raise ToffeError("--start-us applies to files: a live source starts at its first event")
-    if args.idle_timeout < 0:
-        raise ToffeError("--idle-timeout must be >= 0 (0: never)")
+    if args.idle_timeout < 0 or args.window_grace_ms < 0:
+        raise ToffeError("--idle-timeout and --window-grace-ms must be >= 0")
     if args.video and not args.render:
         raise ToffeError("--video needs --render DIR")
     if args.tag != "fixed_pt" and args.target in ("cpu", "cuda"):

@@ -12,9 +12,12 @@ Clock: a source's timestamps are mapped to host time at the first event,
     host(t) = host_first + (t - t_first) * 1e-6 s
 
 (``host_first``: ``time.perf_counter()`` when the chunk holding the first event arrived). A window
-is closed when an event at or past its end arrives, or when host time passes host(t1) +
-``GRACE_S`` with nothing newer in the queue (a quiet stream still yields its windows on time).
-An event older than the window being filled arrived too late: it is dropped and counted. The
+is closed when an event at or past its end arrives, or when host time passes host(t1) + the
+grace (``grace_s``, default GRACE_S; ``run --window-grace-ms``) with nothing newer in the queue (a quiet stream still yields its windows on time).
+An event older than the window being filled arrived too late: it is dropped and counted. After
+the queue dropped chunks, the windows whose events were dropped are jumped over (no line: they
+were not empty, their events are gone; counted in ``dropped_windows``), so a run that falls
+behind works on the newest events instead of walking through the lost span. The
 latency of a window is the time its line was written minus host(newest event in the window).
 
 Formats: see README.md, "Live sources" (``-``: a 16-byte header then EVENT_DTYPE records on
@@ -85,6 +88,7 @@ class LiveStats:
     received_chunks: int = 0
     dropped_events: int = 0
     dropped_chunks: int = 0
+    dropped_windows: int = 0        # windows jumped over after a drop (their events are gone: no line)
     late_events: int = 0
     invalid_events: int = 0         # UDP: addresses outside the sensor (dropped, not fatal)
     queue_events: int = 0
@@ -155,13 +159,15 @@ class LiveSource(abc.ABC):
     format_name = "live"
     ground_truth = None
 
-    def __init__(self, name: str, sensor_size, max_events: int = QUEUE_EVENTS, idle_timeout_s: float = 0.0):
+    def __init__(self, name: str, sensor_size, max_events: int = QUEUE_EVENTS, idle_timeout_s: float = 0.0,
+                 grace_s: float = GRACE_S):
         if max_events < 1:
             raise InputError(name, f"--queue-events must be >= 1, got {max_events}")
         self.path = name
         self.sensor_size = check_sensor_size(name, sensor_size)
         self.attrs: dict = {}
         self.idle_timeout_s = float(idle_timeout_s or 0.0)
+        self.grace_s = float(grace_s)
         self.stats = LiveStats(queue_events=int(max_events))
         self.queue = ChunkQueue(max_events, self.stats)
         self._stop = threading.Event()
@@ -233,7 +239,7 @@ class LiveSource(abc.ABC):
             if item is not None:
                 buf = item
         t0 = int(buf["t"][0]) if t_start is None else int(t_start)
-        n_empty = 0
+        n_empty, seen_drops, jump_to = 0, self.stats.dropped_chunks, None
         while True:
             if skip_empty_after is not None and n_empty >= skip_empty_after and buf.shape[0]:
                 t0 += (int(buf["t"][0]) - t0) // dt_us * dt_us      # jump to the next event's window
@@ -243,7 +249,7 @@ class LiveSource(abc.ABC):
             while not exhausted and (not buf.shape[0] or buf["t"][-1] < t1):
                 item = self._next(0.0)
                 if item is None:
-                    left = _POLL_S if waiting else self.host_time(t1) + GRACE_S - time.perf_counter()
+                    left = _POLL_S if waiting else self.host_time(t1) + self.grace_s - time.perf_counter()
                     if left <= 0:
                         break                        # closed by the clock: nothing newer came
                     item = self._next(min(left, _POLL_S))
@@ -252,6 +258,13 @@ class LiveSource(abc.ABC):
                 if item is _END:
                     exhausted = True
                     break
+                if self.stats.dropped_chunks != seen_drops and item.shape[0]:
+                    seen_drops = self.stats.dropped_chunks
+                    if int(item["t"].min()) >= t1:       # the queue overflowed before this chunk: catch up
+                        keep = buf["t"] < t1            # this window ends here; what followed it is cut
+                        self.stats.dropped_events += int((~keep).sum())
+                        buf, jump_to = self._append(buf[keep], item, t0), int(item["t"].min())
+                        break
                 buf = self._append(buf, item, t0)
                 if waiting and buf.shape[0]:
                     t0 += (int(buf["t"][0]) - t0) // dt_us * dt_us
@@ -263,6 +276,10 @@ class LiveSource(abc.ABC):
             buf = buf[cut:]
             n_empty = 0 if cut else n_empty + 1
             t0 = t1
+            if jump_to is not None:
+                n = (jump_to - t0) // dt_us
+                self.stats.dropped_windows += n
+                t0, jump_to, n_empty = t0 + n * dt_us, None, 0
 
     def _append(self, buf: np.ndarray, chunk: np.ndarray, t0: int) -> np.ndarray:
         """buf + chunk in time order; events before t0 (the window being filled) are late: dropped."""
@@ -477,9 +494,9 @@ class DvSource(LiveSource):
 
 
 def open_live(spec: str, sensor_size: tuple[int, int] | None = None, queue_events: int = QUEUE_EVENTS,
-              idle_timeout_s: float = 0.0) -> LiveSource:
+              idle_timeout_s: float = 0.0, grace_s: float = GRACE_S) -> LiveSource:
     """The live source an ``--events`` value names (see is_live); InputError when it cannot open."""
-    kw = {"max_events": queue_events, "idle_timeout_s": idle_timeout_s}
+    kw = {"max_events": queue_events, "idle_timeout_s": idle_timeout_s, "grace_s": grace_s}
     if spec == "-":
         return StdinSource(sensor_size, **kw)
     if spec.startswith("udp://"):
