@@ -96,7 +96,8 @@ def measure(bundle: str, ev: np.ndarray, sensor, seconds: float, target: str, qu
     live = s["live"]
     return {"sent_events": sent, "events_per_s": sent / seconds, "windows": s["windows"],
             "windows_per_s": s["windows"] / seconds, **{k: live[k] for k in
-            ("received_events", "dropped_events", "dropped_chunks", "late_events", "peak_queue_events")},
+            ("received_events", "dropped_events", "dropped_chunks", "dropped_windows", "late_events",
+             "socket_drops", "peak_queue_events")},
             "latency_p50_ms": live["event_latency_ms"]["p50"], "latency_p99_ms": live["event_latency_ms"]["p99"]}
 
 
@@ -130,7 +131,8 @@ def main(argv=None) -> int:
         rows.append(row)
         print(f"fraction {f:g}: {row['events_per_s'] / 1e3:.0f} k events/s sent, {row['windows_per_s']:.0f} windows/s, "
               f"received {row['received_events']}, dropped {row['dropped_events']} in {row['dropped_chunks']} "
-              f"chunks, late {row['late_events']}, peak queue {row['peak_queue_events']}; latency p50 "
+              f"chunks ({row['dropped_windows']} windows), late {row['late_events']}, kernel-dropped datagrams "
+              f"{row['socket_drops']}, peak queue {row['peak_queue_events']}; latency p50 "
               f"{row['latency_p50_ms']:.1f} ms, p99 {row['latency_p99_ms']:.1f} ms", flush=True)
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=2) + "\n")

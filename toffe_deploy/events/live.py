@@ -91,6 +91,7 @@ class LiveStats:
     dropped_windows: int = 0        # windows jumped over after a drop (their events are gone: no line)
     late_events: int = 0
     invalid_events: int = 0         # UDP: addresses outside the sensor (dropped, not fatal)
+    socket_drops: int = 0           # UDP: datagrams the kernel dropped (socket buffer full; Linux)
     queue_events: int = 0
     peak_queue_events: int = 0
 
@@ -435,6 +436,25 @@ class UdpAerSource(LiveSource):
                     return
                 raise
             self._push(self.decode(packet, time.perf_counter()))
+
+    def _socket_drops(self) -> int:
+        """Datagrams the kernel dropped on our socket (/proc/net/udp's last column; 0 elsewhere)."""
+        inode = str(os.fstat(self.sock.fileno()).st_ino)
+        for table in ("/proc/net/udp", "/proc/net/udp6"):
+            try:
+                with open(table) as f:
+                    for line in f:
+                        cols = line.split()
+                        if len(cols) > 12 and cols[9] == inode:
+                            return int(cols[-1])
+            except OSError:
+                pass
+        return 0
+
+    def stats_json(self) -> dict:
+        if self.sock.fileno() >= 0:
+            self.stats.socket_drops = self._socket_drops()
+        return super().stats_json()
 
     def _close_device(self) -> None:
         self.sock.close()

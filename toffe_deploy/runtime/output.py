@@ -213,7 +213,9 @@ def live_line(stats: dict, latencies_s: list[float]) -> str:
             f"{stats['received_events']} events in {stats['received_chunks']} chunks received, "
             f"{stats['dropped_events']} dropped in {stats['dropped_chunks']} chunks (queue of "
             f"{stats['queue_events']} events, peak {stats['peak_queue_events']}), {stats['late_events']} late"
-            + (f", {stats['invalid_events']} outside the sensor" if stats.get("invalid_events") else ""))
+            + (f", {stats['invalid_events']} outside the sensor" if stats.get("invalid_events") else "")
+            + (f", {stats['socket_drops']} datagrams dropped by the kernel (socket buffer full)"
+               if stats.get("socket_drops") else ""))
 
 
 def truth_lines(e: dict) -> list[str]:
