@@ -196,3 +196,38 @@ def test_sigterm_during_the_export_lava_check_leaves_no_hidden_bundle(env):
     o = fs.run_scenario("export SIGTERM", argv, fs.n_children(2), fs.ACTIONS["SIGTERM host"], [tmp], env=cenv)
     assert_clean(o, 143, "terminated by SIGTERM")
     assert not (env["out"] / "bundle").exists()
+
+
+# ------------------------------------------------------------------------- a live source on loihi-sim
+def test_ctrl_c_ends_a_live_loihi_run_with_its_lines_and_summary_and_stops_lava(env):
+    """`--events -` (stdin kept open: the stream goes on) on loihi-sim; Ctrl-C to the group as a
+    terminal sends it: the finished windows stay, the summary is printed, exit 130, and no process
+    or segment of the run is left."""
+    from toffe_deploy.events.io import read_events
+    from toffe_deploy.events.live import stdin_header
+
+    rec = read_events(env["rec"])
+    out = env["out"] / "live.jsonl"
+    argv, cenv = fs.cli(str(ROOT), "run", env["bundle"], "--target", "loihi-sim", "--events", "-", "--no-progress",
+                        "--out", out)
+    t_start = time.time()
+    p = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=cenv,
+                         cwd=str(ROOT), start_new_session=True, preexec_fn=fs._default_sigint)
+    p.stdin.write(stdin_header(rec.sensor_size) + rec.events.tobytes())
+    p.stdin.flush()
+    trig = fs.lines_written(out, 3)
+    deadline = time.monotonic() + 180
+    while not trig(p):
+        assert p.poll() is None and time.monotonic() < deadline, p.stderr.read()
+        time.sleep(0.05)
+    os.killpg(p.pid, signal.SIGINT)
+    stdout, stderr = (s.decode() for s in p.communicate(timeout=60))
+    p.stdin.close()
+    assert p.returncode == 130 and stderr.strip() == "toffe-deploy: interrupted", stderr
+    assert "live: newest event -> JSON line" in stdout and f"{len(rec)} events in" in stdout
+    rows = fs.whole_lines(out)
+    assert len(rows) >= 3 and f"target loihi-sim: {len(rows)} windows" in stdout
+    settle = time.monotonic() + 10
+    while (fs.run_pids(p.pid) or fs._run_shm({}, p.pid, t_start, False)) and time.monotonic() < settle:
+        time.sleep(0.1)
+    assert fs.run_pids(p.pid) == [] and fs._run_shm({}, p.pid, t_start, False) == {}
