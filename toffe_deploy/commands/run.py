@@ -1,8 +1,9 @@
 """`toffe-deploy run [BUNDLE] --target T`: the deployed TOFFE on a stream of events.
 
-Windows of the bundle's dt stream from the recording (never loaded whole), each goes through the
-OFS cascade on the target's backend and OFPD in onnxruntime, and its object flow is printed as
-one JSON line. A summary (windows, objects, windows/s, latency percentiles, and pixE/dirE/speedE
+Windows of the bundle's dt stream from the recording (never loaded whole) or from a live source
+(stdin, UDP AER, DV network stream or camera: events/live.py), each goes through the OFS cascade
+on the target's backend and OFPD in onnxruntime, and its object flow is written as one JSON line
+as soon as it is done (runtime/output.py: whole lines, flushed). A summary (windows, objects, windows/s, latency percentiles, and pixE/dirE/speedE
 when the recording carries ground truth) closes the run: on stderr when the JSON lines go to
 stdout, so stdout stays pure JSON lines, on stdout otherwise.
 

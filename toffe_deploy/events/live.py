@@ -324,7 +324,11 @@ class StdinSource(LiveSource):
 
     def __init__(self, sensor_size=None, fd: int | None = None, **kw):
         self.fd = sys.stdin.fileno() if fd is None else fd
+        if os.isatty(self.fd):
+            raise InputError("-", "stdin is a terminal: pipe a binary event stream in (README: Live sources)")
         head = self._read_exact(STDIN_HEADER.size)
+        if not head:
+            raise InputError("-", "stdin is empty: expected a binary event stream (README: Live sources)")
         if len(head) < STDIN_HEADER.size or not head.startswith(STDIN_MAGIC):
             raise InputError("-", f"stdin does not start with the {STDIN_MAGIC.decode()} header "
                                   "(16 bytes: magic, u16 version, width, height, reserved; README: Live sources)")
