@@ -238,7 +238,7 @@ class LiveSource(abc.ABC):
             if item is _END:
                 return
             if item is not None:
-                buf = item
+                buf = self._append(buf, item, 0)     # sorted, should the source's chunk not be
         t0 = int(buf["t"][0]) if t_start is None else int(t_start)
         n_empty, seen_drops, jump_to = 0, self.stats.dropped_chunks, None
         while True:
