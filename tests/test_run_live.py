@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from toffe_deploy.events.core import EVENT_DTYPE, make_events
+from toffe_deploy.events.core import make_events
 from toffe_deploy.events.io import read_events
 from toffe_deploy.events.live import (ChunkQueue, DvSource, LiveStats, UdpAerSource, aer_words, open_live,
                                       stdin_header)
