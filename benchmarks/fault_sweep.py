@@ -1,7 +1,7 @@
 """Fault sweep: signals at every stage of `toffe-deploy run` and `export`, and what they leave.
 
 Each scenario starts the CLI in a session of its own, waits for a stage (the host has N
-children, the run is streaming, the output's temp file exists), does one thing (SIGTERM to the
+children, the run is streaming: its first JSON line is written), does one thing (SIGTERM to the
 host, Ctrl-C to the process group as a terminal sends it, SIGKILL to the host or to the whole
 group as ``timeout -k`` does, SIGKILL to Lava's shared-memory manager), then records the exit
 status, how long the host took to exit, and what is left 10 s later: processes of the session
@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import glob
+import json
 import os
 import shutil
 import signal
@@ -267,6 +268,31 @@ def file_exists(pattern: str, min_bytes: int = 0) -> Callable[[subprocess.Popen]
     return trig
 
 
+def lines_written(path: str | Path, n: int = 1) -> Callable[[subprocess.Popen], bool]:
+    """The run has streamed at least n whole JSON lines to ``path`` (`run --out` writes each
+    window's line as it is done); a file older than the trigger's first look is a previous run's."""
+    state: dict = {}
+
+    def trig(p):
+        t = state.setdefault(p.pid, time.time())          # one trigger serves several runs
+        try:
+            if os.stat(path).st_mtime < t:
+                return False
+            with open(path, "rb") as f:
+                return f.read().count(b"\n") >= n
+        except OSError:
+            return False
+    return trig
+
+
+def whole_lines(path: str | Path) -> list[dict]:
+    """The JSON lines a (possibly killed) run left: ValueError on a partial or broken line."""
+    data = Path(path).read_bytes()
+    if data and not data.endswith(b"\n"):
+        raise ValueError(f"{path} ends inside a line")
+    return [json.loads(line) for line in data.splitlines()]
+
+
 def to_host(sig: int) -> Callable[[subprocess.Popen], None]:
     return lambda p: os.kill(p.pid, sig)
 
@@ -308,7 +334,7 @@ def matrix(e: dict, pythonpath: str, out: Path):
                         "multi:0,duration=5", "--no-progress", "--out", out / "lava.jsonl")
     lava_tmp = [str(out / ".lava.jsonl.*")]
     stages = [("0 children", catching()), ("2 children", n_children(2)), ("6 children", n_children(6)),
-              ("streaming", file_exists(lava_tmp[0]))]
+              ("streaming", lines_written(out / "lava.jsonl"))]
     for act in ("SIGTERM host", "Ctrl-C group", "SIGKILL host", "SIGKILL group"):
         for stage, trig in stages:
             yield "run-loihi", f"{act} @ {stage}", run_lava, env, trig, ACTIONS[act], lava_tmp, 30.0
@@ -319,7 +345,7 @@ def matrix(e: dict, pythonpath: str, out: Path):
         yield "run-loihi", f"SIGKILL shm manager @ {stage}", short, env, trig, kill_manager, lava_tmp, 60.0
     run_cpu, env = cli(pythonpath, "run", e["bundle"], "--target", "cpu", "--synthetic", "multi:0,duration=3",
                        "--no-progress", "--out", out / "cpu.jsonl")
-    yield "run-cpu", "SIGTERM host @ writing output", run_cpu, env, file_exists(str(out / ".cpu.jsonl.*")), \
+    yield "run-cpu", "SIGTERM host @ writing output", run_cpu, env, lines_written(out / "cpu.jsonl"), \
         ACTIONS["SIGTERM host"], [str(out / ".cpu.jsonl.*")], 30.0
     exp, env = cli(pythonpath, "export", e["ckpt"], "-o", out / "bundle", "--checks", "lava_vs_fixed",
                    "--windows", "2", "--lava-windows", "1", "--quiet")

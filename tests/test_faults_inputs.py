@@ -263,6 +263,25 @@ def test_full_disk_is_one_line_error_and_leaves_nothing(env, capsys, tmp_path, f
         sorted(p.name for p in full_disk.iterdir()) == ["ds", "filler"] and not any((full_disk / "ds").rglob("*.*"))
 
 
+def test_disk_full_mid_stream_leaves_whole_lines(full_disk):
+    """run --out appends one line per window: a write the disk refuses half-way is cut back to
+    the last whole line before the one-line error."""
+    from toffe_deploy.errors import InputError
+    from toffe_deploy.runtime.output import LineFile, write_line
+
+    fill(full_disk, leave=8192)
+    sink = LineFile(full_disk / "o.jsonl")
+    n = 0
+    with pytest.raises(InputError, match="o.jsonl: cannot write: No space left on device"):
+        while n < 10_000:
+            write_line(sink, {"t0_us": 500 * n, "objects": [{"pad": "x" * 300}]})
+            n += 1
+    sink.close()
+    data = (full_disk / "o.jsonl").read_bytes()
+    assert n > 5 and data.endswith(b"\n") and len(data.splitlines()) == n
+    assert all(json.loads(line)["t0_us"] == 500 * i for i, line in enumerate(data.splitlines()))
+
+
 def test_read_only_destination_is_one_line_error(env, capsys, tmp_path):
     with tmpfs(tmp_path / "ro", "ro,size=1m") as ro, unchanged(env["rec"], env["bundle"]):
         one_line_error(*cli(capsys, *run_args(env, "--out", ro / "o.jsonl"))[::2], "Read-only file system")

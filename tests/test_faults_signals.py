@@ -116,12 +116,19 @@ def test_signal_during_lava_start_up_stops_everything(env, action, n, rc, messag
     assert o.exit_s < 20
 
 
-def test_sigterm_while_streaming_removes_the_output_temp_file(env):
+def assert_finished_windows(path, at_least):
+    """--out streams: the windows finished before the fault, as whole JSON lines, in order."""
+    rows = fs.whole_lines(path)
+    assert len(rows) >= at_least, rows
+    assert [r["t0_us"] for r in rows] == [rows[0]["t0_us"] + 500 * i for i in range(len(rows))]
+
+
+def test_sigterm_while_streaming_keeps_the_finished_windows(env):
     argv, cenv = run_lava(env)
-    o = fs.run_scenario("SIGTERM streaming", argv, fs.file_exists(str(env["out"] / ".lava.jsonl.*")),
+    o = fs.run_scenario("SIGTERM streaming", argv, fs.lines_written(env["out"] / "lava.jsonl"),
                         fs.ACTIONS["SIGTERM host"], [str(env["out"] / ".lava.jsonl.*")], env=cenv)
     assert_clean(o, 143, "terminated by SIGTERM")
-    assert not (env["out"] / "lava.jsonl").exists()
+    assert_finished_windows(env["out"] / "lava.jsonl", 1)
 
 
 def test_sigkill_of_the_host_takes_its_lava_processes_and_memory(env):
@@ -130,15 +137,16 @@ def test_sigkill_of_the_host_takes_its_lava_processes_and_memory(env):
     assert_clean(o, -signal.SIGKILL)
 
 
-def test_sigkill_of_the_group_leaves_nothing_but_the_output_temp_file(env):
+def test_sigkill_of_the_group_leaves_whole_lines_of_the_finished_windows(env):
     """`timeout -k` kills the whole group, Python's resource tracker included: the host's reaper
-    (its own session) unlinks the segments."""
+    (its own session) unlinks the segments; --out holds every finished window, no partial line."""
     argv, cenv = run_lava(env)
     tmp = str(env["out"] / ".lava.jsonl.*")
-    o = fs.run_scenario("SIGKILL group", argv, fs.file_exists(tmp), fs.ACTIONS["SIGKILL group"], [tmp], env=cenv)
+    o = fs.run_scenario("SIGKILL group", argv, fs.lines_written(env["out"] / "lava.jsonl", 3),
+                        fs.ACTIONS["SIGKILL group"], [tmp], env=cenv)
     assert o.rc == -signal.SIGKILL and o.procs_left == 0 and o.shm_segments_left == 0, o
-    assert len(o.temp_left) == 1          # SIGKILL runs no clean-up; the name is hidden, the target untouched
-    assert not (env["out"] / "lava.jsonl").exists()
+    assert o.temp_left == [], o           # no temp file: the lines go straight to the target
+    assert_finished_windows(env["out"] / "lava.jsonl", 3)
 
 
 def test_lava_start_reclaims_segments_of_dead_hosts():
@@ -164,20 +172,21 @@ def test_lava_start_reclaims_segments_of_dead_hosts():
 
 def test_killed_shm_manager_is_a_one_line_error_not_a_hang(env):
     argv, cenv = run_lava(env)
-    o = fs.run_scenario("kill manager", argv, fs.file_exists(str(env["out"] / ".lava.jsonl.*")), fs.kill_manager,
+    o = fs.run_scenario("kill manager", argv, fs.lines_written(env["out"] / "lava.jsonl"), fs.kill_manager,
                         [str(env["out"] / ".lava.jsonl.*")], env=cenv, exit_wait_s=30)
     assert_clean(o, 2, "shared-memory manager")
     assert o.exit_s < 20                  # a hang is for ever; this allows a loaded 2-core machine
 
 
 # ------------------------------------------------------------------------- cpu target, export
-def test_sigterm_on_the_cpu_target_removes_the_output_temp_file(env):
+def test_sigterm_on_the_cpu_target_keeps_the_finished_windows(env):
     argv, cenv = fs.cli(str(ROOT), "run", env["bundle"], "--target", "cpu", "--synthetic", "multi:0,duration=3",
                         "--no-progress", "--out", env["out"] / "cpu.jsonl")
     tmp = str(env["out"] / ".cpu.jsonl.*")
-    o = fs.run_scenario("cpu SIGTERM", argv, fs.file_exists(tmp), fs.ACTIONS["SIGTERM host"], [tmp], env=cenv)
+    o = fs.run_scenario("cpu SIGTERM", argv, fs.lines_written(env["out"] / "cpu.jsonl", 5),
+                        fs.ACTIONS["SIGTERM host"], [tmp], env=cenv)
     assert_clean(o, 143, "terminated by SIGTERM")
-    assert not (env["out"] / "cpu.jsonl").exists()
+    assert_finished_windows(env["out"] / "cpu.jsonl", 5)
 
 
 def test_sigterm_during_the_export_lava_check_leaves_no_hidden_bundle(env):
@@ -187,3 +196,38 @@ def test_sigterm_during_the_export_lava_check_leaves_no_hidden_bundle(env):
     o = fs.run_scenario("export SIGTERM", argv, fs.n_children(2), fs.ACTIONS["SIGTERM host"], [tmp], env=cenv)
     assert_clean(o, 143, "terminated by SIGTERM")
     assert not (env["out"] / "bundle").exists()
+
+
+# ------------------------------------------------------------------------- a live source on loihi-sim
+def test_ctrl_c_ends_a_live_loihi_run_with_its_lines_and_summary_and_stops_lava(env):
+    """`--events -` (stdin kept open: the stream goes on) on loihi-sim; Ctrl-C to the group as a
+    terminal sends it: the finished windows stay, the summary is printed, exit 130, and no process
+    or segment of the run is left."""
+    from toffe_deploy.events.io import read_events
+    from toffe_deploy.events.live import stdin_header
+
+    rec = read_events(env["rec"])
+    out = env["out"] / "live.jsonl"
+    argv, cenv = fs.cli(str(ROOT), "run", env["bundle"], "--target", "loihi-sim", "--events", "-", "--no-progress",
+                        "--out", out)
+    t_start = time.time()
+    p = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=cenv,
+                         cwd=str(ROOT), start_new_session=True, preexec_fn=fs._default_sigint)
+    p.stdin.write(stdin_header(rec.sensor_size) + rec.events.tobytes())
+    p.stdin.flush()
+    trig = fs.lines_written(out, 3)
+    deadline = time.monotonic() + 180
+    while not trig(p):
+        assert p.poll() is None and time.monotonic() < deadline, p.stderr.read()
+        time.sleep(0.05)
+    os.killpg(p.pid, signal.SIGINT)
+    stdout, stderr = (s.decode() for s in p.communicate(timeout=60))
+    p.stdin.close()
+    assert p.returncode == 130 and stderr.strip() == "toffe-deploy: interrupted", stderr
+    assert "live: newest event -> JSON line" in stdout and f"{len(rec)} events in" in stdout
+    rows = fs.whole_lines(out)
+    assert len(rows) >= 3 and f"target loihi-sim: {len(rows)} windows" in stdout
+    settle = time.monotonic() + 10
+    while (fs.run_pids(p.pid) or fs._run_shm({}, p.pid, t_start, False)) and time.monotonic() < settle:
+        time.sleep(0.1)
+    assert fs.run_pids(p.pid) == [] and fs._run_shm({}, p.pid, t_start, False) == {}

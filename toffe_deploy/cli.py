@@ -52,7 +52,22 @@ def main(argv: list[str] | None = None) -> int:
         except Terminated as exc:
             print(f"toffe-deploy: {exc}", file=sys.stderr)
             return exc.exit_code
+        except SystemError as exc:
+            # a signal that landed while compiled code (numba's dispatcher) called back into
+            # Python comes out as "returned a result with an exception set", the signal's
+            # exception as its cause: the unwinding ran the clean-ups all the same
+            sig = exc.__cause__ or exc.__context__
+            if isinstance(sig, KeyboardInterrupt):
+                print("toffe-deploy: interrupted", file=sys.stderr)
+                return 130
+            if isinstance(sig, Terminated):
+                print(f"toffe-deploy: {sig}", file=sys.stderr)
+                return sig.exit_code
+            raise
         except BrokenPipeError:
+            # the reader of our stdout went away (`| head`): stop quietly, and point stdout at
+            # /dev/null so the interpreter's final flush does not report the closed pipe
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
             return 0
         except OSError as exc:
             # A write (or read) the system refused: full disk (ENOSPC, EDQUOT), read-only file

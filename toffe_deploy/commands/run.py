@@ -1,8 +1,9 @@
 """`toffe-deploy run [BUNDLE] --target T`: the deployed TOFFE on a stream of events.
 
-Windows of the bundle's dt stream from the recording (never loaded whole), each goes through the
-OFS cascade on the target's backend and OFPD in onnxruntime, and its object flow is printed as
-one JSON line. A summary (windows, objects, windows/s, latency percentiles, and pixE/dirE/speedE
+Windows of the bundle's dt stream from the recording (never loaded whole) or from a live source
+(stdin, UDP AER, DV network stream or camera: events/live.py), each goes through the OFS cascade
+on the target's backend and OFPD in onnxruntime, and its object flow is written as one JSON line
+as soon as it is done (runtime/output.py: whole lines, flushed). A summary (windows, objects, windows/s, latency percentiles, and pixE/dirE/speedE
 when the recording carries ground truth) closes the run: on stderr when the JSON lines go to
 stdout, so stdout stays pure JSON lines, on stdout otherwise.
 
@@ -20,6 +21,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError, ToffeError
+from ..events.live import GRACE_S, QUEUE_EVENTS, is_live
 from . import add_progress_flag, show_progress
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
@@ -43,8 +45,10 @@ def register(sub) -> None:
     src = p.add_mutually_exclusive_group()
     src.add_argument("--events", metavar="FILE",
                      help="event recording (our HDF5, npz/npy, DSEC/MVSEC HDF5, AEDAT4, Prophesee RAW/DAT, "
-                          "Metavision HDF5, ROS1 .bag or ROS2 bag directory); "
-                          "default: the shipped multi-object sample")
+                          "Metavision HDF5, ROS1 .bag or ROS2 bag directory), or a live source: "
+                          "'-' (binary event stream on stdin), 'udp://HOST:PORT' (aestream / SPIF AER packets; "
+                          "needs --sensor-size), 'dv://HOST:PORT' (DV network stream), 'dv-camera[:SERIAL]' "
+                          "(README: Live sources); default: the shipped multi-object sample")
     src.add_argument("--synthetic", metavar="SPEC",
                      help="generate the recording on the fly with the data-set generator: "
                           "'SPLIT[:INDEX][,duration=S][,seed=N][,sensor=WxH][,hfov=DEG]', e.g. "
@@ -66,8 +70,19 @@ def register(sub) -> None:
     lens.add_argument("--hfov-deg", type=float, metavar="DEG",
                       help="the recording camera's horizontal field of view instead of --focal-px: "
                            "F = (W / 2) / tan(DEG / 2)")
-    p.add_argument("--out", metavar="FILE.jsonl", help="write the JSON lines to this file (atomically) "
-                                                       "instead of stdout")
+    p.add_argument("--out", metavar="FILE.jsonl", help="write the JSON lines to this file instead of stdout: "
+                                                       "truncated when the run starts, then each window's line "
+                                                       "is appended whole as soon as the window is done")
+    p.add_argument("--queue-events", type=int, default=QUEUE_EVENTS, metavar="N",
+                   help=f"live sources: at most N events wait between the reader and the run; when more "
+                        f"arrive the oldest chunks are dropped and counted (default: {QUEUE_EVENTS})")
+    p.add_argument("--idle-timeout", type=float, default=0.0, metavar="S",
+                   help="live sources: end the run after S seconds without an event (default: 0, never; "
+                        "stdin ends at end of file, dv:// when the sender stops, every source on Ctrl-C)")
+    p.add_argument("--window-grace-ms", type=float, default=GRACE_S * 1e3, metavar="MS",
+                   help=f"live sources: how long past a window's end (in host time, the source's clock mapped "
+                        f"at its first event) the run waits for late events when nothing newer came; events "
+                        f"that come later are dropped and counted (default: {GRACE_S * 1e3:g})")
     p.add_argument("--render", metavar="DIR", help="also write one frame per window (events and flow arrows "
                                                    "coloured by the flow colour wheel) into DIR")
     p.add_argument("--video", action="store_true", help="with --render: one MP4 (DIR/object_flow.mp4) "
@@ -182,7 +197,8 @@ def check_run_outputs(args, bundle) -> None:
     nor each other; checked before any work (see fileio.check_outputs)."""
     from ..fileio import check_outputs
 
-    inputs = [("the input events", args.events), ("the bundle directory", bundle.root),
+    inputs = [("the input events", None if is_live(args.events) else args.events),
+              ("the bundle directory", bundle.root),
               ("the bundle manifest", bundle.root / "manifest.json")]
     inputs += [("bundle file", bundle.root / rel) for rel in bundle.manifest["files"]]
     inputs += [("bundle file", p) for p in bundle.ofpd_variants.values()]
@@ -197,6 +213,11 @@ def open_source(args, bundle_sensor: tuple[int, int]):
 
     if args.synthetic:
         return synthetic_source(args.synthetic, bundle_sensor, args.sensor_size)
+    if is_live(args.events):
+        from ..events.live import open_live
+
+        return open_live(args.events, args.sensor_size, args.queue_events, args.idle_timeout,
+                         args.window_grace_ms / 1e3)
     path = Path(args.events) if args.events else SAMPLE
     if not args.events and not SAMPLE.is_file():
         raise InputError(SAMPLE, "the shipped sample recording is missing (reinstall, or pass --events FILE)")
@@ -207,6 +228,8 @@ def sensor_origin(args, src) -> str:
     """Where the run's sensor size came from, for the summary (an inferred one is worth a warning)."""
     if args.sensor_size:
         return "--sensor-size"
+    if getattr(src, "live", False):
+        return "the live stream's"
     if args.synthetic:
         return "the synthetic camera's"
     if src.attrs.get("sensor_size_inferred"):
@@ -232,6 +255,10 @@ def run_command(args) -> int:
         raise ToffeError(f"--start-us must be in 0..2**53 us, got {args.start_us}")
     if args.skip_empty_after < 0:
         raise ToffeError("--skip-empty-after must be >= 0 (0: never skip)")
+    if is_live(args.events) and args.start_us is not None:
+        raise ToffeError("--start-us applies to files: a live source starts at its first event")
+    if args.idle_timeout < 0 or args.window_grace_ms < 0:
+        raise ToffeError("--idle-timeout and --window-grace-ms must be >= 0")
     if args.video and not args.render:
         raise ToffeError("--video needs --render DIR")
     if args.tag != "fixed_pt" and args.target in ("cpu", "cuda"):
@@ -241,15 +268,19 @@ def run_command(args) -> int:
     check_run_outputs(args, bundle)
     cfg = bundle.config
     src = open_source(args, cfg.sensor_size)
+    live = getattr(src, "live", False)
     with src:
         sensor = tuple(src.sensor_size)
         camera = resolve_camera(cfg, sensor, depth_m=args.depth_m, focal_px=args.focal_px, hfov_deg=args.hfov_deg,
                                 synthetic_focal_px=src.attrs.get("focal_px") if args.synthetic else None,
                                 sensor_from=sensor_origin(args, src))
-        t_start = src.t_start_us if args.start_us is None else int(args.start_us)
-        n_total = max(0, -(-(src.t_end_us - t_start) // cfg.dt_us))
-        if args.max_windows is not None:
-            n_total = min(n_total, args.max_windows)
+        if live:                    # the first event fixes the start; the end is the stream's
+            t_start, n_total = None, args.max_windows
+        else:
+            t_start = src.t_start_us if args.start_us is None else int(args.start_us)
+            n_total = max(0, -(-(src.t_end_us - t_start) // cfg.dt_us))
+            if args.max_windows is not None:
+                n_total = min(n_total, args.max_windows)
         truth = src.ground_truth
         errors = None
         if truth:
@@ -270,19 +301,20 @@ def run_command(args) -> int:
 
             report = RunReport(sensor, source=str(args.events or args.synthetic or SAMPLE))
 
-        pending: collections.deque = collections.deque()   # (t0, volume, time the window was ready)
+        # (t0, volume, time the window was ready, newest event's time or None)
+        pending: collections.deque = collections.deque()
 
         def windows():
             t_next = t_start
             skip = args.skip_empty_after or None
             for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=t_start, skip_empty_after=skip)):
-                if i >= n_total:
+                if n_total is not None and i >= n_total:
                     return
-                if t0 > t_next:
+                if t_next is not None and t0 > t_next:
                     summary.skip((t0 - t_next) // cfg.dt_us, cfg.dt_us)
                 t_next = t0 + cfg.dt_us
                 vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor)
-                pending.append((t0, vol, time.perf_counter()))
+                pending.append((t0, vol, time.perf_counter(), int(ev["t"][-1]) if live and ev.shape[0] else None))
                 yield t0, vol
 
         summary = RunSummary(target=args.target, camera=camera.describe(cfg), camera_json=camera.to_json(cfg),
@@ -298,7 +330,7 @@ def run_command(args) -> int:
             dump = SpikeDump(args.dump_spikes)
         pipe = Pipeline(bundle, args.target, tag=args.tag, ofpd_variant=args.ofpd, sensor_size=sensor,
                         speed_scale=camera.scale, keep_stages=dump is not None)
-        ok = False
+        ok = interrupted = False
         stream_out = args.out is None
         try:
             from tqdm import tqdm
@@ -307,12 +339,14 @@ def run_command(args) -> int:
                 summary.startup_s = time.perf_counter() - t_setup
                 t_run = time.perf_counter()
                 bar = tqdm(total=n_total, unit="win", desc=f"run {args.target}", file=sys.stderr,
-                           disable=not show_progress(args) or n_total < 2, leave=False)
-                with bar:
+                           disable=not show_progress(args) or (n_total or 0) < 2 and not live, leave=False)
+                with bar, live_interrupt(live) as stop:
                     for res in pipe.process_stream(windows()):
-                        t0, vol, t_ready = pending.popleft()
+                        t0, vol, t_ready, t_newest = pending.popleft()
                         summary.add(res, time.perf_counter() - t_ready)
                         write_window(sink, res)
+                        if t_newest is not None:
+                            summary.event_latencies_s.append(time.perf_counter() - src.host_time(t_newest))
                         if errors is not None:
                             errors.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps,
                                                           o.speed_bin_mps, o.speed_px_s / 1000.0)
@@ -327,6 +361,7 @@ def run_command(args) -> int:
                         if dump is not None:
                             dump.add(res)
                         bar.update(1)
+                interrupted = stop.interrupted
                 summary.wall_s = time.perf_counter() - t_run
                 if dump is not None:
                     dump.write()
@@ -334,6 +369,8 @@ def run_command(args) -> int:
         finally:
             if renderer is not None:
                 renderer.close(ok)
+        if live:
+            summary.live = src.stats_json()
     if errors is not None:
         summary.errors = errors.summary()
     out = sys.stderr if stream_out else sys.stdout
@@ -348,4 +385,25 @@ def run_command(args) -> int:
             tmp.write_text(json.dumps(summary.to_json(), indent=2) + "\n", encoding="utf-8")
     if report is not None:
         report.write(args.report, summary.to_json())
+    if interrupted:
+        print("toffe-deploy: interrupted", file=sys.stderr)
+        return 130
     return 0
+
+
+class live_interrupt:
+    """Ctrl-C ends a live run like the end of its stream: the windows done so far are kept and the
+    summary is printed (exit 130). File runs let KeyboardInterrupt unwind as before."""
+
+    def __init__(self, live: bool):
+        self.live = live
+        self.interrupted = False
+
+    def __enter__(self) -> "live_interrupt":
+        return self
+
+    def __exit__(self, kind, exc, tb) -> bool:
+        if self.live and kind is KeyboardInterrupt:
+            self.interrupted = True
+            return True
+        return False

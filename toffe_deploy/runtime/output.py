@@ -9,18 +9,24 @@ JSON line per window (keys in this order)::
 speed_px_s is the image-plane speed the camera saw; speed_mps and speed_bin_mps are it (and the
 bin's representative speed) in m/s for the run's camera (depth and focal length, see the summary).
 
-Lines go to stdout or, with ``--out FILE.jsonl``, to a file written atomically (a temp file
-renamed into place when the run finishes; an interrupted run leaves nothing half-written).
+Lines stream: each window's line is written, whole, as soon as the window is done, to stdout
+(flushed per line, so a piped consumer sees it at once) or, with ``--out FILE.jsonl``, to that
+file (truncated when the run starts streaming, then one ``os.write`` of one complete line per
+window on an O_APPEND descriptor). A killed run (SIGKILL included) leaves valid JSONL of every
+finished window and never a partial line; a write the system refuses half-way (a full disk) is
+cut back to the last whole line before the error is reported. The other outputs
+(``--summary-json``, ``--dump-spikes``) stay atomic.
 """
 from __future__ import annotations
 
 import contextlib
 import json
 import math
+import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Iterator
+from typing import Iterator
 
 import numpy as np
 
@@ -30,30 +36,75 @@ from .pipeline import WindowResult
 from .traffic import Traffic
 
 
-@contextlib.contextmanager
-def jsonl_sink(path: str | Path | None) -> Iterator[IO[str]]:
-    """A text stream for JSON lines: stdout when ``path`` is None, else an atomic file."""
-    if path is None:
-        yield sys.stdout
+class LineFile:
+    """A JSONL file written one whole line at a time: ``write(text)`` takes complete lines and
+    puts each call on disk with one ``os.write`` on an O_APPEND descriptor, so the file always
+    ends at a line boundary whatever kills the process; a short or refused write is cut back to
+    the previous boundary (ftruncate) before the OSError propagates."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        try:
+            self.fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND | os.O_CLOEXEC, 0o644)
+        except OSError as exc:
+            raise InputError(path, f"cannot write: {exc.strerror or exc}") from None
+        self.size = 0
+
+    def write(self, text: str) -> None:
+        data = text.encode("utf-8")
+        done = 0
+        try:
+            while done < len(data):
+                done += os.write(self.fd, data[done:])
+        except OSError as exc:
+            if done:
+                os.ftruncate(self.fd, self.size)
+            raise InputError(self.path, f"cannot write: {exc.strerror or exc}") from None
+        self.size += done
+
+    def flush(self) -> None:
+        """Every write is already in the kernel (no user-space buffer)."""
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
+
+
+class LineStdout:
+    """stdout for JSON lines: each ``write`` (whole lines) is flushed at once, so a consumer on
+    a pipe gets every window as it is done. A closed pipe (``| head``) raises BrokenPipeError,
+    which the CLI ends on quietly (cli.main)."""
+
+    def write(self, text: str) -> None:
+        sys.stdout.write(text)
         sys.stdout.flush()
-        return
-    try:
-        ctx = atomic_path(path)
-        tmp = ctx.__enter__()
-    except OSError as exc:
-        raise InputError(path, f"cannot write: {exc.strerror or exc}") from None
-    try:
-        with open(tmp, "w", encoding="utf-8") as f:
-            yield f
-    except BaseException:
-        if not ctx.__exit__(*sys.exc_info()):
-            raise
-    else:
-        ctx.__exit__(None, None, None)
+
+    def flush(self) -> None:
+        sys.stdout.flush()
+
+    def close(self) -> None:
+        self.flush()
 
 
-def write_window(stream: IO[str], result: WindowResult) -> None:
-    stream.write(json.dumps(result.to_json(), separators=(",", ":")) + "\n")
+@contextlib.contextmanager
+def jsonl_sink(path: str | Path | None) -> Iterator[LineFile | LineStdout]:
+    """A whole-line JSON-lines writer: stdout (flushed per line) when ``path`` is None, else
+    ``path`` streamed line by line (LineFile)."""
+    sink = LineStdout() if path is None else LineFile(path)
+    try:
+        yield sink
+    finally:
+        sink.close()
+
+
+def write_line(stream, obj: dict) -> None:
+    """One dict as one compact JSON line, written whole (any line: a window, a header)."""
+    stream.write(json.dumps(obj, separators=(",", ":")) + "\n")
+
+
+def write_window(stream, result: WindowResult) -> None:
+    write_line(stream, result.to_json())
 
 
 def percentiles_ms(seconds: list[float]) -> dict[str, float]:
@@ -85,6 +136,9 @@ class RunSummary:
     skipped_gaps: int = 0
     longest_gap_us: int = 0
     traffic: Traffic | None = None          # host <-> chip bridge traffic (Lava targets)
+    #: live sources: per window, line written - host time of its newest event (events.live's clock)
+    event_latencies_s: list[float] = field(default_factory=list)
+    live: dict | None = None                # live sources: events.live.LiveStats (received, dropped, late)
 
     def skip(self, n_windows: int, dt_us: int) -> None:
         """Record a stretch of ``n_windows`` empty windows the run jumped over (see --skip-empty-after)."""
@@ -123,7 +177,9 @@ class RunSummary:
                 "latency_ms": percentiles_ms(self.latencies_s), "errors": self.errors, "camera": self.camera_json,
                 "skipped": {"windows": self.skipped_windows, "gaps": self.skipped_gaps,
                             "longest_gap_s": self.longest_gap_us / 1e6},
-                "bridge_traffic": self.traffic.to_json() if self.traffic is not None else None}
+                "bridge_traffic": self.traffic.to_json() if self.traffic is not None else None,
+                "live": None if self.live is None else
+                {**self.live, "event_latency_ms": percentiles_ms(self.event_latencies_s)}}
 
     def lines(self) -> list[str]:
         lat = percentiles_ms(self.latencies_s)
@@ -140,12 +196,26 @@ class RunSummary:
             out.append(self.camera)
         if self.traffic is not None:
             out.append(self.traffic.line())
+        if self.live is not None:
+            out.append(live_line(self.live, self.event_latencies_s))
         if self.skipped_windows:
             out.append(f"skipped {self.skipped_windows} empty windows in {self.skipped_gaps} gap(s) without events "
                        f"(longest {self.longest_gap_us / 1e6:.3f} s); no JSON line for them")
         if self.errors is not None:
             out += truth_lines(self.errors)
         return out
+
+
+def live_line(stats: dict, latencies_s: list[float]) -> str:
+    """The summary's line for a live source: event-to-line latency, received and lost events."""
+    lat = percentiles_ms(latencies_s)
+    return (f"live: newest event -> JSON line p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms; "
+            f"{stats['received_events']} events in {stats['received_chunks']} chunks received, "
+            f"{stats['dropped_events']} dropped in {stats['dropped_chunks']} chunks (queue of "
+            f"{stats['queue_events']} events, peak {stats['peak_queue_events']}), {stats['late_events']} late"
+            + (f", {stats['invalid_events']} outside the sensor" if stats.get("invalid_events") else "")
+            + (f", {stats['socket_drops']} datagrams dropped by the kernel (socket buffer full)"
+               if stats.get("socket_drops") else ""))
 
 
 def truth_lines(e: dict) -> list[str]:

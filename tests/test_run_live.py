@@ -1,0 +1,319 @@
+"""Live sources and streaming output of `toffe-deploy run`: stdin, UDP AER (aestream's packets,
+from aestream's own sender too), DV network streams (dv-processing's NetworkWriter), the bounded
+queue's drop policy, and JSON lines that a killed run leaves whole.
+
+Real localhost sockets and pipes, a real 64x48 bundle and recording, real CLI subprocesses.
+"""
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from toffe_deploy.events.core import make_events
+from toffe_deploy.events.io import read_events
+from toffe_deploy.events.live import (ChunkQueue, DvSource, LiveStats, UdpAerSource, aer_words, open_live,
+                                      stdin_header)
+
+ROOT = Path(__file__).resolve().parents[1]
+SENSOR = (64, 48)
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory, make_bundle, make_recording):
+    root = tmp_path_factory.mktemp("live")
+    return {"root": root, "bundle": make_bundle(root).root, "rec": make_recording(root / "rec.h5", duration=0.02)}
+
+
+def cli(*args):
+    return [sys.executable, "-m", "toffe_deploy.cli", "run", *map(str, args), "--no-progress"]
+
+
+def cli_env():
+    return dict(os.environ, PYTHONPATH=str(ROOT))
+
+
+def events_of(env):
+    return read_events(env["rec"]).events
+
+
+def udp_listening(port: int) -> bool:
+    with open("/proc/net/udp") as f:
+        return any(int(line.split()[1].split(":")[1], 16) == port for line in list(f)[1:])
+
+
+def free_port(kind=socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def collect(src, dt=500):
+    with src:
+        return list(src.iter_windows(dt))
+
+
+# ------------------------------------------------------------------ the queue and the packet format
+def test_full_queue_drops_the_oldest_chunks_and_counts_them():
+    stats = LiveStats(queue_events=10)
+    q = ChunkQueue(10, stats)
+    chunks = [make_events([i] * 4, [0] * 4, [i] * 4, [1] * 4) for i in range(4)]
+    for c in chunks:
+        q.put(c)                                  # 16 events into a queue of 10: the first two chunks go
+    q.put(make_events(range(12), [0] * 12, [9] * 12, [0] * 12))     # larger than the bound: its newest 10 stay
+    q.close()
+    kept = []
+    while isinstance(c := q.get(0), np.ndarray):
+        kept.append(c)
+    assert [int(c["x"][-1]) for c in kept] == [11]
+    assert kept[0].shape[0] == 10
+    assert stats.received_events == 28 and stats.received_chunks == 5
+    assert stats.dropped_chunks == 4 and stats.dropped_events == 4 * 4 + 2
+    assert stats.peak_queue_events == 10
+
+
+def test_aer_words_round_trip_with_32_bit_wrap_and_without_timestamps():
+    src = UdpAerSource("udp://127.0.0.1:0", SENSOR)
+    try:
+        t = np.array([2**32 - 20, 2**32 - 1, 2**32 + 5, 2**33 - 3, 2**33 + 7], np.int64)
+        ev = make_events([1, 63, 0, 17, 2], [47, 0, 5, 9, 3], t, [1, 0, 1, 0, 1])
+        parts = [ev[:2], ev[2:3], ev[3:4], ev[4:]]                   # wraps between packets, twice
+        got = np.concatenate([src.decode(aer_words(p).tobytes(), 0.0) for p in parts])
+        for k in ("x", "y", "p"):
+            assert np.array_equal(got[k], ev[k])
+        assert np.array_equal(got["t"], t)                     # times unwrapped exactly
+        plain = src.decode(aer_words(ev, timestamps=False).tobytes(), src._t0_host + 0.002)
+        assert np.array_equal(plain["x"], ev["x"]) and (plain["t"] == 2000).all()
+    finally:
+        src.close()
+
+
+# ------------------------------------------------------------------ real sockets, in process
+def test_a_run_behind_its_source_drops_the_oldest_and_jumps_to_the_newest(env):
+    """Queue of 250 events; 7 packets of 100 arrive while the run is busy: the 5 oldest are
+    dropped, the run jumps over their windows (no line for them) and every event is accounted for."""
+    ev = events_of(env)[:800]
+    packets = [ev[i:i + 100] for i in range(0, 800, 100)]
+    src = open_live("udp://127.0.0.1:0", SENSOR, queue_events=250, idle_timeout_s=0.5, grace_s=0.5)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    with src:
+        src.start()
+        tx.sendto(aer_words(packets[0]).tobytes(), ("127.0.0.1", src.port))
+        gen = src.iter_windows(500)
+        wins = [next(gen)]                                   # the run is at its first window
+        for p in packets[1:]:
+            tx.sendto(aer_words(p).tobytes(), ("127.0.0.1", src.port))
+        time.sleep(0.3)
+        wins += list(gen)
+    tx.close()
+    s = src.stats
+    assert s.received_events == 800 and s.dropped_chunks == 5
+    got = np.concatenate([w for _, w in wins])
+    assert len(got) + s.dropped_events == 800
+    assert np.array_equal(got[-200:], ev[600:])             # the newest two packets, whole
+    steps = np.diff([t0 for t0, _ in wins])
+    assert (steps > 500).sum() == 1 and s.dropped_windows == (steps.max() - 500) // 500 > 0
+    t_jump = wins[int(np.argmax(steps)) + 1][0]
+    assert t_jump <= ev["t"][600] < t_jump + 500
+
+
+
+def test_udp_source_receives_real_packets_and_cuts_windows_by_event_time(env):
+    ev = events_of(env)
+    # a generous grace: on a loaded machine the reader thread may lag the clock (late events are
+    # the subject of the drop test and of the README's measurements, not of this one)
+    src = open_live("udp://127.0.0.1:0", SENSOR, idle_timeout_s=0.5, grace_s=0.5)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    src.start()
+    for i in range(0, len(ev), 100):
+        tx.sendto(aer_words(ev[i:i + 100]).tobytes(), ("127.0.0.1", src.port))
+        time.sleep(0.001)
+    tx.close()
+    wins = collect(src)
+    got = np.concatenate([w for _, w in wins])
+    assert np.array_equal(got, ev)                     # every event, once, in order
+    t0s = [t0 for t0, _ in wins]
+    assert t0s[0] == ev["t"][0] and np.all(np.diff(t0s) == 500)
+    assert all(((w["t"] >= t0) & (w["t"] < t0 + 500)).all() for t0, w in wins)
+    assert src.stats.dropped_events == 0 and src.stats.received_events == len(ev)
+
+
+def test_aestreams_own_udp_sender(env, tmp_path):
+    """aestream's CLI streams an AEDAT4 file (written by dv-processing) to our socket."""
+    exe = shutil.which("aestream") or str(Path(sys.executable).parent / "aestream")
+    dv = pytest.importorskip("dv_processing")
+    if not os.path.exists(exe):
+        pytest.skip("aestream's command-line sender is not installed")
+    ev = events_of(env)[:800]       # 25 full packets: aestream 0.6.4 pads a partial timestamped one
+    path = tmp_path / "rec.aedat4"
+    w = dv.io.MonoCameraWriter(str(path), dv.io.MonoCameraWriter.EventOnlyConfig("test", SENSOR))
+    store = dv.EventStore()
+    t_base = 5_000_000_000                            # beyond 2**32 us: aestream sends the low 32 bits
+    for e in ev:
+        store.push_back(int(e["t"]) + t_base, int(e["x"]), int(e["y"]), bool(e["p"]))
+    w.writeEvents(store)
+    del w
+    for stamps in ("true", "false"):
+        src = open_live("udp://127.0.0.1:0", SENSOR, idle_timeout_s=0.5, grace_s=0.5)
+        src.start()
+        r = subprocess.run([exe, "input", "file", str(path), "output", "udp", "127.0.0.1", str(src.port),
+                            "--include-timestamp", stamps], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0, r.stderr
+        got = np.concatenate([w for _, w in collect(src)])
+        for k in ("x", "y", "p"):
+            assert np.array_equal(got[k], ev[k]), stamps
+        if stamps == "true":
+            assert np.array_equal(got["t"], (ev["t"] + t_base) % 2**32)
+
+
+def test_dv_network_stream_from_a_real_writer(env, tmp_path):
+    pytest.importorskip("dv_processing")
+    ev = events_of(env)
+    np.save(tmp_path / "ev.npy", ev)
+    port = free_port(socket.SOCK_STREAM)
+    server = subprocess.Popen([sys.executable, "-c", f"""
+import time, numpy as np, dv_processing as dv
+ev = np.load({str(tmp_path / 'ev.npy')!r})
+w = dv.io.NetworkWriter("127.0.0.1", {port}, dv.io.Stream.EventStream(0, "events", "TestCam", {SENSOR}))
+t = time.time()
+while w.getClientCount() == 0 and time.time() - t < 30:
+    time.sleep(0.01)
+for i in range(0, len(ev), 200):
+    s = dv.EventStore()
+    for e in ev[i:i + 200]:
+        s.push_back(int(e["t"]), int(e["x"]), int(e["y"]), bool(e["p"]))
+    w.writeEvents(s)
+    time.sleep(0.002)
+time.sleep(0.5)
+"""])
+    try:
+        deadline = time.time() + 30
+        while True:
+            try:
+                src = DvSource(f"dv://127.0.0.1:{port}", grace_s=0.5)
+                break
+            except Exception:
+                if time.time() > deadline:
+                    raise
+                time.sleep(0.2)
+        assert src.sensor_size == SENSOR and src.attrs["camera"] == "TestCam"
+        got = np.concatenate([w for _, w in collect(src)])     # ends when the writer goes away
+        assert np.array_equal(got, ev)
+    finally:
+        server.kill()
+        server.wait()
+
+
+# ------------------------------------------------------------------ the CLI
+def test_stdin_run_equals_the_file_run_from_the_first_event(env, tmp_path):
+    ev = events_of(env)
+    data = stdin_header(SENSOR) + ev.tobytes()
+    r = subprocess.run(cli(env["bundle"], "--events", "-", "--summary-json", tmp_path / "s.json",
+                           "--window-grace-ms", "1000"), input=data,
+                       capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
+    assert r.returncode == 0, r.stderr
+    ref = subprocess.run(cli(env["bundle"], "--events", env["rec"], "--start-us", int(ev["t"][0])),
+                         capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
+    assert ref.returncode == 0, ref.stderr
+    lines = r.stdout.splitlines()
+    assert len(lines) == -(-(int(ev["t"][-1]) + 1 - int(ev["t"][0])) // 500) > 10
+    assert lines == ref.stdout.splitlines()[:len(lines)]          # the same windows, the same flow
+    live = json.loads((tmp_path / "s.json").read_text())["live"]
+    assert live["received_events"] == len(ev) and live["dropped_events"] == 0
+    assert set(live["event_latency_ms"]) >= {"p50", "p99"} and live["event_latency_ms"]["p50"] > 0
+    assert b"live: newest event -> JSON line p50" in r.stderr
+
+
+def test_udp_run_streams_lines_and_a_sigkill_leaves_whole_lines(env, tmp_path):
+    """A paced sender; the run's --out is read while it runs, then the run is SIGKILLed."""
+    ev = events_of(env)
+    port = free_port()
+    out = tmp_path / "o.jsonl"
+    out.write_text("stale\n")                                  # truncated when the run starts
+    p = subprocess.Popen(cli(env["bundle"], "--events", f"udp://127.0.0.1:{port}", "--sensor-size", "64x48",
+                             "--out", out, "--skip-empty-after", "0"),
+                         stderr=subprocess.PIPE, env=cli_env(), cwd=ROOT)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        deadline = time.time() + 120
+        while not udp_listening(port):
+            assert p.poll() is None and time.time() < deadline, p.stderr.read()
+            time.sleep(0.05)
+        t_start = time.perf_counter()
+        seen_while_running = 0
+        i = 0
+        while time.perf_counter() - t_start < 20:
+            j = i + 50
+            part = ev[i % len(ev):i % len(ev) + 50].copy()
+            part["t"] += (i // len(ev)) * (int(ev["t"][-1]) + 1)      # loop the recording, time moving on
+            tx.sendto(aer_words(part).tobytes(), ("127.0.0.1", port))
+            i = j
+            time.sleep(0.002)
+            if out.exists() and out.read_bytes().count(b"\n") >= 20:
+                seen_while_running = out.read_bytes().count(b"\n")
+                break
+        assert seen_while_running >= 20, "no lines while the run was going"
+        assert p.poll() is None
+        p.kill()
+        p.wait()
+    finally:
+        tx.close()
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    data = out.read_bytes()
+    assert data.endswith(b"\n") and b"stale" not in data
+    rows = [json.loads(line) for line in data.splitlines()]
+    assert len(rows) >= seen_while_running
+    assert all(b["t0_us"] - a["t0_us"] == 500 for a, b in zip(rows, rows[1:]))
+
+
+def test_ctrl_c_ends_a_live_run_with_its_summary(env, tmp_path):
+    ev = events_of(env)
+    p = subprocess.Popen(cli(env["bundle"], "--events", "-", "--out", tmp_path / "o.jsonl"), stdin=subprocess.PIPE,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=cli_env(), cwd=ROOT)
+    p.stdin.write(stdin_header(SENSOR) + ev[:len(ev) // 2].tobytes())
+    p.stdin.flush()                                           # stdin stays open: the stream goes on
+    deadline = time.time() + 120
+    while not ((tmp_path / "o.jsonl").exists() and (tmp_path / "o.jsonl").read_bytes().count(b"\n") >= 3):
+        assert p.poll() is None and time.time() < deadline
+        time.sleep(0.05)
+    time.sleep(0.5)
+    p.send_signal(signal.SIGINT)
+    t = time.time()
+    out, err = (s.decode() for s in p.communicate(timeout=60))
+    assert p.returncode == 130 and time.time() - t < 10, err
+    assert err.strip() == "toffe-deploy: interrupted"
+    assert "live: newest event -> JSON line" in out and f"{len(ev) // 2} events in" in out
+    rows = [json.loads(line) for line in (tmp_path / "o.jsonl").read_text().splitlines()]
+    assert f"target cpu: {len(rows)} windows" in out
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("dv-camera", "no DV camera attached"),
+    ("udp://127.0.0.1:9", "give --sensor-size"),
+    ("udp://nohost", "expected udp://HOST:PORT"),
+    ("-", "does not start with the TOFFE-EV header"),
+])
+def test_live_source_errors_are_one_line(env, spec, message):
+    if spec == "dv-camera":
+        dv = pytest.importorskip("dv_processing")
+        if dv.io.camera.discover():
+            pytest.skip("a DV camera is attached")
+    r = subprocess.run(cli(env["bundle"], "--events", spec), input=b"not a stream", capture_output=True,
+                       env=cli_env(), cwd=ROOT, timeout=300)
+    lines = r.stderr.decode().strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and message in lines[0], r.stderr
+
+
+def test_a_closed_stdout_pipe_ends_the_run_quietly(env):
+    r = subprocess.run(" ".join(map(str, cli(env["bundle"], "--events", env["rec"]))) + " | head -n 2",
+                       shell=True, capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
+    assert r.stdout.count(b"\n") == 2 and b"Traceback" not in r.stderr and b"Exception" not in r.stderr, r.stderr
