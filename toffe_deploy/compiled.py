@@ -202,6 +202,65 @@ def compact_image(pix, height, width, radius):
 
 
 @njit(cache=True, nogil=True)
+def _shift_pass(src, kernel, step, dilate):
+    """out[i] = OR (dilate) or AND (erode) of src[i + d * step], d = -a..kernel-1-a (a = kernel // 2),
+    over a flat padded image; contributions from outside the array are left out. One loop per d
+    over views indexed from 0 (no wraparound test, no branch): LLVM vectorizes them."""
+    n = src.shape[0]
+    a = kernel // 2
+    out = np.empty(n, np.uint8)
+    out[:] = 0 if dilate else 1
+    for d in range(-a, kernel - a):
+        off = d * step
+        lo = max(0, -off)
+        hi = min(n, n - off)
+        if hi <= lo:
+            continue
+        dst = out[lo:hi]
+        val = src[lo + off:hi + off]
+        if dilate:
+            for i in range(hi - lo):
+                dst[i] |= val[i]
+        else:
+            for i in range(hi - lo):
+                dst[i] &= val[i]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def close_square(image, kernel):
+    """cv2.morphologyEx(image, MORPH_CLOSE, ones((kernel, kernel))) of a 0/1 uint8 image:
+    the erosion of the dilation with OpenCV's anchor (kernel // 2) and border (off-image
+    positions left out), tested equal in tests/test_run_sparse.py. Separable, on the image
+    padded by a = kernel // 2 on every side (0 for the dilation, 1 for the erosion) and
+    flattened, so a pass is ``kernel`` vectorized loops (_shift_pass): rows use offsets d,
+    columns d * padded width; a pixel's reads stay in its own padded row or column."""
+    n_r, n_c = image.shape
+    a = kernel // 2
+    pw = n_c + 2 * a
+    ph = n_r + 2 * a
+    src = np.zeros(ph * pw, np.uint8)
+    for y in range(n_r):
+        for x in range(n_c):
+            src[(y + a) * pw + x + a] = image[y, x]
+    dil = _shift_pass(_shift_pass(src, kernel, 1, True), kernel, pw, True)
+    grid = dil.reshape(ph, pw)
+    grid[:a, :] = 1                                  # the erosion's neutral border
+    grid[a + n_r:, :] = 1
+    grid[:, :a] = 1
+    grid[:, a + n_c:] = 1
+    ero = _shift_pass(_shift_pass(dil, kernel, 1, False), kernel, pw, False).reshape(ph, pw)
+    return ero[a:a + n_r, a:a + n_c].copy()
+
+
+@njit(cache=True, nogil=True)
+def compact_closed(pix, height, width, radius, kernel):
+    """compact_image, with the image replaced by its closing (close_square)."""
+    keep_r, keep_c, map_r, map_c, image = compact_image(pix, height, width, radius)
+    return keep_r, keep_c, map_r, map_c, close_square(image, kernel)
+
+
+@njit(cache=True, nogil=True)
 def compact_lookup(pix, width, keep_r, keep_c, map_r, map_c, image):
     """image at the compacted position of each pixel of ``pix``, False outside the kept rows
     and columns: (n,) bool."""
@@ -1101,8 +1160,14 @@ def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
     12 n cov = 3 (n * sum(tt uu) - sum(tt) sum(uu)) / (n P (B - 1)), divided by P^2 in the same
     float64 division (exact integer numerator and denominator: the same result in any order of
     the ones), stored as float32."""
-    n_obj, n_ch, g = out.shape[0], out.shape[1], out.shape[-1]
-    acc = np.zeros((n_obj, g, g, 6), np.int64)      # n, sum tt, sum uu, sum vv, sum tt uu, sum tt vv
+    n_obj, g = out.shape[0], out.shape[-1]
+    # per touched cell c = o * g * g + cy * g + cx (slot_of[c], in order of first touch): n,
+    # sum tt, sum uu, sum vv, sum tt uu, sum tt vv; indexed element by element (a row view per
+    # one cost more than the sums) and finished only for the cells some one touched
+    slot_of = np.full(n_obj * g * g, -1, np.int32)
+    acc = np.zeros((xs.shape[0], 6), np.int64)
+    touched = np.empty(xs.shape[0], np.int64)
+    n_touched = 0
     for i in range(xs.shape[0]):
         o = obj[i]
         size = origins[o, 2]
@@ -1115,23 +1180,29 @@ def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
             tt = 2 * (ch[i] // 2) - (n_bins - 1)
             uu = 2 * (x - cx * pool) - (pool - 1)
             vv = 2 * (y - cy * pool) - (pool - 1)
-            a = acc[o, cy, cx]
-            a[0] += 1
-            a[1] += tt
-            a[2] += uu
-            a[3] += vv
-            a[4] += tt * uu
-            a[5] += tt * vv
-    for o in range(n_obj):
+            cell = (o * g + cy) * g + cx
+            c = slot_of[cell]
+            if c < 0:
+                c = slot_of[cell] = n_touched
+                touched[n_touched] = cell
+                n_touched += 1
+            acc[c, 0] += 1
+            acc[c, 1] += tt
+            acc[c, 2] += uu
+            acc[c, 3] += vv
+            acc[c, 4] += tt * uu
+            acc[c, 5] += tt * vv
+    for c in range(n_touched):
+        cell = touched[c]
+        o = cell // (g * g)
+        cy = (cell // g) % g
+        cx = cell % g
         pool = origins[o, 2] // g
-        for cy in range(g):
-            for cx in range(g):
-                a = acc[o, cy, cx]
-                n = a[0]
-                if n > 1 and n_bins > 1:
-                    den = float(n * pool * (n_bins - 1) * pool * pool)
-                    out[o, at, cy, cx] = np.float32(3 * (n * a[4] - a[1] * a[2]) / den)
-                    out[o, at + 1, cy, cx] = np.float32(3 * (n * a[5] - a[1] * a[3]) / den)
+        n = acc[c, 0]
+        if n > 1 and n_bins > 1:
+            den = float(n * pool * (n_bins - 1) * pool * pool)
+            out[o, at, cy, cx] = np.float32(3 * (n * acc[c, 4] - acc[c, 1] * acc[c, 2]) / den)
+            out[o, at + 1, cy, cx] = np.float32(3 * (n * acc[c, 5] - acc[c, 1] * acc[c, 3]) / den)
     return out
 
 
@@ -1180,7 +1251,7 @@ def cluster_keep(idx, n_pixels, width, min_size, slot_of):
 
 
 # the kernels called from Python (the others are compiled into their callers)
-KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
+KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, close_square, compact_closed,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops,
            in_rects,
@@ -1220,6 +1291,7 @@ def warm_up() -> None:
     alive = np.ones(1, np.bool_)
     spikes, fired = ofs_stage(alive, i64, i64, inverse, tap_target, weight, 1, active.shape[0], 0, 1, False)
     keep_r, keep_c, map_r, map_c, image = compact_image(active, 2, 2, 1)
+    keep_r, keep_c, map_r, map_c, image = compact_closed(active, 2, 2, 1, 1)
     closed = compact_lookup(uniq, 2, keep_r, keep_c, map_r, map_c, image.view(np.bool_))
     split_closed(alive, inverse, closed)
     box_mean(i64, i64, 0.0, 0.0, 1.0)
