@@ -1207,47 +1207,132 @@ def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
 
 
 @njit(cache=True, nogil=True)
-def cluster_keep(idx, n_pixels, width, min_size, slot_of):
-    """Keep mask of the front end's cluster filter (events/frontend.py) over ones given as a
-    linear index into a (B, C, H, W) volume: True for the ones whose pixel lies in an
-    8-connected cluster of >= min_size of the window's event pixels. One pass: each one's pixel
-    gets a slot (``slot_of``, an all -1 (n_pixels,) scratch left so), each new pixel joins the
-    clusters of its already seen 8 neighbours (union-find over slots), then the cluster sizes.
-    O(ones), no sorting; the clusters do not depend on the order of the ones."""
+def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of):
+    """Keep mask of the input front end (events/frontend.py) over a sorted, unique linear index
+    of ones into a (B, C, H, W) volume, in one pass: with ``first``, only the first one (the
+    smallest b) of each (c, pixel); with min_size > 1, only the ones whose pixel lies in an
+    8-connected cluster of >= min_size of the window's event pixels (the pixel set is the
+    same with or without ``first``, so the two filters commute).
+
+    Each one's pixel gets a slot (``slot_of``, an all -1 (n_pixels,) scratch left so); a new
+    pixel joins the clusters of its already seen 8 neighbours (union-find over slots); a bit
+    per channel and slot marks the (c, pixel)s seen. No division per one: the index is sorted,
+    so its plane b * C + c only steps up, and y, x come from a float estimate of p / W
+    corrected by one. O(ones), no sorting."""
     n = idx.shape[0]
-    keep = np.zeros(n, np.bool_)
+    keep = np.empty(n, np.bool_)
+    if n == 0:
+        return keep
     pix = np.empty(n, np.int64)
     slot = np.empty(n, np.int64)
     parent = np.empty(n, np.int64)
+    bits = np.zeros(n, np.int64)
+    plane = idx[0] // n_pixels
+    base = plane * n_pixels
+    c = plane % n_channels
+    inv_w = 1.0 / width
     u = 0
     for i in range(n):
-        p = idx[i] % n_pixels
-        pix[u] = p
-        s = _slot(slot_of, p, pix, u)
-        slot[i] = s
-        if s == u:
+        v = idx[i]
+        while v >= base + n_pixels:
+            base += n_pixels
+            c += 1
+            if c == n_channels:
+                c = 0
+        p = v - base
+        s = slot_of[p]
+        if s < 0:
+            s = u
+            slot_of[p] = u
+            pix[u] = p
             parent[u] = u
-            y, x = divmod(p, width)
-            for dy in range(-1, 2):
-                yy = y + dy
-                if yy < 0 or yy * width >= n_pixels:
-                    continue
-                for dx in range(-1, 2):
-                    xx = x + dx
-                    if (dy == 0 and dx == 0) or xx < 0 or xx >= width:
+            if min_size > 1:
+                y = int(p * inv_w)
+                if y * width > p:
+                    y -= 1
+                elif (y + 1) * width <= p:
+                    y += 1
+                x = p - y * width
+                for dy in range(-1, 2):
+                    yy = y + dy
+                    if yy < 0 or yy * width >= n_pixels:
                         continue
-                    q = slot_of[yy * width + xx]
-                    if q >= 0 and q < u:
-                        _union(parent, u, q)
+                    for dx in range(-1, 2):
+                        xx = x + dx
+                        if (dy == 0 and dx == 0) or xx < 0 or xx >= width:
+                            continue
+                        q = slot_of[yy * width + xx]
+                        if q >= 0:
+                            _union(parent, u, q)
             u += 1
-    size = np.zeros(u, np.int64)
-    for q in range(u):
-        size[_root(parent, q)] += 1
-    for i in range(n):
-        keep[i] = size[_root(parent, slot[i])] >= min_size
+        slot[i] = s
+        if first:
+            bit = np.int64(1) << c
+            keep[i] = (bits[s] & bit) == 0
+            bits[s] |= bit
+        else:
+            keep[i] = True
+    if min_size > 1:
+        size = np.zeros(u, np.int64)
+        for q in range(u):
+            size[_root(parent, q)] += 1
+        for i in range(n):
+            if keep[i]:
+                keep[i] = size[_root(parent, slot[i])] >= min_size
     for q in range(u):
         slot_of[pix[q]] = -1
     return keep
+
+
+@njit(cache=True, nogil=True)
+def bin_index(t, x, y, p, t0, dt_us, n_bins, height, width):
+    """events.binning.event_bin_index in one pass: the linear index ((b * 2 + (p > 0)) * H + y) * W + x
+    of each event with t0 <= t < t0 + dt_us, b = (t - t0) * B // dt_us, in event order."""
+    n = t.shape[0]
+    out = np.empty(n, np.int64)
+    m = 0
+    t1 = t0 + dt_us
+    for i in range(n):
+        ti = np.int64(t[i])
+        if ti < t0 or ti >= t1:
+            continue
+        b = ((ti - t0) * n_bins) // dt_us
+        pol = np.int64(1) if p[i] > 0 else np.int64(0)
+        out[m] = ((b * 2 + pol) * height + np.int64(y[i])) * width + np.int64(x[i])
+        m += 1
+    return out[:m]
+
+
+@njit(cache=True, nogil=True)
+def sorted_unique(values):
+    """np.unique of non-negative ints: an LSD radix sort on 11-bit digits (two passes for a
+    640x480x5x2 volume's linear ids), then one pass dropping repeats. O(n + 2048) per pass."""
+    n = values.shape[0]
+    a = values.copy()
+    if n == 0:
+        return a
+    top = a.max()
+    tmp = np.empty(n, np.int64)
+    cnt = np.empty(2049, np.int64)
+    shift = 0
+    while (top >> shift) > 0:
+        cnt[:] = 0
+        for i in range(n):
+            cnt[((a[i] >> shift) & 2047) + 1] += 1
+        for d in range(2048):
+            cnt[d + 1] += cnt[d]
+        for i in range(n):
+            d = (a[i] >> shift) & 2047
+            tmp[cnt[d]] = a[i]
+            cnt[d] += 1
+        a, tmp = tmp, a
+        shift += 11
+    m = 1
+    for i in range(1, n):
+        if a[i] != a[m - 1]:
+            a[m] = a[i]
+            m += 1
+    return a[:m].copy()
 
 
 # the kernels called from Python (the others are compiled into their callers)
@@ -1255,27 +1340,7 @@ KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_l
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops,
            in_rects,
-           cell_centres, fill_input, fill_motion, cluster_keep)
-
-
-@njit(cache=True, nogil=True)
-def first_spikes(idx, n_channels, n_pixels, seen):
-    """Keep mask of the input front end "first" (events/frontend.py) over a sorted linear index of
-    ones into a (B, C, H, W) volume: True for the first one of each (c, pixel). ``seen`` is a
-    (n_pixels,) uint8 of zeros (bit c = channel c seen), left zeroed again; C <= 8."""
-    n = idx.shape[0]
-    keep = np.zeros(n, np.bool_)
-    plane = n_channels * n_pixels
-    for i in range(n):
-        r = idx[i] % plane
-        pix = r % n_pixels
-        bit = np.uint8(1 << (r // n_pixels))
-        if seen[pix] & bit == 0:
-            seen[pix] |= bit
-            keep[i] = True
-    for i in range(n):
-        seen[idx[i] % plane % n_pixels] = 0
-    return keep
+           cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique)
 
 
 def warm_up() -> None:
@@ -1313,5 +1378,8 @@ def warm_up() -> None:
     fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 1000.0)
     fill_motion(np.zeros((1, 4, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 0)
     cell_centres(np.ones((1, 3)), 1, 1000.0)
-    first_spikes(i64, 2, 1, np.zeros(1, np.uint8))
-    cluster_keep(i64, 1, 1, 2, scratch)
+    front_end_keep(i64, 2, 1, 1, True, 2, scratch)
+    from .events.core import EVENT_DTYPE
+
+    ev = np.zeros(1, EVENT_DTYPE)
+    sorted_unique(bin_index(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1))
