@@ -1,8 +1,9 @@
-"""The per-window loops of the hot path, compiled (numba): the cpu cascade's indexing, OFS
-stage, closing compaction and mask split, the input front end, and ofpd_io's box tests, box
+"""The per-window loops of the hot path, compiled (numba): the window's binning (bin_index,
+sorted_unique), the input front end (front_end_keep), the cpu cascade's indexing, OFS stage,
+closing (compaction and close_square) and mask split, and ofpd_io's box tests, box
 means, density-seed grouping, the event-blob grouping of a window's stages (blob_objects:
 components, their merging and the objects' claims in one pass), each object's crop and ones
-(object_crops) and the OFPD input (fill_input).
+(object_crops) and the OFPD input (fill_input, fill_motion).
 
 Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
 (~25 calls per stage on arrays of ~2,000 values, plus the window's de-duplication and scatter
