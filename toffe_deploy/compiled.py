@@ -169,6 +169,49 @@ def split_closed(alive, pix_inverse, closed_at_pixel):
 
 
 @njit(cache=True, nogil=True)
+def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights, dv, vth_mant, reset_zero,
+                   n_bins, height, width, mask_kernel):
+    """The whole cascade of a window in one call (runtime/cpu.py's loop, its per-stage calls
+    compiled together): for k = N..1 (index k - 1), from alive = every one,
+        inputs[k-1] = alive;  spikes[k-1], fired = ofs_stage(alive, stage k)
+        closed = the closing of the fired active pixels (compact_closed), read at the window's
+                 input pixels (compact_lookup)
+        frames[k-1], alive = split_closed(alive, closed)      (nothing fired: frame empty)
+    weights (N, C, K*K), dv, vth_mant, reset_zero (N,) per stage. Returns (spikes (N, B, M),
+    fired (N, M), inputs (N, n), frames (N, n)) bool."""
+    n = b.shape[0]
+    m = active.shape[0]
+    n_st = weights.shape[0]
+    spikes = np.empty((n_st, n_bins, m), np.bool_)
+    fired = np.empty((n_st, m), np.bool_)
+    inputs = np.empty((n_st, n), np.bool_)
+    frames = np.zeros((n_st, n), np.bool_)
+    alive = np.ones(n, np.bool_)
+    for k in range(n_st - 1, -1, -1):
+        inputs[k] = alive
+        sp, fk = ofs_stage(alive, b, c, pix_inverse, tap_target, weights[k], n_bins, m, dv[k], vth_mant[k],
+                           reset_zero[k])
+        spikes[k] = sp
+        fired[k] = fk
+        n_fired = 0
+        for s in range(m):
+            n_fired += fk[s]
+        if n_fired == 0:
+            continue
+        fp = np.empty(n_fired, np.int64)
+        j = 0
+        for s in range(m):
+            if fk[s]:
+                fp[j] = active[s]
+                j += 1
+        keep_r, keep_c, map_r, map_c, closed = compact_closed(fp, height, width, max(mask_kernel, 1), mask_kernel)
+        at = compact_lookup(input_pixels, width, keep_r, keep_c, map_r, map_c, closed)
+        frame, alive = split_closed(alive, pix_inverse, at)
+        frames[k] = frame
+    return spikes, fired, inputs, frames
+
+
+@njit(cache=True, nogil=True)
 def _kept(pos, n, radius):
     """((n,) bool: within ``radius`` of any of ``pos``, (n,) int64: index among the kept, count)."""
     diff = np.zeros(n + 1, np.int64)
@@ -1337,7 +1380,8 @@ def sorted_unique(values):
 
 
 # the kernels called from Python (the others are compiled into their callers)
-KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, close_square, compact_closed,
+KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, compact_closed,
+           cascade_window,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops,
            in_rects,
@@ -1360,6 +1404,8 @@ def warm_up() -> None:
     keep_r, keep_c, map_r, map_c, image = compact_closed(active, 2, 2, 1, 1)
     closed = compact_lookup(uniq, 2, keep_r, keep_c, map_r, map_c, image.view(np.bool_))
     split_closed(alive, inverse, closed)
+    cascade_window(i64, i64, inverse, uniq, tap_target, active, np.ones((1, 1, 1), np.int64), i64, i64,
+                   np.zeros(1, np.bool_), 1, 2, 2, 1)
     box_mean(i64, i64, 0.0, 0.0, 1.0)
     in_boxes(i64, i64, np.zeros((1, 2)), 1.0)
     density_groups(i64, i64, 1, 2)
