@@ -95,10 +95,27 @@ OFPD_DEFAULTS: dict[str, Any] = {
 }
 
 
+_SETTINGS: dict[int, tuple[ToffeConfig, dict, dict]] = {}   # id(config) -> (config, its ofpd then, settings)
+
+
 def ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
     """config.ofpd over the defaults (a checkpoint written by an older version still loads, with
     the layout it was trained on: each layout key a non-empty config.ofpd lacks takes its
-    LEGACY_LAYOUT value, e.g. "motion": "none" for OFPDs trained before the motion planes)."""
+    LEGACY_LAYOUT value, e.g. "motion": "none" for OFPDs trained before the motion planes).
+
+    Remembered per config object while its ofpd dict stays equal (the cpu runtime asks several
+    times per window); a copy is returned, so callers may change it."""
+    hit = _SETTINGS.get(id(config))
+    if hit is not None and hit[0] is config and hit[1] == (config.ofpd or {}):
+        return dict(hit[2])
+    s = _ofpd_settings(config)
+    if len(_SETTINGS) >= 64:
+        _SETTINGS.clear()
+    _SETTINGS[id(config)] = (config, dict(config.ofpd or {}), s)
+    return dict(s)
+
+
+def _ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
     given = dict(config.ofpd or {})
     s = dict(OFPD_DEFAULTS)
     if given:
