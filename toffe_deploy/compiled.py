@@ -1114,6 +1114,21 @@ def object_crops(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_m
 
 
 @njit(cache=True, nogil=True)
+def object_input(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_min, pool_max, width, height,
+                 n_channels, n_bins, coord_scale):
+    """object_crops, then ofpd_io.prepare_flat's OFPD input (N, n_channels, g, g) float32 of the
+    claimed ones (fill_input; fill_motion when n_channels - 2 > 2 n_bins) in one call: the
+    runtime's batch after the grouping. Returns (input, n_ones (G,))."""
+    origins, n_ones, obj, ox, oy, och = object_crops(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g,
+                                                     pool_min, pool_max, width, height)
+    out = np.zeros((masks.shape[0], n_channels, g, g), np.float32)
+    fill_input(out, obj, ox, oy, och, origins, n_channels - 2, coord_scale)
+    if n_channels - 2 > 2 * n_bins:
+        fill_motion(out, obj, ox, oy, och, origins, n_bins, 2 * n_bins)
+    return out, n_ones
+
+
+@njit(cache=True, nogil=True)
 def in_rects(xs, ys, rects):
     """(G, n) bool: pixel i inside rectangle g, rects[g] = (x_min, y_min, x_max, y_max) inclusive."""
     out = np.empty((rects.shape[0], xs.shape[0]), np.bool_)
@@ -1383,7 +1398,7 @@ def sorted_unique(values):
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, compact_closed,
            cascade_window,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
-           blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops,
+           blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops, object_input,
            in_rects,
            cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique)
 
@@ -1420,6 +1435,7 @@ def warm_up() -> None:
     crop_pool(1, 1, 1, 1)
     frame_pixels(np.ones((1, 1), np.bool_), i64, i64, i64)
     object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2)
+    object_input(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2, 5, 1, 1000.0)
     crop_origin(i64, i64, 1, 2, 2)
     two_pass_centroid(i64, i64, 1.0, 2, 2)
     fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 1000.0)
