@@ -130,15 +130,16 @@ class CpuCascade:
 
     def cascade_sparse(self, volume: SpikeVolume) -> SparseCascadeResult:
         """Run all stages, k = N..1, on one window given as its ones (one compiled call,
-        compiled.cascade_window; the stage's rows of its arrays are the result's lists)."""
+        compiled.cascade_window): inputs, spikes and frames are its (N, ...) arrays, stage k
+        at row k - 1."""
         self._check(volume.shape)
         _b, _c, h, w = volume.shape
         win = SparseOFSWindow(volume, self.kernel_size, self._scratch)
         spikes, fired, inputs, frames = cascade_window(
             win.b, win.c, win.pix_inverse, win.input_pixels, win.tap_target, win.active, self._weights, self._dv,
             self._vth, self._reset_zero, self.n_bins, h, w, self.mask_kernel)
-        return SparseCascadeResult(volume, win, list(inputs), list(spikes),
-                                   StageClosings(win.active, fired, h, w, self.mask_kernel), list(frames))
+        return SparseCascadeResult(volume, win, inputs, spikes, StageClosings(win.active, fired, h, w, self.mask_kernel),
+                                   frames)
 
     def cascade_stream(self, windows: Iterable[np.ndarray]) -> Iterator[CascadeResult]:
         """Dense (B, 2, H, W) windows in, dense CascadeResult out (the LavaCascade interface)."""

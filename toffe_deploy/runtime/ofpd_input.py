@@ -78,7 +78,9 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     _b, nc, h, w = volume.shape
     upix, pinv = volume.pixel_index(scratch)
     uy, ux = np.divmod(upix, w)
-    sx, sy, starts, every = frame_pixels(np.stack(frames) if len(frames) else np.zeros((0, len(pinv)), bool),
+    stacked = (frames if isinstance(frames, np.ndarray) else       # the cpu cascade's (N, n) array as it is
+               np.stack(frames) if len(frames) else np.zeros((0, len(pinv)), bool))
+    sx, sy, starts, every = frame_pixels(stacked,
                                          pinv, ux, uy)
     objs, claims = group_objects_flat(sx, sy, starts, (w, h), config)
     if not objs:
