@@ -95,3 +95,14 @@ def test_min_cluster_dense_and_index_agree_and_are_idempotent(rng, n):
 def test_bad_min_cluster_is_refused():
     with pytest.raises(ValueError, match="input_min_cluster"):
         apply_dense(np.zeros((5, 2, 4, 4), bool), "first", 0)
+
+
+@pytest.mark.parametrize("shape", [(4, 1, 13, 9), (3, 3, 7, 20), (6, 2, 1, 30), (2, 2, 25, 1)])
+def test_index_front_end_equals_dense_for_any_channel_count_and_sensor(rng, shape):
+    """compiled.front_end_keep (one pass, both filters, no divisions) against the dense definitions,
+    also for C != 2 channels and one-row or one-column sensors."""
+    vol = rng.random(shape) < 0.15
+    for norm in ("none", "first"):
+        for n in (1, 2, 4):
+            got = apply_index(np.flatnonzero(vol), vol.shape, norm, n)
+            assert np.array_equal(got, np.flatnonzero(apply_dense(vol, norm, n))), (norm, n)

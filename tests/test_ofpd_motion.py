@@ -95,3 +95,46 @@ def test_training_flips_keep_motion_planes_and_direction_target_consistent(step)
 
 def motion_sum_cfg(frame, cfg):
     return ofpd_io.prepare(frame[None], cfg)[0, 2 * B:2 * B + 2].sum(axis=(1, 2))
+
+
+def _motion_reference(obj, xs, ys, ch, origins, n_obj, g, b):
+    """The motion planes by their definition (ofpd_io.prepare_xy / compiled.fill_motion doc),
+    one cell at a time with numpy: 12 n cov(t, u) / P^2 as 3 (n sum tt uu - sum tt sum uu) /
+    (n P (B - 1) P^2), tt = 2 b - (B - 1), uu = 2 (x - x_cell) - (P - 1)."""
+    out = np.zeros((n_obj, 2, g, g), np.float32)
+    for o in range(n_obj):
+        x0, y0, size = origins[o]
+        pool = size // g
+        sel = (obj == o) & (xs >= x0) & (xs < x0 + size) & (ys >= y0) & (ys < y0 + size) & (ch < 2 * b)
+        x, y, t = xs[sel] - x0, ys[sel] - y0, 2 * (ch[sel] // 2) - (b - 1)
+        for cy in range(g):
+            for cx in range(g):
+                m = (x // pool == cx) & (y // pool == cy)
+                n = int(m.sum())
+                if n < 2:
+                    continue
+                tt, uu, vv = t[m], 2 * (x[m] - cx * pool) - (pool - 1), 2 * (y[m] - cy * pool) - (pool - 1)
+                den = float(n * pool * (b - 1) * pool * pool)
+                out[o, 0, cy, cx] = np.float32(3 * (n * int((tt * uu).sum()) - int(tt.sum()) * int(uu.sum())) / den)
+                out[o, 1, cy, cx] = np.float32(3 * (n * int((tt * vv).sum()) - int(tt.sum()) * int(vv.sum())) / den)
+    return out
+
+
+def test_compiled_motion_planes_equal_their_definition(rng):
+    """compiled.fill_motion (sparse cells, one pass) bit for bit against the per-cell definition,
+    with ones outside their crop and channels beyond 2B left out."""
+    from toffe_deploy.compiled import fill_motion
+
+    g, b = 8, 5
+    origins = np.array([[3, 5, 16], [0, 0, 32], [40, 10, 64]], np.int64)
+    n = 3000
+    obj = rng.integers(0, 3, n).astype(np.int64)
+    xs = (origins[obj, 0] + rng.integers(-4, 70, n)).astype(np.int64)
+    ys = (origins[obj, 1] + rng.integers(-4, 70, n)).astype(np.int64)
+    ch = rng.integers(0, 2 * b + 2, n).astype(np.int64)
+    out = np.zeros((3, 2 * b + 4, g, g), np.float32)
+    fill_motion(out, obj, xs, ys, ch, origins, b, 2 * b)
+    ref = _motion_reference(obj, xs, ys, ch, origins, 3, g, b)
+    assert np.count_nonzero(ref) > 50
+    assert np.array_equal(out[:, 2 * b:2 * b + 2], ref)
+    assert not out[:, :2 * b].any() and not out[:, 2 * b + 2:].any()

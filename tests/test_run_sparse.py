@@ -157,3 +157,25 @@ def test_active_set_is_the_dilated_input_and_leaves_scratch_clean(rng):
                 ty, tx = y + r - t // k, x + r - t % k
                 inside = 0 <= ty < h and 0 <= tx < w
                 assert (s >= 0) == inside and (not inside or active[s] == ty * w + tx)
+
+
+def test_close_square_equals_opencv_closing_on_random_images(rng):
+    """compiled.close_square (the cascade's closing) against cv2.morphologyEx, odd and even
+    kernels, images smaller than the kernel, empty and full ones."""
+    from toffe_deploy.compiled import close_square
+
+    for _ in range(300):
+        k = int(rng.integers(1, 8))
+        h, w = (int(v) for v in rng.integers(1, 24, 2))
+        img = (rng.random((h, w)) < rng.choice([0.0, 0.1, 0.4, 0.8, 1.0])).astype(np.uint8)
+        ref = cv2.morphologyEx(img, cv2.MORPH_CLOSE, np.ones((k, k), np.uint8))
+        assert np.array_equal(close_square(img, k), ref), (k, h, w)
+
+
+def test_sorted_unique_equals_np_unique(rng):
+    from toffe_deploy.compiled import sorted_unique
+
+    for n, top in ((0, 10), (1, 5), (500, 40), (3000, 5 * 2 * 480 * 640), (2000, 1 << 40)):
+        v = rng.integers(0, top, n).astype(np.int64)
+        got = sorted_unique(v)
+        assert got.dtype == np.int64 and np.array_equal(got, np.unique(v))

@@ -1,8 +1,9 @@
-"""The per-window loops of the hot path, compiled (numba): the cpu cascade's indexing, OFS
-stage, closing compaction and mask split, the input front end, and ofpd_io's box tests, box
+"""The per-window loops of the hot path, compiled (numba): the window's binning (bin_index,
+sorted_unique), the input front end (front_end_keep), the cpu cascade's indexing, OFS stage,
+closing (compaction and close_square) and mask split, and ofpd_io's box tests, box
 means, density-seed grouping, the event-blob grouping of a window's stages (blob_objects:
 components, their merging and the objects' claims in one pass), each object's crop and ones
-(object_crops) and the OFPD input (fill_input).
+(object_crops) and the OFPD input (fill_input, fill_motion).
 
 Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
 (~25 calls per stage on arrays of ~2,000 values, plus the window's de-duplication and scatter
@@ -168,6 +169,49 @@ def split_closed(alive, pix_inverse, closed_at_pixel):
 
 
 @njit(cache=True, nogil=True)
+def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights, dv, vth_mant, reset_zero,
+                   n_bins, height, width, mask_kernel):
+    """The whole cascade of a window in one call (runtime/cpu.py's loop, its per-stage calls
+    compiled together): for k = N..1 (index k - 1), from alive = every one,
+        inputs[k-1] = alive;  spikes[k-1], fired = ofs_stage(alive, stage k)
+        closed = the closing of the fired active pixels (compact_closed), read at the window's
+                 input pixels (compact_lookup)
+        frames[k-1], alive = split_closed(alive, closed)      (nothing fired: frame empty)
+    weights (N, C, K*K), dv, vth_mant, reset_zero (N,) per stage. Returns (spikes (N, B, M),
+    fired (N, M), inputs (N, n), frames (N, n)) bool."""
+    n = b.shape[0]
+    m = active.shape[0]
+    n_st = weights.shape[0]
+    spikes = np.empty((n_st, n_bins, m), np.bool_)
+    fired = np.empty((n_st, m), np.bool_)
+    inputs = np.empty((n_st, n), np.bool_)
+    frames = np.zeros((n_st, n), np.bool_)
+    alive = np.ones(n, np.bool_)
+    for k in range(n_st - 1, -1, -1):
+        inputs[k] = alive
+        sp, fk = ofs_stage(alive, b, c, pix_inverse, tap_target, weights[k], n_bins, m, dv[k], vth_mant[k],
+                           reset_zero[k])
+        spikes[k] = sp
+        fired[k] = fk
+        n_fired = 0
+        for s in range(m):
+            n_fired += fk[s]
+        if n_fired == 0:
+            continue
+        fp = np.empty(n_fired, np.int64)
+        j = 0
+        for s in range(m):
+            if fk[s]:
+                fp[j] = active[s]
+                j += 1
+        keep_r, keep_c, map_r, map_c, closed = compact_closed(fp, height, width, max(mask_kernel, 1), mask_kernel)
+        at = compact_lookup(input_pixels, width, keep_r, keep_c, map_r, map_c, closed)
+        frame, alive = split_closed(alive, pix_inverse, at)
+        frames[k] = frame
+    return spikes, fired, inputs, frames
+
+
+@njit(cache=True, nogil=True)
 def _kept(pos, n, radius):
     """((n,) bool: within ``radius`` of any of ``pos``, (n,) int64: index among the kept, count)."""
     diff = np.zeros(n + 1, np.int64)
@@ -199,6 +243,65 @@ def compact_image(pix, height, width, radius):
     for i in range(pix.shape[0]):
         image[map_r[rows[i]], map_c[cols[i]]] = 1
     return keep_r, keep_c, map_r, map_c, image
+
+
+@njit(cache=True, nogil=True)
+def _shift_pass(src, kernel, step, dilate):
+    """out[i] = OR (dilate) or AND (erode) of src[i + d * step], d = -a..kernel-1-a (a = kernel // 2),
+    over a flat padded image; contributions from outside the array are left out. One loop per d
+    over views indexed from 0 (no wraparound test, no branch): LLVM vectorizes them."""
+    n = src.shape[0]
+    a = kernel // 2
+    out = np.empty(n, np.uint8)
+    out[:] = 0 if dilate else 1
+    for d in range(-a, kernel - a):
+        off = d * step
+        lo = max(0, -off)
+        hi = min(n, n - off)
+        if hi <= lo:
+            continue
+        dst = out[lo:hi]
+        val = src[lo + off:hi + off]
+        if dilate:
+            for i in range(hi - lo):
+                dst[i] |= val[i]
+        else:
+            for i in range(hi - lo):
+                dst[i] &= val[i]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def close_square(image, kernel):
+    """cv2.morphologyEx(image, MORPH_CLOSE, ones((kernel, kernel))) of a 0/1 uint8 image:
+    the erosion of the dilation with OpenCV's anchor (kernel // 2) and border (off-image
+    positions left out), tested equal in tests/test_run_sparse.py. Separable, on the image
+    padded by a = kernel // 2 on every side (0 for the dilation, 1 for the erosion) and
+    flattened, so a pass is ``kernel`` vectorized loops (_shift_pass): rows use offsets d,
+    columns d * padded width; a pixel's reads stay in its own padded row or column."""
+    n_r, n_c = image.shape
+    a = kernel // 2
+    pw = n_c + 2 * a
+    ph = n_r + 2 * a
+    src = np.zeros(ph * pw, np.uint8)
+    for y in range(n_r):
+        for x in range(n_c):
+            src[(y + a) * pw + x + a] = image[y, x]
+    dil = _shift_pass(_shift_pass(src, kernel, 1, True), kernel, pw, True)
+    grid = dil.reshape(ph, pw)
+    grid[:a, :] = 1                                  # the erosion's neutral border
+    grid[a + n_r:, :] = 1
+    grid[:, :a] = 1
+    grid[:, a + n_c:] = 1
+    ero = _shift_pass(_shift_pass(dil, kernel, 1, False), kernel, pw, False).reshape(ph, pw)
+    return ero[a:a + n_r, a:a + n_c].copy()
+
+
+@njit(cache=True, nogil=True)
+def compact_closed(pix, height, width, radius, kernel):
+    """compact_image, with the image replaced by its closing (close_square)."""
+    keep_r, keep_c, map_r, map_c, image = compact_image(pix, height, width, radius)
+    return keep_r, keep_c, map_r, map_c, close_square(image, kernel)
 
 
 @njit(cache=True, nogil=True)
@@ -1011,6 +1114,21 @@ def object_crops(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_m
 
 
 @njit(cache=True, nogil=True)
+def object_input(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_min, pool_max, width, height,
+                 n_channels, n_bins, coord_scale):
+    """object_crops, then ofpd_io.prepare_flat's OFPD input (N, n_channels, g, g) float32 of the
+    claimed ones (fill_input; fill_motion when n_channels - 2 > 2 n_bins) in one call: the
+    runtime's batch after the grouping. Returns (input, n_ones (G,))."""
+    origins, n_ones, obj, ox, oy, och = object_crops(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g,
+                                                     pool_min, pool_max, width, height)
+    out = np.zeros((masks.shape[0], n_channels, g, g), np.float32)
+    fill_input(out, obj, ox, oy, och, origins, n_channels - 2, coord_scale)
+    if n_channels - 2 > 2 * n_bins:
+        fill_motion(out, obj, ox, oy, och, origins, n_bins, 2 * n_bins)
+    return out, n_ones
+
+
+@njit(cache=True, nogil=True)
 def in_rects(xs, ys, rects):
     """(G, n) bool: pixel i inside rectangle g, rects[g] = (x_min, y_min, x_max, y_max) inclusive."""
     out = np.empty((rects.shape[0], xs.shape[0]), np.bool_)
@@ -1101,8 +1219,14 @@ def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
     12 n cov = 3 (n * sum(tt uu) - sum(tt) sum(uu)) / (n P (B - 1)), divided by P^2 in the same
     float64 division (exact integer numerator and denominator: the same result in any order of
     the ones), stored as float32."""
-    n_obj, n_ch, g = out.shape[0], out.shape[1], out.shape[-1]
-    acc = np.zeros((n_obj, g, g, 6), np.int64)      # n, sum tt, sum uu, sum vv, sum tt uu, sum tt vv
+    n_obj, g = out.shape[0], out.shape[-1]
+    # per touched cell c = o * g * g + cy * g + cx (slot_of[c], in order of first touch): n,
+    # sum tt, sum uu, sum vv, sum tt uu, sum tt vv; indexed element by element (a row view per
+    # one cost more than the sums) and finished only for the cells some one touched
+    slot_of = np.full(n_obj * g * g, -1, np.int32)
+    acc = np.zeros((xs.shape[0], 6), np.int64)
+    touched = np.empty(xs.shape[0], np.int64)
+    n_touched = 0
     for i in range(xs.shape[0]):
         o = obj[i]
         size = origins[o, 2]
@@ -1115,96 +1239,168 @@ def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
             tt = 2 * (ch[i] // 2) - (n_bins - 1)
             uu = 2 * (x - cx * pool) - (pool - 1)
             vv = 2 * (y - cy * pool) - (pool - 1)
-            a = acc[o, cy, cx]
-            a[0] += 1
-            a[1] += tt
-            a[2] += uu
-            a[3] += vv
-            a[4] += tt * uu
-            a[5] += tt * vv
-    for o in range(n_obj):
+            cell = (o * g + cy) * g + cx
+            c = slot_of[cell]
+            if c < 0:
+                c = slot_of[cell] = n_touched
+                touched[n_touched] = cell
+                n_touched += 1
+            acc[c, 0] += 1
+            acc[c, 1] += tt
+            acc[c, 2] += uu
+            acc[c, 3] += vv
+            acc[c, 4] += tt * uu
+            acc[c, 5] += tt * vv
+    for c in range(n_touched):
+        cell = touched[c]
+        o = cell // (g * g)
+        cy = (cell // g) % g
+        cx = cell % g
         pool = origins[o, 2] // g
-        for cy in range(g):
-            for cx in range(g):
-                a = acc[o, cy, cx]
-                n = a[0]
-                if n > 1 and n_bins > 1:
-                    den = float(n * pool * (n_bins - 1) * pool * pool)
-                    out[o, at, cy, cx] = np.float32(3 * (n * a[4] - a[1] * a[2]) / den)
-                    out[o, at + 1, cy, cx] = np.float32(3 * (n * a[5] - a[1] * a[3]) / den)
+        n = acc[c, 0]
+        if n > 1 and n_bins > 1:
+            den = float(n * pool * (n_bins - 1) * pool * pool)
+            out[o, at, cy, cx] = np.float32(3 * (n * acc[c, 4] - acc[c, 1] * acc[c, 2]) / den)
+            out[o, at + 1, cy, cx] = np.float32(3 * (n * acc[c, 5] - acc[c, 1] * acc[c, 3]) / den)
     return out
 
 
 @njit(cache=True, nogil=True)
-def cluster_keep(idx, n_pixels, width, min_size, slot_of):
-    """Keep mask of the front end's cluster filter (events/frontend.py) over ones given as a
-    linear index into a (B, C, H, W) volume: True for the ones whose pixel lies in an
-    8-connected cluster of >= min_size of the window's event pixels. One pass: each one's pixel
-    gets a slot (``slot_of``, an all -1 (n_pixels,) scratch left so), each new pixel joins the
-    clusters of its already seen 8 neighbours (union-find over slots), then the cluster sizes.
-    O(ones), no sorting; the clusters do not depend on the order of the ones."""
+def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of):
+    """Keep mask of the input front end (events/frontend.py) over a sorted, unique linear index
+    of ones into a (B, C, H, W) volume, in one pass: with ``first``, only the first one (the
+    smallest b) of each (c, pixel); with min_size > 1, only the ones whose pixel lies in an
+    8-connected cluster of >= min_size of the window's event pixels (the pixel set is the
+    same with or without ``first``, so the two filters commute).
+
+    Each one's pixel gets a slot (``slot_of``, an all -1 (n_pixels,) scratch left so); a new
+    pixel joins the clusters of its already seen 8 neighbours (union-find over slots); a bit
+    per channel and slot marks the (c, pixel)s seen. No division per one: the index is sorted,
+    so its plane b * C + c only steps up, and y, x come from a float estimate of p / W
+    corrected by one. O(ones), no sorting."""
     n = idx.shape[0]
-    keep = np.zeros(n, np.bool_)
+    keep = np.empty(n, np.bool_)
+    if n == 0:
+        return keep
     pix = np.empty(n, np.int64)
     slot = np.empty(n, np.int64)
     parent = np.empty(n, np.int64)
+    bits = np.zeros(n, np.int64)
+    plane = idx[0] // n_pixels
+    base = plane * n_pixels
+    c = plane % n_channels
+    inv_w = 1.0 / width
     u = 0
     for i in range(n):
-        p = idx[i] % n_pixels
-        pix[u] = p
-        s = _slot(slot_of, p, pix, u)
-        slot[i] = s
-        if s == u:
+        v = idx[i]
+        while v >= base + n_pixels:
+            base += n_pixels
+            c += 1
+            if c == n_channels:
+                c = 0
+        p = v - base
+        s = slot_of[p]
+        if s < 0:
+            s = u
+            slot_of[p] = u
+            pix[u] = p
             parent[u] = u
-            y, x = divmod(p, width)
-            for dy in range(-1, 2):
-                yy = y + dy
-                if yy < 0 or yy * width >= n_pixels:
-                    continue
-                for dx in range(-1, 2):
-                    xx = x + dx
-                    if (dy == 0 and dx == 0) or xx < 0 or xx >= width:
+            if min_size > 1:
+                y = int(p * inv_w)
+                if y * width > p:
+                    y -= 1
+                elif (y + 1) * width <= p:
+                    y += 1
+                x = p - y * width
+                for dy in range(-1, 2):
+                    yy = y + dy
+                    if yy < 0 or yy * width >= n_pixels:
                         continue
-                    q = slot_of[yy * width + xx]
-                    if q >= 0 and q < u:
-                        _union(parent, u, q)
+                    for dx in range(-1, 2):
+                        xx = x + dx
+                        if (dy == 0 and dx == 0) or xx < 0 or xx >= width:
+                            continue
+                        q = slot_of[yy * width + xx]
+                        if q >= 0:
+                            _union(parent, u, q)
             u += 1
-    size = np.zeros(u, np.int64)
-    for q in range(u):
-        size[_root(parent, q)] += 1
-    for i in range(n):
-        keep[i] = size[_root(parent, slot[i])] >= min_size
+        slot[i] = s
+        if first:
+            bit = np.int64(1) << c
+            keep[i] = (bits[s] & bit) == 0
+            bits[s] |= bit
+        else:
+            keep[i] = True
+    if min_size > 1:
+        size = np.zeros(u, np.int64)
+        for q in range(u):
+            size[_root(parent, q)] += 1
+        for i in range(n):
+            if keep[i]:
+                keep[i] = size[_root(parent, slot[i])] >= min_size
     for q in range(u):
         slot_of[pix[q]] = -1
     return keep
 
 
-# the kernels called from Python (the others are compiled into their callers)
-KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup,
-           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
-           blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops,
-           in_rects,
-           cell_centres, fill_input, fill_motion, cluster_keep)
+@njit(cache=True, nogil=True)
+def bin_index(t, x, y, p, t0, dt_us, n_bins, height, width):
+    """events.binning.event_bin_index in one pass: the linear index ((b * 2 + (p > 0)) * H + y) * W + x
+    of each event with t0 <= t < t0 + dt_us, b = (t - t0) * B // dt_us, in event order."""
+    n = t.shape[0]
+    out = np.empty(n, np.int64)
+    m = 0
+    t1 = t0 + dt_us
+    for i in range(n):
+        ti = np.int64(t[i])
+        if ti < t0 or ti >= t1:
+            continue
+        b = ((ti - t0) * n_bins) // dt_us
+        pol = np.int64(1) if p[i] > 0 else np.int64(0)
+        out[m] = ((b * 2 + pol) * height + np.int64(y[i])) * width + np.int64(x[i])
+        m += 1
+    return out[:m]
 
 
 @njit(cache=True, nogil=True)
-def first_spikes(idx, n_channels, n_pixels, seen):
-    """Keep mask of the input front end "first" (events/frontend.py) over a sorted linear index of
-    ones into a (B, C, H, W) volume: True for the first one of each (c, pixel). ``seen`` is a
-    (n_pixels,) uint8 of zeros (bit c = channel c seen), left zeroed again; C <= 8."""
-    n = idx.shape[0]
-    keep = np.zeros(n, np.bool_)
-    plane = n_channels * n_pixels
-    for i in range(n):
-        r = idx[i] % plane
-        pix = r % n_pixels
-        bit = np.uint8(1 << (r // n_pixels))
-        if seen[pix] & bit == 0:
-            seen[pix] |= bit
-            keep[i] = True
-    for i in range(n):
-        seen[idx[i] % plane % n_pixels] = 0
-    return keep
+def sorted_unique(values):
+    """np.unique of non-negative ints: an LSD radix sort on 11-bit digits (two passes for a
+    640x480x5x2 volume's linear ids), then one pass dropping repeats. O(n + 2048) per pass."""
+    n = values.shape[0]
+    a = values.copy()
+    if n == 0:
+        return a
+    top = a.max()
+    tmp = np.empty(n, np.int64)
+    cnt = np.empty(2049, np.int64)
+    shift = 0
+    while (top >> shift) > 0:
+        cnt[:] = 0
+        for i in range(n):
+            cnt[((a[i] >> shift) & 2047) + 1] += 1
+        for d in range(2048):
+            cnt[d + 1] += cnt[d]
+        for i in range(n):
+            d = (a[i] >> shift) & 2047
+            tmp[cnt[d]] = a[i]
+            cnt[d] += 1
+        a, tmp = tmp, a
+        shift += 11
+    m = 1
+    for i in range(1, n):
+        if a[i] != a[m - 1]:
+            a[m] = a[i]
+            m += 1
+    return a[:m].copy()
+
+
+# the kernels called from Python (the others are compiled into their callers)
+KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, compact_closed,
+           cascade_window,
+           in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
+           blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops, object_input,
+           in_rects,
+           cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique)
 
 
 def warm_up() -> None:
@@ -1220,8 +1416,11 @@ def warm_up() -> None:
     alive = np.ones(1, np.bool_)
     spikes, fired = ofs_stage(alive, i64, i64, inverse, tap_target, weight, 1, active.shape[0], 0, 1, False)
     keep_r, keep_c, map_r, map_c, image = compact_image(active, 2, 2, 1)
+    keep_r, keep_c, map_r, map_c, image = compact_closed(active, 2, 2, 1, 1)
     closed = compact_lookup(uniq, 2, keep_r, keep_c, map_r, map_c, image.view(np.bool_))
     split_closed(alive, inverse, closed)
+    cascade_window(i64, i64, inverse, uniq, tap_target, active, np.ones((1, 1, 1), np.int64), i64, i64,
+                   np.zeros(1, np.bool_), 1, 2, 2, 1)
     box_mean(i64, i64, 0.0, 0.0, 1.0)
     in_boxes(i64, i64, np.zeros((1, 2)), 1.0)
     density_groups(i64, i64, 1, 2)
@@ -1236,10 +1435,14 @@ def warm_up() -> None:
     crop_pool(1, 1, 1, 1)
     frame_pixels(np.ones((1, 1), np.bool_), i64, i64, i64)
     object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2)
+    object_input(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2, 5, 1, 1000.0)
     crop_origin(i64, i64, 1, 2, 2)
     two_pass_centroid(i64, i64, 1.0, 2, 2)
     fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 1000.0)
     fill_motion(np.zeros((1, 4, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 0)
     cell_centres(np.ones((1, 3)), 1, 1000.0)
-    first_spikes(i64, 2, 1, np.zeros(1, np.uint8))
-    cluster_keep(i64, 1, 1, 2, scratch)
+    front_end_keep(i64, 2, 1, 1, True, 2, scratch)
+    from .events.core import EVENT_DTYPE
+
+    ev = np.zeros(1, EVENT_DTYPE)
+    sorted_unique(bin_index(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1))

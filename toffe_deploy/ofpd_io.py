@@ -95,10 +95,27 @@ OFPD_DEFAULTS: dict[str, Any] = {
 }
 
 
+_SETTINGS: dict[int, tuple[ToffeConfig, dict, dict]] = {}   # id(config) -> (config, its ofpd then, settings)
+
+
 def ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
     """config.ofpd over the defaults (a checkpoint written by an older version still loads, with
     the layout it was trained on: each layout key a non-empty config.ofpd lacks takes its
-    LEGACY_LAYOUT value, e.g. "motion": "none" for OFPDs trained before the motion planes)."""
+    LEGACY_LAYOUT value, e.g. "motion": "none" for OFPDs trained before the motion planes).
+
+    Remembered per config object while its ofpd dict stays equal (the cpu runtime asks several
+    times per window); a copy is returned, so callers may change it."""
+    hit = _SETTINGS.get(id(config))
+    if hit is not None and hit[0] is config and hit[1] == (config.ofpd or {}):
+        return dict(hit[2])
+    s = _ofpd_settings(config)
+    if len(_SETTINGS) >= 64:
+        _SETTINGS.clear()
+    _SETTINGS[id(config)] = (config, dict(config.ofpd or {}), s)
+    return dict(s)
+
+
+def _ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
     given = dict(config.ofpd or {})
     s = dict(OFPD_DEFAULTS)
     if given:
@@ -586,36 +603,55 @@ def decode(pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: 
     bin_from "ofpd" (px_ms only): speed_bin = the bin of the regressed px/ms, the speed clipped
     to [lower edge of bin 1, upper edge of bin N] instead of the stage's bin.
     """
-    pose = np.asarray(pose, dtype=np.float64).reshape(-1, 2)
-    direction = np.asarray(direction, dtype=np.float64).reshape(-1, 2)
-    speed = np.asarray(speed, dtype=np.float64).reshape(-1)
-    k = np.asarray(stage_k, dtype=np.int64).reshape(-1)
-    if not (pose.shape[0] == direction.shape[0] == speed.shape[0] == k.shape[0]):
-        raise ValueError("pose, direction, speed and stage_k must have the same number of rows")
-    if k.size and (k.min() < 1 or k.max() > config.n_speed_bins):
-        raise ValueError(f"stage_k must be in 1..{config.n_speed_bins}")
-    reg = np.exp(np.clip(speed, -10.0, 10.0))
-    scale = config.speed_scale
-    s = ofpd_settings(config)
-    if s["speed_unit"] == "px_ms" and s["bin_from"] == "ofpd":
-        edges = speed_bounds_px_ms(config)
-        v_px = np.clip(reg, edges[0, 0], edges[-1, 1])
-        k = np.clip(np.searchsorted(edges[1:, 0], v_px, side="right") + 1, 1, len(edges)).astype(np.int64)
-        v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
-    elif s["speed_unit"] == "px_ms":
-        bounds = speed_bounds_px_ms(config)[k - 1] if k.size else np.zeros((0, 2))
-        v_px = np.clip(reg, bounds[:, 0], bounds[:, 1])
-        v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
-    else:
-        bounds = speed_bounds(config)[k - 1] if k.size else np.zeros((0, 2))
-        v_mps = np.clip(reg, bounds[:, 0], bounds[:, 1])
-        v_px = np.asarray(scale.to_px_ms(v_mps), dtype=np.float64)
-    return {
-        "x_px": pose[:, 0],
-        "y_px": pose[:, 1],
-        "direction_rad": np.arctan2(direction[:, 1], direction[:, 0]),
-        "speed_px_ms": v_px,
-        "speed_mps": v_mps,
-        "speed_bin": k,
-        "speed_bin_mps": np.asarray(config.representative_speeds, dtype=np.float64)[k - 1] if k.size else np.zeros(0),
-    }
+    return Decoder(config)(pose, direction, speed, stage_k)
+
+
+class Decoder:
+    """``decode`` with the config's settings, bin edges and camera worked out once: the cpu
+    runtime decodes every window, and building them (ofpd_settings, speed_bounds_px_ms) cost
+    more than the arithmetic. ``Decoder(config)(pose, direction, speed, stage_k)`` is decode."""
+
+    def __init__(self, config: ToffeConfig):
+        s = ofpd_settings(config)
+        self.n_speed_bins = config.n_speed_bins
+        self.mode = ("ofpd" if s["bin_from"] == "ofpd" else "px_ms") if s["speed_unit"] == "px_ms" else "mps"
+        self.bounds = speed_bounds(config) if self.mode == "mps" else speed_bounds_px_ms(config)
+        self.lower = np.ascontiguousarray(self.bounds[1:, 0])
+        self.scale = config.speed_scale
+        self.representative = np.asarray(config.representative_speeds, dtype=np.float64)
+
+    def __call__(self, pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: np.ndarray
+                 ) -> dict[str, np.ndarray]:
+        pose = np.asarray(pose, dtype=np.float64).reshape(-1, 2)
+        direction = np.asarray(direction, dtype=np.float64).reshape(-1, 2)
+        speed = np.asarray(speed, dtype=np.float64).reshape(-1)
+        k = np.asarray(stage_k, dtype=np.int64).reshape(-1)
+        if not (pose.shape[0] == direction.shape[0] == speed.shape[0] == k.shape[0]):
+            raise ValueError("pose, direction, speed and stage_k must have the same number of rows")
+        if k.size and (k.min() < 1 or k.max() > self.n_speed_bins):
+            raise ValueError(f"stage_k must be in 1..{self.n_speed_bins}")
+        # np.minimum(np.maximum(...)) is np.clip's result (NaN included) at a fraction of its call cost
+        reg = np.exp(np.minimum(np.maximum(speed, -10.0), 10.0))
+        scale = self.scale
+        if self.mode == "ofpd":
+            edges = self.bounds
+            v_px = np.minimum(np.maximum(reg, edges[0, 0]), edges[-1, 1])
+            k = np.minimum(np.maximum(np.searchsorted(self.lower, v_px, side="right") + 1, 1), len(edges)).astype(np.int64)
+            v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
+        elif self.mode == "px_ms":
+            bounds = self.bounds[k - 1] if k.size else np.zeros((0, 2))
+            v_px = np.clip(reg, bounds[:, 0], bounds[:, 1])
+            v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
+        else:
+            bounds = self.bounds[k - 1] if k.size else np.zeros((0, 2))
+            v_mps = np.clip(reg, bounds[:, 0], bounds[:, 1])
+            v_px = np.asarray(scale.to_px_ms(v_mps), dtype=np.float64)
+        return {
+            "x_px": pose[:, 0],
+            "y_px": pose[:, 1],
+            "direction_rad": np.arctan2(direction[:, 1], direction[:, 0]),
+            "speed_px_ms": v_px,
+            "speed_mps": v_mps,
+            "speed_bin": k,
+            "speed_bin_mps": self.representative[k - 1] if k.size else np.zeros(0),
+        }

@@ -94,7 +94,7 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
             morph.append((bh * bw, mask_kernel, 2))
     ofpd = (ann_ops(ofpd_macs, ofpd_params, ofpd_activations) + HostOps(sram_bytes=8 * ofpd_in_elems)).scaled(ofpd_calls)
     # the cpu target builds its window from the events (SpikeVolume.from_events: index, then
-    # np.unique), never scanning a dense volume
+    # its sorted unique values), never scanning a dense volume
     n_raw = int(np.asarray(binned).sum())
     binarize = event_index_ops(n_raw) + sort_unique_ops(n_raw)
     ofs_host = HostOps()

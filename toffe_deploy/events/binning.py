@@ -23,15 +23,11 @@ def event_bin_index(events: np.ndarray, t0: int, dt_us: int, n_bins: int,
     The one definition of an event's bin and channel: bin_window counts these indices and the
     runtime's SpikeVolume.from_events keeps their unique values.
     """
+    from ..compiled import bin_index        # one compiled pass over the fields (the cpu hot path)
+
     width, height = int(sensor_size[0]), int(sensor_size[1])
-    t = events["t"]
-    keep = (t >= t0) & (t < t0 + dt_us)
-    if not keep.all():
-        events = events[keep]
-        t = events["t"]
-    b = ((t - t0) * n_bins) // dt_us
-    p = (events["p"] > 0).astype(np.int64)
-    return ((b * 2 + p) * height + events["y"].astype(np.int64)) * width + events["x"].astype(np.int64)
+    return bin_index(np.asarray(events["t"], dtype=np.int64), events["x"], events["y"], events["p"], int(t0),
+                     int(dt_us), int(n_bins), height, width)
 
 
 def bin_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, sensor_size: tuple[int, int],

@@ -32,8 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 INPUT_NORMS = ("none", "first")
-_SEEN: dict[int, np.ndarray] = {}     # first_spikes_index's scratch per H * W (reused: no page faults)
-_SLOTS: dict[int, np.ndarray] = {}    # min_cluster_index's scratch per H * W (compiled.new_scratch)
+_SLOTS: dict[int, np.ndarray] = {}    # front_end_index's scratch per H * W (compiled.new_scratch; reused: no page faults)
 
 
 def check_norm(norm: str) -> str:
@@ -55,17 +54,25 @@ def first_spikes_index(idx: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     """The same on a sorted, unique linear index into a (B, C, H, W) volume: keeps, for each
     (c, y, x), its smallest b. Since b is the slowest axis, the sorted index already lists every
     (c, y, x) in order of b, so its first occurrence is the one to keep: one compiled pass
-    (compiled.first_spikes; ~10x faster than np.unique on a window). Returns a sorted index."""
-    from ..compiled import first_spikes
+    (front_end_index; ~10x faster than np.unique on a window). Returns a sorted index."""
+    return front_end_index(idx, shape, True, 1)
+
+
+def front_end_index(idx: np.ndarray, shape: tuple[int, ...], first: bool, min_cluster: int) -> np.ndarray:
+    """The ones of a sorted unique linear index into a (B, C, H, W) volume that ``first`` (if
+    set) and the cluster filter of ``min_cluster`` keep, in one compiled pass
+    (compiled.front_end_keep). Returns a sorted index."""
+    from ..compiled import front_end_keep, new_scratch
 
     idx = np.asarray(idx, dtype=np.int64)
-    if idx.size == 0:
+    if idx.size == 0 or (not first and min_cluster <= 1):
         return idx
-    n_pixels = int(shape[2]) * int(shape[3])
-    seen = _SEEN.get(n_pixels)
-    if seen is None:                   # one zeroed scratch per sensor size, left zeroed by the kernel
-        seen = _SEEN[n_pixels] = np.zeros(n_pixels, np.uint8)
-    return idx[first_spikes(idx, int(shape[1]), n_pixels, seen)]
+    w = int(shape[3])
+    n_pixels = int(shape[2]) * w
+    slots = _SLOTS.get(n_pixels)
+    if slots is None:                  # one all -1 scratch per sensor size, left so by the kernel
+        slots = _SLOTS[n_pixels] = new_scratch(n_pixels)
+    return idx[front_end_keep(idx, int(shape[1]), n_pixels, w, bool(first), int(min_cluster), slots)]
 
 
 def check_min_cluster(n: int) -> int:
@@ -95,19 +102,9 @@ def min_cluster_dense(volume: np.ndarray, n: int) -> np.ndarray:
 
 def min_cluster_index(idx: np.ndarray, shape: tuple[int, ...], n: int) -> np.ndarray:
     """The same on a sorted unique linear index of ones into a (B, C, H, W) volume, in one
-    compiled pass (compiled.cluster_keep: union-find over the window's event pixels). Returns a
+    compiled pass (front_end_index: union-find over the window's event pixels). Returns a
     sorted index."""
-    from ..compiled import cluster_keep, new_scratch
-
-    idx = np.asarray(idx, dtype=np.int64)
-    if n <= 1 or idx.size == 0:
-        return idx
-    w = int(shape[3])
-    n_pixels = int(shape[2]) * w
-    slots = _SLOTS.get(n_pixels)
-    if slots is None:                  # one all -1 scratch per sensor size, left so by the kernel
-        slots = _SLOTS[n_pixels] = new_scratch(n_pixels)
-    return idx[cluster_keep(idx, n_pixels, w, int(n), slots)]
+    return front_end_index(idx, shape, False, n)
 
 
 def apply_dense(volume: np.ndarray, norm: str, min_cluster: int = 1) -> np.ndarray:
@@ -118,6 +115,4 @@ def apply_dense(volume: np.ndarray, norm: str, min_cluster: int = 1) -> np.ndarr
 
 def apply_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluster: int = 1) -> np.ndarray:
     """The front end on a sorted unique linear index of ones into a (B, C, H, W) volume."""
-    if check_norm(norm) == "first":
-        idx = first_spikes_index(idx, shape)
-    return min_cluster_index(idx, shape, check_min_cluster(min_cluster))
+    return front_end_index(idx, shape, check_norm(norm) == "first", check_min_cluster(min_cluster))

@@ -12,21 +12,45 @@ Same results as ``run_cascade(x, lambda k, inp: run_ofs_fixed(inp, params[k-1]),
 
 ``cascade_stream`` offers the interface of the Lava adapter (``LavaCascade``): dense (B, 2, H, W)
 windows in, dense ``CascadeResult`` out, so the two backends are interchangeable and comparable.
-``cascade_sparse`` is the fast path the pipeline uses.
+``cascade_sparse`` is the fast path the pipeline uses: one compiled call per window
+(compiled.cascade_window) runs every stage of these steps.
 """
 from __future__ import annotations
 
+import collections.abc
 from dataclasses import dataclass
 from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
 from ..cascade import CascadeResult
-from ..compiled import new_scratch, split_closed, warm_up
+from ..compiled import cascade_window, new_scratch, warm_up
 from ..fixed_point import LoihiOFSParams
 from .morph import CompactClosing
 from .ofs_sparse import SparseOFSWindow
 from .spikes import SpikeVolume
+
+
+class StageClosings(collections.abc.Sequence):
+    """closings[k-1]: stage k's closed region (CompactClosing of its fired active pixels), made
+    when first asked for: the cascade itself reads the closing only at the window's pixels
+    (compiled.cascade_window), so a window that nobody inspects never builds these."""
+
+    def __init__(self, active: np.ndarray, fired: np.ndarray, height: int, width: int, kernel: int):
+        self._args = (active, fired, height, width, kernel)
+        self._made: dict[int, CompactClosing] = {}
+
+    def __len__(self) -> int:
+        return int(self._args[1].shape[0])
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        i = range(len(self))[i]
+        if i not in self._made:
+            active, fired, h, w, kernel = self._args
+            self._made[i] = CompactClosing(active[fired[i]], h, w, kernel)
+        return self._made[i]
 
 
 @dataclass
@@ -37,10 +61,10 @@ class SparseCascadeResult:
 
     volume: SpikeVolume
     window: SparseOFSWindow
-    inputs: list[np.ndarray]
-    spikes: list[np.ndarray]
-    closings: list[CompactClosing]
-    frames: list[np.ndarray]
+    inputs: Sequence[np.ndarray]
+    spikes: Sequence[np.ndarray]
+    closings: Sequence[CompactClosing]
+    frames: Sequence[np.ndarray]
 
     def frame_volume(self, k: int) -> SpikeVolume:
         """The speed-separated frame of stage k (1-based) as a SpikeVolume (B, 2, H, W)."""
@@ -81,6 +105,12 @@ class CpuCascade:
         self.sensor_size = (int(sensor_size[0]), int(sensor_size[1]))
         self.kernel_size = kernels.pop()
         self._scratch = new_scratch(self.sensor_size[0] * self.sensor_size[1])
+        # the stages' constants as cascade_window takes them, made once: weights (N, C, K*K)
+        self._weights = np.ascontiguousarray(np.stack([p.weight[0].reshape(p.weight.shape[1], -1) for p in self.params]),
+                                             dtype=np.int64)
+        self._dv = np.array([int(p.dv) for p in self.params], dtype=np.int64)
+        self._vth = np.array([int(p.vth_mant) for p in self.params], dtype=np.int64)
+        self._reset_zero = np.array([p.reset == "zero" for p in self.params], dtype=bool)
 
     def __enter__(self) -> "CpuCascade":
         warm_up()                      # compile or load the kernels now, not in the first window
@@ -99,25 +129,17 @@ class CpuCascade:
             raise ValueError(f"window must be ({self.n_bins}, 2, {h}, {w}), got {tuple(shape)}")
 
     def cascade_sparse(self, volume: SpikeVolume) -> SparseCascadeResult:
-        """Run all stages, k = N..1, on one window given as its ones."""
+        """Run all stages, k = N..1, on one window given as its ones (one compiled call,
+        compiled.cascade_window): inputs, spikes and frames are its (N, ...) arrays, stage k
+        at row k - 1."""
         self._check(volume.shape)
         _b, _c, h, w = volume.shape
         win = SparseOFSWindow(volume, self.kernel_size, self._scratch)
-        n = self.n_stages
-        res = SparseCascadeResult(volume, win, [None] * n, [None] * n, [None] * n, [None] * n)
-        alive = np.ones(len(volume), dtype=bool)
-        for k in range(n, 0, -1):
-            spikes, fired = win.run_stage(alive, self.params[k - 1])
-            closing = CompactClosing(win.active[fired], h, w, self.mask_kernel)
-            res.inputs[k - 1] = alive
-            res.spikes[k - 1] = spikes
-            res.closings[k - 1] = closing
-            if closing.empty:
-                res.frames[k - 1] = np.zeros_like(alive)
-            else:                                 # inp_k & closed_k, and inp_k-1 = inp_k & ~closed_k
-                # the closing is read per input pixel, not per one
-                res.frames[k - 1], alive = split_closed(alive, win.pix_inverse, closing.at(win.input_pixels))
-        return res
+        spikes, fired, inputs, frames = cascade_window(
+            win.b, win.c, win.pix_inverse, win.input_pixels, win.tap_target, win.active, self._weights, self._dv,
+            self._vth, self._reset_zero, self.n_bins, h, w, self.mask_kernel)
+        return SparseCascadeResult(volume, win, inputs, spikes, StageClosings(win.active, fired, h, w, self.mask_kernel),
+                                   frames)
 
     def cascade_stream(self, windows: Iterable[np.ndarray]) -> Iterator[CascadeResult]:
         """Dense (B, 2, H, W) windows in, dense CascadeResult out (the LavaCascade interface)."""

@@ -15,9 +15,9 @@ evaluation and export are thin wrappers over the same functions):
 This module only converts between SpikeVolume and coordinates, with O(n) de-duplication through
 an all -1 ``scratch`` array (``compiled.new_scratch``; no sort) when the caller has one.
 ``batch`` (the pipeline's per-window call) runs these steps as compiled passes over the
-window's ones (compiled.frame_pixels, blob_objects, claimed_by, object_crops, fill_input: the
-same definitions, tested bit for bit against the per-object Python form in
-tests/test_objects_compiled.py).
+window's ones (compiled.frame_pixels, blob_objects, claimed_by, then object_input: object_crops,
+fill_input and fill_motion in one call; the same definitions, tested bit for bit against the
+per-object Python form in tests/test_objects_compiled.py).
 """
 from __future__ import annotations
 
@@ -25,9 +25,9 @@ from typing import Sequence
 
 import numpy as np
 
-from ..compiled import dedupe, frame_pixels, object_crops
+from ..compiled import dedupe, frame_pixels, object_input
 from ..config import ToffeConfig
-from ..ofpd_io import (crop_origin_xy, group_objects_flat, group_objects_xy, input_shape, object_masks_xy, ofpd_settings, prepare_flat,
+from ..ofpd_io import (COORD_SCALE, crop_origin_xy, group_objects_flat, group_objects_xy, input_shape, object_masks_xy, ofpd_settings,
                        prepare_xy)
 from .spikes import SpikeVolume
 
@@ -73,12 +73,14 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     merged frame is the ones of every frame whose pixel it claims, so its unique pixels are
     the window pixels of those ones it claims. The stage pixels go to the grouping as flat
     arrays (ofpd_io.group_objects_flat); each object's crop and ones, and the OFPD input, come
-    from one compiled pass each (compiled.object_crops, ofpd_io.prepare_flat).
+    from one compiled call (compiled.object_input: object_crops, then ofpd_io.prepare_flat's kernels).
     """
     _b, nc, h, w = volume.shape
     upix, pinv = volume.pixel_index(scratch)
     uy, ux = np.divmod(upix, w)
-    sx, sy, starts, every = frame_pixels(np.stack(frames) if len(frames) else np.zeros((0, len(pinv)), bool),
+    stacked = (frames if isinstance(frames, np.ndarray) else       # the cpu cascade's (N, n) array as it is
+               np.stack(frames) if len(frames) else np.zeros((0, len(pinv)), bool))
+    sx, sy, starts, every = frame_pixels(stacked,
                                          pinv, ux, uy)
     objs, claims = group_objects_flat(sx, sy, starts, (w, h), config)
     if not objs:
@@ -88,11 +90,10 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     fx, fy = ux[ev_u], uy[ev_u]
     ch = volume.bc[every] if nc == 2 else volume.b[every] * 2 + volume.c[every]
     s = ofpd_settings(config)
-    g = input_shape(config)[1]
-    origins, n_ev, obj, ox, oy, och = object_crops(claims.matrix(fx, fy, len(objs), scratch), fx, fy, ch, ev_u, upix.shape[0],
-                                                   int(s["crop_px"]) if s["crop"] == "fixed" else 0, g,
-                                                   int(s["pool_min"]), int(s["pool_max"]), w, h)
-    x = prepare_flat(obj, ox, oy, och, origins, len(objs), config)
+    c, g, _ = input_shape(config)
+    x, n_ev = object_input(claims.matrix(fx, fy, len(objs), scratch), fx, fy, ch, ev_u, upix.shape[0],
+                           int(s["crop_px"]) if s["crop"] == "fixed" else 0, g, int(s["pool_min"]), int(s["pool_max"]),
+                           w, h, c, int(config.n_bins), COORD_SCALE)
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, n_ev
 
 

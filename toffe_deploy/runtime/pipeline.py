@@ -36,7 +36,7 @@ from ..camera import SpeedScale
 from ..config import ToffeConfig
 from ..errors import InputError
 from ..events.frontend import apply_dense
-from ..ofpd_io import decode
+from ..ofpd_io import Decoder
 from . import ofpd_input
 from ..compiled import new_scratch, warm_up
 from .cpu import CpuCascade
@@ -167,6 +167,7 @@ class Pipeline:
         self.cascade = _make_cascade(bundle, target, tag, self.sensor_size)
         self._scratch = new_scratch(self.sensor_size[0] * self.sensor_size[1])   # for ofpd_input's O(n) de-duplication
         self.keep_stages = bool(keep_stages)
+        self._decode = Decoder(self.config)          # ofpd_io.decode, set up once
         self._entered = False
 
     def __enter__(self) -> "Pipeline":
@@ -201,7 +202,7 @@ class Pipeline:
         if not ks.size:
             return []
         pose, direction, speed = self.ofpd.run(x)
-        dec = decode(pose, direction, speed, ks, self.config)
+        dec = self._decode(pose, direction, speed, ks)
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         return [ObjectFlow(speed_bin=int(dec["speed_bin"][i]), ofs_bin=int(k), speed_mps=mps[i], speed_bin_mps=bin_mps[i],
                            speed_px_s=px_ms[i] * 1000.0, x=float(dec["x_px"][i]),

@@ -1,0 +1,89 @@
+#!/usr/bin/env python
+"""CPU time per window of the cpu target, by part: where `run --target cpu` spends its time.
+
+    .venv/bin/python benchmarks/bench_parts.py [--bundle export/] [--events FILE] [--core 1] [--repeats 5]
+
+Each window of the recording (default: the shipped sample) goes through the steps of
+``Pipeline.process_stream`` one at a time, each timed with the thread's CPU time
+(time.thread_time_ns: what this thread ran, not what the other processes of a shared machine
+took from it, so parts compare across runs on a busy machine better than wall time):
+
+    bin      SpikeVolume.from_events (event index, sorted unique ones)
+    front    the input front end (first spike, cluster filter)
+    cascade  CpuCascade.cascade_sparse (the N OFS stages, closings, masks)
+    batch    runtime.ofpd_input.batch (object grouping, crops, OFPD input)
+    ort      the onnxruntime call
+    decode   ofpd_io.Decoder and pipeline.speeds_of
+
+Prints one JSON line: the median of each part over windows and repeats (us), the median and
+mean of their sum, the number of windows and the 1-minute load average when it ended.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+PARTS = ("bin", "front", "cascade", "batch", "ort", "decode")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description="CPU time per window of the cpu target, by part.")
+    ap.add_argument("--bundle", default=str(ROOT / "export"), help="deploy bundle (toffe-deploy export ckpt/)")
+    ap.add_argument("--events", default=None, help="recording (default: the shipped sample)")
+    ap.add_argument("--core", type=int, default=1, help="CPU core to pin to")
+    ap.add_argument("--repeats", type=int, default=5, help="passes over the recording")
+    args = ap.parse_args(argv)
+
+    from bench_run import load_windows, pin_one_core
+    from toffe_deploy.commands.run import SAMPLE
+    from toffe_deploy.deploy.bundle import load_bundle
+    from toffe_deploy.runtime import ofpd_input
+    from toffe_deploy.runtime.pipeline import Pipeline, speeds_of
+    from toffe_deploy.runtime.spikes import SpikeVolume
+
+    bundle = load_bundle(args.bundle)
+    cfg = bundle.config
+    windows = load_windows(Path(args.events) if args.events else SAMPLE, cfg)
+    pin_one_core(args.core)
+    clock = time.thread_time_ns
+    parts: dict[str, list[float]] = {p: [] for p in PARTS}
+    total = []
+    with Pipeline(bundle, "cpu") as pipe:
+        for _ in range(args.repeats):
+            for t0, ev in windows:
+                t = [clock()]
+                vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size)
+                t.append(clock())
+                vol = vol.front_end(cfg.input_norm, cfg.input_min_cluster)
+                t.append(clock())
+                res = pipe.cascade.cascade_sparse(vol)
+                t.append(clock())
+                ks, x, _n = ofpd_input.batch(vol, res.frames, cfg, pipe._scratch)
+                t.append(clock())
+                out = pipe.ofpd.run(x) if ks.size else None
+                t.append(clock())
+                if ks.size:
+                    speeds_of(pipe._decode(*out, ks), cfg, pipe.speed_scale)
+                t.append(clock())
+                for name, a, b in zip(PARTS, t[:-1], t[1:]):
+                    parts[name].append((b - a) / 1e3)
+                total.append((t[-1] - t[0]) / 1e3)
+    res = {name: round(float(np.median(v)), 1) for name, v in parts.items()}
+    res.update(sum_median_us=round(float(np.median(total)), 1), sum_mean_us=round(float(np.mean(total)), 1),
+               windows=len(total), load_1min=round(os.getloadavg()[0], 2))
+    print(json.dumps(res))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
