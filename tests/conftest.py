@@ -24,7 +24,7 @@ def random_events(rng):
     return make
 
 
-def _make_bundle(root, sensor=(64, 48), ofpd=None, reset="subtract"):
+def _make_bundle(root, sensor=(64, 48), ofpd=None, reset="subtract", ofs_pool=1):
     """init_checkpoint -> quantize -> ONNX -> write_bundle: a real bundle without the exporter."""
     import torch
 
@@ -35,7 +35,8 @@ def _make_bundle(root, sensor=(64, 48), ofpd=None, reset="subtract"):
     from toffe_deploy.fixed_point import quantize_ofs
     from toffe_deploy.model.ofpd import OFPD
 
-    cfg = ToffeConfig(sensor_size=sensor, ofpd=ofpd or {"crop_px": 32, "pool": 2, "min_events": 4}, reset=reset)
+    cfg = ToffeConfig(sensor_size=sensor, ofpd=ofpd or {"crop_px": 32, "pool": 2, "min_events": 4}, reset=reset,
+                      ofs_pool=ofs_pool)
     ck = load_checkpoint(init_checkpoint(root / "ckpt", cfg, seed=1))
     # Low thresholds (0.25 .. 0.55, DOTIE's are 1.0 ..) so the sparse events of a tiny sensor make spikes.
     ofs = [quantize_ofs(p["weight"], 0.25 + 0.1 * k, 0.7, reset) for k, p in enumerate(ck.ofs)]
@@ -67,7 +68,7 @@ def _make_recording(path, sensor=(64, 48), duration=0.012, index=0, seed=0):
 
 @pytest.fixture(scope="session")
 def make_bundle():
-    """Factory: make_bundle(root, sensor=(64, 48), ofpd=None, reset="subtract") -> a real tiny deploy
+    """Factory: make_bundle(root, sensor=(64, 48), ofpd=None, reset="subtract", ofs_pool=1) -> a real tiny deploy
     Bundle at root/bundle (untrained DOTIE-initialised OFS with low thresholds, random OFPD in ONNX)."""
     return _make_bundle
 

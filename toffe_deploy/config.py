@@ -38,6 +38,11 @@ class ToffeConfig:
     sensor_size is (width, height) in pixels. A window of ``dt_us`` microseconds is split into
     ``n_bins`` (the paper's B) equal time bins. OFS stage k (1-based) fires for objects at speed
     bin k or faster; the cascade runs k = N..1 and masks with a closing of ``mask_kernel``.
+
+    ``ofs_pool`` p: the OFS cascade runs on the window OR-pooled over p x p pixel blocks (its grid
+    is ceil(W / p) x ceil(H / p), see ``ofs_grid``); its closed masks come back to the sensor grid
+    by repeating each cell p x p times, so the OFPD still sees every pixel (toffe_deploy/cascade.py).
+    p = 2 puts the four 640x480 stages on one Loihi 2 chip (40 of 128 cores, issue 13).
     """
 
     sensor_size: tuple[int, int] = (640, 480)
@@ -47,7 +52,8 @@ class ToffeConfig:
     representative_speeds: tuple[float, ...] = (9.5, 30.0, 63.0, 114.0)
     ofs_kernel: int = 3
     ofs_in_channels: int = 2
-    mask_kernel: int = 5
+    mask_kernel: int = 5                   # closing kernel, in OFS-grid cells
+    ofs_pool: int = 1                      # OFS grid = sensor pooled over ofs_pool x ofs_pool blocks
     focal_px: float = REFERENCE_FOCAL_PX   # the camera the speed bins in m/s are stated for
     depth_m: float = REFERENCE_DEPTH_M     # ... and the object depth
     input_norm: str = "none"               # OFS/OFPD input front end (events/frontend.py)
@@ -75,6 +81,13 @@ class ToffeConfig:
     def speed_bin_of_px_ms(self, speed_px_ms: float) -> int:
         """1-based speed bin of an image-plane speed (px/ms); 0 below the first bin, N above the last."""
         return self.speed_bin_of(self.speed_scale.to_mps(speed_px_ms))
+
+    def ofs_grid(self, sensor_size: tuple[int, int] | None = None) -> tuple[int, int]:
+        """(width, height) of the OFS stages' neuron grid for a sensor (default: the config's):
+        ceil(W / ofs_pool) x ceil(H / ofs_pool)."""
+        w, h = self.sensor_size if sensor_size is None else sensor_size
+        p = int(self.ofs_pool)
+        return (-(-int(w) // p), -(-int(h) // p))
 
     @property
     def width(self) -> int:
@@ -108,7 +121,7 @@ class ToffeConfig:
             if "representative_speeds" in kw:
                 kw["representative_speeds"] = tuple(float(v) for v in kw["representative_speeds"])
             for k in ("n_bins", "dt_us", "ofs_kernel", "ofs_in_channels", "mask_kernel", "format_version",
-                      "input_min_cluster"):
+                      "input_min_cluster", "ofs_pool"):
                 if k in kw:
                     kw[k] = int(kw[k])
             for k in ("focal_px", "depth_m"):
@@ -145,6 +158,8 @@ class ToffeConfig:
             bad(f"ofs_kernel must be odd, got {self.ofs_kernel}")
         if self.mask_kernel < 1:
             bad(f"mask_kernel must be >= 1, got {self.mask_kernel}")
+        if self.ofs_pool < 1 or self.ofs_pool > 16:
+            bad(f"ofs_pool must be an integer 1..16, got {self.ofs_pool}")
         if not (self.focal_px > 0 and math.isfinite(self.focal_px)):
             bad(f"focal_px must be > 0, got {self.focal_px}")
         if not (self.depth_m > 0 and math.isfinite(self.depth_m)):

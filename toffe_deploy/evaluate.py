@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .breakdown import Breakdown, attr_value, bucket_labels, bucket_order
-from .cascade import close_binary
+from .cascade import stage_frame
 from .checkpoint import load_checkpoint
 from .errors import InputError
 from .events.binning import bin_window
@@ -143,10 +143,10 @@ def evaluate(opts: EvalOptions) -> dict:
                     for g, (_paths, labels, _order) in enumerate(groups):
                         by_errs[g][labels[fi]].add_window(preds, truth, focal)
                     if len(truth) == 1:
-                        inp = binned > 0
+                        inp = res.inputs[cfg.n_speed_bins - 1]        # the whole window on the OFS grid
                         for k in range(1, cfg.n_speed_bins + 1):
                             spikes = res.spikes[k - 1] if k == cfg.n_speed_bins else run_stage(k, inp)
-                            frame = inp & close_binary(spikes.any(axis=0), cfg.mask_kernel)[None, None]
+                            frame = stage_frame(binned, spikes, cfg.mask_kernel, cfg.ofs_pool)
                             sep[k - 1].add(ofpd_io.has_object(frame[None], cfg), truth[0].speed_bin >= k)
         row = {"dt_us": dt, "same_dt_as_training": dt == cfg.dt_us, "all": errs.summary(),
                "per_bin": {str(k): errs.summary(k) for k in range(1, cfg.n_speed_bins + 1)},

@@ -322,7 +322,7 @@ def run_command(args) -> int:
         t_setup = time.perf_counter()
         dump = None
         if args.dump_spikes:
-            need = n_total * dump_bytes_per_window(cfg.n_speed_bins, cfg.n_bins, *sensor)
+            need = n_total * dump_bytes_per_window(cfg.n_speed_bins, cfg.n_bins, *cfg.ofs_grid(sensor))
             if need > DUMP_MAX_BYTES:
                 raise ToffeError(f"--dump-spikes: {n_total} windows of {sensor[0]}x{sensor[1]} need "
                                  f"{need / 2**30:.1f} GiB in memory (limit {DUMP_MAX_BYTES / 2**30:.0f}); "

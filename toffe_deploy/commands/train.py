@@ -40,6 +40,13 @@ def register(sub) -> None:
     p.add_argument("--ofs-kernel", type=int, default=5, metavar="K",
                    help="OFS conv kernel size of a new checkpoint (odd; default 5, the shipped one's: slow edges move "
                         "under a pixel per time bin; the paper's is 3)")
+    p.add_argument("--ofs-pool", type=int, default=None, metavar="P",
+                   help="run the OFS stages on the sensor OR-pooled over P x P pixel blocks (their masks come back "
+                        "to every pixel, OFPD is unchanged); 2 puts 640x480 x 4 stages on one Loihi 2 chip "
+                        "(default: the checkpoint's; a new checkpoint 2)")
+    p.add_argument("--mask-kernel", type=int, default=None, metavar="K",
+                   help="side of the cascade's closing kernel, in OFS-grid cells (default: the checkpoint's; a new "
+                        "checkpoint 5, the paper's)")
     p.add_argument("--reset", choices=("subtract", "zero"), default=None,
                    help="OFS neuron reset: 'subtract' (the paper's eq. 1) or 'zero' (Loihi 2's stock CUBA LIF, "
                         "what NeuroCores, netx and NIR run) (default: the checkpoint's, else subtract)")
@@ -65,6 +72,10 @@ def run(args) -> int:
             raise ToffeError(f"--ofpd-kernels needs two odd sizes like 3,3, got {args.ofpd_kernels!r}") from None
     if args.min_cluster < 1:
         raise ToffeError(f"--min-cluster must be >= 1, got {args.min_cluster}")
+    if args.ofs_pool is not None and not 1 <= args.ofs_pool <= 16:
+        raise ToffeError(f"--ofs-pool must be 1..16, got {args.ofs_pool}")
+    if args.mask_kernel is not None and args.mask_kernel < 1:
+        raise ToffeError(f"--mask-kernel must be >= 1, got {args.mask_kernel}")
     if args.ofs_kernel < 1 or args.ofs_kernel % 2 == 0:
         raise ToffeError(f"--ofs-kernel must be an odd positive size, got {args.ofs_kernel}")
     for name in ("dt", "ofs_epochs", "epochs", "windows_per_seq"):
@@ -84,6 +95,6 @@ def run(args) -> int:
                              per_file=args.windows_per_seq, device=args.device, ofpd_pool=args.ofpd_pool,
                              ofpd_kernels=kernels, progress=show_progress(args), input_norm=args.input_norm,
                              ofs_kernel=args.ofs_kernel, min_cluster=args.min_cluster, reset=args.reset,
-                             init_from=args.init_from))
+                             init_from=args.init_from, ofs_pool=args.ofs_pool, mask_kernel=args.mask_kernel))
     print(f"checkpoint written to {out}")
     return 0

@@ -107,7 +107,7 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
             "ofs": {"quantization": q.report, "arithmetic": "toffe_deploy.fixed_point (see README.md)",
                     "reset": config.reset,
                     "loihi2_footprint": loihi2_footprint(config.width, config.height, config.n_speed_bins,
-                                                         config.ofs_kernel, config.ofs_in_channels)},
+                                                         config.ofs_kernel, config.ofs_in_channels, config.ofs_pool)},
             "ofpd": {**onnx_export.onnx_io_info(onnx_path), "variants": variant_info},
             "netx": {"files": sorted(f for f in files if f.startswith("netx/")),
                      "reset_interval": config.n_bins, "reset_offset": NETX_RESET_OFFSET,

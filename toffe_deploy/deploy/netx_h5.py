@@ -42,7 +42,7 @@ def write_stage_netx(path: str | os.PathLike, config: ToffeConfig, p: LoihiOFSPa
     """Write one stage as a netx network file at ``path``."""
     import h5py
 
-    c, h, w = config.ofs_in_channels, config.height, config.width
+    (w, h), c = config.ofs_grid(), config.ofs_in_channels     # the OFS grid (sensor pooled by ofs_pool)
     k = p.kernel_size
     path = Path(path)
     buf = io.BytesIO()     # in memory: HDF5's own writes crash the interpreter on a full disk

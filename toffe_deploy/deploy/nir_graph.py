@@ -60,7 +60,7 @@ def ofs_nir_graph(config: ToffeConfig, ofs: Sequence[LoihiOFSParams]):
     """Build the nir.NIRGraph of all OFS stages (parallel branches from one input)."""
     import nir
 
-    c, h, w = config.ofs_in_channels, config.height, config.width
+    (w, h), c = config.ofs_grid(), config.ofs_in_channels     # the OFS grid (sensor pooled by ofs_pool)
     nodes = {"input": nir.Input(input_type=np.array([c, h, w]))}
     edges = []
     stage_meta = []
@@ -93,10 +93,14 @@ def ofs_nir_graph(config: ToffeConfig, ofs: Sequence[LoihiOFSParams]):
         "time_step_us": float(config.dt_us) / config.n_bins,
         "time_step_s": dt,
         "n_bins": int(config.n_bins),
-        "input": "binary spikes per polarity channel (count > 0), shape (C_in, H, W) = (2, height, width)",
+        "input": "binary spikes per polarity channel (count > 0), shape (C_in, H, W) = (2, height, width) of the "
+                 "OFS grid: the sensor OR-pooled over ofs_pool x ofs_pool pixel blocks",
+        "ofs_pool": int(config.ofs_pool),
+        "sensor_size": [int(config.width), int(config.height)],
         "conv_layout": "weight (C_out, C_in, kH, kW) cross-correlation, input_shape (H, W), zero padding K//2",
         "cascade": f"run stage N first; a stage's spikes OR-ed over the window, closed with a {config.mask_kernel}x"
-                   f"{config.mask_kernel} square and inverted, mask the next slower stage's input (paper eq. 3-4)",
+                   f"{config.mask_kernel} square and inverted, mask the next slower stage's input (paper eq. 3-4); "
+                   "each grid cell's mask covers its ofs_pool x ofs_pool sensor pixels",
         "loihi_fixed_point_json": json.dumps(stage_meta),
     }
     return nir.NIRGraph(nodes=nodes, edges=edges, metadata=metadata)

@@ -27,6 +27,7 @@ from typing import Sequence, TextIO
 import cv2
 import numpy as np
 
+from ..cascade import pool_any
 from ..config import ToffeConfig
 from ..fixed_point import LoihiOFSParams, run_ofs_fixed
 from .bundle import Bundle
@@ -69,7 +70,7 @@ def ofpd_inputs(held: HeldOut, params: Sequence[LoihiOFSParams], config: ToffeCo
     run = fixed_stage_fn(list(params))
     good, other = [], []
     for w in held.windows:
-        res = run_cascade(w, run, config.n_speed_bins, config.mask_kernel)
+        res = run_cascade(w, run, config.n_speed_bins, config.mask_kernel, config.ofs_pool)
         frames = np.stack(res.frames)
         ok = ofpd_io.has_object(frames, config)
         good += [f for f, o in zip(frames, ok) if o]
@@ -91,14 +92,15 @@ def runtime_ofpd_inputs(held: HeldOut, params: Sequence[LoihiOFSParams], config:
     from ..compiled import new_scratch
     from ..runtime import ofpd_input
     from ..runtime.cpu import CpuCascade
+    from ..runtime.pipeline import sensor_frames
     from ..runtime.spikes import SpikeVolume
 
-    casc = CpuCascade(list(params), config.n_bins, config.mask_kernel, tuple(config.sensor_size))
+    casc = CpuCascade(list(params), config.n_bins, config.mask_kernel, config.ofs_grid())
     scratch = new_scratch(config.width * config.height)
     xs = []
     for i in (range(len(held.windows)) if windows is None else windows):
         vol = SpikeVolume.from_dense(np.asarray(held.windows[i]) > 0).front_end(config.input_norm)
-        _ks, x, _n = ofpd_input.batch(vol, casc.cascade_sparse(vol).frames, config, scratch)
+        _ks, x, _n = ofpd_input.batch(vol, sensor_frames(casc, vol, config.ofs_pool), config, scratch)
         xs.append(x)
     from ..ofpd_io import input_shape
 
@@ -208,6 +210,7 @@ def check_fixed_vs_float(bundle: Bundle, models, held: HeldOut, float_params: Se
     reported beside the plain F1; a difference outside the band would be an export bug.
     """
     stages = []
+    pool = bundle.config.ofs_pool
     for k, p in enumerate(bundle.ofs, start=1):
         m = models[k - 1]
         st = float_params[k - 1] if float_params is not None else {
@@ -216,7 +219,7 @@ def check_fixed_vs_float(bundle: Bundle, models, held: HeldOut, float_params: Se
         vth = float(st["threshold"])
         tp = fp = fn = total = in_band = tp_x = fp_x = fn_x = 0
         for w in held.windows:
-            inp = w > 0
+            inp = pool_any(w, pool)                  # what the stage sees (OFS grid)
             total += inp.shape[0] * inp.shape[2] * inp.shape[3]
             box = event_bbox(inp, p.kernel_size // 2)
             if box is None:
@@ -247,7 +250,8 @@ def check_fixed_vs_float(bundle: Bundle, models, held: HeldOut, float_params: Se
     if silent:
         head += f"; no spikes at all in stage {', '.join(map(str, silent))}"
     return {"status": _status(worst >= F1_GOAL), "goal": f"F1 >= {F1_GOAL} per stage (float spikes = reference)",
-            "headline": head, "inputs": "each stage on the full (unmasked) binary window", "stages": stages}
+            "headline": head, "inputs": "each stage on the full (unmasked) binary window, on the OFS grid",
+            "stages": stages}
 
 
 # ----------------------------------------------------------------------------- 2. Lava vs fixed
@@ -263,8 +267,9 @@ def _crop_origin(score: np.ndarray, size: tuple[int, int]) -> tuple[int, int, in
 
 
 def lava_crops(held: HeldOut, params: Sequence[LoihiOFSParams], n_windows: int,
-               size: tuple[int, int] = LAVA_CROP) -> list[np.ndarray]:
-    """Small binary crops (B, C, h, w) where the fixed-point OFS fires most.
+               size: tuple[int, int] = LAVA_CROP, pool: int = 1) -> list[np.ndarray]:
+    """Small binary crops (B, C, h, w) of the windows on the OFS grid (pooled by ``pool``) where
+    the fixed-point OFS fires most.
 
     The simulator is slow, so it sees a few small crops; choosing the windows and places with
     the most reference spikes (then events) keeps the bit-exactness check from being vacuous.
@@ -273,14 +278,14 @@ def lava_crops(held: HeldOut, params: Sequence[LoihiOFSParams], n_windows: int,
 
     run = fixed_stage_fn(list(params))
     scored = []
-    for i, w in enumerate(held.windows):
-        inp = w > 0
+    grids = [pool_any(w, pool) for w in held.windows]
+    for i, inp in enumerate(grids):
         spikes = sum(run(k, inp).sum(axis=0).astype(np.float32) for k in range(1, len(params) + 1))
         score = spikes * 1000.0 + inp.sum(axis=(0, 1))
         x0, y0, cw, ch = _crop_origin(score, size)
         scored.append((float(score[y0:y0 + ch, x0:x0 + cw].sum()), i, x0, y0, cw, ch))
     scored.sort(key=lambda t: (-t[0], t[1]))
-    return [(held.windows[i][:, :, y0:y0 + ch, x0:x0 + cw] > 0).astype(np.uint8)
+    return [grids[i][:, :, y0:y0 + ch, x0:x0 + cw].astype(np.uint8)
             for _s, i, x0, y0, cw, ch in sorted(scored[:n_windows], key=lambda t: t[1])]
 
 
@@ -291,7 +296,7 @@ def check_lava_vs_fixed(bundle: Bundle, held: HeldOut, n_windows: int = 2) -> di
         from ..runtime.loihi import run_ofs_lava
     except ImportError as exc:
         return {"status": f"skipped: Lava adapter not importable ({exc})", "goal": goal, "headline": "not run"}
-    crops = lava_crops(held, bundle.ofs, n_windows)
+    crops = lava_crops(held, bundle.ofs, n_windows, pool=bundle.config.ofs_pool)
     stages, t0 = [], time.perf_counter()
     for k, p in enumerate(bundle.ofs, start=1):
         try:
@@ -327,7 +332,7 @@ def check_netx_vs_fixed(bundle: Bundle, held: HeldOut, n_windows: int = 2) -> di
 
     zero = bundle.config.reset == "zero"
     goal = "0 differing spikes (reset zero)" if zero else "none: netx resets to zero, this bundle subtracts"
-    crops = lava_crops(held, bundle.ofs, n_windows)
+    crops = lava_crops(held, bundle.ofs, n_windows, pool=bundle.config.ofs_pool)
     stages, t0 = [], time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="toffe-netx-") as tmp:
         for k, p in enumerate(bundle.ofs, start=1):

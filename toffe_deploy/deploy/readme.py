@@ -57,7 +57,10 @@ builds each stage from stock `lava.proc.conv.Conv` + `lava.proc.lif.LIFReset` (r
 B). Float units: W = w / weight_scale, vth = vth_mant / weight_scale, lambda = 1 - dv / 4096.
 The current is memoryless (du = 4095). The cascade (eq. 3-4) runs stage N first; each stage's spikes, OR-ed
 over the window, are closed with a `mask_kernel` square and inverted to mask the next
-(slower) stage's input.
+(slower) stage's input. With `ofs_pool` p > 1 (config.json) the stages run on the OFS grid, the
+sensor OR-pooled over p x p pixel blocks (ceil(W / p) x ceil(H / p) neurons per stage; the netx
+and NIR files have that shape); the host pools each window before it goes to the chip, and a
+closed mask cell covers its p x p sensor pixels, so OFPD still sees every event.
 
 ## ofs_loihi.json
 
@@ -180,7 +183,7 @@ figures and its `goal`. A check that cannot run says why instead of passing sile
 | `config_summary` | sensor_size, n_bins (B), dt_us, speed bins (m/s and px/ms), representative speeds, focal_px, depth_m, kernels |
 | `camera` | the camera the bundle was trained for and what its speed bins mean (below) |
 | `config` | the full ToffeConfig (also config.json) |
-| `ofs` | per stage vth_mant, dv, du, weight_scale, clamps, and `quantization` errors (max abs / relative weight error, threshold and leak error); `reset`; `loihi2_footprint`: neurons, synapses (fan-in, H W C K^2), shared weights and cores per stage (8192 neurons per core, a lower bound), total cores, chips (128 cores each), `fits_one_chip`, `max_pixels_one_chip` (640x480 x 4 stages: 1,228,800 neurons, 152 cores, 2 chips) |
+| `ofs` | per stage vth_mant, dv, du, weight_scale, clamps, and `quantization` errors (max abs / relative weight error, threshold and leak error); `reset`; `loihi2_footprint`: `ofs_pool` and `ofs_grid` (the neurons per stage), neurons, synapses (fan-in, H W C K^2), shared weights and cores per stage (8192 neurons per core, a lower bound), total cores, chips (128 cores each), `fits_one_chip`, `max_pixels_one_chip` (grid area; 640x480 x 4 stages unpooled: 1,228,800 neurons, 152 cores, 2 chips; with `ofs_pool` 2: 307,200 neurons, 40 cores, 1 chip) |
 | `ofpd` | opset, input/output names and shapes, `variants` with their files (each must also be listed in `files`), precision, `error_vs_fp32` (pose px, direction deg, speed ratio exp(abs(ln v - ln v_fp32)): max / p95 / mean over the objects of held-out windows not used for calibration), int8 `calibration_inputs`, and `end_to_end` (the parity check's per-variant errors) |
 | `netx` | its files, `reset_interval` / `reset_offset` to pass to `netx.hdf5.Network`, `input_timing`, `reproduces_bundle` (true for `reset: zero`) and `reset_note` |
 | `nir` | its file, nir version, `time_step_s`, `reproduces_bundle`, `reset_note` |

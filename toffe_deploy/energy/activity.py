@@ -65,7 +65,8 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
     inputs) per object: ``ofpd_rows`` when the caller knows it (the objects the deployed pipeline
     reported for this window), else one per stage frame that ``ofpd_io.has_object`` accepts."""
     mask_kernel = config.mask_kernel
-    b, ch, h, w = binned.shape
+    b, ch, h_s, w_s = binned.shape
+    w, h = config.ofs_grid((w_s, h_s))             # the stages' grid (ofs_pool)
     n = len(params)
     acts = [LoihiActivity(h * w) for _ in range(n)]
     host_updates = [0] * n
@@ -75,7 +76,7 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
         host_updates[k - 1] = upd
         return spikes
 
-    res = run_cascade(binned, stage, n, mask_kernel)
+    res = run_cascade(binned, stage, n, mask_kernel, config.ofs_pool)
     ofpd_calls = int(has_object(np.stack(res.frames), config).sum()) if ofpd_rows is None else int(ofpd_rows)
     # Host side as the cpu target runs it (runtime/cpu.py): masks over the window's ones only,
     # closing only over the bounding box of the stage's spikes grown by the kernel.
@@ -92,6 +93,12 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
             bw = min(int(xs.max() - xs.min()) + 1 + 2 * mask_kernel, w)
             masks = masks + morphology_ops(bh, bw, mask_kernel, 2)
             morph.append((bh * bw, mask_kernel, 2))
+    if config.ofs_pool > 1:
+        # Pool_p: a cell index per sensor one and a sort-unique; Up_p: each stage's frame read
+        # back per sensor one (runtime/pipeline.py, SpikeVolume.pool)
+        sensor_ones = int(np.count_nonzero(binned))
+        masks = masks + HostOps(op_int8=(1 + n) * sensor_ones, sram_bytes=(8 + n) * sensor_ones) + sort_unique_ops(sensor_ones)
+        mask_event += (1 + n) * sensor_ones
     ofpd = (ann_ops(ofpd_macs, ofpd_params, ofpd_activations) + HostOps(sram_bytes=8 * ofpd_in_elems)).scaled(ofpd_calls)
     # the cpu target builds its window from the events (SpikeVolume.from_events: index, then
     # its sorted unique values), never scanning a dense volume

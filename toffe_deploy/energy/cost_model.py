@@ -309,20 +309,22 @@ def constants_table() -> dict:
     return {k: dataclasses.asdict(v) for k, v in CONSTANTS.items()}
 
 
-def loihi2_footprint(width: int, height: int, n_stages: int, kernel: int, channels: int = 2) -> dict:
+def loihi2_footprint(width: int, height: int, n_stages: int, kernel: int, channels: int = 2, pool: int = 1) -> dict:
     """Neurons, synapses, cores and chips the OFS cascade takes on Loihi 2 at a sensor size.
 
-    One neuron per pixel and stage; synapses per stage = H W C K^2 (each neuron's fan-in, the
+    One neuron per cell of the OFS grid (the sensor pooled over ``pool`` x ``pool`` blocks,
+    ceil(W / pool) x ceil(H / pool); ToffeConfig.ofs_pool) and stage; synapses per stage = H W C K^2 (each neuron's fan-in, the
     conv stores only C K^2 shared weights); cores per stage = ceil(H W / 8192) at the densest
     placement (8192 neurons per core, so a lower bound: synapse and axon memory can need more);
-    chips = ceil(cores / 128). ``max_pixels_one_chip`` is the sensor area (H W) at which all
+    chips = ceil(cores / 128). ``max_pixels_one_chip`` is the OFS-grid area at which all
     stages would fit one chip at that density.
     """
     per_core, per_chip = int(c("loihi2_neurons_per_core")), int(c("loihi2_cores_per_chip"))
-    neurons = int(width) * int(height)
+    gw, gh = -(-int(width) // int(pool)), -(-int(height) // int(pool))
+    neurons = gw * gh
     cores = int(math.ceil(neurons / per_core))
     total = cores * int(n_stages)
-    return {"sensor": [int(width), int(height)], "stages": int(n_stages),
+    return {"sensor": [int(width), int(height)], "ofs_pool": int(pool), "ofs_grid": [gw, gh], "stages": int(n_stages),
             "per_stage": {"neurons": neurons, "synapses": neurons * int(channels) * int(kernel) ** 2,
                           "shared_weights": int(channels) * int(kernel) ** 2, "cores": cores},
             "neurons": neurons * int(n_stages), "cores": total, "chips": int(math.ceil(total / per_chip)),

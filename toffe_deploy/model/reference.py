@@ -87,7 +87,7 @@ def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig):
     Objects are the report groups of the stage frames (ofpd_io.merge_frames: speed bin = the
     fastest stage that fires, input = the union of the group's frames); one batched OFPD call.
     """
-    res = run_cascade(binned, run_stage, config.n_speed_bins, config.mask_kernel)
+    res = run_cascade(binned, run_stage, config.n_speed_bins, config.mask_kernel, config.ofs_pool)
     ks, merged = ofpd_io.merge_frames(np.stack(res.frames), config)
     if ks.size == 0:
         return [], res

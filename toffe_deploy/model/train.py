@@ -46,7 +46,7 @@ from ..errors import InputError, ToffeError
 from ..events.frontend import apply_dense
 from ..fileio import atomic_path
 from .. import ofpd_io
-from ..cascade import run_cascade
+from ..cascade import pool_any, run_cascade, stage_frame
 from .data import WindowSet
 from .ofs import OFS
 from .ofpd import OFPD
@@ -56,6 +56,7 @@ STATE_DIR = ".train_state"
 MARGIN = 0.2        # in threshold units: fire with u > 1.2 vth, stay below 0.8 vth
 NEG_WEIGHT = 2.0    # negatives: a handful of spikes already leaves a frame with an "object"
 OFS_CROP_PX = 128   # centre of each training crop the OFS is trained on (see pack_training_windows)
+NEW_OFS_POOL = 2    # OFS grid pooling of a new checkpoint: 640x480 x 4 stages on one Loihi 2 chip (config.ofs_pool)
 
 
 def pick_device(name: str = "auto") -> torch.device:
@@ -90,10 +91,10 @@ def noise_crops(n: int, n_bins: int, crop: int, rng: np.random.Generator) -> np.
 
 
 def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: bool = True,
-                          input_norm: str = "none", min_cluster: int = 1):
+                          input_norm: str = "none", min_cluster: int = 1, pool: int = 1):
     """Sparse rows of all training crops plus n/8 noise-only crops (through the same input front
-    end as the crops); returns (SparseWindows, speed_bin) with speed_bin 0 for the noise crops (a
-    negative for every stage)."""
+    end as the crops), on the OFS grid (pooled by ``pool``, as the cascade sees them); returns
+    (SparseWindows, speed_bin) with speed_bin 0 for the noise crops (a negative for every stage)."""
     from .ofs_sparse import pack_windows
 
     rng = np.random.default_rng(seed)
@@ -106,9 +107,9 @@ def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: 
 
     def vols():
         for i in tqdm(range(len(windows)), desc="packing OFS windows", leave=False, disable=not progress):
-            yield windows.dense([i])[0][:, :, c0:c0 + r, c0:c0 + r]
+            yield pool_any(windows.dense([i])[0][:, :, c0:c0 + r, c0:c0 + r], pool)
         for _ in range(n_noise):
-            yield apply_dense(noise_crops(1, windows.n_bins, r, rng)[0], input_norm, min_cluster)
+            yield pool_any(apply_dense(noise_crops(1, windows.n_bins, r, rng)[0], input_norm, min_cluster), pool)
 
     sw = pack_windows(vols(), kernel)
     return sw, np.concatenate([windows.speed_bin, np.zeros(n_noise, np.int64)])
@@ -190,8 +191,9 @@ def calibrate_threshold(k: int, params: dict, windows: WindowSet, config: ToffeC
         p = quantize_ofs(params["weight"], params["threshold"] * sc, params["leak"], config.reset)
         fired = np.zeros(idx.size, bool)
         for i in range(idx.size):
-            spikes = on_event_bbox(lambda x: run_ofs_fixed(x, p), vols[i], p.kernel_size // 2)
-            frame = vols[i] & _closed(spikes, config)[None, None]
+            spikes = on_event_bbox(lambda x: run_ofs_fixed(x, p), pool_any(vols[i], config.ofs_pool),
+                                   p.kernel_size // 2)
+            frame = stage_frame(vols[i], spikes, config.mask_kernel, config.ofs_pool)
             fired[i] = ofpd_io.has_object(frame[None], config)[0]
         bal = 0.5 * (np.mean(fired[labels]) + np.mean(~fired[~labels]))
         curve.append((round(float(sc), 4), float(bal)))
@@ -219,17 +221,12 @@ def separation_scores(stages, windows: WindowSet, config: ToffeConfig, limit: in
     counts = [SeparationCounts() for _ in stages]
     for i in idx:
         vol = windows.dense([i])[0]
+        pooled = pool_any(vol, config.ofs_pool)
         for k in range(1, len(stages) + 1):
-            spikes = run(k, vol)
-            frame = vol & _closed(spikes, config)[None, None]
+            spikes = run(k, pooled)
+            frame = stage_frame(vol, spikes, config.mask_kernel, config.ofs_pool)
             counts[k - 1].add(ofpd_io.has_object(frame[None], config), windows.speed_bin[i] >= k)
     return [c.as_dict() for c in counts]
-
-
-def _closed(spikes: np.ndarray, config: ToffeConfig) -> np.ndarray:
-    from ..cascade import close_binary
-
-    return close_binary(spikes.any(axis=0), config.mask_kernel)
 
 
 # ----------------------------------------------------------------------------------- OFPD
@@ -261,7 +258,7 @@ def build_ofpd_set(windows: WindowSet, stages, config: ToffeConfig, progress: bo
     nb = 2 * config.n_bins
     for i in tqdm(range(len(windows)), desc="OFPD samples (fixed-point cascade)", leave=False, disable=not progress):
         vol = windows.dense([i])[0]
-        res = run_cascade(vol, run, config.n_speed_bins, config.mask_kernel)
+        res = run_cascade(vol, run, config.n_speed_bins, config.mask_kernel, config.ofs_pool)
         ks, merged = ofpd_io.merge_frames(np.stack(res.frames), config)
         if ks.size == 0:
             continue
@@ -349,6 +346,8 @@ class TrainOptions:
     min_cluster: int = 4              # input front end's cluster filter of a new checkpoint (the CLI default)
     reset: str | None = None          # OFS neuron reset (config.RESETS); None: the checkpoint's, else subtract
     init_from: Path | None = None     # checkpoint whose config and OFS stages a new run starts from (fine-tune)
+    ofs_pool: int | None = None       # OFS grid pooling (config.ofs_pool); None: the checkpoint's, NEW_OFS_POOL for a new one
+    mask_kernel: int | None = None    # cascade closing kernel in grid cells; None: the checkpoint's, else ToffeConfig's
 
 
 def _state_path(out: Path) -> Path:
@@ -455,10 +454,17 @@ def train(opts: TrainOptions) -> Path:
             raise InputError(out, "--stage ofpd needs a checkpoint with trained OFS stages in --out (run --stage ofs first)")
         config = make_config(files, Path(opts.data), opts.dt_us, opts.seed, opts.input_norm, opts.ofs_kernel,
                              opts.min_cluster)
+        config = dataclasses.replace(config, ofs_pool=NEW_OFS_POOL if opts.ofs_pool is None else int(opts.ofs_pool))
         ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
         state = {}
     if opts.reset is not None and opts.reset != config.reset:
         config = dataclasses.replace(config, reset=opts.reset)
+    for key, want in (("ofs_pool", opts.ofs_pool), ("mask_kernel", opts.mask_kernel)):
+        if want is not None and int(want) != getattr(config, key):
+            if opts.stage == "ofpd":
+                raise InputError(out, f"its OFS stages were trained with {key} {getattr(config, key)}; "
+                                      f"--{key.replace('_', '-')} {want} needs them retrained (--stage all)")
+            config = dataclasses.replace(config, **{key: int(want)})
     if opts.stage in ("ofpd", "all") and not (opts.resume and state.get("ofpd_settings")):
         config = with_current_layout(config)      # a fresh OFPD trains on today's input/output layout
     try:
@@ -489,7 +495,7 @@ def train(opts: TrainOptions) -> Path:
         done = set(state.get("ofs_done", []))
         if len(done) < config.n_speed_bins:
             packed, bins = pack_training_windows(windows, config.ofs_kernel, opts.seed, opts.progress, config.input_norm,
-                                                  config.input_min_cluster)
+                                                  config.input_min_cluster, config.ofs_pool)
         for k in range(1, config.n_speed_bins + 1):
             if k in done:
                 continue

@@ -252,7 +252,8 @@ class SpikeDump:
     the end (atomically, compressed) as
 
         t0_us         (n,) int64           window starts
-        stage_input   (n, N, B, 2, H, W)   bool: the masked input OFS_k received (index k - 1)
+        stage_input   (n, N, B, 2, H, W)   bool: the masked input OFS_k received (index k - 1), on
+                                           the OFS grid (H, W = the sensor pooled by ofs_pool)
         stage_output  (n, N, B, H, W)      bool: its output spikes
 
     the same arrays on every target (cpu, loihi-sim, loihi2): what a user compares with another

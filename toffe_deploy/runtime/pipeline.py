@@ -13,7 +13,9 @@ Per window [t0, t0 + dt) and speed bin k = N..1 (paper section "TOFFE Inference"
 with all objects of a window prepared and sent to OFPD in one batched session run.
 
 Sensor size: the OFS is a convolution and OFPD sees a crop, so a bundle runs on any sensor: the
-cascade (numpy or Lava processes) is built for the recording's ``sensor_size``, not the bundle's.
+cascade (numpy or Lava processes) is built for the recording's ``sensor_size``, not the bundle's,
+pooled to the bundle's OFS grid (``ofs_pool``: the stages see the window OR-pooled over p x p
+blocks, and their frames come back to every sensor pixel; toffe_deploy/cascade.py).
 Speeds: OFPD's speed is an image-plane speed; it is reported in px/s and in m/s through the run's
 ``SpeedScale`` (``speeds_of``): the bundle's camera by default, another depth / focal length on request.
 
@@ -123,6 +125,23 @@ def speeds_of(dec: dict, config: ToffeConfig, scale: SpeedScale) -> tuple[list, 
     return px_ms, [v / k_run for v in px_ms], [v * ratio for v in np.asarray(dec["speed_bin_mps"]).tolist()]
 
 
+def sensor_frames(cascade: CpuCascade, volume: SpikeVolume, pool: int) -> list[np.ndarray]:
+    """The stage frames of one window as masks over ``volume.idx`` (its sensor-grid ones), from a
+    cpu cascade built for the OFS grid (ToffeConfig.ofs_grid) that the window is pooled to."""
+    grid, inverse = volume.pool(pool)
+    return up_frames(cascade.cascade_sparse(grid).frames, inverse)
+
+
+def up_frames(frames, inverse: np.ndarray | None):
+    """Stage frames as masks over the OFS grid's ones -> over the sensor ones (Up_p; cascade.py):
+    each sensor one takes its cell's value. The cpu cascade's (N, n) array stays one array."""
+    if inverse is None:
+        return frames
+    if isinstance(frames, np.ndarray):
+        return frames[:, inverse]
+    return [np.asarray(f)[inverse] for f in frames]
+
+
 def _make_cascade(bundle, target: str, tag: str, sensor_size: tuple[int, int]):
     cfg = bundle.config
     if target in ("cpu", "cuda"):
@@ -164,7 +183,7 @@ class Pipeline:
         if min(self.sensor_size) < 1:
             raise ValueError(f"sensor size must be positive, got {self.sensor_size}")
         self.speed_scale = self.config.speed_scale if speed_scale is None else speed_scale
-        self.cascade = _make_cascade(bundle, target, tag, self.sensor_size)
+        self.cascade = _make_cascade(bundle, target, tag, self.config.ofs_grid(self.sensor_size))
         self._scratch = new_scratch(self.sensor_size[0] * self.sensor_size[1])   # for ofpd_input's O(n) de-duplication
         self.keep_stages = bool(keep_stages)
         self._decode = Decoder(self.config)          # ofpd_io.decode, set up once
@@ -217,15 +236,17 @@ class Pipeline:
                 yield from self.process_stream(windows)
             return
         dt = self.config.dt_us
-        n = self.config.n_speed_bins
         norm, min_cluster = self.config.input_norm, self.config.input_min_cluster
+        pool = self.config.ofs_pool
         if self.sparse:
             for t0, x in windows:
                 self._check(x)
                 vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(np.asarray(x) > 0)
                 vol = vol.front_end(norm, min_cluster)
-                res = self.cascade.cascade_sparse(vol)
-                yield WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, res.frames),
+                grid, inverse = vol.pool(pool)               # the OFS grid (cascade.py)
+                res = self.cascade.cascade_sparse(grid)
+                frames = up_frames(res.frames, inverse)
+                yield WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, frames),
                                    stages=_stage_arrays(res.to_dense()) if self.keep_stages else None)
             return
         # Lava backends take dense windows and may pipeline them: remember each window's t0.
@@ -234,15 +255,15 @@ class Pipeline:
         def dense():
             for t0, x in windows:
                 self._check(x)
-                starts.append(int(t0))
-                x = (x.front_end(norm, min_cluster).to_dense(np.uint8) if isinstance(x, SpikeVolume)
-                     else apply_dense(x, norm, min_cluster))
-                yield x.astype(np.uint8, copy=False)
+                vol = (x.front_end(norm, min_cluster) if isinstance(x, SpikeVolume)
+                       else SpikeVolume.from_dense(apply_dense(x, norm, min_cluster)))
+                grid, inverse = vol.pool(pool)               # the OFS grid (cascade.py)
+                starts.append((int(t0), vol, grid, inverse))
+                yield grid.to_dense(np.uint8)
 
         for res in self.cascade.cascade_stream(dense()):
-            t0 = starts.popleft()
-            vol = SpikeVolume.from_dense(res.inputs[n - 1])          # the window's ones
-            frames = [np.asarray(f).reshape(-1)[vol.idx] for f in res.frames]
+            t0, vol, grid, inverse = starts.popleft()
+            frames = up_frames([np.asarray(f).reshape(-1)[grid.idx] for f in res.frames], inverse)
             yield WindowResult(t0, t0 + dt, self.objects_of(vol, frames), cascade=res,
                                stages=_stage_arrays(res) if self.keep_stages else None)
 

@@ -109,6 +109,19 @@ class SpikeVolume:
             return self
         return SpikeVolume(apply_index(self.idx, self.shape, norm, min_cluster), self.shape)
 
+    def pool(self, p: int) -> tuple["SpikeVolume", np.ndarray | None]:
+        """(the volume OR-pooled over p x p pixel blocks, inverse): shape (B, C, ceil(H / p),
+        ceil(W / p)) and, for each one of self, the position of its block's one in the pooled
+        idx, so a mask over the pooled ones maps back as ``mask[inverse]`` (cascade.py's Up_p on
+        the ones). (self, None) for p = 1."""
+        if p == 1:
+            return self, None
+        b, c, h, w = self.shape
+        hp, wp = -(-h // p), -(-w // p)
+        ys, xs = np.divmod(self.pix, w)
+        u, inv = np.unique((self.bc * hp + ys // p) * wp + xs // p, return_inverse=True)
+        return SpikeVolume(u, (b, c, hp, wp)), inv.reshape(-1)
+
     def to_dense(self, dtype=bool) -> np.ndarray:
         out = np.zeros(int(np.prod(self.shape)), dtype=dtype)
         out[self.idx] = 1
