@@ -5,14 +5,18 @@ the object flow it measures (position, direction, speed) is what makes tracking 
 window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and px/s:
 
     predict    p_i' = p_i + v_i dt                                        (constant velocity)
-    associate  d_ij = |p_i' - z_j|; pairs within the gate d_ij <= gate_px, the most pairs then
-               the least total distance (metrics.match_gated: Hungarian on the gated matrix),
-               confirmed tracks first, then tentative ones with the detections left over
+    associate  d_ij = |p_i' - z_j|; pairs within the gate d_ij <= R_i, the most pairs then the
+               least total distance (metrics.match_within: Hungarian on the gated matrix),
+               confirmed tracks first, then tentative ones with the detections left over;
+               R_i = gate_px + gate_growth m_i s_i dt grows with the m_i windows the track has
+               coasted (a turning object leaves its straight-line prediction)
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
                v_i = (1 - beta) v_i + beta u_j,  u_j = s_j (cos th_j, sin th_j)
                s_i = (1 - beta) s_i + beta s_j                            (smoothed speed, px/s)
-    births     every unmatched detection starts a tentative track (its own p, u, s, bin);
-               it is confirmed after ``confirm_hits`` hits in a row
+    births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
+               lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
+               object's leading and trailing edges; reported without a track); a tentative
+               track is confirmed after ``confirm_hits`` hits in a row
     deaths     a tentative track dies at its first miss; a confirmed one coasts (predicted,
                not reported) through up to ``max_misses`` windows in a row, then dies
     bin        hysteresis on the smoothed speed: a track keeps bin b while
@@ -30,7 +34,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from .metrics import GATE_PX, match_gated
+from .metrics import GATE_PX, match_within
 
 
 @dataclass(frozen=True)
@@ -41,9 +45,13 @@ class TrackerConfig:
     confirm_hits: hits in a row before a track is confirmed (reported with ``confirmed`` true and
     counted by the tracking metrics); max_misses: windows a confirmed track coasts without a
     detection before it dies; hysteresis: h, the fraction by which the smoothed speed must leave
-    its bin before the bin changes."""
+    its bin before the bin changes; gate_growth: how much of the distance a coasting track's
+    prediction covers per missed window widens its gate; birth_gap_px: no track is born this close to
+    a confirmed one."""
 
     gate_px: float = GATE_PX
+    gate_growth: float = 0.5
+    birth_gap_px: float = 30.0
     alpha: float = 0.7
     beta: float = 0.4
     confirm_hits: int = 2
@@ -131,29 +139,33 @@ def hysteresis_bin(current: np.ndarray, speed: np.ndarray, inner: np.ndarray, h:
     return np.where((speed >= lo) & (speed <= hi), current, np.searchsorted(inner, speed, side="right") + 1)
 
 
-def _associate(pred_x, pred_y, dets: Detections, rows: np.ndarray, free: np.ndarray, gate: float):
-    """(track row, detection) pairs between the tracks ``rows`` and the detections still ``free``."""
+def _associate(d: np.ndarray, gate: np.ndarray, rows: np.ndarray, free: np.ndarray):
+    """(track row, detection) pairs between the tracks ``rows`` and the detections still ``free``
+    (d: track x detection distances, gate: each track's radius)."""
     if not rows.size or not free.any():
         return []
     cols = np.flatnonzero(free)
-    pairs = match_gated(np.stack([dets.x[cols], dets.y[cols]], 1),
-                        np.stack([pred_x[rows], pred_y[rows]], 1), gate)
+    sub = d[np.ix_(rows, cols)]
+    pairs = match_within(sub, sub <= gate[rows, None])
     return [(int(rows[i]), int(cols[j])) for i, j in pairs]
 
 
 def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, inner_edges: np.ndarray,
          next_id: int) -> tuple[Tracks, np.ndarray, int]:
     """One window of tracking (module doc): -> (live tracks, assigned track row of each detection
-    in the returned tracks, next free id). Pure: the inputs are not modified."""
+    in the returned tracks (-1: a fragment, no track), next free id). Pure: the inputs are not
+    modified."""
     n_t, n_d = len(tracks), len(dets)
     px = tracks.x + tracks.vx * dt_s
     py = tracks.y + tracks.vy * dt_s
+    d = np.hypot(px[:, None] - dets.x[None, :], py[:, None] - dets.y[None, :])
+    gate = cfg.gate_px + cfg.gate_growth * tracks.misses * tracks.speed * dt_s
     free = np.ones(n_d, dtype=bool)
     conf = np.flatnonzero(tracks.confirmed)
-    pairs = _associate(px, py, dets, conf, free, cfg.gate_px)
+    pairs = _associate(d, gate, conf, free)
     for _r, j in pairs:
         free[j] = False
-    pairs += _associate(px, py, dets, np.flatnonzero(~tracks.confirmed), free, cfg.gate_px)
+    pairs += _associate(d, gate, np.flatnonzero(~tracks.confirmed), free)
     hit = np.zeros(n_t, dtype=bool)
     det_of = np.full(n_t, -1, dtype=_I)
     if pairs:
@@ -177,7 +189,8 @@ def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, inne
                  np.where(hit, hysteresis_bin(tracks.bin, speed, inner_edges, cfg.hysteresis), tracks.bin),
                  tracks.age + 1, tracks.hits + hit, streak, misses, confirmed)
     alive = np.where(confirmed, misses <= cfg.max_misses, misses == 0)
-    new = np.flatnonzero(free)
+    near = d[confirmed & alive] <= cfg.birth_gap_px if n_t else np.zeros((0, n_d), bool)
+    new = np.flatnonzero(free & ~near.any(axis=0))
     n_new = new.size
     born = Tracks(np.arange(next_id, next_id + n_new, dtype=_I), dets.x[new], dets.y[new],
                   dets.speed[new] * np.cos(dets.direction[new]), dets.speed[new] * np.sin(dets.direction[new]),
@@ -224,9 +237,16 @@ class Tracker:
         self.tracks, assigned, self.next_id = step(tr, Detections.of(objects), self.dt_us * 1e-6, self.settings,
                                                    self.inner, self.next_id)
         for o, r in zip(objects, assigned.tolist()):
-            o.track_id = int(self.tracks.id[r])
-            o.track = self.track_state(r)
+            o.track_id, o.track = (int(self.tracks.id[r]), self.track_state(r)) if r >= 0 else (None, None)
         return self.tracks
+
+    def coasting(self) -> list[dict]:
+        """The confirmed tracks no detection of the last window was assigned to (they coast on
+        their prediction for up to max_misses windows): [{"track_id", "track"}], the window line's
+        ``coasting`` list."""
+        t = self.tracks
+        return [{"track_id": int(t.id[r]), "track": self.track_state(r)}
+                for r in np.flatnonzero(t.confirmed & (t.misses > 0)).tolist()]
 
     def track_state(self, r: int) -> dict:
         """The JSON ``track`` object of live track row r (README, JSON lines)."""

@@ -84,6 +84,9 @@ def register(sub) -> None:
     p.add_argument("--ofpd", choices=("fp32", "fp16", "int8"), default="fp32",
                    help="OFPD model of the bundle: fp32 (default, the reference) or the fp16 / int8 variant "
                         "written by `toffe-deploy export --variants`")
+    p.add_argument("--no-track", action="store_true",
+                   help="do not track objects over the windows (no track_id / track in the JSON lines, no "
+                        "tracking metrics); tracking is on by default (toffe_deploy/tracking.py)")
     p.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON (atomically)")
     p.add_argument("--dump-spikes", metavar="FILE.npz",
                    help="also write every window's OFS stage inputs and output spikes (t0_us (n,), stage_input "
@@ -285,7 +288,12 @@ def run_command(args) -> int:
                                  "lower --max-windows")
             dump = SpikeDump(args.dump_spikes)
         pipe = Pipeline(bundle, args.target, tag=args.tag, ofpd_variant=args.ofpd, sensor_size=sensor,
-                        speed_scale=camera.scale, keep_stages=dump is not None)
+                        speed_scale=camera.scale, keep_stages=dump is not None, track=not args.no_track)
+        tracking = None
+        if errors is not None and pipe.tracker is not None:
+            from ..tracking_metrics import TrackingErrors
+
+            tracking = TrackingErrors(errors.gate_px)
         ok = False
         stream_out = args.out is None
         try:
@@ -306,6 +314,8 @@ def run_command(args) -> int:
                                                           o.speed_bin_mps, o.speed_px_s / 1000.0)
                                                for o in res.objects],
                                               truth.window(res.t0_us, cfg.dt_us), focal_px)
+                        if tracking is not None:
+                            tracking.add_result(res, truth.window(res.t0_us, cfg.dt_us))
                         if renderer is not None:
                             renderer.add(vol, res.objects, res.t0_us)
                         if dump is not None:
@@ -320,6 +330,8 @@ def run_command(args) -> int:
                 renderer.close(ok)
     if errors is not None:
         summary.errors = errors.summary()
+        if tracking is not None:
+            summary.errors["tracking"] = tracking.summary()
     out = sys.stderr if stream_out else sys.stdout
     for line in summary.lines():
         print(line, file=out)

@@ -98,9 +98,13 @@ class WindowResult:
     objects: list[ObjectFlow] = field(default_factory=list)
     cascade: Any = None      # Lava targets: the window's CascadeResult (bridge traffic, runtime/traffic.py)
     stages: Any = None       # Pipeline(keep_stages=True): (stage_input (N, B, 2, H, W), stage_output (N, B, H, W)) bool
+    coasting: list | None = None   # with a tracker: confirmed tracks not seen this window (Tracker.coasting)
 
     def to_json(self) -> dict:
-        return {"t0_us": int(self.t0_us), "t1_us": int(self.t1_us), "objects": [o.to_json() for o in self.objects]}
+        out = {"t0_us": int(self.t0_us), "t1_us": int(self.t1_us), "objects": [o.to_json() for o in self.objects]}
+        if self.coasting is not None:
+            out["coasting"] = self.coasting
+        return out
 
 
 def ofpd_model(bundle, variant: str = "fp32"):
@@ -192,6 +196,7 @@ class Pipeline:
     def _tracked(self, result: "WindowResult") -> "WindowResult":
         if self.tracker is not None:
             self.tracker.update(result.objects, result.t0_us)
+            result.coasting = self.tracker.coasting()
         return result
 
     def __enter__(self) -> "Pipeline":
