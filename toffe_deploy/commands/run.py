@@ -300,6 +300,11 @@ def run_command(args) -> int:
             from tqdm import tqdm
 
             with pipe, jsonl_sink(args.out) as sink:
+                from ..schema import header, write_header
+
+                write_header(sink, header(bundle, target=args.target, tag=args.tag, sensor_size=sensor,
+                                          camera_json=summary.camera_json, ofpd_variant=args.ofpd,
+                                          tracking=pipe.tracker.settings if pipe.tracker is not None else None))
                 summary.startup_s = time.perf_counter() - t_setup
                 t_run = time.perf_counter()
                 bar = tqdm(total=n_total, unit="win", desc=f"run {args.target}", file=sys.stderr,
