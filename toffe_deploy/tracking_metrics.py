@@ -71,10 +71,13 @@ class TrackingErrors:
         if not accs:
             out = {v: (math.nan if k in ("mota", "motp", "idf1") else 0) for k, v in METRICS.items()}
         else:
-            mh = mm.metrics.create()
-            df = mh.compute_many(accs, metrics=list(METRICS), names=[str(i) for i in range(len(accs))],
-                                 generate_overall=True)
-            row = df.loc["OVERALL"]
+            df = mm.metrics.create().compute_many(accs, metrics=list(METRICS) + ["num_detections"],
+                                                  names=[str(i) for i in range(len(accs))], generate_overall=True)
+            row = df.loc["OVERALL"].copy()
+            # motmetrics' OVERALL MOTP is NaN when one sequence matched nothing: weight by matches
+            seq = df.drop(index="OVERALL")
+            n = seq["num_detections"].to_numpy(dtype=np.float64)
+            row["motp"] = float(np.nansum(seq["motp"].to_numpy(dtype=np.float64) * n) / n.sum()) if n.sum() else math.nan
             out = {v: (float(row[k]) if k in ("mota", "motp", "idf1") else int(row[k])) for k, v in METRICS.items()}
         out.update(windows=n_windows, gate_px=self.gate_px)
         return out
