@@ -60,5 +60,6 @@ def header(bundle, *, target: str, sensor_size, camera_json: dict, ofpd_variant:
 
 
 def write_header(stream, line: dict) -> None:
-    """The header as the first JSON line of ``stream`` (compact, like the window lines)."""
+    """The header as the first JSON line of ``stream`` (compact, like the window lines); returns
+    None, so that ``head = head and write_header(stream, head)`` writes it once."""
     stream.write(json.dumps(line, separators=(",", ":")) + "\n")

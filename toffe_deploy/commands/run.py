@@ -302,9 +302,9 @@ def run_command(args) -> int:
             with pipe, jsonl_sink(args.out) as sink:
                 from ..schema import header, write_header
 
-                write_header(sink, header(bundle, target=args.target, tag=args.tag, sensor_size=sensor,
-                                          camera_json=summary.camera_json, ofpd_variant=args.ofpd,
-                                          tracking=pipe.tracker.settings if pipe.tracker is not None else None))
+                head = header(bundle, target=args.target, tag=args.tag, sensor_size=sensor,
+                              camera_json=summary.camera_json, ofpd_variant=args.ofpd,
+                              tracking=pipe.tracker.settings if pipe.tracker is not None else None)
                 summary.startup_s = time.perf_counter() - t_setup
                 t_run = time.perf_counter()
                 bar = tqdm(total=n_total, unit="win", desc=f"run {args.target}", file=sys.stderr,
@@ -313,6 +313,7 @@ def run_command(args) -> int:
                     for res in pipe.process_stream(windows()):
                         t0, vol, t_ready = pending.popleft()
                         summary.add(res, time.perf_counter() - t_ready)
+                        head = head and write_header(sink, head)      # first line, once the input has proven readable
                         write_window(sink, res)
                         if errors is not None:
                             errors.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps,
@@ -327,6 +328,7 @@ def run_command(args) -> int:
                             dump.add(res)
                         bar.update(1)
                 summary.wall_s = time.perf_counter() - t_run
+                head = head and write_header(sink, head)
                 if dump is not None:
                     dump.write()
             ok = True
