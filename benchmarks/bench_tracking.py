@@ -3,7 +3,7 @@
 
     .venv/bin/python benchmarks/bench_tracking.py --bundle export/ --data data/synth --split multi,pairs
         [--max-windows 200] [--limit N] [--gate 20] [--alpha A] [--beta B] [--confirm K] [--max-misses M]
-        [--hysteresis H] [--json FILE]
+        [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
 ``Pipeline(bundle, "cpu", track=TrackerConfig(...))``; its detections are scored like `run`
@@ -11,6 +11,10 @@ does (metrics.FlowErrors) and its confirmed tracks by tracking_metrics.TrackingE
 IDF1 through motmetrics). Also counted: speed-bin changes between consecutive windows of one
 ground-truth object, as the detections report them and as its track reports them (flicker).
 Prints one markdown row per split; the JSON holds every figure and the settings.
+
+``--cost``: instead, the tracker's CPU time per window on the shipped sample (or --events)
+beside the cpu pipeline's (binning, cascade, OFPD; time.process_time, one core, best of
+--repeats passes), i.e. what tracking adds to `run --target cpu`.
 """
 from __future__ import annotations
 
@@ -80,6 +84,49 @@ def run_split(bundle, files, settings, max_windows, gate) -> dict:
             "matched": len(det_bins)}
 
 
+def tracker_cost(bundle, events, settings, repeats: int) -> dict:
+    """CPU time per window (process_time) of the pipeline without tracking and of Tracker.update on
+    its objects, best of ``repeats`` passes over the recording's windows."""
+    import copy
+    import os
+
+    import numpy as np
+
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.runtime.pipeline import Pipeline
+    from toffe_deploy.runtime.spikes import SpikeVolume
+    from toffe_deploy.tracking import Tracker
+
+    os.sched_setaffinity(0, {min(1, os.cpu_count() - 1)})
+    cfg = bundle.config
+    with open_events(events) as src:
+        sensor = tuple(src.sensor_size)
+        wins = [(t0, ev) for t0, ev in src.iter_windows(cfg.dt_us)]
+    pipe_s = np.full(len(wins), np.inf)
+    objs = []
+    with Pipeline(bundle, "cpu", sensor_size=sensor, track=False) as pipe:
+        for r in range(repeats):
+            for i, (t0, ev) in enumerate(wins):
+                a = time.process_time()
+                (res,) = pipe.process_stream([(t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor))])
+                pipe_s[i] = min(pipe_s[i], time.process_time() - a)
+                if not r:
+                    objs.append(res.objects)
+    trk_s = np.full(len(wins), np.inf)
+    for _r in range(repeats):
+        tr = Tracker(cfg, cfg.dt_us, settings, bundle.config.speed_scale.px_ms_per_mps)
+        fresh = copy.deepcopy(objs)
+        for i, (t0, _ev) in enumerate(wins):
+            a = time.process_time()
+            tr.update(fresh[i], t0)
+            tr.coasting()
+            trk_s[i] = min(trk_s[i], time.process_time() - a)
+    # process_time ticks coarsely on some kernels: report means over windows
+    return {"windows": len(wins), "objects_per_window": sum(map(len, objs)) / len(wins),
+            "pipeline_cpu_ms_per_window": float(pipe_s.mean() * 1e3), "tracker_cpu_ms_per_window": float(trk_s.mean() * 1e3),
+            "tracker_share": float(trk_s.mean() / pipe_s.mean())}
+
+
 def main(argv=None) -> int:
     from toffe_deploy.deploy.bundle import load_bundle
     from toffe_deploy.evaluate import split_files
@@ -98,11 +145,25 @@ def main(argv=None) -> int:
     ap.add_argument("--confirm", type=int, default=d.confirm_hits)
     ap.add_argument("--max-misses", type=int, default=d.max_misses)
     ap.add_argument("--hysteresis", type=float, default=d.hysteresis)
+    ap.add_argument("--gate-growth", type=float, default=d.gate_growth)
+    ap.add_argument("--birth-gap", type=float, default=d.birth_gap_px)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--cost", action="store_true", help="measure the tracker's CPU time per window instead")
+    ap.add_argument("--events", default=str(ROOT / "toffe_deploy" / "samples" / "sample_multi.h5"))
+    ap.add_argument("--repeats", type=int, default=5)
     a = ap.parse_args(argv)
     settings = TrackerConfig(gate_px=a.gate, alpha=a.alpha, beta=a.beta, confirm_hits=a.confirm,
-                             max_misses=a.max_misses, hysteresis=a.hysteresis)
+                             max_misses=a.max_misses, hysteresis=a.hysteresis, gate_growth=a.gate_growth,
+                             birth_gap_px=a.birth_gap)
     bundle = load_bundle(a.bundle)
+    if a.cost:
+        c = tracker_cost(bundle, a.events, settings, a.repeats)
+        print(f"{c['windows']} windows, {c['objects_per_window']:.2f} objects per window: pipeline "
+              f"{c['pipeline_cpu_ms_per_window']:.3f} ms CPU per window, tracker {c['tracker_cpu_ms_per_window']:.4f} ms "
+              f"(+{100 * c['tracker_share']:.1f} %)")
+        if a.json:
+            a.json.write_text(json.dumps({"settings": dataclasses.asdict(settings), **c}, indent=1) + "\n")
+        return 0
     out = {"bundle": a.bundle, "settings": dataclasses.asdict(settings), "max_windows": a.max_windows, "splits": {}}
     print("| split | sequences | windows | recall | MOTA | IDF1 | MOTP (px) | ID switches | frag. | misses | FP "
           "| bin changes det. / track |\n|---|---|---|---|---|---|---|---|---|---|---|---|")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from toffe_deploy.config import ToffeConfig
-from toffe_deploy.tracking import Detections, Tracker, TrackerConfig, Tracks, bin_edges_px_s, step
+from toffe_deploy.tracking import BinEdges, Detections, Tracker, TrackerConfig, Tracks, step
 from toffe_deploy.tracking_metrics import TrackingErrors
 
 DT_US = 500
@@ -121,7 +121,7 @@ def test_fragment_near_a_confirmed_track_is_not_born():
 
 
 def test_bin_hysteresis_stops_flicker_at_a_bin_edge_and_follows_a_real_change(rng):
-    edge = bin_edges_px_s(CFG)[2]                       # bins 3 | 4, about 9312 px/s
+    edge = BinEdges.of(CFG).inner[2]                       # bins 3 | 4, about 9312 px/s
     tr = Tracker(CFG, DT_US)
     det_bins, trk_bins = [], []
     for w in range(80):
@@ -144,11 +144,11 @@ def test_bin_hysteresis_stops_flicker_at_a_bin_edge_and_follows_a_real_change(rn
 
 def test_step_is_pure_and_a_gap_counts_as_missed_windows():
     t0 = Tracks()
-    d = Detections(np.array([10.0]), np.array([20.0]), np.array([0.0]), np.array([2000.0]), np.array([2]))
+    d = Detections(np.array([[10.0, 20.0, 2000.0, 0.0, 2000.0, 2.0]]))
     s = TrackerConfig(confirm_hits=1, max_misses=3)
-    t1, assigned, nid = step(t0, d, 5e-4, s, bin_edges_px_s(CFG), 0)
+    t1, assigned, nid = step(t0, d, 5e-4, s, BinEdges.of(CFG), 0)
     x_before = t1.x.copy()
-    t2, _, _ = step(t1, d, 5e-4, s, bin_edges_px_s(CFG), nid)
+    t2, _, _ = step(t1, d, 5e-4, s, BinEdges.of(CFG), nid)
     assert assigned.tolist() == [0] and len(t0) == 0 and np.array_equal(t1.x, x_before) and t2.hits[0] == 2
     tr = Tracker(CFG, DT_US, s)
     tr.update([Obj(10, 20, 0.0, 2000, 2)], 0)

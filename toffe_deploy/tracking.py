@@ -30,9 +30,10 @@ has a handful of objects), torch- and Lava-free, so it runs on every target.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from .metrics import GATE_PX, match_within
 
@@ -55,7 +56,7 @@ class TrackerConfig:
     alpha: float = 0.7
     beta: float = 0.4
     confirm_hits: int = 2
-    max_misses: int = 6
+    max_misses: int = 10
     hysteresis: float = 0.1
 
     def __post_init__(self):
@@ -70,140 +71,177 @@ class TrackerConfig:
 
 
 _F = np.float64
-_I = np.int64
+#: columns of Tracks.a
+ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF = range(12)
 
 
 @dataclass(frozen=True)
 class Tracks:
-    """Every live track as parallel arrays (one row per track): id (stable int), x, y (px),
-    vx, vy (px/s), speed (smoothed, px/s), bin (1-based, with hysteresis), age (windows since
-    birth), hits (detections assigned), streak (hits in a row), misses (windows in a row without
-    a detection), confirmed (bool)."""
+    """Every live track, one row of ``a`` (n, 12) float64 per track (one array, so that keeping
+    and adding rows is one operation, not one per field): id (stable int), x, y (px), vx, vy
+    (px/s), speed (smoothed, px/s), bin (1-based, with hysteresis), age (windows since birth),
+    hits (detections assigned), streak (hits in a row), misses (windows in a row without a
+    detection), confirmed (0/1); the properties give the columns."""
 
-    id: np.ndarray = field(default_factory=lambda: np.zeros(0, _I))
-    x: np.ndarray = field(default_factory=lambda: np.zeros(0, _F))
-    y: np.ndarray = field(default_factory=lambda: np.zeros(0, _F))
-    vx: np.ndarray = field(default_factory=lambda: np.zeros(0, _F))
-    vy: np.ndarray = field(default_factory=lambda: np.zeros(0, _F))
-    speed: np.ndarray = field(default_factory=lambda: np.zeros(0, _F))
-    bin: np.ndarray = field(default_factory=lambda: np.zeros(0, _I))
-    age: np.ndarray = field(default_factory=lambda: np.zeros(0, _I))
-    hits: np.ndarray = field(default_factory=lambda: np.zeros(0, _I))
-    streak: np.ndarray = field(default_factory=lambda: np.zeros(0, _I))
-    misses: np.ndarray = field(default_factory=lambda: np.zeros(0, _I))
-    confirmed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    a: np.ndarray = field(default_factory=lambda: np.zeros((0, 12), _F))
 
     def __len__(self) -> int:
-        return int(self.id.shape[0])
+        return int(self.a.shape[0])
 
-    def take(self, rows) -> "Tracks":
-        return Tracks(**{f.name: getattr(self, f.name)[rows] for f in fields(self)})
-
-    @staticmethod
-    def concat(a: "Tracks", b: "Tracks") -> "Tracks":
-        return Tracks(**{f.name: np.concatenate([getattr(a, f.name), getattr(b, f.name)]) for f in fields(a)})
+    id = property(lambda self: self.a[:, ID].astype(np.int64))
+    x = property(lambda self: self.a[:, X])
+    y = property(lambda self: self.a[:, Y])
+    vx = property(lambda self: self.a[:, VX])
+    vy = property(lambda self: self.a[:, VY])
+    speed = property(lambda self: self.a[:, S])
+    bin = property(lambda self: self.a[:, BIN].astype(np.int64))
+    age = property(lambda self: self.a[:, AGE].astype(np.int64))
+    hits = property(lambda self: self.a[:, HITS].astype(np.int64))
+    misses = property(lambda self: self.a[:, MISS].astype(np.int64))
+    confirmed = property(lambda self: self.a[:, CONF] > 0)
 
 
 @dataclass(frozen=True)
 class Detections:
-    """One window's objects as arrays: x, y (px), direction (rad, image plane, y down),
-    speed (px/s) and speed bin (1-based)."""
+    """One window's objects as one (n, 6) array ``a``: x, y (px), velocity ux, uy (px/s, from the
+    direction: image plane, y down), speed (px/s) and speed bin (1-based); columns X..S line up
+    with Tracks' (so that one operation updates a track's x, y, vx, vy and speed)."""
 
-    x: np.ndarray
-    y: np.ndarray
-    direction: np.ndarray
-    speed: np.ndarray
-    bin: np.ndarray
+    a: np.ndarray
 
     def __len__(self) -> int:
-        return int(self.x.shape[0])
+        return int(self.a.shape[0])
+
+    x = property(lambda self: self.a[:, 0])
+    y = property(lambda self: self.a[:, 1])
+    bin = property(lambda self: self.a[:, 5])
 
     @classmethod
     def of(cls, objects) -> "Detections":
         """From objects with x, y, direction_rad, speed_px_s and speed_bin (pipeline.ObjectFlow)."""
-        rows = [(o.x, o.y, o.direction_rad, o.speed_px_s, o.speed_bin) for o in objects]
-        a = np.array(rows, dtype=_F).reshape(-1, 5)
-        return cls(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4].astype(_I))
+        rows = [(o.x, o.y, o.speed_px_s * math.cos(o.direction_rad), o.speed_px_s * math.sin(o.direction_rad),
+                 o.speed_px_s, o.speed_bin) for o in objects]
+        return cls(np.array(rows, dtype=_F).reshape(-1, 6))
 
 
-def bin_edges_px_s(config) -> np.ndarray:
-    """The inner bin edges in px/s (N - 1 values) of a ToffeConfig's image-plane speed bins."""
-    return np.array([lo for lo, _hi in config.speed_bins_px_ms[1:]], dtype=_F) * 1000.0
+@dataclass(frozen=True)
+class BinEdges:
+    """The bundle's speed bins in px/s: ``inner`` (N - 1 edges between bins), and each bin's lower
+    and upper bound ``lo``, ``hi`` (index k - 1; lo_1 = 0, hi_N = inf)."""
+
+    inner: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @classmethod
+    def of(cls, config) -> "BinEdges":
+        inner = np.array([lo for lo, _hi in config.speed_bins_px_ms[1:]], dtype=_F) * 1000.0
+        return cls(inner, np.concatenate([[0.0], inner]), np.concatenate([inner, [np.inf]]))
 
 
-def hysteresis_bin(current: np.ndarray, speed: np.ndarray, inner: np.ndarray, h: float) -> np.ndarray:
-    """Bins with hysteresis (module doc): keep ``current`` while the speed stays within its bin
-    widened by the fraction h on both sides, else the bin of the speed."""
-    lo = np.concatenate([[0.0], inner])[current - 1] * (1.0 - h)
-    hi = np.concatenate([inner, [np.inf]])[current - 1] * (1.0 + h)
-    return np.where((speed >= lo) & (speed <= hi), current, np.searchsorted(inner, speed, side="right") + 1)
+@njit(cache=True, nogil=True)
+def _predict(t, z, dt_s, gate_px, gate_growth):
+    """Predicted tracks, track x detection distances and the gate test (module doc), plus the
+    pairs when no track and no detection has two candidates (``simple``; the usual window)."""
+    n_t, n_d = t.shape[0], z.shape[0]
+    a = t.copy()
+    d = np.empty((n_t, n_d))
+    ok = np.zeros((n_t, n_d), np.bool_)
+    per_col = np.zeros(n_d, np.int64)
+    simple = True
+    for i in range(n_t):
+        a[i, X] += t[i, VX] * dt_s
+        a[i, Y] += t[i, VY] * dt_s
+        gate = gate_px + gate_growth * t[i, MISS] * t[i, S] * dt_s
+        n_row = 0
+        for k in range(n_d):
+            d[i, k] = math.hypot(a[i, X] - z[k, 0], a[i, Y] - z[k, 1])
+            if d[i, k] <= gate:
+                ok[i, k] = True
+                n_row += 1
+                per_col[k] += 1
+        simple = simple and n_row <= 1
+    for k in range(n_d):
+        simple = simple and per_col[k] <= 1
+    return a, d, ok, simple
 
 
-def _associate(d: np.ndarray, gate: np.ndarray, rows: np.ndarray, free: np.ndarray):
-    """(track row, detection) pairs between the tracks ``rows`` and the detections still ``free``
-    (d: track x detection distances, gate: each track's radius)."""
-    if not rows.size or not free.any():
-        return []
-    cols = np.flatnonzero(free)
-    sub = d[np.ix_(rows, cols)]
-    pairs = match_within(sub, sub <= gate[rows, None])
-    return [(int(rows[i]), int(cols[j])) for i, j in pairs]
+@njit(cache=True, nogil=True)
+def _update(a, t, z, r, j, d, alpha, beta, lo, hi, inner, h, confirm_hits, max_misses, birth_gap_px, next_id):
+    """Update, confirmation, deaths, births and bin hysteresis of ``step`` (module doc) on the
+    predicted tracks ``a`` (t: the tracks before the window) and the pairs (r, j)."""
+    n_t, n_d = a.shape[0], z.shape[0]
+    hit = np.zeros(n_t, np.bool_)
+    free = np.ones(n_d, np.bool_)
+    det_of = np.full(n_t, -1, np.int64)
+    for m in range(r.shape[0]):
+        i, k = r[m], j[m]
+        hit[i], free[k], det_of[i] = True, False, k
+        for c in range(X, S + 1):
+            g = alpha if c <= Y else beta
+            a[i, c] += g * (z[k, c - X] - a[i, c])
+        b = int(a[i, BIN]) - 1
+        if not (lo[b] * (1.0 - h) <= a[i, S] <= hi[b] * (1.0 + h)):
+            a[i, BIN] = np.searchsorted(inner, a[i, S], side="right") + 1
+    keep = np.zeros(n_t, np.bool_)
+    for i in range(n_t):
+        a[i, AGE] += 1
+        a[i, HITS] += hit[i]
+        a[i, STREAK] = t[i, STREAK] + 1 if hit[i] else 0.0
+        a[i, MISS] = 0.0 if hit[i] else t[i, MISS] + 1
+        if a[i, STREAK] >= confirm_hits:
+            a[i, CONF] = 1.0
+        keep[i] = a[i, MISS] <= max_misses if a[i, CONF] > 0 else hit[i]
+        if a[i, CONF] > 0:                                   # no births next to a confirmed track
+            for k in range(n_d):
+                if d[i, k] <= birth_gap_px:
+                    free[k] = False
+    n_keep = int(keep.sum())
+    n_new = int(free.sum())
+    out = np.zeros((n_keep + n_new, a.shape[1]))
+    assigned = np.full(n_d, -1, np.int64)
+    row = 0
+    for i in range(n_t):
+        if keep[i]:
+            out[row] = a[i]
+            if det_of[i] >= 0:
+                assigned[det_of[i]] = row
+            row += 1
+    for k in range(n_d):
+        if free[k]:
+            out[row, ID] = next_id
+            for c in range(X, S + 1):
+                out[row, c] = z[k, c - X]
+            out[row, BIN] = z[k, 5]
+            out[row, AGE] = out[row, HITS] = out[row, STREAK] = 1.0
+            out[row, CONF] = 1.0 if confirm_hits <= 1 else 0.0
+            assigned[k] = row
+            next_id += 1
+            row += 1
+    return out, assigned, next_id
 
 
-def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, inner_edges: np.ndarray,
+def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edges: BinEdges,
          next_id: int) -> tuple[Tracks, np.ndarray, int]:
     """One window of tracking (module doc): -> (live tracks, assigned track row of each detection
     in the returned tracks (-1: a fragment, no track), next free id). Pure: the inputs are not
-    modified."""
-    n_t, n_d = len(tracks), len(dets)
-    px = tracks.x + tracks.vx * dt_s
-    py = tracks.y + tracks.vy * dt_s
-    d = np.hypot(px[:, None] - dets.x[None, :], py[:, None] - dets.y[None, :])
-    gate = cfg.gate_px + cfg.gate_growth * tracks.misses * tracks.speed * dt_s
-    free = np.ones(n_d, dtype=bool)
-    conf = np.flatnonzero(tracks.confirmed)
-    pairs = _associate(d, gate, conf, free)
-    for _r, j in pairs:
-        free[j] = False
-    pairs += _associate(d, gate, np.flatnonzero(~tracks.confirmed), free)
-    hit = np.zeros(n_t, dtype=bool)
-    det_of = np.full(n_t, -1, dtype=_I)
-    if pairs:
-        r, j = np.array(pairs, dtype=_I).T
-        hit[r], det_of[r] = True, j
-        free[j] = False
-    j = det_of[hit]
-    ux, uy = dets.speed[j] * np.cos(dets.direction[j]), dets.speed[j] * np.sin(dets.direction[j])
-    a, b = cfg.alpha, cfg.beta
-    x, y = px.copy(), py.copy()
-    vx, vy, speed = tracks.vx.copy(), tracks.vy.copy(), tracks.speed.copy()
-    x[hit] += a * (dets.x[j] - px[hit])
-    y[hit] += a * (dets.y[j] - py[hit])
-    vx[hit] += b * (ux - vx[hit])
-    vy[hit] += b * (uy - vy[hit])
-    speed[hit] += b * (dets.speed[j] - speed[hit])
-    streak = np.where(hit, tracks.streak + 1, 0)
-    misses = np.where(hit, 0, tracks.misses + 1)
-    confirmed = tracks.confirmed | (streak >= cfg.confirm_hits)
-    old = Tracks(tracks.id, x, y, vx, vy, speed,
-                 np.where(hit, hysteresis_bin(tracks.bin, speed, inner_edges, cfg.hysteresis), tracks.bin),
-                 tracks.age + 1, tracks.hits + hit, streak, misses, confirmed)
-    alive = np.where(confirmed, misses <= cfg.max_misses, misses == 0)
-    near = d[confirmed & alive] <= cfg.birth_gap_px if n_t else np.zeros((0, n_d), bool)
-    new = np.flatnonzero(free & ~near.any(axis=0))
-    n_new = new.size
-    born = Tracks(np.arange(next_id, next_id + n_new, dtype=_I), dets.x[new], dets.y[new],
-                  dets.speed[new] * np.cos(dets.direction[new]), dets.speed[new] * np.sin(dets.direction[new]),
-                  dets.speed[new].copy(), dets.bin[new].copy(), np.ones(n_new, _I), np.ones(n_new, _I),
-                  np.ones(n_new, _I), np.zeros(n_new, _I), np.full(n_new, cfg.confirm_hits <= 1))
-    keep = np.flatnonzero(alive)
-    out = Tracks.concat(old.take(keep), born)
-    row_of_old = np.full(n_t, -1, dtype=_I)
-    row_of_old[keep] = np.arange(keep.size)
-    assigned = np.full(n_d, -1, dtype=_I)
-    assigned[det_of[hit]] = row_of_old[hit]
-    assigned[new] = keep.size + np.arange(n_new)
-    return out, assigned, next_id + n_new
+    modified. Compiled loops (numba, as compiled.py): a window has a handful of objects, so
+    per-call overhead, not array size, would set the cost of numpy here."""
+    t, z = tracks.a, dets.a
+    a, d, ok, simple = _predict(t, z, float(dt_s), float(cfg.gate_px), float(cfg.gate_growth))
+    conf = t[:, CONF] > 0
+    if simple:                                               # no candidate shared: confirmed-first changes nothing
+        r, j = np.nonzero(ok)
+    else:                                                    # confirmed tracks first, then tentative ones
+        pairs = match_within(d, ok & conf[:, None])
+        taken = np.zeros(z.shape[0], bool)
+        taken[[c for _r, c in pairs]] = True
+        pairs += match_within(d, ok & ~conf[:, None] & ~taken[None, :])
+        r, j = (np.array(pairs, dtype=np.int64).T if pairs else (np.zeros(0, np.int64), np.zeros(0, np.int64)))
+    out, assigned, next_id = _update(a, t, z, np.ascontiguousarray(r, np.int64), np.ascontiguousarray(j, np.int64), d,
+                                     cfg.alpha, cfg.beta, edges.lo, edges.hi, edges.inner, cfg.hysteresis,
+                                     cfg.confirm_hits, cfg.max_misses, cfg.birth_gap_px, int(next_id))
+    return Tracks(out), assigned, int(next_id)
 
 
 class Tracker:
@@ -216,11 +254,14 @@ class Tracker:
         px_ms_per_mps: the run's speed scale, for the track's speed in m/s (None: not reported)."""
         self.settings = settings or TrackerConfig()
         self.dt_us = int(dt_us)
-        self.inner = bin_edges_px_s(config)
+        self.edges = BinEdges.of(config)
         self.k_mps = None if px_ms_per_mps is None else 1.0 / (1000.0 * px_ms_per_mps)
         self.tracks = Tracks()
         self.next_id = 0
         self.t0_last: int | None = None
+        # compile (first run on a machine) or load the cached kernels now, not in the first window
+        one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
+        step(step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0], one, 1e-3, self.settings, self.edges, 1)
 
     def update(self, objects: list, t0_us: int) -> Tracks:
         """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin;
@@ -229,33 +270,34 @@ class Tracker:
         self.t0_last = int(t0_us)
         tr = self.tracks
         if n_win > 1 and len(tr):       # windows never seen: coast the tracks through them
-            gap = (n_win - 1) * self.dt_us * 1e-6
-            tr = Tracks(tr.id, tr.x + tr.vx * gap, tr.y + tr.vy * gap, tr.vx, tr.vy, tr.speed, tr.bin,
-                        tr.age + n_win - 1, tr.hits, np.where(tr.misses + n_win - 1 > 0, 0, tr.streak),
-                        tr.misses + n_win - 1, tr.confirmed)
-            tr = tr.take(np.flatnonzero(np.where(tr.confirmed, tr.misses <= self.settings.max_misses, tr.misses == 0)))
+            a, gap = tr.a.copy(), (n_win - 1) * self.dt_us * 1e-6
+            a[:, X] += a[:, VX] * gap
+            a[:, Y] += a[:, VY] * gap
+            a[:, AGE] += n_win - 1
+            a[:, MISS] += n_win - 1
+            a[:, STREAK] = 0
+            tr = Tracks(a[np.where(a[:, CONF] > 0, a[:, MISS] <= self.settings.max_misses, False)])
         self.tracks, assigned, self.next_id = step(tr, Detections.of(objects), self.dt_us * 1e-6, self.settings,
-                                                   self.inner, self.next_id)
+                                                   self.edges, self.next_id)
+        rows = self.tracks.a.tolist()
         for o, r in zip(objects, assigned.tolist()):
-            o.track_id, o.track = (int(self.tracks.id[r]), self.track_state(r)) if r >= 0 else (None, None)
+            o.track_id, o.track = (int(rows[r][ID]), self.track_state(rows[r])) if r >= 0 else (None, None)
         return self.tracks
 
     def coasting(self) -> list[dict]:
         """The confirmed tracks no detection of the last window was assigned to (they coast on
         their prediction for up to max_misses windows): [{"track_id", "track"}], the window line's
         ``coasting`` list."""
-        t = self.tracks
-        return [{"track_id": int(t.id[r]), "track": self.track_state(r)}
-                for r in np.flatnonzero(t.confirmed & (t.misses > 0)).tolist()]
+        a = self.tracks.a
+        return [{"track_id": int(row[ID]), "track": self.track_state(row)}
+                for row in a[(a[:, CONF] > 0) & (a[:, MISS] > 0)].tolist()]
 
-    def track_state(self, r: int) -> dict:
-        """The JSON ``track`` object of live track row r (README, JSON lines)."""
-        t = self.tracks
-        vx, vy, s = float(t.vx[r]), float(t.vy[r]), float(t.speed[r])
-        out = {"x": round(float(t.x[r]), 4), "y": round(float(t.y[r]), 4),
-               "direction_deg": round(math.degrees(math.atan2(vy, vx)), 4), "speed_px_s": round(s, 4)}
+    def track_state(self, row: list) -> dict:
+        """The JSON ``track`` object of one row of the live tracks (README, JSON lines)."""
+        vx, vy, sp = row[VX], row[VY], row[S]
+        out = {"x": round(row[X], 4), "y": round(row[Y], 4), "direction_deg": round(math.degrees(math.atan2(vy, vx)), 4),
+               "speed_px_s": round(sp, 4)}
         if self.k_mps is not None:
-            out["speed_mps"] = round(s * self.k_mps, 4)
-        out.update(speed_bin=int(t.bin[r]), age=int(t.age[r]), hits=int(t.hits[r]),
-                   confirmed=bool(t.confirmed[r]))
+            out["speed_mps"] = round(sp * self.k_mps, 4)
+        out.update(speed_bin=int(row[BIN]), age=int(row[AGE]), hits=int(row[HITS]), confirmed=row[CONF] > 0)
         return out
