@@ -17,15 +17,16 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
                track is confirmed after ``confirm_hits`` hits in a row
-    deaths     a tentative track dies at its first miss; a confirmed one coasts (predicted,
-               not reported) through up to ``max_misses`` windows in a row, then dies
+    deaths     a tentative track dies at its first miss; a confirmed one coasts (predicted, and
+               listed as coasting) through up to ``max_misses`` windows in a row, then dies
     bin        hysteresis on the smoothed speed: a track keeps bin b while
                lo_b (1 - h) <= s_i <= hi_b (1 + h), else takes the bin of s_i
                (lo_1 = 0, hi_N = inf; edges are the bundle's bins in px/s)
 
 The smoothed speed s_i is tracked apart from |v_i|: averaging velocity vectors whose directions
-are noisy shortens them, averaging speeds does not. Everything is small-array numpy (a window
-has a handful of objects), torch- and Lava-free, so it runs on every target.
+are noisy shortens them, averaging speeds does not. The per-window loops are numba-compiled like
+compiled.py's (a window has a handful of objects, where numpy's per-call overhead dominates: 11
+us per window against 94 us in numpy); torch- and Lava-free, so it runs on every target.
 """
 from __future__ import annotations
 
