@@ -2,7 +2,7 @@
 """Tracking accuracy of the deployed pipeline on whole sequences of a data-set split.
 
     .venv/bin/python benchmarks/bench_tracking.py --bundle export/ --data data/synth --split multi,pairs
-        [--max-windows 200] [--limit N] [--gate 20] [--alpha A] [--beta B] [--confirm K] [--max-misses M]
+        [--max-windows 200] [--limit N] [--gate 20] [--alpha A] [--beta B] [--confirm K] [--max-misses M] [--tentative-misses T]
         [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
@@ -144,6 +144,7 @@ def main(argv=None) -> int:
     ap.add_argument("--beta", type=float, default=d.beta)
     ap.add_argument("--confirm", type=int, default=d.confirm_hits)
     ap.add_argument("--max-misses", type=int, default=d.max_misses)
+    ap.add_argument("--tentative-misses", type=int, default=d.tentative_misses)
     ap.add_argument("--hysteresis", type=float, default=d.hysteresis)
     ap.add_argument("--gate-growth", type=float, default=d.gate_growth)
     ap.add_argument("--birth-gap", type=float, default=d.birth_gap_px)
@@ -154,7 +155,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     settings = TrackerConfig(gate_px=a.gate, alpha=a.alpha, beta=a.beta, confirm_hits=a.confirm,
                              max_misses=a.max_misses, hysteresis=a.hysteresis, gate_growth=a.gate_growth,
-                             birth_gap_px=a.birth_gap)
+                             birth_gap_px=a.birth_gap, tentative_misses=a.tentative_misses)
     bundle = load_bundle(a.bundle)
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)

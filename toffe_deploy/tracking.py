@@ -16,8 +16,9 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
-               track is confirmed after ``confirm_hits`` hits in a row
-    deaths     a tentative track dies at its first miss; a confirmed one coasts (predicted, and
+               track is confirmed at ``confirm_hits`` hits
+    deaths     a tentative track dies after more than ``tentative_misses`` misses in a row (0: at
+               its first miss); a confirmed one coasts (predicted, and
                listed as coasting) through up to ``max_misses`` windows in a row, then dies
     bin        hysteresis on the smoothed speed: a track keeps bin b while
                lo_b (1 - h) <= s_i <= hi_b (1 + h), else takes the bin of s_i
@@ -44,8 +45,9 @@ class TrackerConfig:
     """Settings of ``step`` (equations in the module doc). gate_px: association radius around a
     track's predicted centre (the eval matching gate by default); alpha, beta: position and
     velocity / speed gains of the alpha-beta filter (1 = trust the detection only);
-    confirm_hits: hits in a row before a track is confirmed (reported with ``confirmed`` true and
-    counted by the tracking metrics); max_misses: windows a confirmed track coasts without a
+    confirm_hits: hits before a track is confirmed (reported with ``confirmed`` true and counted
+    by the tracking metrics); tentative_misses: misses in a row a tentative track survives (a
+    slow or faint object is not detected in every window); max_misses: windows a confirmed track coasts without a
     detection before it dies; hysteresis: h, the fraction by which the smoothed speed must leave
     its bin before the bin changes; gate_growth: how much of the distance a coasting track's
     prediction covers per missed window widens its gate; birth_gap_px: no track is born this close to
@@ -57,6 +59,7 @@ class TrackerConfig:
     alpha: float = 0.7
     beta: float = 0.4
     confirm_hits: int = 2
+    tentative_misses: int = 0
     max_misses: int = 10
     hysteresis: float = 0.1
 
@@ -65,8 +68,8 @@ class TrackerConfig:
             raise ValueError(f"gate_px must be > 0, got {self.gate_px}")
         if not (0 < self.alpha <= 1 and 0 < self.beta <= 1):
             raise ValueError(f"alpha and beta must be in (0, 1], got {self.alpha}, {self.beta}")
-        if self.confirm_hits < 1 or self.max_misses < 0:
-            raise ValueError("confirm_hits must be >= 1 and max_misses >= 0")
+        if self.confirm_hits < 1 or self.max_misses < 0 or self.tentative_misses < 0:
+            raise ValueError("confirm_hits must be >= 1, max_misses and tentative_misses >= 0")
         if not self.hysteresis >= 0:
             raise ValueError(f"hysteresis must be >= 0, got {self.hysteresis}")
 
@@ -168,7 +171,8 @@ def _predict(t, z, dt_s, gate_px, gate_growth):
 
 
 @njit(cache=True, nogil=True)
-def _update(a, t, z, r, j, d, alpha, beta, lo, hi, inner, h, confirm_hits, max_misses, birth_gap_px, next_id):
+def _update(a, t, z, r, j, d, alpha, beta, lo, hi, inner, h, confirm_hits, tentative_misses, max_misses, birth_gap_px,
+            next_id):
     """Update, confirmation, deaths, births and bin hysteresis of ``step`` (module doc) on the
     predicted tracks ``a`` (t: the tracks before the window) and the pairs (r, j)."""
     n_t, n_d = a.shape[0], z.shape[0]
@@ -190,9 +194,9 @@ def _update(a, t, z, r, j, d, alpha, beta, lo, hi, inner, h, confirm_hits, max_m
         a[i, HITS] += hit[i]
         a[i, STREAK] = t[i, STREAK] + 1 if hit[i] else 0.0
         a[i, MISS] = 0.0 if hit[i] else t[i, MISS] + 1
-        if a[i, STREAK] >= confirm_hits:
+        if a[i, HITS] >= confirm_hits:
             a[i, CONF] = 1.0
-        keep[i] = a[i, MISS] <= max_misses if a[i, CONF] > 0 else hit[i]
+        keep[i] = a[i, MISS] <= (max_misses if a[i, CONF] > 0 else tentative_misses)
         if a[i, CONF] > 0:                                   # no births next to a confirmed track
             for k in range(n_d):
                 if d[i, k] <= birth_gap_px:
@@ -241,7 +245,8 @@ def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edge
         r, j = (np.array(pairs, dtype=np.int64).T if pairs else (np.zeros(0, np.int64), np.zeros(0, np.int64)))
     out, assigned, next_id = _update(a, t, z, np.ascontiguousarray(r, np.int64), np.ascontiguousarray(j, np.int64), d,
                                      cfg.alpha, cfg.beta, edges.lo, edges.hi, edges.inner, cfg.hysteresis,
-                                     cfg.confirm_hits, cfg.max_misses, cfg.birth_gap_px, int(next_id))
+                                     cfg.confirm_hits, cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px,
+                                     int(next_id))
     return Tracks(out), assigned, int(next_id)
 
 
@@ -277,7 +282,8 @@ class Tracker:
             a[:, AGE] += n_win - 1
             a[:, MISS] += n_win - 1
             a[:, STREAK] = 0
-            tr = Tracks(a[np.where(a[:, CONF] > 0, a[:, MISS] <= self.settings.max_misses, False)])
+            s = self.settings
+            tr = Tracks(a[a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)])
         self.tracks, assigned, self.next_id = step(tr, Detections.of(objects), self.dt_us * 1e-6, self.settings,
                                                    self.edges, self.next_id)
         rows = self.tracks.a.tolist()
