@@ -98,7 +98,7 @@ def test_births_need_confirmation_and_tracks_die_after_max_misses():
     run_windows(tr, wins)
     assert [o.track["confirmed"] for o in (wins[0][0], wins[1][0], wins[2][0])] == [False, False, True]
     assert ghost.track_id == 1 and ghost.track["confirmed"] is False
-    assert 1 not in tr.tracks.id.tolist()               # a one-window false positive died at its first miss
+    assert 1 not in tr.tracks.id.tolist()               # a one-window false positive died unconfirmed
     for w in range(10, 10 + s.max_misses):             # the object leaves: the track coasts ...
         tr.update([], w * DT_US)
         assert tr.tracks.id.tolist() == [0]
