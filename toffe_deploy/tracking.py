@@ -59,7 +59,7 @@ class TrackerConfig:
     alpha: float = 0.7
     beta: float = 0.4
     confirm_hits: int = 2
-    tentative_misses: int = 2
+    tentative_misses: int = 0
     max_misses: int = 10
     hysteresis: float = 0.1
 
