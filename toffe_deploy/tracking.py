@@ -32,6 +32,7 @@ us per window against 94 us in numpy); torch- and Lava-free, so it runs on every
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -143,11 +144,23 @@ class BinEdges:
         return cls(inner, np.concatenate([[0.0], inner]), np.concatenate([inner, [np.inf]]))
 
 
+#: entries of the settings vector the compiled loops take (``params``)
+P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP = range(10)
+
+
+def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
+    """The settings and the window length as one float64 vector (one argument for the compiled
+    loops: numba's per-call dispatch cost grows with the number of arguments)."""
+    return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
+                     cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px], dtype=_F)
+
+
 @njit(cache=True, nogil=True)
-def _predict(t, z, dt_s, gate_px, gate_growth):
-    """Predicted tracks, track x detection distances and the gate test (module doc), plus the
-    pairs when no track and no detection has two candidates (``simple``; the usual window)."""
+def _predict(t, z, p):
+    """Predicted tracks, track x detection distances and the gate test (module doc), and whether
+    no track and no detection has two candidates (``simple``: the pairs are the gate's)."""
     n_t, n_d = t.shape[0], z.shape[0]
+    dt_s = p[P_DT]
     a = t.copy()
     d = np.empty((n_t, n_d))
     ok = np.zeros((n_t, n_d), np.bool_)
@@ -156,7 +169,7 @@ def _predict(t, z, dt_s, gate_px, gate_growth):
     for i in range(n_t):
         a[i, X] += t[i, VX] * dt_s
         a[i, Y] += t[i, VY] * dt_s
-        gate = gate_px + gate_growth * t[i, MISS] * t[i, S] * dt_s
+        gate = p[P_GATE] + p[P_GROWTH] * t[i, MISS] * t[i, S] * dt_s
         n_row = 0
         for k in range(n_d):
             d[i, k] = math.hypot(a[i, X] - z[k, 0], a[i, Y] - z[k, 1])
@@ -171,11 +184,11 @@ def _predict(t, z, dt_s, gate_px, gate_growth):
 
 
 @njit(cache=True, nogil=True)
-def _update(a, t, z, r, j, d, alpha, beta, lo, hi, inner, h, confirm_hits, tentative_misses, max_misses, birth_gap_px,
-            next_id):
+def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
     """Update, confirmation, deaths, births and bin hysteresis of ``step`` (module doc) on the
     predicted tracks ``a`` (t: the tracks before the window) and the pairs (r, j)."""
     n_t, n_d = a.shape[0], z.shape[0]
+    h = p[P_H]
     hit = np.zeros(n_t, np.bool_)
     free = np.ones(n_d, np.bool_)
     det_of = np.full(n_t, -1, np.int64)
@@ -183,7 +196,7 @@ def _update(a, t, z, r, j, d, alpha, beta, lo, hi, inner, h, confirm_hits, tenta
         i, k = r[m], j[m]
         hit[i], free[k], det_of[i] = True, False, k
         for c in range(X, S + 1):
-            g = alpha if c <= Y else beta
+            g = p[P_ALPHA] if c <= Y else p[P_BETA]
             a[i, c] += g * (z[k, c - X] - a[i, c])
         b = int(a[i, BIN]) - 1
         if not (lo[b] * (1.0 - h) <= a[i, S] <= hi[b] * (1.0 + h)):
@@ -194,12 +207,12 @@ def _update(a, t, z, r, j, d, alpha, beta, lo, hi, inner, h, confirm_hits, tenta
         a[i, HITS] += hit[i]
         a[i, STREAK] = t[i, STREAK] + 1 if hit[i] else 0.0
         a[i, MISS] = 0.0 if hit[i] else t[i, MISS] + 1
-        if a[i, HITS] >= confirm_hits:
+        if a[i, HITS] >= p[P_CONFIRM]:
             a[i, CONF] = 1.0
-        keep[i] = a[i, MISS] <= (max_misses if a[i, CONF] > 0 else tentative_misses)
+        keep[i] = a[i, MISS] <= (p[P_MAX_MISSES] if a[i, CONF] > 0 else p[P_TENTATIVE])
         if a[i, CONF] > 0:                                   # no births next to a confirmed track
             for k in range(n_d):
-                if d[i, k] <= birth_gap_px:
+                if d[i, k] <= p[P_BIRTH_GAP]:
                     free[k] = False
     n_keep = int(keep.sum())
     n_new = int(free.sum())
@@ -219,35 +232,46 @@ def _update(a, t, z, r, j, d, alpha, beta, lo, hi, inner, h, confirm_hits, tenta
                 out[row, c] = z[k, c - X]
             out[row, BIN] = z[k, 5]
             out[row, AGE] = out[row, HITS] = out[row, STREAK] = 1.0
-            out[row, CONF] = 1.0 if confirm_hits <= 1 else 0.0
+            out[row, CONF] = 1.0 if p[P_CONFIRM] <= 1 else 0.0
             assigned[k] = row
             next_id += 1
             row += 1
     return out, assigned, next_id
 
 
+@njit(cache=True, nogil=True)
+def _step_simple(t, z, p, lo, hi, inner, next_id):
+    """The whole step in one call when the gates pair tracks and detections unambiguously (the
+    usual window; ``done`` False otherwise, and the caller runs the Hungarian method)."""
+    a, d, ok, simple = _predict(t, z, p)
+    if not simple:
+        return a, np.full(z.shape[0], -1, np.int64), next_id, False
+    r, j = np.nonzero(ok)
+    out, assigned, next_id = _update(a, t, z, r.astype(np.int64), j.astype(np.int64), d, p, lo, hi, inner, next_id)
+    return out, assigned, next_id, True
+
+
 def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edges: BinEdges,
-         next_id: int) -> tuple[Tracks, np.ndarray, int]:
+         next_id: int, p: np.ndarray | None = None) -> tuple[Tracks, np.ndarray, int]:
     """One window of tracking (module doc): -> (live tracks, assigned track row of each detection
     in the returned tracks (-1: a fragment, no track), next free id). Pure: the inputs are not
     modified. Compiled loops (numba, as compiled.py): a window has a handful of objects, so
-    per-call overhead, not array size, would set the cost of numpy here."""
+    per-call overhead, not array size, would set the cost of numpy here. p: ``params(cfg,
+    dt_s)`` when the caller keeps it."""
     t, z = tracks.a, dets.a
-    a, d, ok, simple = _predict(t, z, float(dt_s), float(cfg.gate_px), float(cfg.gate_growth))
-    conf = t[:, CONF] > 0
-    if simple:                                               # no candidate shared: confirmed-first changes nothing
-        r, j = np.nonzero(ok)
-    else:                                                    # confirmed tracks first, then tentative ones
+    p = params(cfg, dt_s) if p is None else p
+    out, assigned, nid, done = _step_simple(t, z, p, edges.lo, edges.hi, edges.inner, int(next_id))
+    if not done:                                             # confirmed tracks first, then tentative ones
+        a, d, ok, _simple = _predict(t, z, p)
+        conf = t[:, CONF] > 0
         pairs = match_within(d, ok & conf[:, None])
         taken = np.zeros(z.shape[0], bool)
         taken[[c for _r, c in pairs]] = True
         pairs += match_within(d, ok & ~conf[:, None] & ~taken[None, :])
-        r, j = (np.array(pairs, dtype=np.int64).T if pairs else (np.zeros(0, np.int64), np.zeros(0, np.int64)))
-    out, assigned, next_id = _update(a, t, z, np.ascontiguousarray(r, np.int64), np.ascontiguousarray(j, np.int64), d,
-                                     cfg.alpha, cfg.beta, edges.lo, edges.hi, edges.inner, cfg.hysteresis,
-                                     cfg.confirm_hits, cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px,
-                                     int(next_id))
-    return Tracks(out), assigned, int(next_id)
+        r, j = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
+        out, assigned, nid = _update(a, t, z, np.ascontiguousarray(r), np.ascontiguousarray(j), d, p, edges.lo,
+                                     edges.hi, edges.inner, int(next_id))
+    return Tracks(out), assigned, int(nid)
 
 
 class Tracker:
@@ -261,10 +285,12 @@ class Tracker:
         self.settings = settings or TrackerConfig()
         self.dt_us = int(dt_us)
         self.edges = BinEdges.of(config)
+        self._p = params(self.settings, self.dt_us * 1e-6)
         self.k_mps = None if px_ms_per_mps is None else 1.0 / (1000.0 * px_ms_per_mps)
         self.tracks = Tracks()
         self.next_id = 0
         self.t0_last: int | None = None
+        self._coasting: list = []
         # compile (first run on a machine) or load the cached kernels now, not in the first window
         one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
         step(step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0], one, 1e-3, self.settings, self.edges, 1)
@@ -285,26 +311,62 @@ class Tracker:
             s = self.settings
             tr = Tracks(a[a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)])
         self.tracks, assigned, self.next_id = step(tr, Detections.of(objects), self.dt_us * 1e-6, self.settings,
-                                                   self.edges, self.next_id)
+                                                   self.edges, self.next_id, self._p)
         rows = self.tracks.a.tolist()
         for o, r in zip(objects, assigned.tolist()):
             o.track_id, o.track = (int(rows[r][ID]), self.track_state(rows[r])) if r >= 0 else (None, None)
+        self._coasting = [row for row in rows if row[CONF] > 0 and row[MISS] > 0]
         return self.tracks
 
     def coasting(self) -> list[dict]:
         """The confirmed tracks no detection of the last window was assigned to (they coast on
         their prediction for up to max_misses windows): [{"track_id", "track"}], the window line's
         ``coasting`` list."""
-        a = self.tracks.a
-        return [{"track_id": int(row[ID]), "track": self.track_state(row)}
-                for row in a[(a[:, CONF] > 0) & (a[:, MISS] > 0)].tolist()]
+        return [{"track_id": int(row[ID]), "track": self.track_state(row)} for row in self._coasting]
 
-    def track_state(self, row: list) -> dict:
-        """The JSON ``track`` object of one row of the live tracks (README, JSON lines)."""
-        vx, vy, sp = row[VX], row[VY], row[S]
-        out = {"x": round(row[X], 4), "y": round(row[Y], 4), "direction_deg": round(math.degrees(math.atan2(vy, vx)), 4),
-               "speed_px_s": round(sp, 4)}
-        if self.k_mps is not None:
-            out["speed_mps"] = round(sp * self.k_mps, 4)
-        out.update(speed_bin=int(row[BIN]), age=int(row[AGE]), hits=int(row[HITS]), confirmed=row[CONF] > 0)
-        return out
+    def track_state(self, row: list) -> "TrackState":
+        """The ``track`` object of one row of the live tracks (README, JSON lines)."""
+        return TrackState(row, self.k_mps)
+
+
+class TrackState(Mapping):
+    """A track's smoothed state after a window, the JSON ``track`` object: x, y (px),
+    direction_deg, speed_px_s, speed_mps (with a speed scale), speed_bin, age, hits, confirmed.
+    A read-only mapping built from the track's row when first read (a robot loop that reads a
+    few tracks does not pay for formatting every one; ``dict(state)`` for JSON)."""
+
+    __slots__ = ("_row", "_k_mps", "_d")
+
+    def __init__(self, row: list, k_mps: float | None):
+        self._row, self._k_mps, self._d = row, k_mps, None
+
+    def _dict(self) -> dict:
+        if self._d is None:
+            row = self._row
+            vx, vy, sp = row[VX], row[VY], row[S]
+            d = {"x": round(row[X], 4), "y": round(row[Y], 4),
+                 "direction_deg": round(math.degrees(math.atan2(vy, vx)), 4), "speed_px_s": round(sp, 4)}
+            if self._k_mps is not None:
+                d["speed_mps"] = round(sp * self._k_mps, 4)
+            d.update(speed_bin=int(row[BIN]), age=int(row[AGE]), hits=int(row[HITS]), confirmed=row[CONF] > 0)
+            self._d = d
+        return self._d
+
+    @property
+    def confirmed(self) -> bool:
+        return self._row[CONF] > 0
+
+    def __getitem__(self, key):
+        return self._dict()[key]
+
+    def __iter__(self):
+        return iter(self._dict())
+
+    def __len__(self) -> int:
+        return len(self._dict())
+
+    def __repr__(self) -> str:
+        return f"TrackState({self._dict()!r})"
+
+    def __deepcopy__(self, memo) -> "TrackState":
+        return self                                          # immutable

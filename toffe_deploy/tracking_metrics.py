@@ -57,7 +57,7 @@ class TrackingErrors:
         """add_window with what a window reports (pipeline.WindowResult of a tracking Pipeline):
         its objects of confirmed tracks at their detected centre, and its coasting tracks at
         their predicted centre."""
-        hyp = [(o.track_id, o.x, o.y) for o in result.objects if o.track is not None and o.track["confirmed"]]
+        hyp = [(o.track_id, o.x, o.y) for o in result.objects if o.track is not None and o.track.confirmed]
         hyp += [(c["track_id"], c["track"]["x"], c["track"]["y"]) for c in result.coasting or ()]
         self.add_window([h[0] for h in hyp], [h[1:] for h in hyp], truths)
 

@@ -75,7 +75,7 @@ class ObjectFlow:
     n_events: int
     speed_clipped: bool = False
     track_id: int | None = None
-    track: dict | None = None
+    track: Any = None        # tracking.TrackState (a read-only mapping) or None
 
     @property
     def direction_deg(self) -> float:
@@ -84,6 +84,7 @@ class ObjectFlow:
     def to_json(self) -> dict:
         d = asdict(self)
         tail = {k: d.pop(k) for k in ("speed_clipped", "track_id", "track")}
+        tail["track"] = None if self.track is None else dict(self.track)
         d["direction_deg"] = self.direction_deg
         d.update((k, v) for k, v in tail.items() if v is not None)
         return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in d.items()}
@@ -103,7 +104,7 @@ class WindowResult:
     def to_json(self) -> dict:
         out = {"t0_us": int(self.t0_us), "t1_us": int(self.t1_us), "objects": [o.to_json() for o in self.objects]}
         if self.coasting is not None:
-            out["coasting"] = self.coasting
+            out["coasting"] = [{"track_id": c["track_id"], "track": dict(c["track"])} for c in self.coasting]
         return out
 
 
