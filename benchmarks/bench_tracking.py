@@ -12,9 +12,9 @@ IDF1 through motmetrics). Also counted: speed-bin changes between consecutive wi
 ground-truth object, as the detections report them and as its track reports them (flicker).
 Prints one markdown row per split; the JSON holds every figure and the settings.
 
-``--cost``: instead, the tracker's CPU time per window on the shipped sample (or --events)
-beside the cpu pipeline's (binning, cascade, OFPD; time.process_time, one core, best of
---repeats passes), i.e. what tracking adds to `run --target cpu`.
+``--cost``: instead, the CPU time per window of the cpu pipeline with and without tracking on
+the shipped sample (or --events; time.process_time, one pinned core, best of --repeats
+passes), i.e. what tracking adds to `run --target cpu`.
 """
 from __future__ import annotations
 
@@ -85,9 +85,9 @@ def run_split(bundle, files, settings, max_windows, gate) -> dict:
 
 
 def tracker_cost(bundle, events, settings, repeats: int) -> dict:
-    """CPU time per window (process_time) of the pipeline without tracking and of Tracker.update on
-    its objects, best of ``repeats`` passes over the recording's windows."""
-    import copy
+    """CPU time per window (time.process_time, one pinned core, each window's best of ``repeats``
+    passes, the passes of the two pipelines interleaved) of Pipeline(track=settings) and
+    Pipeline(track=False) over the recording's windows."""
     import os
 
     import numpy as np
@@ -95,36 +95,34 @@ def tracker_cost(bundle, events, settings, repeats: int) -> dict:
     from toffe_deploy.events.io import open_events
     from toffe_deploy.runtime.pipeline import Pipeline
     from toffe_deploy.runtime.spikes import SpikeVolume
-    from toffe_deploy.tracking import Tracker
 
     os.sched_setaffinity(0, {min(1, os.cpu_count() - 1)})
     cfg = bundle.config
     with open_events(events) as src:
         sensor = tuple(src.sensor_size)
-        wins = [(t0, ev) for t0, ev in src.iter_windows(cfg.dt_us)]
-    pipe_s = np.full(len(wins), np.inf)
-    objs = []
-    with Pipeline(bundle, "cpu", sensor_size=sensor, track=False) as pipe:
-        for r in range(repeats):
-            for i, (t0, ev) in enumerate(wins):
-                a = time.process_time()
-                (res,) = pipe.process_stream([(t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor))])
-                pipe_s[i] = min(pipe_s[i], time.process_time() - a)
-                if not r:
-                    objs.append(res.objects)
-    trk_s = np.full(len(wins), np.inf)
-    for _r in range(repeats):
-        tr = Tracker(cfg, cfg.dt_us, settings, bundle.config.speed_scale.px_ms_per_mps)
-        fresh = copy.deepcopy(objs)
-        for i, (t0, _ev) in enumerate(wins):
-            a = time.process_time()
-            tr.update(fresh[i], t0)
-            tr.coasting()
-            trk_s[i] = min(trk_s[i], time.process_time() - a)
-    # process_time ticks coarsely on some kernels: report means over windows
-    return {"windows": len(wins), "objects_per_window": sum(map(len, objs)) / len(wins),
-            "pipeline_cpu_ms_per_window": float(pipe_s.mean() * 1e3), "tracker_cpu_ms_per_window": float(trk_s.mean() * 1e3),
-            "tracker_share": float(trk_s.mean() / pipe_s.mean())}
+        wins = [(t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor))
+                for t0, ev in src.iter_windows(cfg.dt_us)]
+    pipes = {"track": Pipeline(bundle, "cpu", sensor_size=sensor, track=settings),
+             "no_track": Pipeline(bundle, "cpu", sensor_size=sensor, track=False)}
+    best = {k: np.full(len(wins), np.inf) for k in pipes}
+    n_obj = 0
+    for p in pipes.values():
+        p.__enter__()
+    try:
+        for _r in range(repeats):
+            for k, p in pipes.items():
+                p.reset_tracks()
+                for i, w in enumerate(wins):
+                    a = time.process_time()
+                    (res,) = p.process_stream([w])
+                    best[k][i] = min(best[k][i], time.process_time() - a)
+                    n_obj += len(res.objects) if k == "track" else 0
+    finally:
+        for p in pipes.values():
+            p.close()
+    t, n = float(best["track"].mean()), float(best["no_track"].mean())
+    return {"windows": len(wins), "objects_per_window": n_obj / repeats / len(wins),
+            "cpu_ms_per_window_track": t * 1e3, "cpu_ms_per_window_no_track": n * 1e3, "tracker_share": t / n - 1.0}
 
 
 def main(argv=None) -> int:
@@ -159,8 +157,8 @@ def main(argv=None) -> int:
     bundle = load_bundle(a.bundle)
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)
-        print(f"{c['windows']} windows, {c['objects_per_window']:.2f} objects per window: pipeline "
-              f"{c['pipeline_cpu_ms_per_window']:.3f} ms CPU per window, tracker {c['tracker_cpu_ms_per_window']:.4f} ms "
+        print(f"{c['windows']} windows, {c['objects_per_window']:.2f} objects per window: CPU per window "
+              f"{c['cpu_ms_per_window_track']:.3f} ms with tracking, {c['cpu_ms_per_window_no_track']:.3f} ms without "
               f"(+{100 * c['tracker_share']:.1f} %)")
         if a.json:
             a.json.write_text(json.dumps({"settings": dataclasses.asdict(settings), **c}, indent=1) + "\n")
