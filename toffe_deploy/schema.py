@@ -18,7 +18,7 @@ SCHEMA_VERSION = 1
 SCHEMA_PATH = Path(__file__).resolve().parent / "schemas" / f"object_flow.v{SCHEMA_VERSION}.schema.json"
 
 CLOCK = ("the recording's timestamps in microseconds; window i covers [t0_us, t1_us) = "
-         "[t_start + i dt_us, t_start + (i + 1) dt_us)")
+         "[t_start + i dt_us, t_start + (i + 1) dt_us); windows skipped over a gap have no line")
 UNITS = {"t0_us": "us", "t1_us": "us", "x": "px", "y": "px", "direction_rad": "rad", "direction_deg": "deg",
          "speed_px_s": "px/s (image plane)", "speed_mps": "m/s (at the camera's depth and focal length)",
          "speed_bin_mps": "m/s", "n_events": "count of (time bin, polarity, pixel) ones",
