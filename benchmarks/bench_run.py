@@ -62,14 +62,14 @@ def load_windows(path, cfg, limit=None):
     return out
 
 
-def bench_cpu(bundle, windows, repeats: int, warmup: int) -> dict:
+def bench_cpu(bundle, windows, repeats: int, warmup: int, track: bool = True) -> dict:
     from toffe_deploy.runtime.pipeline import Pipeline
     from toffe_deploy.runtime.spikes import SpikeVolume
 
     cfg = bundle.config
     total, pipe_only, cpu, n_obj, n_ev = [], [], [], 0, []
     best = np.full(len(windows), np.inf)
-    with Pipeline(bundle, "cpu") as pipe:
+    with Pipeline(bundle, "cpu", track=track) as pipe:
         for w in windows[:warmup]:
             vol = SpikeVolume.from_events(w[1], w[0], cfg.dt_us, cfg.n_bins, cfg.sensor_size)
             list(pipe.process_stream([(w[0], vol)]))
@@ -197,6 +197,7 @@ def main(argv=None) -> int:
     ap.add_argument("--lava-windows", type=int, default=40, help="windows for loihi-sim")
     ap.add_argument("--long-seconds", type=float, default=10.0, help="length of the memory-test recording")
     ap.add_argument("--skip-memory", action="store_true", help="skip the peak-memory runs")
+    ap.add_argument("--no-track", action="store_true", help="cpu latency without the tracker (its cost: compare)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "bench_run.json"))
     args = ap.parse_args(argv)
 
@@ -223,7 +224,7 @@ def main(argv=None) -> int:
         pass
     if "cpu" in targets:
         pin_one_core(args.core)
-        out["cpu"] = bench_cpu(bundle, windows, args.repeats, warmup=20)
+        out["cpu"] = bench_cpu(bundle, windows, args.repeats, warmup=20, track=not args.no_track)
         out["cpu_dense_before"] = bench_dense(bundle, windows[: args.dense_windows + 1])
         out["cpu_speedup_p50"] = out["cpu_dense_before"]["events_to_flow"]["p50_ms"] / out["cpu"]["events_to_flow"]["p50_ms"]
         os.sched_setaffinity(0, range(os.cpu_count()))

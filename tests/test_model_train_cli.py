@@ -41,11 +41,14 @@ def test_train_resume_and_eval(data, tmp_path, capsys):
 
     out_json = tmp_path / "eval.json"
     assert main(["eval", str(ck), "--data", str(data), "--dt", "500,1000", "--max-windows", "3",
-                 "--json", str(out_json), "--no-progress"]) == 0
+                 "--track-windows", "6", "--json", str(out_json), "--no-progress"]) == 0
     table = capsys.readouterr().out
     assert "| 500 |" in table and "| 1000* |" in table and "paper pixE" in table
+    assert "Tracking (tracking.Tracker" in table and "| MOTA | IDF1 |" in table
     res = json.loads(out_json.read_text())
     assert [r["dt_us"] for r in res["per_dt"]] == [500, 1000]
+    trk = res["per_dt"][0]["tracking"]
+    assert trk["windows"] == 4 * 6 and trk["gt_objects"] > 0 and {"mota", "idf1", "id_switches"} <= set(trk)
     assert res["per_dt"][0]["all"]["n_gt"] > 0 and set(res["per_dt"][0]["separation"]) == {"1", "2", "3", "4"}
 
 

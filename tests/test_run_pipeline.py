@@ -128,12 +128,14 @@ def test_run_cli_writes_jsonl_and_summary_with_ground_truth(env, capsys, tmp_pat
     rc, stdout, stderr = run_cli(capsys, env["bundle"].root, "--target", "cpu", "--events", env["rec"], "--out", out,
                                  "--summary-json", summ)
     assert rc == 0, stderr
-    lines = [json.loads(s) for s in out.read_text().splitlines()]
+    head, *lines = [json.loads(s) for s in out.read_text().splitlines()]
+    assert head["type"] == "header" and head["dt_us"] == 500 and head["sensor_size"] == list(SENSOR)
     assert len(lines) == 24                   # 12 ms / 500 us
     assert lines[1]["t0_us"] - lines[0]["t0_us"] == 500 and lines[0]["t1_us"] == lines[0]["t0_us"] + 500
     objs = [o for ln in lines for o in ln["objects"]]
     assert objs and set(objs[0]) == {"speed_bin", "ofs_bin", "speed_mps", "speed_bin_mps", "speed_px_s", "x", "y",
-                                     "direction_rad", "direction_deg", "n_events"}
+                                     "direction_rad", "direction_deg", "n_events", "speed_clipped", "track_id",
+                                     "track"}
     assert all(1 <= o["speed_bin"] <= 4 for o in objs)
     assert all(abs(np.degrees(o["direction_rad"]) - o["direction_deg"]) < 1e-2 for o in objs)
     assert "24 windows" in stdout and "windows/s" in stdout and "pixE" in stdout and "latency per window" in stdout
@@ -148,7 +150,7 @@ def test_run_summary_reports_recall_false_positives_per_window_and_bin_accuracy(
     assert rc == 0, stderr
     e = json.loads(summ.read_text())["errors"]
     assert e["n_windows"] == 8 and e["n_gt"] > 0 and e["gate_px"] == 20.0
-    assert e["n_pred"] == sum(len(json.loads(s)["objects"]) for s in stdout.splitlines())
+    assert e["n_pred"] == sum(len(json.loads(s).get("objects", ())) for s in stdout.splitlines())
     assert f"recall {100 * e['recall']:.1f}% ({e['n_matched']}/{e['n_gt']} objects)" in stderr
     assert f"{e['fp_per_window']:.3f} false positives per window ({e['false_positives']} in 8 windows)" in stderr
     assert f"bin accuracy {e['bin_accuracy']:.3f}" in stderr
@@ -157,7 +159,8 @@ def test_run_summary_reports_recall_false_positives_per_window_and_bin_accuracy(
 def test_run_cli_stdout_is_pure_jsonl_and_max_windows(env, capsys):
     rc, stdout, stderr = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--max-windows", "3")
     assert rc == 0
-    assert [json.loads(s)["t0_us"] for s in stdout.splitlines()] == [0, 500, 1000]
+    lines = [json.loads(s) for s in stdout.splitlines()]
+    assert lines[0]["type"] == "header" and [ln["t0_us"] for ln in lines[1:]] == [0, 500, 1000]
     assert "3 windows" in stderr
 
 
@@ -193,7 +196,7 @@ def test_synthetic_recording_runs(env, capsys, tmp_path):
     rc, out, err = run_cli(capsys, env["bundle"].root, "--synthetic", "multi:1,duration=0.003", "--out",
                            tmp_path / "s.jsonl")
     assert rc == 0, err
-    assert len((tmp_path / "s.jsonl").read_text().splitlines()) == 6 and "pixE" in out
+    assert len((tmp_path / "s.jsonl").read_text().splitlines()) == 1 + 6 and "pixE" in out
 
 
 @pytest.mark.parametrize("spec", ["multi,foo=1", "walk:1", "multi:x", "multi,duration=-1", "multi:99"])
@@ -253,9 +256,9 @@ def test_loihi_sim_and_cpu_give_identical_object_flow(env, capsys, tmp_path):
         rc, _, err = run_cli(capsys, env["bundle"].root, "--target", target, "--events", env["rec"], "--max-windows", "8",
                              "--out", tmp_path / f"{target}.jsonl")
         assert rc == 0, err
-        out[target] = (tmp_path / f"{target}.jsonl").read_text()
+        out[target] = (tmp_path / f"{target}.jsonl").read_text().splitlines()[1:]    # the header names the target
     assert out["cpu"] == out["loihi-sim"]
-    assert sum(len(json.loads(s)["objects"]) for s in out["cpu"].splitlines()) > 0
+    assert sum(len(json.loads(s)["objects"]) for s in out["cpu"]) > 0
 
 
 def test_reset_zero_bundle_stock_lava_equals_cpu_and_reports_bridge_traffic(env, capsys, tmp_path, make_bundle):
@@ -268,7 +271,7 @@ def test_reset_zero_bundle_stock_lava_equals_cpu_and_reports_bridge_traffic(env,
         rc, text, err = run_cli(capsys, bundle.root, "--target", target, "--events", env["rec"], "--max-windows", "6",
                                 "--out", tmp_path / f"{target}.jsonl", "--summary-json", tmp_path / f"{target}.json")
         assert rc == 0, err
-        out[target] = (tmp_path / f"{target}.jsonl").read_text()
+        out[target] = (tmp_path / f"{target}.jsonl").read_text().splitlines()[1:]    # the header names the target
         summ[target] = json.loads((tmp_path / f"{target}.json").read_text())
     assert out["cpu"] == out["loihi-sim"]
     assert summ["cpu"]["bridge_traffic"] is None
@@ -332,7 +335,7 @@ def test_loihi_sim_floating_pt_runs(env, capsys, tmp_path):
     rc, _, err = run_cli(capsys, env["bundle"].root, "--target", "loihi-sim", "--tag", "floating_pt", "--events",
                          env["rec"], "--max-windows", "3", "--out", tmp_path / "f.jsonl")
     assert rc == 0, err
-    assert len((tmp_path / "f.jsonl").read_text().splitlines()) == 3
+    assert len((tmp_path / "f.jsonl").read_text().splitlines()) == 1 + 3
 
 
 def test_unwritable_outputs_are_one_line_errors(env, capsys, tmp_path):

@@ -30,6 +30,7 @@ from .errors import InputError
 from .events.binning import bin_window
 from .events.frontend import apply_dense
 from .metrics import GATE_PX, FlowErrors, SeparationCounts
+from .tracking_metrics import TrackingErrors
 from . import ofpd_io
 
 PAPER_TABLE1 = {5000: (14.135, 25.842, 19.948), 2000: (8.406, 14.345, 16.677), 1000: (6.626, 13.817, 11.867),
@@ -47,6 +48,7 @@ class EvalOptions:
     gate_px: float = GATE_PX
     by: tuple[Breakdown, ...] = ()
     progress: bool = True
+    track_windows: int = 0          # > 0: tracking metrics over this many consecutive windows per sequence
 
 
 def _sample_starts(t_start: int, t_end: int, dt: int, n: int) -> np.ndarray:
@@ -54,6 +56,26 @@ def _sample_starts(t_start: int, t_end: int, dt: int, n: int) -> np.ndarray:
     if starts.size > n:
         starts = starts[np.linspace(0, starts.size - 1, n).round().astype(int)]
     return starts
+
+
+def track_sequence(src, gt, dt: int, n_windows: int, predict, config, errors, focal=None) -> None:
+    """Tracking metrics of one sequence: its first ``n_windows`` consecutive windows of ``dt``
+    through ``predict(t0) -> list[Prediction]`` and a tracking.Tracker, each window's confirmed
+    and coasting tracks scored against window_truth (tracking_metrics.TrackingErrors ``errors``,
+    a new sequence in it)."""
+    from .dataset.groundtruth import window_truth
+    from .runtime.pipeline import ObjectFlow, WindowResult
+    from .tracking import Tracker
+
+    tracker = Tracker(config, dt)
+    errors.new_sequence()
+    k_mps = config.speed_scale.px_ms_per_mps
+    for t0 in range(int(src.t_start_us), min(int(src.t_end_us) - dt + 1, int(src.t_start_us) + n_windows * dt), dt):
+        objs = [ObjectFlow(p.stage, p.stage, p.speed_mps, p.speed_bin_mps,
+                           1000.0 * (p.speed_px_ms if math.isfinite(p.speed_px_ms) else p.speed_mps * k_mps),
+                           p.x, p.y, p.direction_rad, 0) for p in predict(t0)]
+        tracker.update(objs, t0)
+        errors.add_result(WindowResult(t0, t0 + dt, objs, coasting=tracker.coasting()), window_truth(gt, t0, dt))
 
 
 def split_files(data: Path, split: str) -> list[Path]:
@@ -116,13 +138,14 @@ def evaluate(opts: EvalOptions) -> dict:
 
     results = {"checkpoint": str(opts.ckpt), "trained_dt_us": cfg.dt_us, "split": opts.split, "ofs": opts.ofs,
                "sequences": len(files), "max_windows_per_sequence": opts.max_windows, "gate_px": opts.gate_px,
-               "per_dt": []}
+               "track_windows": opts.track_windows, "per_dt": []}
 
     def new_errors():
         return FlowErrors(gate_px=opts.gate_px, n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
 
     for dt in opts.dts:
         errs = new_errors()
+        track_errs = TrackingErrors(opts.gate_px) if opts.track_windows > 0 else None
         by_errs = [{lab: new_errors() for lab in order} for _paths, _labels, order in groups]
         sep = [SeparationCounts() for _ in range(cfg.n_speed_bins)]
         for fi, path in enumerate(tqdm(files, desc=f"eval dt={dt}us", unit="seq", disable=not opts.progress)):
@@ -148,6 +171,13 @@ def evaluate(opts: EvalOptions) -> dict:
                             spikes = res.spikes[k - 1] if k == cfg.n_speed_bins else run_stage(k, inp)
                             frame = stage_frame(binned, spikes, cfg.mask_kernel, cfg.ofs_pool)
                             sep[k - 1].add(ofpd_io.has_object(frame[None], cfg), truth[0].speed_bin >= k)
+                if track_errs is not None:
+                    def predict(t0, src=src, sensor=sensor):
+                        binned = apply_dense(bin_window(src.read(t0, t0 + dt), t0, dt, cfg.n_bins, sensor,
+                                                        dtype=np.uint8), cfg.input_norm, cfg.input_min_cluster)
+                        return predict_window(binned, run_stage, ofpd, cfg)[0]
+
+                    track_sequence(src, gt, dt, opts.track_windows, predict, cfg, track_errs)
         row = {"dt_us": dt, "same_dt_as_training": dt == cfg.dt_us, "all": errs.summary(),
                "per_bin": {str(k): errs.summary(k) for k in range(1, cfg.n_speed_bins + 1)},
                "separation": {str(k): sep[k - 1].as_dict() for k in range(1, cfg.n_speed_bins + 1)},
@@ -155,6 +185,8 @@ def evaluate(opts: EvalOptions) -> dict:
                        "buckets": [{"bucket": lab, "sequences": labels.count(lab), **by_errs[g][lab].summary()}
                                    for lab in order]}
                       for g, (b, (paths, labels, order)) in enumerate(zip(opts.by, groups))]}
+        if track_errs is not None:
+            row["tracking"] = track_errs.summary()
         results["per_dt"].append(row)
     return results
 
@@ -209,6 +241,17 @@ def format_markdown(r: dict) -> str:
                 lines.append(f"| {row['dt_us']} | {b['bucket']} | {b['sequences']} | {b['n_gt']} | {_f(b['recall'])} | "
                              f"{_f(b['fp_per_window'], 3)} | {_f(b['bin_accuracy'])} | {_f(b['pixE'])} | "
                              f"{_f(b['dirE'])} | {_f(b['speedE'])} |")
+    if any("tracking" in row for row in rows):
+        lines += ["", f"Tracking (tracking.Tracker, default settings) over the first {r['track_windows']} consecutive "
+                  "windows of each sequence, confirmed and coasting tracks vs the truth within the gate (motmetrics):", "",
+                  "| dt (us) | MOTA | IDF1 | MOTP (px) | ID switches | fragmentations | misses | false positives "
+                  "| objects | true tracks | mostly tracked |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+        for row in rows:
+            t = row.get("tracking")
+            if t:
+                lines.append(f"| {row['dt_us']} | {_f(t['mota'], 3)} | {_f(t['idf1'], 3)} | {_f(t['motp_px'])} | "
+                             f"{t['id_switches']} | {t['fragmentations']} | {t['misses']} | {t['false_positives']} | "
+                             f"{t['gt_objects']} | {t['gt_tracks']} | {t['mostly_tracked']} |")
     lines += ["", "OFS speed separation (single-object windows, each stage alone: fires vs object bin >= k):", "",
               "| dt (us) | " + " | ".join(f"OFS{k} P / R" for k in sorted(r["per_dt"][0]["separation"])) + " |",
               "|---|" + "---|" * len(r["per_dt"][0]["separation"])]

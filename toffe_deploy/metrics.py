@@ -118,10 +118,16 @@ def match_gated(pred_xy: np.ndarray, true_xy: np.ndarray, gate_px: float = GATE_
     if not len(pred_xy) or not len(true_xy):
         return []
     d = np.linalg.norm(true_xy[:, None, :] - pred_xy[None, :, :], axis=2)
-    ok = d <= gate_px
+    return match_within(d, d <= gate_px)
+
+
+def match_within(d: np.ndarray, ok: np.ndarray) -> list[tuple[int, int]]:
+    """``match_gated`` on a (rows, cols) distance matrix ``d`` whose allowed pairs are ``ok``
+    (a gate per row or per pair, as the tracker's): (row, col) pairs, the most allowed pairs,
+    then the least total distance."""
     ti, pj = np.nonzero(ok)
-    n = len(true_xy)
-    parent = list(range(n + len(pred_xy)))          # union-find over objects 0..n-1, predictions n..
+    n = d.shape[0]
+    parent = list(range(n + d.shape[1]))            # union-find over rows 0..n-1, columns n..
 
     def root(a):
         while parent[a] != a:

@@ -595,7 +595,8 @@ def speed_target(speed_px_ms: np.ndarray, config: ToffeConfig, speed_mps: np.nda
 def decode(pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: np.ndarray,
            config: ToffeConfig) -> dict[str, np.ndarray]:
     """OFPD outputs + 1-based stage per row -> x_px, y_px, direction_rad, speed_px_ms, speed_mps,
-    speed_bin (the reported 1-based bin), speed_bin_mps (its representative speed).
+    speed_bin (the reported 1-based bin), speed_bin_mps (its representative speed), speed_clipped
+    (bool: the regressed speed lay outside the clip range below, so the speed sits at its edge).
 
     speed_unit "px_ms": speed = ln(image-plane px/ms), exponentiated and clipped into the
     stage's bin in px/ms (speed_bounds_px_ms); speed_mps = config.speed_scale.to_mps of it.
@@ -636,15 +637,18 @@ class Decoder:
         if self.mode == "ofpd":
             edges = self.bounds
             v_px = np.minimum(np.maximum(reg, edges[0, 0]), edges[-1, 1])
+            clipped = v_px != reg
             k = np.minimum(np.maximum(np.searchsorted(self.lower, v_px, side="right") + 1, 1), len(edges)).astype(np.int64)
             v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
         elif self.mode == "px_ms":
             bounds = self.bounds[k - 1] if k.size else np.zeros((0, 2))
             v_px = np.clip(reg, bounds[:, 0], bounds[:, 1])
+            clipped = v_px != reg
             v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
         else:
             bounds = self.bounds[k - 1] if k.size else np.zeros((0, 2))
             v_mps = np.clip(reg, bounds[:, 0], bounds[:, 1])
+            clipped = v_mps != reg
             v_px = np.asarray(scale.to_px_ms(v_mps), dtype=np.float64)
         return {
             "x_px": pose[:, 0],
@@ -653,5 +657,6 @@ class Decoder:
             "speed_px_ms": v_px,
             "speed_mps": v_mps,
             "speed_bin": k,
+            "speed_clipped": clipped,
             "speed_bin_mps": self.representative[k - 1] if k.size else np.zeros(0),
         }

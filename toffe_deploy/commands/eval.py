@@ -57,6 +57,9 @@ def register(sub) -> None:
                    help="also break recall / FP / bin accuracy / pixE down by a numeric sequence attribute, e.g. "
                    "size, spacing, noise, contrast, bucketed at the given comma-separated edges (default: one bucket "
                    "per value); repeatable")
+    p.add_argument("--track-windows", type=int, default=0, metavar="N",
+                   help="also track objects (toffe_deploy/tracking.py) over the first N consecutive windows of each "
+                   "sequence and report CLEAR MOT (MOTA, MOTP), IDF1, ID switches per dt (default 0: off)")
     p.add_argument("--json", type=Path, help="also write the results as JSON to this file")
     add_progress_flag(p)
     p.set_defaults(func=run)
@@ -70,6 +73,8 @@ def run(args) -> int:
 
     if args.max_windows < 1:
         raise ToffeError(f"--max-windows must be >= 1, got {args.max_windows}")
+    if args.track_windows < 0:
+        raise ToffeError(f"--track-windows must be >= 0, got {args.track_windows}")
     if not args.gate > 0:
         raise ToffeError(f"--gate must be > 0 px, got {args.gate}")
     load_checkpoint(args.ckpt)          # fail fast on a bad checkpoint, before reading data
@@ -89,7 +94,7 @@ def run(args) -> int:
     torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
     res = evaluate(EvalOptions(ckpt=args.ckpt, data=args.data, dts=args.dt, split=args.split,
                                max_windows=args.max_windows, ofs=args.ofs, gate_px=args.gate,
-                               by=tuple(args.by), progress=show_progress(args)))
+                               by=tuple(args.by), progress=show_progress(args), track_windows=args.track_windows))
     print(format_markdown(res))
     if args.json:
         with atomic_path(args.json) as tmp:

@@ -105,6 +105,9 @@ def register(sub) -> None:
     p.add_argument("--ofpd", choices=("fp32", "fp16", "int8"), default="fp32",
                    help="OFPD model of the bundle: fp32 (default, the reference) or the fp16 / int8 variant "
                         "written by `toffe-deploy export --variants`")
+    p.add_argument("--no-track", action="store_true",
+                   help="do not track objects over the windows (no track_id / track in the JSON lines, no "
+                        "tracking metrics); tracking is on by default (toffe_deploy/tracking.py)")
     p.add_argument("--summary-json", metavar="FILE", help="also write the summary as JSON (atomically)")
     p.add_argument("--dump-spikes", metavar="FILE.npz",
                    help="also write every window's OFS stage inputs and output spikes (t0_us (n,), stage_input "
@@ -329,13 +332,23 @@ def run_command(args) -> int:
                                  "lower --max-windows")
             dump = SpikeDump(args.dump_spikes)
         pipe = Pipeline(bundle, args.target, tag=args.tag, ofpd_variant=args.ofpd, sensor_size=sensor,
-                        speed_scale=camera.scale, keep_stages=dump is not None)
+                        speed_scale=camera.scale, keep_stages=dump is not None, track=not args.no_track)
+        tracking = None
+        if errors is not None and pipe.tracker is not None:
+            from ..tracking_metrics import TrackingErrors
+
+            tracking = TrackingErrors(errors.gate_px)
         ok = interrupted = False
         stream_out = args.out is None
         try:
             from tqdm import tqdm
 
             with pipe, jsonl_sink(args.out) as sink:
+                from ..schema import header, write_header
+
+                head = header(bundle, target=args.target, tag=args.tag, sensor_size=sensor,
+                              camera_json=summary.camera_json, ofpd_variant=args.ofpd,
+                              tracking=pipe.tracker.settings if pipe.tracker is not None else None)
                 summary.startup_s = time.perf_counter() - t_setup
                 t_run = time.perf_counter()
                 bar = tqdm(total=n_total, unit="win", desc=f"run {args.target}", file=sys.stderr,
@@ -344,6 +357,7 @@ def run_command(args) -> int:
                     for res in pipe.process_stream(windows()):
                         t0, vol, t_ready, t_newest = pending.popleft()
                         summary.add(res, time.perf_counter() - t_ready)
+                        head = head and write_header(sink, head)      # first line, once the input has proven readable
                         write_window(sink, res)
                         if t_newest is not None:
                             summary.event_latencies_s.append(time.perf_counter() - src.host_time(t_newest))
@@ -352,6 +366,8 @@ def run_command(args) -> int:
                                                           o.speed_bin_mps, o.speed_px_s / 1000.0)
                                                for o in res.objects],
                                               truth.window(res.t0_us, cfg.dt_us), focal_px)
+                        if tracking is not None:
+                            tracking.add_result(res, truth.window(res.t0_us, cfg.dt_us))
                         if renderer is not None or report is not None:
                             win = res.to_json()
                             if renderer is not None:
@@ -363,6 +379,7 @@ def run_command(args) -> int:
                         bar.update(1)
                 interrupted = stop.interrupted
                 summary.wall_s = time.perf_counter() - t_run
+                head = head and write_header(sink, head)
                 if dump is not None:
                     dump.write()
             ok = True
@@ -373,6 +390,8 @@ def run_command(args) -> int:
             summary.live = src.stats_json()
     if errors is not None:
         summary.errors = errors.summary()
+        if tracking is not None:
+            summary.errors["tracking"] = tracking.summary()
     out = sys.stderr if stream_out else sys.stdout
     for line in summary.lines():
         print(line, file=out)

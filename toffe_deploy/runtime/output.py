@@ -235,6 +235,10 @@ def truth_lines(e: dict) -> list[str]:
         px_ms = "" if math.isnan(e["speedE_px_ms"]) else f", {e['speedE_px_ms']:.3f} px/ms"
         out += [f"matched objects: pixE {e['pixE']:.3f} px, dirE {e['dirE']:.3f} deg, speedE {e['speedE']:.3f} m/s"
                 f"{px_ms} (bin-only {e['speedE_bin_only']:.3f} m/s); bins true->predicted: {cells}"]
+    if e.get("tracking"):
+        from ..tracking_metrics import tracking_line
+
+        out.append(tracking_line(e["tracking"]))
     return out
 
 

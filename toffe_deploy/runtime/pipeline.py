@@ -39,6 +39,7 @@ from ..config import ToffeConfig
 from ..errors import InputError
 from ..events.frontend import apply_dense
 from ..ofpd_io import Decoder
+from ..tracking import Tracker, TrackerConfig
 from . import ofpd_input
 from ..compiled import new_scratch, warm_up
 from .cpu import CpuCascade
@@ -61,7 +62,9 @@ class ObjectFlow:
     run's SpeedScale), the same regressed speed on the image plane (speed_px_s, px/s: what the
     camera measured, independent of depth and focal length), centre (x, y) in sensor pixels,
     direction of motion in rad (image plane, y down: atan2(dy, dx)) and the number of event ones
-    (bin, polarity, pixel) in its speed-separated frame."""
+    (bin, polarity, pixel) in its speed-separated frame; speed_clipped: the regressed speed lay
+    outside the range decode clips it to (it is reported at the bound); track_id and track: its
+    track and the track's smoothed state (tracking.Tracker; None without a tracker)."""
 
     speed_bin: int
     ofs_bin: int
@@ -72,6 +75,9 @@ class ObjectFlow:
     y: float
     direction_rad: float
     n_events: int
+    speed_clipped: bool = False
+    track_id: int | None = None
+    track: Any = None        # tracking.TrackState (a read-only mapping) or None
 
     @property
     def direction_deg(self) -> float:
@@ -79,7 +85,10 @@ class ObjectFlow:
 
     def to_json(self) -> dict:
         d = asdict(self)
+        tail = {k: d.pop(k) for k in ("speed_clipped", "track_id", "track")}
+        tail["track"] = None if self.track is None else dict(self.track)
         d["direction_deg"] = self.direction_deg
+        d.update((k, v) for k, v in tail.items() if v is not None)
         return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in d.items()}
 
 
@@ -92,9 +101,13 @@ class WindowResult:
     objects: list[ObjectFlow] = field(default_factory=list)
     cascade: Any = None      # Lava targets: the window's CascadeResult (bridge traffic, runtime/traffic.py)
     stages: Any = None       # Pipeline(keep_stages=True): (stage_input (N, B, 2, H, W), stage_output (N, B, H, W)) bool
+    coasting: list | None = None   # with a tracker: confirmed tracks not seen this window (Tracker.coasting)
 
     def to_json(self) -> dict:
-        return {"t0_us": int(self.t0_us), "t1_us": int(self.t1_us), "objects": [o.to_json() for o in self.objects]}
+        out = {"t0_us": int(self.t0_us), "t1_us": int(self.t1_us), "objects": [o.to_json() for o in self.objects]}
+        if self.coasting is not None:
+            out["coasting"] = [{"track_id": c["track_id"], "track": dict(c["track"])} for c in self.coasting]
+        return out
 
 
 def ofpd_model(bundle, variant: str = "fp32"):
@@ -160,11 +173,15 @@ class Pipeline:
     runtime for loihi targets); leaving stops it, also on errors and Ctrl-C.
 
     ``sensor_size`` (width, height): the recording's sensor (default: the bundle's); ``speed_scale``:
-    the camera the reported m/s assume (default: the bundle's, ``config.speed_scale``)."""
+    the camera the reported m/s assume (default: the bundle's, ``config.speed_scale``).
+    ``track``: follow objects over the windows (toffe_deploy.tracking; True: default settings, a
+    TrackerConfig, or False): each ObjectFlow gets ``track_id`` and ``track``; the tracks live as
+    long as the Pipeline, over every ``process_stream`` call (``reset_tracks`` starts afresh)."""
 
     def __init__(self, bundle, target: str = "cpu", tag: str = "fixed_pt", ofpd_threads: int | None = 1,
                  ofpd_variant: str = "fp32", sensor_size: tuple[int, int] | None = None,
-                 speed_scale: SpeedScale | None = None, keep_stages: bool = False):
+                 speed_scale: SpeedScale | None = None, keep_stages: bool = False,
+                 track: "bool | TrackerConfig" = True):
         """keep_stages: each WindowResult also carries the masked input and the output spikes of
         every OFS stage as dense arrays (``stages``; for `run --dump-spikes`: about 18 MB per
         640x480 window, so for short runs only)."""
@@ -187,7 +204,21 @@ class Pipeline:
         self._scratch = new_scratch(self.sensor_size[0] * self.sensor_size[1])   # for ofpd_input's O(n) de-duplication
         self.keep_stages = bool(keep_stages)
         self._decode = Decoder(self.config)          # ofpd_io.decode, set up once
+        self._track = track
+        self.reset_tracks()
         self._entered = False
+
+    def reset_tracks(self) -> None:
+        """Forget every track (a new recording, or a jump in time); ids start again at 0."""
+        settings = self._track if isinstance(self._track, TrackerConfig) else None
+        self.tracker = (Tracker(self.config, self.config.dt_us, settings, self.speed_scale.px_ms_per_mps)
+                        if self._track is not False and self._track is not None else None)
+
+    def _tracked(self, result: "WindowResult") -> "WindowResult":
+        if self.tracker is not None:
+            self.tracker.update(result.objects, result.t0_us)
+            result.coasting = self.tracker.coasting()
+        return result
 
     def __enter__(self) -> "Pipeline":
         warm_up()                    # the compiled kernels (every target de-duplicates pixels with them)
@@ -226,7 +257,7 @@ class Pipeline:
         return [ObjectFlow(speed_bin=int(dec["speed_bin"][i]), ofs_bin=int(k), speed_mps=mps[i], speed_bin_mps=bin_mps[i],
                            speed_px_s=px_ms[i] * 1000.0, x=float(dec["x_px"][i]),
                            y=float(dec["y_px"][i]), direction_rad=float(dec["direction_rad"][i]),
-                           n_events=int(n_events[i]))
+                           n_events=int(n_events[i]), speed_clipped=bool(dec["speed_clipped"][i]))
                 for i, k in enumerate(ks)]
 
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
@@ -246,8 +277,8 @@ class Pipeline:
                 grid, inverse = vol.pool(pool)               # the OFS grid (cascade.py)
                 res = self.cascade.cascade_sparse(grid)
                 frames = up_frames(res.frames, inverse)
-                yield WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, frames),
-                                   stages=_stage_arrays(res.to_dense()) if self.keep_stages else None)
+                yield self._tracked(WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, frames),
+                                                 stages=_stage_arrays(res.to_dense()) if self.keep_stages else None))
             return
         # Lava backends take dense windows and may pipeline them: remember each window's t0.
         starts: collections.deque = collections.deque()
@@ -264,8 +295,8 @@ class Pipeline:
         for res in self.cascade.cascade_stream(dense()):
             t0, vol, grid, inverse = starts.popleft()
             frames = up_frames([np.asarray(f).reshape(-1)[grid.idx] for f in res.frames], inverse)
-            yield WindowResult(t0, t0 + dt, self.objects_of(vol, frames), cascade=res,
-                               stages=_stage_arrays(res) if self.keep_stages else None)
+            yield self._tracked(WindowResult(t0, t0 + dt, self.objects_of(vol, frames), cascade=res,
+                                             stages=_stage_arrays(res) if self.keep_stages else None))
 
 
 def _stage_arrays(res) -> tuple[np.ndarray, np.ndarray]:

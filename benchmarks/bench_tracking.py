@@ -1,0 +1,186 @@
+#!/usr/bin/env python
+"""Tracking accuracy of the deployed pipeline on whole sequences of a data-set split.
+
+    .venv/bin/python benchmarks/bench_tracking.py --bundle export/ --data data/synth --split multi,pairs
+        [--max-windows 200] [--limit N] [--gate 20] [--alpha A] [--beta B] [--confirm K] [--max-misses M] [--tentative-misses T]
+        [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--json FILE]
+
+Each sequence runs from its start, window after window (dt of the bundle), through
+``Pipeline(bundle, "cpu", track=TrackerConfig(...))``; its detections are scored like `run`
+does (metrics.FlowErrors) and its confirmed tracks by tracking_metrics.TrackingErrors (CLEAR MOT,
+IDF1 through motmetrics). Also counted: speed-bin changes between consecutive windows of one
+ground-truth object, as the detections report them and as its track reports them (flicker).
+Prints one markdown row per split; the JSON holds every figure and the settings.
+
+``--cost``: instead, the CPU time per window of the cpu pipeline with and without tracking on
+the shipped sample (or --events; time.process_time, one pinned core, best of --repeats
+passes), i.e. what tracking adds to `run --target cpu`.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+def bin_flicker(rows) -> int:
+    """Bin changes between consecutive windows of each object: rows of (object id, window, bin)."""
+    last: dict = {}
+    n = 0
+    for oid, w, b in rows:
+        prev = last.get(oid)
+        if prev is not None and prev[0] == w - 1 and prev[1] != b:
+            n += 1
+        last[oid] = (w, b)
+    return n
+
+
+def run_split(bundle, files, settings, max_windows, gate) -> dict:
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.metrics import FlowErrors, Prediction, match_gated
+    from toffe_deploy.runtime.pipeline import Pipeline
+    from toffe_deploy.runtime.spikes import SpikeVolume
+    from toffe_deploy.runtime.truth import TruthIndex, sequence_focal_px
+    from toffe_deploy.tracking_metrics import TrackingErrors
+
+    cfg = bundle.config
+    flow = FlowErrors(gate_px=gate, n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
+    track = TrackingErrors(gate)
+    det_bins, trk_bins, t_track, n_win = [], [], 0.0, 0
+    for fi, path in enumerate(files):
+        with open_events(path) as src:
+            truth, focal = TruthIndex(src.ground_truth), sequence_focal_px(src.attrs)
+            sensor = tuple(src.sensor_size)
+
+            def windows():
+                for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=src.t_start_us)):
+                    if i >= max_windows:
+                        return
+                    yield t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor)
+
+            track.new_sequence()
+            with Pipeline(bundle, "cpu", sensor_size=sensor, track=settings) as pipe:
+                for w, res in enumerate(pipe.process_stream(windows())):
+                    gt = truth.window(res.t0_us, cfg.dt_us)
+                    flow.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps, o.speed_bin_mps,
+                                                o.speed_px_s / 1000.0) for o in res.objects], gt, focal)
+                    track.add_result(res, gt)
+                    for i, j in match_gated([(o.x, o.y) for o in res.objects], [(t.x, t.y) for t in gt], gate):
+                        key = (fi, gt[i].object_id)
+                        det_bins.append((key, w, res.objects[j].speed_bin))
+                        if res.objects[j].track is not None:
+                            trk_bins.append((key, w, res.objects[j].track["speed_bin"]))
+                    n_win += 1
+    e = flow.summary()
+    return {"sequences": len(files), "windows": n_win, "recall": e["recall"], "fp_per_window": e["fp_per_window"],
+            "bin_accuracy": e["bin_accuracy"], "tracking": track.summary(),
+            "bin_changes_detections": bin_flicker(det_bins), "bin_changes_tracks": bin_flicker(trk_bins),
+            "matched": len(det_bins)}
+
+
+def tracker_cost(bundle, events, settings, repeats: int) -> dict:
+    """CPU time per window (time.process_time, one pinned core, each window's best of ``repeats``
+    passes, the passes of the two pipelines interleaved) of Pipeline(track=settings) and
+    Pipeline(track=False) over the recording's windows."""
+    import os
+
+    import numpy as np
+
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.runtime.pipeline import Pipeline
+    from toffe_deploy.runtime.spikes import SpikeVolume
+
+    os.sched_setaffinity(0, {min(1, os.cpu_count() - 1)})
+    cfg = bundle.config
+    with open_events(events) as src:
+        sensor = tuple(src.sensor_size)
+        wins = [(t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor))
+                for t0, ev in src.iter_windows(cfg.dt_us)]
+    pipes = {"track": Pipeline(bundle, "cpu", sensor_size=sensor, track=settings),
+             "no_track": Pipeline(bundle, "cpu", sensor_size=sensor, track=False)}
+    best = {k: np.full(len(wins), np.inf) for k in pipes}
+    n_obj = 0
+    for p in pipes.values():
+        p.__enter__()
+    try:
+        for _r in range(repeats):
+            for k, p in pipes.items():
+                p.reset_tracks()
+                for i, w in enumerate(wins):
+                    a = time.process_time()
+                    (res,) = p.process_stream([w])
+                    best[k][i] = min(best[k][i], time.process_time() - a)
+                    n_obj += len(res.objects) if k == "track" else 0
+    finally:
+        for p in pipes.values():
+            p.close()
+    t, n = float(best["track"].mean()), float(best["no_track"].mean())
+    return {"windows": len(wins), "objects_per_window": n_obj / repeats / len(wins),
+            "cpu_ms_per_window_track": t * 1e3, "cpu_ms_per_window_no_track": n * 1e3, "tracker_share": t / n - 1.0}
+
+
+def main(argv=None) -> int:
+    from toffe_deploy.deploy.bundle import load_bundle
+    from toffe_deploy.evaluate import split_files
+    from toffe_deploy.tracking import TrackerConfig
+
+    d = TrackerConfig()
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--bundle", default=str(ROOT / "export"))
+    ap.add_argument("--data", default=str(ROOT / "data" / "synth"))
+    ap.add_argument("--split", default="multi,pairs", help="comma-separated splits")
+    ap.add_argument("--max-windows", type=int, default=200, help="windows per sequence from its start")
+    ap.add_argument("--limit", type=int, default=0, help="first N sequences per split (0: all)")
+    ap.add_argument("--gate", type=float, default=d.gate_px)
+    ap.add_argument("--alpha", type=float, default=d.alpha)
+    ap.add_argument("--beta", type=float, default=d.beta)
+    ap.add_argument("--confirm", type=int, default=d.confirm_hits)
+    ap.add_argument("--max-misses", type=int, default=d.max_misses)
+    ap.add_argument("--tentative-misses", type=int, default=d.tentative_misses)
+    ap.add_argument("--hysteresis", type=float, default=d.hysteresis)
+    ap.add_argument("--gate-growth", type=float, default=d.gate_growth)
+    ap.add_argument("--birth-gap", type=float, default=d.birth_gap_px)
+    ap.add_argument("--json", type=Path)
+    ap.add_argument("--cost", action="store_true", help="measure the tracker's CPU time per window instead")
+    ap.add_argument("--events", default=str(ROOT / "toffe_deploy" / "samples" / "sample_multi.h5"))
+    ap.add_argument("--repeats", type=int, default=5)
+    a = ap.parse_args(argv)
+    settings = TrackerConfig(gate_px=a.gate, alpha=a.alpha, beta=a.beta, confirm_hits=a.confirm,
+                             max_misses=a.max_misses, hysteresis=a.hysteresis, gate_growth=a.gate_growth,
+                             birth_gap_px=a.birth_gap, tentative_misses=a.tentative_misses)
+    bundle = load_bundle(a.bundle)
+    if a.cost:
+        c = tracker_cost(bundle, a.events, settings, a.repeats)
+        print(f"{c['windows']} windows, {c['objects_per_window']:.2f} objects per window: CPU per window "
+              f"{c['cpu_ms_per_window_track']:.3f} ms with tracking, {c['cpu_ms_per_window_no_track']:.3f} ms without "
+              f"(+{100 * c['tracker_share']:.1f} %)")
+        if a.json:
+            a.json.write_text(json.dumps({"settings": dataclasses.asdict(settings), **c}, indent=1) + "\n")
+        return 0
+    out = {"bundle": a.bundle, "settings": dataclasses.asdict(settings), "max_windows": a.max_windows, "splits": {}}
+    print("| split | sequences | windows | recall | MOTA | IDF1 | MOTP (px) | ID switches | frag. | misses | FP "
+          "| bin changes det. / track |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for split in a.split.split(","):
+        files = split_files(Path(a.data), split)
+        files = files[:a.limit] if a.limit else files
+        t = time.perf_counter()
+        r = run_split(bundle, files, settings, a.max_windows, a.gate)
+        r["wall_s"] = time.perf_counter() - t
+        out["splits"][split] = r
+        m = r["tracking"]
+        print(f"| {split} | {r['sequences']} | {r['windows']} | {r['recall']:.3f} | {m['mota']:.3f} | {m['idf1']:.3f} "
+              f"| {m['motp_px']:.2f} | {m['id_switches']} | {m['fragmentations']} | {m['misses']} "
+              f"| {m['false_positives']} | {r['bin_changes_detections']} / {r['bin_changes_tracks']} |", flush=True)
+    if a.json:
+        a.json.write_text(json.dumps(out, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

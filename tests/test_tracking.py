@@ -1,0 +1,204 @@
+"""The tracker (toffe_deploy/tracking.py) on scripted detections: crossing, occlusion, births and
+deaths, bin hysteresis; and the tracking metrics (motmetrics) on known outcomes."""
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from toffe_deploy.config import ToffeConfig
+from toffe_deploy.tracking import BinEdges, Detections, Tracker, TrackerConfig, Tracks, step
+from toffe_deploy.tracking_metrics import TrackingErrors
+
+DT_US = 500
+CFG = ToffeConfig()                     # bins 1-18 / 18-42 / 42-84 / 84-500 m/s at 5 m, 554 px
+
+
+@dataclass
+class Obj:
+    """What the tracker reads of a pipeline ObjectFlow (and writes back: track_id, track)."""
+
+    x: float
+    y: float
+    direction_rad: float
+    speed_px_s: float
+    speed_bin: int = 3
+    track_id: int | None = None
+    track: dict | None = None
+
+
+@dataclass
+class Truth:
+    object_id: int
+    x: float
+    y: float
+
+
+def mover(x0, y0, direction_deg, speed_px_s, w, noise=0.0, rng=None, speed_bin=3):
+    """An object moving on a straight line, seen at window w (its centre mid-window)."""
+    th = math.radians(direction_deg)
+    t = (w + 0.5) * DT_US * 1e-6
+    jit = rng.normal(0, noise, 2) if noise else (0.0, 0.0)
+    return Obj(x0 + speed_px_s * t * math.cos(th) + jit[0], y0 + speed_px_s * t * math.sin(th) + jit[1], th,
+               speed_px_s, speed_bin)
+
+
+def run_windows(tracker, per_window):
+    """Feed lists of objects window by window; -> the objects (with their track ids) per window."""
+    for w, objs in enumerate(per_window):
+        tracker.update(objs, w * DT_US)
+    return per_window
+
+
+def test_crossing_objects_keep_their_ids(rng):
+    """Two objects whose paths cross (an X, 3 px per window each); while they overlap the
+    detector sees one blob between them (2 windows): both ids survive the crossing."""
+    tr = Tracker(CFG, DT_US)
+    wins = []
+    for w in range(60):
+        a = mover(100, 100, 45, 6000, w, 0.5, rng)
+        b = mover(100 + 2 * 90 * math.cos(math.radians(45)), 100, 135, 6000, w, 0.5, rng)
+        if math.hypot(a.x - b.x, a.y - b.y) < 4:
+            wins.append([Obj((a.x + b.x) / 2, (a.y + b.y) / 2, math.pi / 2, 6000)])
+        else:
+            wins.append([b, a] if w % 2 else [a, b])        # detection order changes from window to window
+    run_windows(tr, wins)
+    merged = [w for w, objs in enumerate(wins) if len(objs) == 1]
+    assert merged, "the scripted paths must cross"
+    first, last = wins[2], wins[-1]
+    id_a0 = [o.track_id for o in first if o.direction_rad < 1][0]
+    id_a1 = [o.track_id for o in last if o.direction_rad < 1][0]
+    id_b0 = [o.track_id for o in first if o.direction_rad > 1][0]
+    id_b1 = [o.track_id for o in last if o.direction_rad > 1][0]
+    assert id_a0 == id_a1 and id_b0 == id_b1 and id_a0 != id_b0
+    assert tr.next_id == 2                               # no track was born at the crossing
+
+
+def test_occlusion_for_a_few_windows_keeps_the_id_and_coasts():
+    tr = Tracker(CFG, DT_US, TrackerConfig(max_misses=6))
+    seen = []
+    for w in range(40):
+        o = mover(50, 200, 10, 12000, w)                # bin 4, 6 px per window
+        hidden = 15 <= w < 20                           # 5 windows behind something
+        tr.update([] if hidden else [o], w * DT_US)
+        if hidden:
+            assert [c["track_id"] for c in tr.coasting()] == [0]
+            c = tr.coasting()[0]["track"]
+            assert math.hypot(c["x"] - o.x, c["y"] - o.y) < 3      # predicted along its motion
+        else:
+            seen.append(o.track_id)
+    assert set(seen) == {0}
+
+
+def test_births_need_confirmation_and_tracks_die_after_max_misses():
+    s = TrackerConfig(confirm_hits=3, max_misses=4)
+    tr = Tracker(CFG, DT_US, s)
+    ghost = Obj(300, 50, 0.0, 3000, 2)
+    wins = [[mover(50, 100, 0, 4000, w)] + ([ghost] if w == 5 else []) for w in range(10)]
+    run_windows(tr, wins)
+    assert [o.track["confirmed"] for o in (wins[0][0], wins[1][0], wins[2][0])] == [False, False, True]
+    assert ghost.track_id == 1 and ghost.track["confirmed"] is False
+    assert 1 not in tr.tracks.id.tolist()               # a one-window false positive died unconfirmed
+    for w in range(10, 10 + s.max_misses):             # the object leaves: the track coasts ...
+        tr.update([], w * DT_US)
+        assert tr.tracks.id.tolist() == [0]
+    tr.update([], (10 + s.max_misses) * DT_US)          # ... and dies after max_misses windows
+    assert len(tr.tracks) == 0
+    late = mover(50, 100, 0, 4000, 20)
+    tr.update([late], 20 * DT_US)
+    assert late.track_id == 2                           # a new identity, never a reused one
+
+
+def test_fragment_near_a_confirmed_track_is_not_born():
+    """A slow object seen as two pieces (leading and trailing edge) keeps one track; the extra piece
+    is reported without a track instead of starting a second one."""
+    tr = Tracker(CFG, DT_US)
+    for w in range(6):
+        tr.update([Obj(200, 200, 0.0, 500, 1)], w * DT_US)
+    piece_a, piece_b = Obj(212, 200, 0.0, 500, 1), Obj(188, 200, 0.0, 500, 1)
+    tr.update([piece_a, piece_b], 6 * DT_US)
+    assert {piece_a.track_id, piece_b.track_id} == {0, None} and tr.next_id == 1
+
+
+def test_bin_hysteresis_stops_flicker_at_a_bin_edge_and_follows_a_real_change(rng):
+    edge = BinEdges.of(CFG).inner[2]                       # bins 3 | 4, about 9312 px/s
+    tr = Tracker(CFG, DT_US)
+    det_bins, trk_bins = [], []
+    for w in range(80):
+        v = edge * (1.0 + 0.04 * rng.standard_normal())
+        o = mover(60, 240, 0, edge, w)                  # moves at the edge speed, measured with 4 % noise
+        o.speed_px_s, o.speed_bin = v, 4 if v >= edge else 3
+        tr.update([o], w * DT_US)
+        det_bins.append(o.speed_bin)
+        trk_bins.append(o.track["speed_bin"])
+    flips = lambda b: int(np.sum(np.diff(b) != 0))      # noqa: E731
+    assert flips(det_bins) > 10 and flips(trk_bins[5:]) == 0
+    x = o.x
+    for w in range(80, 100):                            # it really slows down to mid bin 2
+        x += 3300 * DT_US * 1e-6
+        o = Obj(x, 240, 0.0, 3300, 2)
+        tr.update([o], w * DT_US)
+    assert o.track["speed_bin"] == 2 and o.track_id == 0
+    assert abs(o.track["speed_px_s"] - 3300) < 50
+
+
+def test_step_is_pure_and_a_gap_counts_as_missed_windows():
+    t0 = Tracks()
+    d = Detections(np.array([[10.0, 20.0, 2000.0, 0.0, 2000.0, 2.0]]))
+    s = TrackerConfig(confirm_hits=1, max_misses=3)
+    t1, assigned, nid = step(t0, d, 5e-4, s, BinEdges.of(CFG), 0)
+    x_before = t1.x.copy()
+    t2, _, _ = step(t1, d, 5e-4, s, BinEdges.of(CFG), nid)
+    assert assigned.tolist() == [0] and len(t0) == 0 and np.array_equal(t1.x, x_before) and t2.hits[0] == 2
+    tr = Tracker(CFG, DT_US, s)
+    tr.update([Obj(10, 20, 0.0, 2000, 2)], 0)
+    tr.update([], 10 * DT_US)                          # 9 windows never seen + this one: > max_misses
+    assert len(tr.tracks) == 0
+
+
+def test_tracker_config_rejects_nonsense():
+    with pytest.raises(ValueError):
+        TrackerConfig(alpha=0)
+    with pytest.raises(ValueError):
+        TrackerConfig(confirm_hits=0)
+
+
+def test_tracking_metrics_count_an_id_switch_misses_and_false_positives():
+    e = TrackingErrors(gate_px=5)
+    for w in range(10):
+        hyp = [7 if w < 5 else 8]                       # the tracker swaps identity at window 5
+        e.add_window(hyp, [(w, 0.0)], [Truth(0, w, 0.5)])
+    e.add_window([9], [(100.0, 100.0)], [Truth(0, 10, 0.5)])     # far off: one miss, one false positive
+    s = e.summary()
+    assert s["id_switches"] == 1 and s["misses"] == 1 and s["false_positives"] == 1 and s["gt_objects"] == 11
+    assert s["mota"] == pytest.approx(1 - 3 / 11) and s["motp_px"] == pytest.approx(0.5)
+    assert 0 < s["idf1"] < 1 and s["windows"] == 11
+
+
+def test_track_sequence_scores_a_generated_multi_object_recording(tmp_path, make_recording, rng):
+    """evaluate.track_sequence on a real generated recording (objects in different bins), with a
+    detector that reports the truth in shuffled order and drops each object every 7th window:
+    identities hold (0 switches), coasting covers the drops, and only each object's first window
+    (before confirmation) is missed."""
+    from toffe_deploy.dataset.groundtruth import window_truth
+    from toffe_deploy.evaluate import track_sequence
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.metrics import Prediction
+
+    rec = make_recording(tmp_path / "rec.h5", sensor=(640, 480), duration=0.03)
+    with open_events(rec) as src:
+        gt = src.ground_truth
+
+        def predict(t0):
+            truth = window_truth(gt, t0, DT_US)
+            keep = [t for t in truth if t0 < 3 * DT_US or (t0 // DT_US + t.object_id) % 7]
+            preds = [Prediction(t.speed_bin, t.x, t.y, t.direction, t.speed, t.speed, t.speed_px_ms) for t in keep]
+            return [preds[i] for i in rng.permutation(len(preds))]
+
+        errs = TrackingErrors()
+        track_sequence(src, gt, DT_US, 60, predict, CFG, errs)
+    s = errs.summary()
+    n_obj = len(set(gt["object_id"].tolist()))
+    assert s["windows"] == 60 and s["gt_tracks"] == n_obj >= 2
+    assert s["id_switches"] == 0 and s["false_positives"] == 0 and s["misses"] == n_obj
+    assert s["mota"] > 0.95 and s["idf1"] > 0.97

@@ -1,0 +1,133 @@
+"""The Python API: load a bundle, open a pipeline for a target, feed events, get object flow and tracks.
+
+    from toffe_deploy import api
+
+    bundle = api.load_bundle("export/")                       # hash-verified deploy bundle
+    with api.FlowStream(bundle, target="cpu") as flow:        # torch- and Lava-free on cpu / cuda
+        for packet in camera:                                 # events as they arrive, time-sorted
+            for win in flow.feed(packet["x"], packet["y"], packet["t"], packet["p"]):
+                for obj in win.objects:                       # this window's detections
+                    obj.x, obj.y, obj.direction_deg, obj.speed_px_s, obj.speed_mps, obj.track_id
+                for t in flow.tracks():                       # every confirmed track, seen or coasting
+                    t["track_id"], t["track"]["x"], t["track"]["speed_bin"]
+        for win in flow.flush():                              # the last, partial window
+            ...
+
+Windows: [t0, t0 + dt) on a grid from ``t_start_us`` (default: the first event's time rounded
+down to a multiple of dt); a window is processed once an event at or after its end arrives
+(``flush`` ends the last one). Empty windows in between are processed too (the tracks coast
+through them), up to ``skip_empty_after`` in a row; a longer gap is jumped over, as `run` does.
+``feed_window(t0_us, window)`` takes a ready window instead: a dense (B, 2, H, W) array or a
+runtime.spikes.SpikeVolume. Results are pipeline.WindowResult (``objects``: ObjectFlow;
+``coasting``: tracks not seen in the window; ``to_json()``: the JSON line of `run`, schema.py).
+
+Conventions (as the JSON lines, README "JSON lines"): x, y in sensor pixels from the top-left
+pixel (0, 0), y down; direction atan2(dy, dx) in the image plane (0 = moving right, +90 deg =
+moving down); times in the recording's microseconds; speed_px_s the image-plane speed, speed_mps
+it at the camera's depth and focal length (``speed_scale``, default the bundle's camera).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .camera import SpeedScale
+from .deploy.bundle import Bundle, load_bundle
+from .events.core import EVENT_DTYPE, make_events
+from .runtime.pipeline import TARGETS, ObjectFlow, Pipeline, WindowResult
+from .runtime.spikes import SpikeVolume
+from .schema import header, load_schema
+from .tracking import TrackerConfig
+
+__all__ = ["load_bundle", "Bundle", "FlowStream", "Pipeline", "ObjectFlow", "WindowResult", "TrackerConfig",
+           "SpeedScale", "TARGETS", "load_schema", "header"]
+
+#: Consecutive empty windows processed before a gap in the events is jumped over (as `run`'s default).
+SKIP_EMPTY_AFTER = 1000
+
+
+class FlowStream:
+    """Incremental object flow and tracking over events that arrive in packets (module doc).
+
+    bundle: a Bundle or its directory; target: cpu, cuda, loihi-sim or loihi2; sensor_size
+    (width, height): the camera's (default: the bundle's); speed_scale: the camera for speeds in
+    m/s, ``SpeedScale(focal_px, depth_m)`` (default: the bundle's); track: True, a TrackerConfig,
+    or False; t_start_us: the first window's start (default: the first event's, on the dt grid)."""
+
+    def __init__(self, bundle: Bundle | str, target: str = "cpu", *, sensor_size: tuple[int, int] | None = None,
+                 speed_scale: SpeedScale | None = None, track: bool | TrackerConfig = True,
+                 t_start_us: int | None = None, skip_empty_after: int = SKIP_EMPTY_AFTER, ofpd_variant: str = "fp32"):
+        self.bundle = load_bundle(bundle) if not isinstance(bundle, Bundle) else bundle
+        self.pipeline = Pipeline(self.bundle, target, ofpd_variant=ofpd_variant, sensor_size=sensor_size,
+                                 speed_scale=speed_scale, track=track)
+        cfg = self.bundle.config
+        self.dt_us, self.n_bins = int(cfg.dt_us), int(cfg.n_bins)
+        self.sensor_size = self.pipeline.sensor_size
+        self.t0 = None if t_start_us is None else int(t_start_us)
+        self.skip_empty_after = int(skip_empty_after)
+        self._buf = np.empty(0, EVENT_DTYPE)
+        self._empty = 0
+        self._last: WindowResult | None = None
+
+    def __enter__(self) -> "FlowStream":
+        self.pipeline.__enter__()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.pipeline.__exit__(*exc)
+
+    def close(self) -> None:
+        self.pipeline.close()
+
+    def _run(self, t0: int, window) -> WindowResult:
+        (res,) = self.pipeline.process_stream([(int(t0), window)])
+        self._last = res
+        return res
+
+    def feed_window(self, t0_us: int, window) -> WindowResult:
+        """Object flow of one ready window [t0_us, t0_us + dt): a (B, 2, H, W) array (nonzero =
+        event) or a SpikeVolume. Windows must come in time order."""
+        return self._run(t0_us, window)
+
+    def feed(self, x, y, t, p) -> list[WindowResult]:
+        """Add a packet of time-sorted events (columns: x, y in px, t in us, p 0/1) and process
+        every window it completes; -> their results, in time order."""
+        ev = make_events(x, y, t, p)
+        if ev.shape[0]:
+            w, h = self.sensor_size
+            if int(ev["x"].max()) >= w or int(ev["y"].max()) >= h:
+                raise ValueError(f"events outside the {w}x{h} sensor")
+            if np.any(np.diff(ev["t"]) < 0) or (self._buf.shape[0] and ev["t"][0] < self._buf["t"][-1]):
+                raise ValueError("events must arrive in time order")
+            if self.t0 is None:
+                self.t0 = int(ev["t"][0]) // self.dt_us * self.dt_us
+            self._buf = np.concatenate([self._buf, ev]) if self._buf.shape[0] else ev
+        return self._drain(final=False)
+
+    def flush(self) -> list[WindowResult]:
+        """Process the windows still buffered, the last partial one included."""
+        return self._drain(final=True)
+
+    def _drain(self, final: bool) -> list[WindowResult]:
+        out = []
+        while self._buf.shape[0] and (final or int(self._buf["t"][-1]) >= self.t0 + self.dt_us):
+            t1 = self.t0 + self.dt_us
+            cut = int(np.searchsorted(self._buf["t"], t1, side="left"))
+            win, self._buf = self._buf[:cut], self._buf[cut:]
+            self._empty = 0 if cut else self._empty + 1
+            if cut or self._empty <= self.skip_empty_after:
+                vol = SpikeVolume.from_events(win, self.t0, self.dt_us, self.n_bins, self.sensor_size)
+                out.append(self._run(self.t0, vol))
+                self.t0 = t1
+            else:                                          # a long gap: jump to the next event's window
+                self.t0 = int(self._buf["t"][0]) // self.dt_us * self.dt_us if self._buf.shape[0] else t1
+                self._empty = 0
+        return out
+
+    def tracks(self) -> list[dict]:
+        """Every confirmed track after the last window, as the JSON lines hold them
+        ([{"track_id", "track"}]: seen in the window or coasting); [] without tracking."""
+        if self._last is None or self.pipeline.tracker is None:
+            return []
+        seen = [{"track_id": o.track_id, "track": o.track} for o in self._last.objects
+                if o.track is not None and o.track["confirmed"]]
+        return seen + list(self._last.coasting or ())

@@ -1,0 +1,372 @@
+"""Multi-object tracking over the windows: identities, smoothed object flow, bin hysteresis.
+
+TOFFE reports each window's objects independently (their order changes from window to window);
+the object flow it measures (position, direction, speed) is what makes tracking simple. Per
+window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and px/s:
+
+    predict    p_i' = p_i + v_i dt                                        (constant velocity)
+    associate  d_ij = |p_i' - z_j|; pairs within the gate d_ij <= R_i, the most pairs then the
+               least total distance (metrics.match_within: Hungarian on the gated matrix),
+               confirmed tracks first, then tentative ones with the detections left over;
+               R_i = gate_px + gate_growth m_i s_i dt grows with the m_i windows the track has
+               coasted (a turning object leaves its straight-line prediction)
+    update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
+               v_i = (1 - beta) v_i + beta u_j,  u_j = s_j (cos th_j, sin th_j)
+               s_i = (1 - beta) s_i + beta s_j                            (smoothed speed, px/s)
+    births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
+               lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
+               object's leading and trailing edges; reported without a track); a tentative
+               track is confirmed at ``confirm_hits`` hits
+    deaths     a tentative track dies after more than ``tentative_misses`` misses in a row (0: at
+               its first miss); a confirmed one coasts (predicted, and
+               listed as coasting) through up to ``max_misses`` windows in a row, then dies
+    bin        hysteresis on the smoothed speed: a track keeps bin b while
+               lo_b (1 - h) <= s_i <= hi_b (1 + h), else takes the bin of s_i
+               (lo_1 = 0, hi_N = inf; edges are the bundle's bins in px/s)
+
+The smoothed speed s_i is tracked apart from |v_i|: averaging velocity vectors whose directions
+are noisy shortens them, averaging speeds does not. The per-window loops are numba-compiled like
+compiled.py's (a window has a handful of objects, where numpy's per-call overhead dominates: 11
+us per window against 94 us in numpy); torch- and Lava-free, so it runs on every target.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from .metrics import GATE_PX, match_within
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Settings of ``step`` (equations in the module doc). gate_px: association radius around a
+    track's predicted centre (the eval matching gate by default); alpha, beta: position and
+    velocity / speed gains of the alpha-beta filter (1 = trust the detection only);
+    confirm_hits: hits before a track is confirmed (reported with ``confirmed`` true and counted
+    by the tracking metrics); tentative_misses: misses in a row a tentative track survives (a
+    slow or faint object is not detected in every window); max_misses: windows a confirmed track coasts without a
+    detection before it dies; hysteresis: h, the fraction by which the smoothed speed must leave
+    its bin before the bin changes; gate_growth: how much of the distance a coasting track's
+    prediction covers per missed window widens its gate; birth_gap_px: no track is born this close to
+    a confirmed one."""
+
+    gate_px: float = GATE_PX
+    gate_growth: float = 0.5
+    birth_gap_px: float = 30.0
+    alpha: float = 0.7
+    beta: float = 0.4
+    confirm_hits: int = 2
+    tentative_misses: int = 0
+    max_misses: int = 10
+    hysteresis: float = 0.1
+
+    def __post_init__(self):
+        if not self.gate_px > 0:
+            raise ValueError(f"gate_px must be > 0, got {self.gate_px}")
+        if not (0 < self.alpha <= 1 and 0 < self.beta <= 1):
+            raise ValueError(f"alpha and beta must be in (0, 1], got {self.alpha}, {self.beta}")
+        if self.confirm_hits < 1 or self.max_misses < 0 or self.tentative_misses < 0:
+            raise ValueError("confirm_hits must be >= 1, max_misses and tentative_misses >= 0")
+        if not self.hysteresis >= 0:
+            raise ValueError(f"hysteresis must be >= 0, got {self.hysteresis}")
+
+
+_F = np.float64
+#: columns of Tracks.a
+ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF = range(12)
+
+
+@dataclass(frozen=True)
+class Tracks:
+    """Every live track, one row of ``a`` (n, 12) float64 per track (one array, so that keeping
+    and adding rows is one operation, not one per field): id (stable int), x, y (px), vx, vy
+    (px/s), speed (smoothed, px/s), bin (1-based, with hysteresis), age (windows since birth),
+    hits (detections assigned), streak (hits in a row), misses (windows in a row without a
+    detection), confirmed (0/1); the properties give the columns."""
+
+    a: np.ndarray = field(default_factory=lambda: np.zeros((0, 12), _F))
+
+    def __len__(self) -> int:
+        return int(self.a.shape[0])
+
+    id = property(lambda self: self.a[:, ID].astype(np.int64))
+    x = property(lambda self: self.a[:, X])
+    y = property(lambda self: self.a[:, Y])
+    vx = property(lambda self: self.a[:, VX])
+    vy = property(lambda self: self.a[:, VY])
+    speed = property(lambda self: self.a[:, S])
+    bin = property(lambda self: self.a[:, BIN].astype(np.int64))
+    age = property(lambda self: self.a[:, AGE].astype(np.int64))
+    hits = property(lambda self: self.a[:, HITS].astype(np.int64))
+    misses = property(lambda self: self.a[:, MISS].astype(np.int64))
+    confirmed = property(lambda self: self.a[:, CONF] > 0)
+
+
+@dataclass(frozen=True)
+class Detections:
+    """One window's objects as one (n, 6) array ``a``: x, y (px), velocity ux, uy (px/s, from the
+    direction: image plane, y down), speed (px/s) and speed bin (1-based); columns X..S line up
+    with Tracks' (so that one operation updates a track's x, y, vx, vy and speed)."""
+
+    a: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.a.shape[0])
+
+    x = property(lambda self: self.a[:, 0])
+    y = property(lambda self: self.a[:, 1])
+    bin = property(lambda self: self.a[:, 5])
+
+    @classmethod
+    def of(cls, objects) -> "Detections":
+        """From objects with x, y, direction_rad, speed_px_s and speed_bin (pipeline.ObjectFlow)."""
+        rows = [(o.x, o.y, o.speed_px_s * math.cos(o.direction_rad), o.speed_px_s * math.sin(o.direction_rad),
+                 o.speed_px_s, o.speed_bin) for o in objects]
+        return cls(np.array(rows, dtype=_F).reshape(-1, 6))
+
+
+@dataclass(frozen=True)
+class BinEdges:
+    """The bundle's speed bins in px/s: ``inner`` (N - 1 edges between bins), and each bin's lower
+    and upper bound ``lo``, ``hi`` (index k - 1; lo_1 = 0, hi_N = inf)."""
+
+    inner: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @classmethod
+    def of(cls, config) -> "BinEdges":
+        inner = np.array([lo for lo, _hi in config.speed_bins_px_ms[1:]], dtype=_F) * 1000.0
+        return cls(inner, np.concatenate([[0.0], inner]), np.concatenate([inner, [np.inf]]))
+
+
+#: entries of the settings vector the compiled loops take (``params``)
+P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP = range(10)
+
+
+def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
+    """The settings and the window length as one float64 vector (one argument for the compiled
+    loops: numba's per-call dispatch cost grows with the number of arguments)."""
+    return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
+                     cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px], dtype=_F)
+
+
+@njit(cache=True, nogil=True)
+def _predict(t, z, p):
+    """Predicted tracks, track x detection distances and the gate test (module doc), and whether
+    no track and no detection has two candidates (``simple``: the pairs are the gate's)."""
+    n_t, n_d = t.shape[0], z.shape[0]
+    dt_s = p[P_DT]
+    a = t.copy()
+    d = np.empty((n_t, n_d))
+    ok = np.zeros((n_t, n_d), np.bool_)
+    per_col = np.zeros(n_d, np.int64)
+    simple = True
+    for i in range(n_t):
+        a[i, X] += t[i, VX] * dt_s
+        a[i, Y] += t[i, VY] * dt_s
+        gate = p[P_GATE] + p[P_GROWTH] * t[i, MISS] * t[i, S] * dt_s
+        n_row = 0
+        for k in range(n_d):
+            d[i, k] = math.hypot(a[i, X] - z[k, 0], a[i, Y] - z[k, 1])
+            if d[i, k] <= gate:
+                ok[i, k] = True
+                n_row += 1
+                per_col[k] += 1
+        simple = simple and n_row <= 1
+    for k in range(n_d):
+        simple = simple and per_col[k] <= 1
+    return a, d, ok, simple
+
+
+@njit(cache=True, nogil=True)
+def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
+    """Update, confirmation, deaths, births and bin hysteresis of ``step`` (module doc) on the
+    predicted tracks ``a`` (t: the tracks before the window) and the pairs (r, j)."""
+    n_t, n_d = a.shape[0], z.shape[0]
+    h = p[P_H]
+    hit = np.zeros(n_t, np.bool_)
+    free = np.ones(n_d, np.bool_)
+    det_of = np.full(n_t, -1, np.int64)
+    for m in range(r.shape[0]):
+        i, k = r[m], j[m]
+        hit[i], free[k], det_of[i] = True, False, k
+        for c in range(X, S + 1):
+            g = p[P_ALPHA] if c <= Y else p[P_BETA]
+            a[i, c] += g * (z[k, c - X] - a[i, c])
+        b = int(a[i, BIN]) - 1
+        if not (lo[b] * (1.0 - h) <= a[i, S] <= hi[b] * (1.0 + h)):
+            a[i, BIN] = np.searchsorted(inner, a[i, S], side="right") + 1
+    keep = np.zeros(n_t, np.bool_)
+    for i in range(n_t):
+        a[i, AGE] += 1
+        a[i, HITS] += hit[i]
+        a[i, STREAK] = t[i, STREAK] + 1 if hit[i] else 0.0
+        a[i, MISS] = 0.0 if hit[i] else t[i, MISS] + 1
+        if a[i, HITS] >= p[P_CONFIRM]:
+            a[i, CONF] = 1.0
+        keep[i] = a[i, MISS] <= (p[P_MAX_MISSES] if a[i, CONF] > 0 else p[P_TENTATIVE])
+        if a[i, CONF] > 0:                                   # no births next to a confirmed track
+            for k in range(n_d):
+                if d[i, k] <= p[P_BIRTH_GAP]:
+                    free[k] = False
+    n_keep = int(keep.sum())
+    n_new = int(free.sum())
+    out = np.zeros((n_keep + n_new, a.shape[1]))
+    assigned = np.full(n_d, -1, np.int64)
+    row = 0
+    for i in range(n_t):
+        if keep[i]:
+            out[row] = a[i]
+            if det_of[i] >= 0:
+                assigned[det_of[i]] = row
+            row += 1
+    for k in range(n_d):
+        if free[k]:
+            out[row, ID] = next_id
+            for c in range(X, S + 1):
+                out[row, c] = z[k, c - X]
+            out[row, BIN] = z[k, 5]
+            out[row, AGE] = out[row, HITS] = out[row, STREAK] = 1.0
+            out[row, CONF] = 1.0 if p[P_CONFIRM] <= 1 else 0.0
+            assigned[k] = row
+            next_id += 1
+            row += 1
+    return out, assigned, next_id
+
+
+@njit(cache=True, nogil=True)
+def _step_simple(t, z, p, lo, hi, inner, next_id):
+    """The whole step in one call when the gates pair tracks and detections unambiguously (the
+    usual window; ``done`` False otherwise, and the caller runs the Hungarian method)."""
+    a, d, ok, simple = _predict(t, z, p)
+    if not simple:
+        return a, np.full(z.shape[0], -1, np.int64), next_id, False
+    r, j = np.nonzero(ok)
+    out, assigned, next_id = _update(a, t, z, r.astype(np.int64), j.astype(np.int64), d, p, lo, hi, inner, next_id)
+    return out, assigned, next_id, True
+
+
+def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edges: BinEdges,
+         next_id: int, p: np.ndarray | None = None) -> tuple[Tracks, np.ndarray, int]:
+    """One window of tracking (module doc): -> (live tracks, assigned track row of each detection
+    in the returned tracks (-1: a fragment, no track), next free id). Pure: the inputs are not
+    modified. Compiled loops (numba, as compiled.py): a window has a handful of objects, so
+    per-call overhead, not array size, would set the cost of numpy here. p: ``params(cfg,
+    dt_s)`` when the caller keeps it."""
+    t, z = tracks.a, dets.a
+    p = params(cfg, dt_s) if p is None else p
+    out, assigned, nid, done = _step_simple(t, z, p, edges.lo, edges.hi, edges.inner, int(next_id))
+    if not done:                                             # confirmed tracks first, then tentative ones
+        a, d, ok, _simple = _predict(t, z, p)
+        conf = t[:, CONF] > 0
+        pairs = match_within(d, ok & conf[:, None])
+        taken = np.zeros(z.shape[0], bool)
+        taken[[c for _r, c in pairs]] = True
+        pairs += match_within(d, ok & ~conf[:, None] & ~taken[None, :])
+        r, j = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
+        out, assigned, nid = _update(a, t, z, np.ascontiguousarray(r), np.ascontiguousarray(j), d, p, edges.lo,
+                                     edges.hi, edges.inner, int(next_id))
+    return Tracks(out), assigned, int(nid)
+
+
+class Tracker:
+    """Stateful wrapper of ``step`` for a stream of windows: ``update(objects, t0_us)`` assigns
+    every object of the window a ``track_id`` and its track's smoothed ``track`` state (dict,
+    ``track_state``), in place. Windows may be skipped (a gap counts as missed windows)."""
+
+    def __init__(self, config, dt_us: int, settings: TrackerConfig | None = None, px_ms_per_mps: float | None = None):
+        """config: the bundle's ToffeConfig (its speed bins); dt_us: the window length;
+        px_ms_per_mps: the run's speed scale, for the track's speed in m/s (None: not reported)."""
+        self.settings = settings or TrackerConfig()
+        self.dt_us = int(dt_us)
+        self.edges = BinEdges.of(config)
+        self._p = params(self.settings, self.dt_us * 1e-6)
+        self.k_mps = None if px_ms_per_mps is None else 1.0 / (1000.0 * px_ms_per_mps)
+        self.tracks = Tracks()
+        self.next_id = 0
+        self.t0_last: int | None = None
+        self._coasting: list = []
+        # compile (first run on a machine) or load the cached kernels now, not in the first window
+        one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
+        step(step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0], one, 1e-3, self.settings, self.edges, 1)
+
+    def update(self, objects: list, t0_us: int) -> Tracks:
+        """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin;
+        each gets ``track_id`` and ``track``); returns the live tracks."""
+        n_win = 1 if self.t0_last is None else max(1, round((int(t0_us) - self.t0_last) / self.dt_us))
+        self.t0_last = int(t0_us)
+        tr = self.tracks
+        if n_win > 1 and len(tr):       # windows never seen: coast the tracks through them
+            a, gap = tr.a.copy(), (n_win - 1) * self.dt_us * 1e-6
+            a[:, X] += a[:, VX] * gap
+            a[:, Y] += a[:, VY] * gap
+            a[:, AGE] += n_win - 1
+            a[:, MISS] += n_win - 1
+            a[:, STREAK] = 0
+            s = self.settings
+            tr = Tracks(a[a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)])
+        self.tracks, assigned, self.next_id = step(tr, Detections.of(objects), self.dt_us * 1e-6, self.settings,
+                                                   self.edges, self.next_id, self._p)
+        rows = self.tracks.a.tolist()
+        for o, r in zip(objects, assigned.tolist()):
+            o.track_id, o.track = (int(rows[r][ID]), self.track_state(rows[r])) if r >= 0 else (None, None)
+        self._coasting = [row for row in rows if row[CONF] > 0 and row[MISS] > 0]
+        return self.tracks
+
+    def coasting(self) -> list[dict]:
+        """The confirmed tracks no detection of the last window was assigned to (they coast on
+        their prediction for up to max_misses windows): [{"track_id", "track"}], the window line's
+        ``coasting`` list."""
+        return [{"track_id": int(row[ID]), "track": self.track_state(row)} for row in self._coasting]
+
+    def track_state(self, row: list) -> "TrackState":
+        """The ``track`` object of one row of the live tracks (README, JSON lines)."""
+        return TrackState(row, self.k_mps)
+
+
+class TrackState(Mapping):
+    """A track's smoothed state after a window, the JSON ``track`` object: x, y (px),
+    direction_deg, speed_px_s, speed_mps (with a speed scale), speed_bin, age, hits, confirmed.
+    A read-only mapping built from the track's row when first read (a robot loop that reads a
+    few tracks does not pay for formatting every one; ``dict(state)`` for JSON)."""
+
+    __slots__ = ("_row", "_k_mps", "_d")
+
+    def __init__(self, row: list, k_mps: float | None):
+        self._row, self._k_mps, self._d = row, k_mps, None
+
+    def _dict(self) -> dict:
+        if self._d is None:
+            row = self._row
+            vx, vy, sp = row[VX], row[VY], row[S]
+            d = {"x": round(row[X], 4), "y": round(row[Y], 4),
+                 "direction_deg": round(math.degrees(math.atan2(vy, vx)), 4), "speed_px_s": round(sp, 4)}
+            if self._k_mps is not None:
+                d["speed_mps"] = round(sp * self._k_mps, 4)
+            d.update(speed_bin=int(row[BIN]), age=int(row[AGE]), hits=int(row[HITS]), confirmed=row[CONF] > 0)
+            self._d = d
+        return self._d
+
+    @property
+    def confirmed(self) -> bool:
+        return self._row[CONF] > 0
+
+    def __getitem__(self, key):
+        return self._dict()[key]
+
+    def __iter__(self):
+        return iter(self._dict())
+
+    def __len__(self) -> int:
+        return len(self._dict())
+
+    def __repr__(self) -> str:
+        return f"TrackState({self._dict()!r})"
+
+    def __deepcopy__(self, memo) -> "TrackState":
+        return self                                          # immutable
