@@ -269,8 +269,9 @@ def file_exists(pattern: str, min_bytes: int = 0) -> Callable[[subprocess.Popen]
 
 
 def lines_written(path: str | Path, n: int = 1) -> Callable[[subprocess.Popen], bool]:
-    """The run has streamed at least n whole JSON lines to ``path`` (`run --out` writes each
-    window's line as it is done); a file older than the trigger's first look is a previous run's."""
+    """The run has streamed at least n whole window lines to ``path`` (`run --out` writes the
+    header line, then each window's line as it is done); a file older than the trigger's first
+    look is a previous run's."""
     state: dict = {}
 
     def trig(p):
@@ -279,18 +280,22 @@ def lines_written(path: str | Path, n: int = 1) -> Callable[[subprocess.Popen], 
             if os.stat(path).st_mtime < t:
                 return False
             with open(path, "rb") as f:
-                return f.read().count(b"\n") >= n
+                return f.read().count(b"\n") >= n + 1             # + the header line
         except OSError:
             return False
     return trig
 
 
 def whole_lines(path: str | Path) -> list[dict]:
-    """The JSON lines a (possibly killed) run left: ValueError on a partial or broken line."""
+    """The window lines a (possibly killed) run left, after its header line: ValueError on a
+    partial or broken line, or on a header that is not the first line."""
     data = Path(path).read_bytes()
     if data and not data.endswith(b"\n"):
         raise ValueError(f"{path} ends inside a line")
-    return [json.loads(line) for line in data.splitlines()]
+    rows = [json.loads(line) for line in data.splitlines()]
+    if any(r.get("type") == "header" for r in rows[1:]):
+        raise ValueError(f"{path}: a header line after the first line")
+    return rows[1:] if rows and rows[0].get("type") == "header" else rows
 
 
 def to_host(sig: int) -> Callable[[subprocess.Popen], None]:

@@ -454,7 +454,7 @@ def test_run_on_a_camera_file_matches_run_on_the_same_events(env, capsys, tmp_pa
                                            "--out", out, events=events))
         assert rc == 0, err
         outs.append(out.read_text())
-    assert outs[0] == outs[1] and outs[0].count("\n") == 10
+    assert outs[0] == outs[1] and outs[0].count("\n") == 1 + 10          # the header, then 10 windows
 
 
 @pytest.mark.parametrize("cut", [1, 3])

@@ -212,6 +212,11 @@ time.sleep(0.5)
 
 
 # ------------------------------------------------------------------ the CLI
+def window_lines(stdout: bytes) -> list[bytes]:
+    """The window lines of a run's JSON lines (the header line, first, describes the run)."""
+    return [ln for ln in stdout.splitlines() if not ln.startswith(b'{"type":"header"')]
+
+
 def test_stdin_run_equals_the_file_run_from_the_first_event(env, tmp_path):
     ev = events_of(env)
     data = stdin_header(SENSOR) + ev.tobytes()
@@ -222,9 +227,9 @@ def test_stdin_run_equals_the_file_run_from_the_first_event(env, tmp_path):
     ref = subprocess.run(cli(env["bundle"], "--events", env["rec"], "--start-us", int(ev["t"][0])),
                          capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
     assert ref.returncode == 0, ref.stderr
-    lines = r.stdout.splitlines()
+    lines, ref_lines = window_lines(r.stdout), window_lines(ref.stdout)
     assert len(lines) == -(-(int(ev["t"][-1]) + 1 - int(ev["t"][0])) // 500) > 10
-    assert lines == ref.stdout.splitlines()[:len(lines)]          # the same windows, the same flow
+    assert lines == ref_lines[:len(lines)]                        # the same windows, the same flow
     live = json.loads((tmp_path / "s.json").read_text())["live"]
     assert live["received_events"] == len(ev) and live["dropped_events"] == 0
     assert set(live["event_latency_ms"]) >= {"p50", "p99"} and live["event_latency_ms"]["p50"] > 0
@@ -256,8 +261,8 @@ def test_udp_run_streams_lines_and_a_sigkill_leaves_whole_lines(env, tmp_path):
             tx.sendto(aer_words(part).tobytes(), ("127.0.0.1", port))
             i = j
             time.sleep(0.002)
-            if out.exists() and out.read_bytes().count(b"\n") >= 20:
-                seen_while_running = out.read_bytes().count(b"\n")
+            if out.exists() and out.read_bytes().count(b"\n") >= 21:          # the header + 20 windows
+                seen_while_running = len(window_lines(out.read_bytes().rpartition(b"\n")[0]))
                 break
         assert seen_while_running >= 20, "no lines while the run was going"
         assert p.poll() is None
@@ -270,7 +275,7 @@ def test_udp_run_streams_lines_and_a_sigkill_leaves_whole_lines(env, tmp_path):
             p.wait()
     data = out.read_bytes()
     assert data.endswith(b"\n") and b"stale" not in data
-    rows = [json.loads(line) for line in data.splitlines()]
+    rows = [json.loads(line) for line in window_lines(data)]
     assert len(rows) >= seen_while_running
     assert all(b["t0_us"] - a["t0_us"] == 500 for a, b in zip(rows, rows[1:]))
 
@@ -292,7 +297,7 @@ def test_ctrl_c_ends_a_live_run_with_its_summary(env, tmp_path):
     assert p.returncode == 130 and time.time() - t < 10, err
     assert err.strip() == "toffe-deploy: interrupted"
     assert "live: newest event -> JSON line" in out and f"{len(ev) // 2} events in" in out
-    rows = [json.loads(line) for line in (tmp_path / "o.jsonl").read_text().splitlines()]
+    rows = [json.loads(line) for line in window_lines((tmp_path / "o.jsonl").read_bytes())]
     assert f"target cpu: {len(rows)} windows" in out
 
 
