@@ -3,6 +3,7 @@
 
     python benchmarks/train_asnet.py --data data/synth --minutes 35      # train, then evaluate
     python benchmarks/train_asnet.py --data data/synth --eval-only       # evaluate the shipped weights
+    python benchmarks/train_asnet.py --data data/synth --cost-only       # op counts, modelled energy, timing
 
 Training windows: ``--per-seq`` windows of dt (500 us, TOFFE's) from every ``train`` sequence,
 binned at full resolution and summed over d x d blocks (d = --downsample, 4: 160 x 120 network
@@ -16,8 +17,13 @@ Evaluation: the ``test`` split, the windows ``toffe-deploy eval`` samples (evenl
 --eval-windows per sequence), flow -> objects (baselines.adaptive_spikenet.flow_objects) and
 the project's matching and metrics (metrics.FlowErrors, 20 px gate), beside ckpt/eval_test.json.
 
+Cost (--cost-only): per inference on --cost-windows test windows, at the trained resolution and
+at the published 640 x 480 (same weights), the op counts of ``op_counts`` under both host rules
+(dense, event-driven), their modelled energy (energy.cost_model) and the wall time of the torch
+reference and of ONNX Runtime (the optimised level).
+
 Writes to --out (default ckpt/baselines/adaptive_spikenet/): weights.safetensors, config.json,
-train_log.json, eval_test.json.
+train_log.json, eval_test.json, cost.json.
 """
 from __future__ import annotations
 
@@ -54,6 +60,8 @@ def parse_args(argv=None):
     ap.add_argument("--eval-windows", type=int, default=6, help="test windows per sequence (default 6, as ckpt/eval_test.json)")
     ap.add_argument("--eval-only", action="store_true", help="evaluate the weights in --out, no training")
     ap.add_argument("--limit", type=int, help="use only this many sequences per split (quick runs)")
+    ap.add_argument("--cost-only", action="store_true", help="only count operations and time inference (cost.json)")
+    ap.add_argument("--cost-windows", type=int, default=16, help="test windows for the cost figures (default 16)")
     return ap.parse_args(argv)
 
 
@@ -206,6 +214,74 @@ def evaluate(args, config, files) -> dict:
             "wall_ms_per_window_p50": float(np.median(t_inf) * 1e3) if t_inf else None}
 
 
+def cost(args, config, files) -> dict:
+    """Operations, modelled energy and reference wall time per inference on test windows, at the
+    trained resolution (d = downsample) and at the published full resolution (d = 1, the same
+    weights on the unsummed 640 x 480 window: the sizes the paper's Table 2 ran; its spike rates
+    are those of weights trained at d)."""
+    import dataclasses
+
+    import torch
+
+    from toffe_deploy.baselines.adaptive_spikenet import AdaptiveSpikeNetBaseline, network_input
+    from toffe_deploy.energy.cost_model import HOST_LABEL, HostOps
+    from toffe_deploy.energy.measure import latency_percentiles
+    from toffe_deploy.evaluate import _sample_starts
+    from toffe_deploy.events.binning import bin_window
+    from toffe_deploy.events.io import open_events
+
+    base = AdaptiveSpikeNetBaseline.load(args.out, config)
+    full = AdaptiveSpikeNetBaseline(base.model, dataclasses.replace(base.cfg, downsample=1), config)
+    dt = config.dt_us
+    wins = []
+    for path in files[:: max(1, len(files) // args.cost_windows)][:args.cost_windows]:
+        with open_events(path) as src:
+            t0 = int(_sample_starts(src.t_start_us, src.t_end_us, dt, 3)[1])
+            ev = np.array(src.read(t0, t0 + dt))
+            wins.append((t0, ev, bin_window(ev, t0, dt, config.n_bins, tuple(config.sensor_size), dtype=np.uint8)))
+    out = {"windows": len(wins), "dt_us": dt, "energy_kind": HOST_LABEL, "torch_threads": torch.get_num_threads(),
+           "timing": "batch 1, reference = torch eager fp32, optimised = ONNX Runtime fp32 (onnx_session), one "
+                     "thread each; the whole inference (binning, network, flow -> objects) at the trained resolution, "
+                     "binning + network at full resolution"}
+    for name, b in (("trained_resolution", base), ("full_resolution", full)):
+        rows = [b.op_counts(w[2]) for w in wins]
+        tot = {k: float(np.mean([r["totals"][k] for r in rows])) for k in rows[0]["totals"]}
+        dense = HostOps(**{k: float(np.mean([r["host_dense"][k] for r in rows])) for k in rows[0]["host_dense"]})
+        event = HostOps(**{k: float(np.mean([r["host_event"][k] for r in rows])) for k in rows[0]["host_event"]})
+        layers = [{"name": l0["name"], "in_hw": l0["in_hw"], "c_in": l0["c_in"], "c_out": l0["c_out"],
+                   "kernel": l0["kernel"], "stride": l0["stride"],
+                   "input_rate": float(np.mean([r["layers"][i]["input_rate"] for r in rows])),
+                   "dense_macs": l0["dense_macs"],
+                   "event_ops": float(np.mean([r["layers"][i]["event_ops"] for r in rows]))}
+                  for i, l0 in enumerate(rows[0]["layers"])]
+        lats = {}
+        for level, bb in (("reference", b), ("optimised", b.optimised())):
+            if name == "trained_resolution":
+                def run(i, bb=bb):
+                    return bb.detect(wins[i][1], wins[i][0])
+            else:
+                def run(i, bb=bb):
+                    return bb.net_flow(bin_window(wins[i][1], wins[i][0], dt, config.n_bins,
+                                                  tuple(config.sensor_size), dtype=np.uint8))
+            for i in range(min(3, len(wins))):
+                run(i)
+            lat = []
+            for i in range(len(wins)):
+                t1 = time.perf_counter()
+                run(i)
+                lat.append(time.perf_counter() - t1)
+            lats[level] = latency_percentiles(lat)
+        out[name] = {"network_input_wh": rows[0]["network_input_wh"], "params": rows[0]["params"], "totals": tot,
+                     "host_dense": dense.to_dict(), "host_event": event.to_dict(),
+                     "E_dense_mj": dense.energy_j() * 1e3, "E_event_mj": event.energy_j() * 1e3,
+                     "latency": lats, "layers": layers}
+        log(f"{name}: {tot['dense_macs'] / 1e9:.3f} GMAC dense, {tot['event_acs'] / 1e6:.1f} M AC + "
+            f"{tot['event_macs'] / 1e6:.2f} M MAC event-driven; E dense {dense.energy_j() * 1e3:.3g} mJ, "
+            f"event {event.energy_j() * 1e3:.3g} mJ (modelled); L p50 {lats['reference']['p50_ms']:.1f} ms "
+            f"torch, {lats['optimised']['p50_ms']:.1f} ms onnxruntime")
+    return out
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
@@ -220,12 +296,18 @@ def main(argv=None) -> int:
         config = load_checkpoint(args.ckpt).config
         cfg = ASNetConfig(downsample=args.downsample, n_bins=config.n_bins, dt_us=config.dt_us)
         out = Path(args.out)
-        if not args.eval_only:
+        if not (args.eval_only or args.cost_only):
             files = split_files(Path(args.data), "train")[:args.limit]
             tl = train(args, config, cfg, files)
             with atomic_path(out / "train_log.json", suffix=".json") as tmp:
                 tmp.write_text(json.dumps(tl, indent=1) + "\n")
-        res = evaluate(args, config, split_files(Path(args.data), "test")[:args.limit])
+        test = split_files(Path(args.data), "test")[:args.limit]
+        if args.cost_only:
+            c = cost(args, config, test)
+            with atomic_path(out / "cost.json", suffix=".json") as tmp:
+                tmp.write_text(json.dumps(c, indent=1) + "\n")
+            return 0
+        res = evaluate(args, config, test)
         with atomic_path(out / "eval_test.json", suffix=".json") as tmp:
             tmp.write_text(json.dumps(res, indent=1) + "\n")
         a = res["all"]

@@ -137,6 +137,8 @@ def test_save_load_roundtrip(tmp_path):
     binned, _c = moving_disc_window(sensor=(64, 48), centre=(30.0, 24.0))
     np.testing.assert_array_equal(base.net_flow(binned), AdaptiveSpikeNetBaseline(model, SMALL, base.config)
                                   .net_flow(binned))
+    pytest.importorskip("onnxruntime")
+    np.testing.assert_allclose(base.optimised().net_flow(binned), base.net_flow(binned), atol=1e-4)
     (tmp_path / "b" / "weights.safetensors").write_bytes(b"not a safetensors file")
     with pytest.raises(InputError):
         AdaptiveSpikeNetBaseline.load(tmp_path / "b", base.config)
