@@ -7,7 +7,8 @@
 One inference = one window of B bins through the whole model, batch 1, from the window's events
 to the model's output. For every model (TOFFE through the deployed ``Pipeline``; DOTIE without
 clustering; DOTIE with clustering, DBSCAN on every step's separated events as in its public
-code; and, for comparison, DOTIE with one DBSCAN per window) and target (cpu, cuda, loihi-sim,
+code; for comparison, DOTIE with one DBSCAN per window; and Adaptive-SpikeNet (Pico) from
+ckpt/baselines/adaptive_spikenet/ when trained, its flow turned into object flow) and target (cpu, cuda, loihi-sim,
 loihi2; each where available) on the same input windows, timed in turn in blocks of --block
 windows:
 
@@ -297,6 +298,11 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         dotie_win_counts.append(window)
         dotie_spikes.append(spikes)
 
+    asnet, asnet_counts = load_asnet(cfg), []
+    if asnet is not None:
+        for i in tqdm(range(n_count), desc="counting Adaptive-SpikeNet", file=sys.stderr, leave=False):
+            asnet_counts.append(asnet.op_counts(_raw_window(events[i], windows[i][0], cfg)))
+
     def host_model(counts, attr="host_all"):
         ops = mean_ops(getattr(c, attr) for c in counts)
         return ops, ops.energy_j() * 1e3
@@ -348,6 +354,10 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         fns = {"dotie": run_plain, "dotie_cluster": run_cl, "dotie_cluster_window": run_cl_window}
         if cpu_pipe is not None:
             fns["toffe"] = lambda i: list(cpu_pipe.process_stream(toffe_input(i)))
+        if asnet is not None:             # its whole inference: binning, network, flow -> objects
+            asnet_ort = asnet.optimised()
+            fns["asnet"] = lambda i: asnet.detect(events[i], t0s[i])
+            fns["asnet_ort"] = lambda i: asnet_ort.detect(events[i], t0s[i])
         log("cpu: " + ", ".join(fns) + f" timed in turn on {n} windows x {args.repeats} passes")
         lats = time_interleaved(fns, n, args.warmup, args.repeats, block=args.block)
         for m, counts in (("dotie", dotie_counts), ("dotie_cluster", dotie_cl_counts),
@@ -360,6 +370,16 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
             rows.append(row)
         if cpu_pipe is not None:
             rows.append(toffe_row("cpu", lats["toffe"], fns["toffe"]))
+        if asnet is not None:
+            rows.append(asnet_row(asnet, asnet_counts, lats["asnet_ort"], lats["asnet"], energy_fields,
+                                  fns["asnet_ort"]))
+    if "cpu" in args.targets and asnet is None:
+        rows.append({"model": "asnet", "target": "cpu", "status": "unavailable",
+                     "reason": f"no trained baseline at {ASNET_DIR} (benchmarks/train_asnet.py)"})
+    for t in [t for t in ("cuda", "loihi-sim", "loihi2") if t in args.targets]:
+        rows.append({"model": "asnet", "target": t, "status": "unavailable",
+                     "reason": "Adaptive-SpikeNet runs as a torch CPU reference here" if t == "cuda" else
+                     "paper: exceeds one Loihi 2 chip's memory and Lava has no skip connections"})
     if "cuda" in pipes:
         log("cuda: TOFFE (deployed pipeline, OFPD on the GPU)")
         pc = pipes["cuda"]
@@ -414,6 +434,50 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
     print(md)
     log(f"wrote {out}/energy_latency.{{md,json,png}} in {result['wall_s']} s")
     return 0
+
+
+ASNET_DIR = ROOT / "ckpt" / "baselines" / "adaptive_spikenet"
+
+
+def load_asnet(cfg):
+    """The trained Adaptive-SpikeNet (Pico) baseline, None when it is not there (row n/a)."""
+    if not (ASNET_DIR / "weights.safetensors").exists():
+        return None
+    from toffe_deploy.baselines.adaptive_spikenet import AdaptiveSpikeNetBaseline
+
+    return AdaptiveSpikeNetBaseline.load(ASNET_DIR, cfg)
+
+
+def _raw_window(ev, t0, cfg):
+    """The raw (B, 2, H, W) counts Adaptive-SpikeNet takes (no TOFFE front end)."""
+    from toffe_deploy.events.binning import bin_window
+
+    return bin_window(ev, int(t0), cfg.dt_us, cfg.n_bins, tuple(cfg.sensor_size), dtype=np.uint8)
+
+
+def asnet_row(asnet, counts, lat, lat_reference, energy_fields, run_one) -> dict:
+    """cpu row of Adaptive-SpikeNet: L measured with ONNX Runtime (the optimised level; the torch
+    eager reference beside it), E modelled from its dense op count (what both do); the
+    event-driven count is given beside it."""
+    from toffe_deploy.energy import cost_model as cm
+    from toffe_deploy.energy.measure import latency_percentiles
+
+    dense = cm.mean_ops(cm.HostOps(**c["host_dense"]) for c in counts)
+    event = cm.mean_ops(cm.HostOps(**c["host_event"]) for c in counts)
+    tot = {k: float(np.mean([c["totals"][k] for c in counts])) for k in counts[0]["totals"]}
+    row = {"model": "asnet", "target": "cpu", "status": "ok", "latency": latency_percentiles(lat),
+           "L_kind": "measured wall time p50 (ONNX Runtime)", "latency_reference": latency_percentiles(lat_reference),
+           "ops": dense.to_dict(),
+           "ops_event_driven": event.to_dict(), "E_event_driven_mj": event.energy_j() * 1e3, "totals": tot,
+           "network_input_wh": counts[0]["network_input_wh"], "params": counts[0]["params"],
+           "notes": [f"network at {counts[0]['network_input_wh'][0]}x{counts[0]['network_input_wh'][1]} "
+                     f"(sensor / {asnet.cfg.downsample}, as trained); full-resolution figures in "
+                     f"{ASNET_DIR.relative_to(ROOT)}/cost.json",
+                     f"torch eager reference p50 {latency_percentiles(lat_reference).get('p50_ms', float('nan')):.3g} ms",
+                     f"event-driven count: {event.energy_j() * 1e3:.3g} mJ (modelled)"]}
+    row["L_ms"] = row["latency"]["p50_ms"]
+    row.update(energy_fields(run_one, dense.energy_j() * 1e3, cm.HOST_LABEL))
+    return row
 
 
 PAPER_CPU_POWER_W = 92.5 / 2.17   # W: TOFFE's E / L on the paper's i9-12700KF (Table 2)

@@ -86,6 +86,12 @@ def test_quick_run_writes_table_json_and_png(tiny_bundle, tiny_events, tmp_path,
     assert win["status"] == "ok" and win["extra"]["dbscan_runs"] <= 1          # one DBSCAN per window at most
     assert per_step["extra"]["dbscan_runs"] >= win["extra"]["dbscan_runs"]      # DOTIE's code: one per step
     assert "cpu_latency_ratio_window" in res["goals"] and "one DBSCAN per window" in md
+    asnet = rows[("asnet", "cpu")]                 # the shipped Adaptive-SpikeNet baseline, counted and timed
+    assert asnet["status"] == "ok" or "no trained baseline" in asnet["reason"]
+    if asnet["status"] == "ok":
+        assert asnet["E_kind"].startswith("modelled") and asnet["E_event_driven_mj"] < asnet["E_mj"]
+        assert 0 < asnet["latency"]["p50_ms"] and asnet["latency_reference"]["p50_ms"] > 0
+    assert rows[("asnet", "loihi2")]["status"] == "unavailable"
     lo = rows[("toffe", "loihi-sim")]["loihi"]
     assert len(lo["stages"]) == 4 and lo["latency_ms"] > 0
     assert "cpu" in res["ratios"] and res["goals"]["evaluated"]
