@@ -34,7 +34,8 @@ Cost (``count_ops``): per layer and step, from the spikes measured on the window
   update per neuron;
 * event-driven: one accumulate per (input spike, output it reaches) -- exact, by convolving the
   spike map with a ones kernel -- (graded first layer: one MAC per non-zero input and output it
-  reaches), plus LIF updates of neurons with input or non-zero state only;
+  reaches), plus LIF updates of the neurons that receive input in the step (a lower bound:
+  neurons that only hold decaying state are not counted);
 * memory: weights read once per step, membrane state read + written per updated neuron (4 B
   each), spikes written and read (1 B).
 """
@@ -316,7 +317,7 @@ def count_ops(model, x_net: np.ndarray) -> tuple[np.ndarray, dict]:
     """Run one window (B, 2, H', W') through ``model`` recording every layer's input, and count
     its operations (module doc). Returns (flow (2, H', W') network px/ms, counts dict with per
     layer: neurons, dense_macs, event_ops (accumulates; MACs for the graded first layer),
-    active_updates, spikes_in, spike_rate_in, and totals)."""
+    active_updates, inputs_nonzero, input_rate, and totals)."""
     import torch
 
     specs = layer_specs(model.cfg)
@@ -343,9 +344,7 @@ def count_ops(model, x_net: np.ndarray) -> tuple[np.ndarray, dict]:
             rf = _ones_conv(inp, s)
             ev += float(rf.sum()) * s.c_out
             nz += float((inp != 0).sum())
-            if s.neurons:
-                # a neuron updates when it receives input or holds state (from its previous step);
-                # the output spikes of this layer are the next layer's recorded input
+            if s.neurons:           # neurons with input this step (module doc: a lower bound)
                 active += float((rf > 0).sum()) * s.c_out
         in_elems = h_in * w_in * s.c_in * steps
         row = {"name": s.name, "kind": s.kind, "c_in": s.c_in, "c_out": s.c_out, "kernel": s.kernel,
@@ -364,9 +363,6 @@ def count_ops(model, x_net: np.ndarray) -> tuple[np.ndarray, dict]:
         tot["state_bytes_dense"] += 8.0 * neurons * steps
         tot["state_bytes_event"] += 8.0 * active
         tot["spike_bytes"] += 2.0 * nz if s.spiking_input else 0.0
-    # active updates are an upper bound on the input-driven ones; a layer whose state stays
-    # non-zero after the input left also updates: bound it by the dense count
-    tot["active_updates"] = min(tot["active_updates"], tot["dense_updates"])
     tot["spikes"] = sum(r["inputs_nonzero"] for r, s in zip(layers, specs) if s.spiking_input)
     return flow, {"layers": layers, "totals": tot, "steps": steps, "params": n_params(model.cfg)}
 
