@@ -486,7 +486,8 @@ def like_for_like(args, ctx, machine: dict, reader=None) -> dict:
         t = times[m.key]
         row = {"key": m.key, "family": m.family, "level": m.level, "label": m.label,
                "wall": block_summary(t["wall"]), "cpu": block_summary(t["cpu"]), "thread": block_summary(t["thread"]),
-               "energy": rules.mean_work_energy(m.works) if m.works else None}
+               "energy": rules.mean_work_energy(m.works) if m.works else
+               rules.mean_rule_energy(m.rule_ops) if m.rule_ops else None}
         row["energy_time_power_uj"] = rules.time_power(row["cpu"]["median_ms"] * 1e-3, power)
         if reader is not None:                   # a counter: measured first, the models beside it
             from toffe_deploy.energy.measure import measure_dynamic
@@ -505,7 +506,7 @@ def like_for_like(args, ctx, machine: dict, reader=None) -> dict:
     by = {r["key"]: r for r in rows}
     ratios = {}
     for lvl in LEVELS:
-        for num in ("dotie_cluster", "dotie"):
+        for num in ("dotie_cluster", "dotie", "asnet"):
             a, b = by.get(f"{num}@{lvl}"), by.get(f"toffe@{lvl}")
             if not (a and b):
                 continue

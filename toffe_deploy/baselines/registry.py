@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -47,6 +48,7 @@ class BenchModel:
     run: Callable[[int], Any]
     predict: Callable[[Any], list[Prediction]] | None = None
     works: list | None = None                    # energy.rules.Work per counted window
+    rule_ops: dict | None = None                 # or, for a model not made of Work: rule -> [HostOps per window]
 
     @property
     def key(self) -> str:
@@ -147,8 +149,40 @@ def toffe_models(ctx: BenchContext) -> list[BenchModel]:
                        toffe_predictions, w)]
 
 
+#: where benchmarks/train_asnet.py writes the Adaptive-SpikeNet (Pico) baseline
+ASNET_DIR = Path(__file__).resolve().parents[2] / "ckpt" / "baselines" / "adaptive_spikenet"
+
+
+def asnet_models(ctx: BenchContext, counted: int = 4) -> list[BenchModel]:
+    """Adaptive-SpikeNet (Pico), its optical flow turned into object flow: reference = torch eager,
+    optimised = ONNX Runtime (the same weights). Its cost is counted per layer (count_ops) by the
+    same two rules: dense MACs, and spike-driven accumulates (rule_ops, on ``counted`` windows).
+    No model when it has not been trained (``ASNET_DIR`` empty)."""
+    if not (ASNET_DIR / "weights.safetensors").is_file():
+        return []
+    from ..energy.cost_model import HostOps
+    from ..events.binning import bin_window
+    from .adaptive_spikenet import AdaptiveSpikeNetBaseline
+
+    cfg = ctx.config
+    ref = AdaptiveSpikeNetBaseline.load(ASNET_DIR, cfg)
+    opt = ref.optimised()
+    t0s = [t0 for t0, _x in ctx.windows]
+    ev = ctx.events
+    ops = {"event": [], "dense": []}
+    for i in range(min(counted, len(ev))):
+        c = ref.op_counts(bin_window(ev[i], int(t0s[i]), cfg.dt_us, cfg.n_bins, tuple(cfg.sensor_size), dtype=np.uint8))
+        ops["dense"].append(HostOps(**c["host_dense"]))
+        ops["event"].append(HostOps(**c["host_event"]))
+    return [BenchModel("asnet", "reference", "Adaptive-SpikeNet Pico (torch eager, flow -> objects)",
+                       lambda i: ref.detect(ev[i], t0s[i]), lambda preds: preds, None, ops),
+            BenchModel("asnet", "optimised", "Adaptive-SpikeNet Pico (ONNX Runtime, flow -> objects)",
+                       lambda i: opt.detect(ev[i], t0s[i]), lambda preds: preds, None, ops)]
+
+
 #: family -> factory; the benchmark builds every model of every factory.
-FACTORIES: dict[str, Callable[[BenchContext], list[BenchModel]]] = {"dotie": dotie_models, "toffe": toffe_models}
+FACTORIES: dict[str, Callable[[BenchContext], list[BenchModel]]] = {"dotie": dotie_models, "toffe": toffe_models,
+                                                                   "asnet": asnet_models}
 
 
 def build_models(ctx: BenchContext) -> list[BenchModel]:

@@ -14,18 +14,20 @@ from __future__ import annotations
 import math
 from typing import Iterable
 
-MODELS = ("dotie", "dotie_cluster", "dotie_cluster_window", "toffe")
-MODEL_NAMES = {"dotie": "DOTIE w/o clustering, speed separation",
+MODELS = ("asnet", "dotie", "dotie_cluster", "dotie_cluster_window", "toffe")
+MODEL_NAMES = {"asnet": "Adaptive-SpikeNet (Pico), optical flow -> object flow",
+               "dotie": "DOTIE w/o clustering, speed separation",
                "dotie_cluster": "DOTIE with clustering, detection (DBSCAN every step, as its code)",
                "dotie_cluster_window": "DOTIE, one DBSCAN per window (not its code; for comparison)",
                "toffe": "TOFFE, object flow"}
-MODEL_TICKS = {"dotie": "DOTIE", "dotie_cluster": "DOTIE + DBSCAN\nper step", "dotie_cluster_window": "DOTIE + DBSCAN\nper window",
+MODEL_TICKS = {"asnet": "Adaptive-\nSpikeNet", "dotie": "DOTIE", "dotie_cluster": "DOTIE + DBSCAN\nper step", "dotie_cluster_window": "DOTIE + DBSCAN\nper window",
                "toffe": "TOFFE"}
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
 
 #: The paper's Table 2, E (mJ) / L (ms) per model and hardware.
 PAPER_TABLE2 = {
     "hardware": {"cpu": "i9-12700KF", "cuda": "RTX 3090 Ti", "jetson": "Jetson TX2", "loihi": "Loihi 2 + TX2"},
+    "asnet": {"cpu": (1029.1, 24.04), "cuda": (417.2, 4.14), "jetson": (89.2, 41.84), "loihi": (None, None)},
     "dotie": {"cpu": (28.8, 0.62), "cuda": (31.1, 0.34), "jetson": (4.6, 5.95), "loihi": (0.083, 0.29)},
     "dotie_cluster": {"cpu": (558.0, 16.8), "cuda": (426.9, 4.50), "jetson": (74.2, 93.46), "loihi": (69.6, 88.67)},
     "toffe": {"cpu": (92.5, 2.17), "cuda": (123.0, 1.34), "jetson": (13.0, 20.12), "loihi": (8.38, 15.33)},

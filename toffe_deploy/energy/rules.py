@@ -113,9 +113,14 @@ def energy_split(ops: HostOps) -> dict:
 
 def mean_work_energy(works: list[Work]) -> dict:
     """Per rule: the mean over inferences of energy_split, and the mean ops."""
+    return mean_rule_energy({rule: [fn(w) for w in works] for rule, fn in RULE_FUNCTIONS.items()})
+
+
+def mean_rule_energy(rule_ops: dict) -> dict:
+    """mean_work_energy for a model counted directly as HostOps per rule (rule -> [HostOps])."""
     out = {}
-    for rule, fn in RULE_FUNCTIONS.items():
-        splits = [energy_split(fn(w)) for w in works]
+    for rule in RULE_FUNCTIONS:
+        splits = [energy_split(o) for o in rule_ops.get(rule, [])]
         out[rule] = {k: sum(s[k] for s in splits) / max(len(splits), 1) for k in splits[0]} if splits else {}
         out[rule]["label"] = RULE_LABELS[rule]
     return out
