@@ -88,14 +88,15 @@ def test_quick_run_writes_table_json_and_png(tiny_bundle, tiny_events, tmp_path,
     assert "cpu_latency_ratio_window" in res["goals"] and "one DBSCAN per window" in md
     lfl = res["like_for_like"]                 # issue 14: both levels, both rules, CPU time, quality
     keys = {r["key"] for r in lfl["rows"]}
-    for fam in ("dotie", "dotie_cluster", "toffe"):
+    for fam in ("dotie", "dotie_cluster", "toffe", "asnet"):      # asnet: the shipped Adaptive-SpikeNet weights
         assert {f"{fam}@reference", f"{fam}@optimised"} <= keys
     for r in lfl["rows"]:
         assert r["cpu"]["blocks"] == 5 and 0 < r["cpu"]["min_ms"] <= r["cpu"]["median_ms"] <= r["cpu"]["max_ms"]
         ev, de = r["energy"]["event"], r["energy"]["dense"]
         assert 0 < ev["total_uj"] < de["total_uj"]          # sparse input: the event rule counts less
         assert ev["total_uj"] == pytest.approx(ev["compute_uj"] + ev["memory_uj"])
-    assert set(lfl["ratios"]) == {f"{m}/toffe@{lvl}" for m in ("dotie", "dotie_cluster") for lvl in ("reference", "optimised")}
+    assert set(lfl["ratios"]) == {f"{m}/toffe@{lvl}" for m in ("dotie", "dotie_cluster", "asnet")
+                                  for lvl in ("reference", "optimised")}
     assert "Like for like" in md and "E event rule" in md
     lo = rows[("toffe", "loihi-sim")]["loihi"]
     assert len(lo["stages"]) == 4 and lo["latency_ms"] > 0

@@ -228,7 +228,8 @@ def plot(rows: list[dict], path, title: str, lfl: dict | None = None) -> None:
     for ax, which, label in ((axes[0, 0], 0, "paper: measured dynamic energy (mJ)"),
                              (axes[0, 1], 1, "paper: measured latency (ms)")):
         for i, col in enumerate(cols):
-            ax.bar(x + (i - (len(cols) - 1) / 2) * width, [PAPER_TABLE2[m][col][which] for m in paper_models], width,
+            vals = [PAPER_TABLE2[m][col][which] for m in paper_models]        # None: not in the paper
+            ax.bar(x + (i - (len(cols) - 1) / 2) * width, [np.nan if v is None else v for v in vals], width,
                    label=PAPER_TABLE2["hardware"][col], hatch="//", alpha=0.85)
         ax.set_xticks(x)
         ax.set_xticklabels([MODEL_TICKS[m] for m in paper_models], fontsize=8)
