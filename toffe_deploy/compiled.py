@@ -1364,32 +1364,19 @@ def bin_index(t, x, y, p, t0, dt_us, n_bins, height, width):
 
 @njit(cache=True, nogil=True)
 def sorted_unique(values):
-    """np.unique of non-negative ints: an LSD radix sort on 11-bit digits (two passes for a
-    640x480x5x2 volume's linear ids), then one pass dropping repeats. O(n + 2048) per pass."""
+    """np.unique of non-negative ints: the stable radix order (_stable_order: 11-bit digits,
+    two passes for a 640x480x5x2 volume's linear ids), then one pass dropping repeats."""
     n = values.shape[0]
-    a = values.copy()
     if n == 0:
-        return a
-    top = a.max()
-    tmp = np.empty(n, np.int64)
-    cnt = np.empty(2049, np.int64)
-    shift = 0
-    while (top >> shift) > 0:
-        cnt[:] = 0
-        for i in range(n):
-            cnt[((a[i] >> shift) & 2047) + 1] += 1
-        for d in range(2048):
-            cnt[d + 1] += cnt[d]
-        for i in range(n):
-            d = (a[i] >> shift) & 2047
-            tmp[cnt[d]] = a[i]
-            cnt[d] += 1
-        a, tmp = tmp, a
-        shift += 11
+        return values.copy()
+    order = _stable_order(values)
+    a = np.empty(n, values.dtype)
+    a[0] = values[order[0]]
     m = 1
     for i in range(1, n):
-        if a[i] != a[m - 1]:
-            a[m] = a[i]
+        v = values[order[i]]
+        if v != a[m - 1]:
+            a[m] = v
             m += 1
     return a[:m].copy()
 
