@@ -55,8 +55,11 @@ def main(argv: list[str] | None = None) -> int:
         except SystemError as exc:
             # a signal that landed while compiled code (numba's dispatcher) called back into
             # Python comes out as "returned a result with an exception set", the signal's
-            # exception as its cause: the unwinding ran the clean-ups all the same
-            sig = exc.__cause__ or exc.__context__
+            # exception as its cause (at the end of a chain of such SystemErrors, one per
+            # compiled frame): the unwinding ran the clean-ups all the same
+            sig, seen = exc, 0
+            while isinstance(sig, SystemError) and seen < 100:
+                sig, seen = sig.__cause__ or sig.__context__, seen + 1
             if isinstance(sig, KeyboardInterrupt):
                 print("toffe-deploy: interrupted", file=sys.stderr)
                 return 130

@@ -433,7 +433,6 @@ class AdaptiveSpikeNetBaseline:
             model.load_state_dict(state)
         except Exception as exc:   # a truncated file or other shapes: say which file
             raise InputError(w_path, f"cannot load weights ({str(exc).splitlines()[0]})") from None
-        torch.set_grad_enabled(False)
         return cls(model, cfg, config)
 
     def net_flow(self, binned: np.ndarray) -> np.ndarray:
