@@ -67,6 +67,9 @@ def run_module(module, window: np.ndarray) -> np.ndarray:
     import torch
 
     x = torch.from_numpy((np.asarray(window) > 0).astype(np.float32))
+    for sub in module.modules():        # snnTorch's neurons also keep their membrane inside the
+        if hasattr(sub, "reset_mem"):   # module (nirtorch 2 hands back no state for them): rest
+            sub.reset_mem()
     state, out = None, []
     with torch.no_grad():
         for t in range(x.shape[0]):
@@ -97,7 +100,9 @@ def main(argv=None) -> int:
     graph = nir.read(str(bundle.root / "ofs.nir"))
     dt = float(graph.metadata["time_step_s"])
     held = heldout_windows(bundle.config, data=args.data, n_windows=args.windows, progress=False)
-    wins = [np.asarray(w) > 0 for w in held.windows]
+    from toffe_deploy.cascade import pool_any
+
+    wins = [pool_any(w, bundle.config.ofs_pool) for w in held.windows]      # the OFS grid the graph's input is
     report = {"bundle": str(args.bundle), "reset": bundle.config.reset, "time_step_s": dt, "windows": len(wins),
               "readers": {}}
     for name, load in readers(dt).items():
