@@ -1381,13 +1381,33 @@ def sorted_unique(values):
     return a[:m].copy()
 
 
+@njit(cache=True, nogil=True)
+def unique_inverse(values):
+    """np.unique(values, return_inverse=True) of non-negative ints in O(n) passes: the stable
+    radix order (_stable_order), then one pass numbering the distinct values."""
+    n = values.shape[0]
+    inverse = np.empty(n, np.int64)
+    if n == 0:
+        return values.copy(), inverse
+    order = _stable_order(values)
+    u = np.empty(n, values.dtype)
+    m = 0
+    for i in range(n):
+        v = values[order[i]]
+        if m == 0 or v != u[m - 1]:
+            u[m] = v
+            m += 1
+        inverse[order[i]] = m - 1
+    return u[:m].copy(), inverse
+
+
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, compact_closed,
            cascade_window,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops, object_input,
            in_rects,
-           cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique)
+           cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique, unique_inverse)
 
 
 def warm_up() -> None:
@@ -1433,3 +1453,4 @@ def warm_up() -> None:
 
     ev = np.zeros(1, EVENT_DTYPE)
     sorted_unique(bin_index(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1))
+    unique_inverse(i64)

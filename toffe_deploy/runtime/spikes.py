@@ -119,8 +119,10 @@ class SpikeVolume:
         b, c, h, w = self.shape
         hp, wp = -(-h // p), -(-w // p)
         ys, xs = np.divmod(self.pix, w)
-        u, inv = np.unique((self.bc * hp + ys // p) * wp + xs // p, return_inverse=True)
-        return SpikeVolume(u, (b, c, hp, wp)), inv.reshape(-1)
+        from ..compiled import unique_inverse
+
+        u, inv = unique_inverse((self.bc * hp + ys // p) * wp + xs // p)      # np.unique's, radix sorted
+        return SpikeVolume(u, (b, c, hp, wp)), inv
 
     def to_dense(self, dtype=bool) -> np.ndarray:
         out = np.zeros(int(np.prod(self.shape)), dtype=dtype)
