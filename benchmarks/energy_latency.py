@@ -606,16 +606,21 @@ def loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts,
     host_lat = []
     if cpu_pipe is not None:
         h, w = cfg.height, cfg.width
+        pool = cfg.ofs_pool
+        wg, hg = cfg.ofs_grid((w, h))                                 # the stages' grid (ofs_pool)
         for i, res in enumerate(cascades):
             vol = SpikeVolume.from_dense(windows[i][1] > 0)          # the host streams these to Loihi anyway
             spike_pix = [np.flatnonzero(sp.any(axis=0)) for sp in res.spikes]   # Loihi's output, per stage
 
             def host_part(vol=vol, spike_pix=spike_pix):
                 pix = vol.pix
+                if pool > 1:                                 # each sensor one reads its grid cell (Up_p)
+                    ys, xs = np.divmod(pix, w)
+                    pix = (ys // pool) * wg + xs // pool
                 alive = np.ones(len(vol), dtype=bool)
                 frames = [None] * len(spike_pix)             # bool masks over vol.idx, index k - 1
                 for k in range(len(spike_pix), 0, -1):
-                    inside = CompactClosing(spike_pix[k - 1], h, w, cfg.mask_kernel).at(pix)
+                    inside = CompactClosing(spike_pix[k - 1], hg, wg, cfg.mask_kernel).at(pix)
                     frames[k - 1] = alive & inside
                     alive &= ~inside
                 cpu_pipe.objects_of(vol, frames)
