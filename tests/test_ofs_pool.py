@@ -1,11 +1,11 @@
 """The OFS grid (ToffeConfig.ofs_pool): stages on the sensor OR-pooled over p x p blocks, their
-masks back on every sensor pixel; every backend gives the same object flow as the dense reference."""
+masks back on every sensor pixel; every backend gives the same object flow as the dense reference
+(the cpu pipeline's case: tests/test_run_pipeline.py, test_cpu_pipeline_equals_dense_reference)."""
 import json
 
 import numpy as np
 import pytest
 
-from toffe_deploy import ofpd_io
 from toffe_deploy.cascade import pool_any, run_cascade, unpool
 from toffe_deploy.cli import main
 from toffe_deploy.energy.cost_model import loihi2_footprint
@@ -67,35 +67,6 @@ def test_pooled_cascade_stages_see_the_masked_pooled_window(env):
             rest = rest & ~res.frames[k - 1]
             fired += int(res.spikes[k - 1].sum())
     assert fired > 0
-
-
-def test_cpu_pipeline_with_pooling_equals_dense_reference(env):
-    import onnxruntime as ort
-
-    from toffe_deploy.events.binning import bin_window
-    from toffe_deploy.events.io import open_events
-    from toffe_deploy.runtime.pipeline import Pipeline
-
-    b = env["bundle"]
-    cfg = b.config
-    sess = ort.InferenceSession(str(b.ofpd_onnx), providers=["CPUExecutionProvider"])
-    with open_events(env["rec"]) as src:
-        wins = [(t0, bin_window(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size)) for t0, ev in src.iter_windows(cfg.dt_us)]
-    with Pipeline(b, "cpu") as pipe:
-        got = list(pipe.process_stream(wins))
-    n_obj = 0
-    for (t0, x), res in zip(wins, got):
-        ref = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, b.ofs[k - 1]), cfg.n_speed_bins, cfg.mask_kernel,
-                          cfg.ofs_pool)
-        ks, merged = ofpd_io.merge_frames(np.stack(ref.frames), cfg)
-        assert [o.ofs_bin for o in res.objects] == ks.tolist()
-        assert [o.n_events for o in res.objects] == [int(m.sum()) for m in merged]
-        if ks.size:
-            pose, direction, speed = sess.run(None, {"events": ofpd_io.prepare(merged, cfg)})
-            dec = ofpd_io.decode(pose, direction, speed, ks, cfg)
-            np.testing.assert_allclose([o.x for o in res.objects], dec["x_px"], rtol=0, atol=1e-5)
-            n_obj += ks.size
-    assert n_obj > 0
 
 
 def test_pooled_reset_zero_bundle_runs_stock_lava_like_cpu(env, capsys, tmp_path):

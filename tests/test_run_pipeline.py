@@ -90,15 +90,17 @@ def test_sparse_ofpd_input_equals_ofpd_io(rng, ofpd):
     assert n_obj > 16 and multi >= 3            # covered windows with several objects in one stage
 
 
-def test_cpu_pipeline_equals_dense_reference(env):
-    """Sparse cascade + sparse OFPD input == run_cascade(run_ofs_fixed) + ofpd_io on dense arrays."""
+@pytest.mark.parametrize("pool", [1, 2])
+def test_cpu_pipeline_equals_dense_reference(env, make_bundle, tmp_path, pool):
+    """Sparse cascade + sparse OFPD input == run_cascade(run_ofs_fixed) + ofpd_io on dense arrays,
+    with the OFS on the sensor grid and on the 2x2-pooled one (config.ofs_pool)."""
     import onnxruntime as ort
 
     from toffe_deploy.events.binning import bin_window
     from toffe_deploy.events.io import open_events
     from toffe_deploy.runtime.pipeline import Pipeline
 
-    b = env["bundle"]
+    b = env["bundle"] if pool == 1 else make_bundle(tmp_path, ofs_pool=pool)
     cfg = b.config
     sess = ort.InferenceSession(str(b.ofpd_onnx), providers=["CPUExecutionProvider"])
     with open_events(env["rec"]) as src:
@@ -108,7 +110,8 @@ def test_cpu_pipeline_equals_dense_reference(env):
     assert [r.t0_us for r in got] == [t0 for t0, _ in wins]
     n_obj = 0
     for (t0, x), res in zip(wins, got):
-        ref = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, b.ofs[k - 1]), cfg.n_speed_bins, cfg.mask_kernel)
+        ref = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, b.ofs[k - 1]), cfg.n_speed_bins, cfg.mask_kernel,
+                          cfg.ofs_pool)
         ks, merged = ofpd_io.merge_frames(np.stack(ref.frames), cfg)
         assert [o.speed_bin for o in res.objects] == ks.tolist()
         assert [o.n_events for o in res.objects] == [int(m.sum()) for m in merged]
