@@ -48,7 +48,7 @@ def main(argv=None) -> int:
     from toffe_deploy.commands.run import SAMPLE
     from toffe_deploy.deploy.bundle import load_bundle
     from toffe_deploy.runtime import ofpd_input
-    from toffe_deploy.runtime.pipeline import Pipeline, speeds_of, up_frames
+    from toffe_deploy.runtime.pipeline import Pipeline, sensor_frames, speeds_of
     from toffe_deploy.runtime.spikes import SpikeVolume
 
     bundle = load_bundle(args.bundle)
@@ -66,8 +66,7 @@ def main(argv=None) -> int:
                 t.append(clock())
                 vol = vol.front_end(cfg.input_norm, cfg.input_min_cluster)
                 t.append(clock())
-                grid, inverse = vol.pool(cfg.ofs_pool)          # the OFS grid, as Pipeline runs it
-                frames = up_frames(pipe.cascade.cascade_sparse(grid).frames, inverse)
+                frames = sensor_frames(pipe.cascade, vol, cfg.ofs_pool)     # on the OFS grid, as Pipeline runs it
                 t.append(clock())
                 ks, x, _n = ofpd_input.batch(vol, frames, cfg, pipe._scratch)
                 t.append(clock())

@@ -39,9 +39,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from toffe_deploy.baselines.registry import ASNET_DIR as DEFAULT_OUT  # noqa: E402  (where the benchmark looks)
 from toffe_deploy.errors import ToffeError  # noqa: E402
-
-DEFAULT_OUT = ROOT / "ckpt" / "baselines" / "adaptive_spikenet"
 
 
 def parse_args(argv=None):
