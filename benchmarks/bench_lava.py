@@ -33,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from toffe_deploy.cascade import run_cascade  # noqa: E402
+from toffe_deploy.commands import add_progress_flag, show_progress  # noqa: E402
 from toffe_deploy.fileio import atomic_path  # noqa: E402
 from toffe_deploy.fixed_point import quantize_ofs, run_ofs_fixed  # noqa: E402
 from toffe_deploy.runtime.loihi import LavaCascade  # noqa: E402
@@ -143,6 +144,7 @@ def main(argv=None) -> int:
                     help="compare every n-th window with the numpy reference (0: never; default 10)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "lava.json",
                     help="JSON results file (default benchmarks/results/lava.json)")
+    add_progress_flag(ap)
     args = ap.parse_args(argv)
 
     distinct = synthetic_windows(min(args.distinct, args.windows), args.width, args.height, args.bins)
@@ -165,7 +167,8 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         last = t0
         for i, res in enumerate(tqdm(lc.cascade_stream(feed()), total=args.windows, unit="win",
-                                     file=sys.stderr, desc="lava cascade")):
+                                     file=sys.stderr, desc="lava cascade",
+                                     disable=not show_progress(args))):
             now = time.perf_counter()
             times.append(now - last)
             last = now

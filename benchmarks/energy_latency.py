@@ -46,6 +46,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:          # runnable from a fresh clone without installing
     sys.path.insert(0, str(ROOT))
 
+from toffe_deploy.commands import add_progress_flag, show_progress  # noqa: E402
 from toffe_deploy.errors import InputError, ToffeError  # noqa: E402
 
 DEFAULT_BUNDLE = ROOT / "export"
@@ -66,6 +67,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                                       "default: the shipped sample, else --synthetic)")
     src.add_argument("--synthetic", metavar="SEED", type=int,
                      help="generate a multi-object sequence (data-set generator, split 'multi', this seed) as input")
+    add_progress_flag(ap)
     ap.add_argument("--targets", default="cpu,cuda,loihi-sim,loihi2",
                     help="comma-separated targets to try; unavailable ones are reported as n/a (default: all)")
     ap.add_argument("--quick", action="store_true",
@@ -313,7 +315,8 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         raise ToffeError(f"{bundle.ofpd_onnx}: cannot count OFPD MACs ({exc})") from None
     in_elems = int(np.prod(input_shape(cfg)))
     toffe_counts, dotie_counts, dotie_cl_counts, dotie_win_counts, cascades, dotie_spikes = [], [], [], [], [], []
-    for i in tqdm(range(n_count), desc="counting operations", file=sys.stderr, leave=False):
+    for i in tqdm(range(n_count), desc="counting operations", file=sys.stderr, leave=False,
+                  disable=not show_progress(args)):
         binned = windows[i][1]
         # OFPD rows = the objects the deployed pipeline reports for this window (untimed run)
         rows_i = len(list(cpu_pipe.process_stream([windows[i]]))[0].objects) if cpu_pipe is not None else None

@@ -40,6 +40,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from toffe_deploy.baselines.registry import ASNET_DIR as DEFAULT_OUT  # noqa: E402  (where the benchmark looks)
+from toffe_deploy.commands import add_progress_flag, show_progress  # noqa: E402
 from toffe_deploy.errors import ToffeError  # noqa: E402
 
 
@@ -57,6 +58,7 @@ def parse_args(argv=None):
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1: on a shared 2-core machine 2 threads ran 10x slower)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--eval-windows", type=int, default=6, help="test windows per sequence (default 6, as ckpt/eval_test.json)")
+    add_progress_flag(ap)
     ap.add_argument("--eval-only", action="store_true", help="evaluate the weights in --out, no training")
     ap.add_argument("--limit", type=int, help="use only this many sequences per split (quick runs)")
     ap.add_argument("--cost-only", action="store_true", help="only count operations and time inference (cost.json)")
@@ -104,13 +106,13 @@ def crop_sample(x, target, weight, rng, crop: int = CROP):
     return x[(Ellipsis,) + sl], target[(Ellipsis,) + sl], weight[sl]
 
 
-def build_set(files, cfg, config, per_seq: int, rng) -> dict:
+def build_set(files, cfg, config, per_seq: int, rng, progress: bool = False) -> dict:
     from toffe_deploy.dataset.flowgt import object_radii_px
     from toffe_deploy.events.io import open_events
     from tqdm import tqdm
 
     xs, ts, ws = [], [], []
-    for path in tqdm(files, desc="training windows", unit="seq", file=sys.stderr):
+    for path in tqdm(files, desc="training windows", unit="seq", file=sys.stderr, disable=not progress):
         with open_events(path) as src:
             gt, radii = src.ground_truth, object_radii_px(src.attrs)
             starts = np.arange(src.t_start_us, src.t_end_us - config.dt_us + 1, config.dt_us)
@@ -140,7 +142,7 @@ def train(args, config, cfg, files) -> dict:
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     t_build = time.perf_counter()
-    data = build_set(files, cfg, config, args.per_seq, rng)
+    data = build_set(files, cfg, config, args.per_seq, rng, progress=show_progress(args))
     n = data["x"].shape[0]
     log(f"{n} training windows {tuple(data['x'].shape[1:])} in {time.perf_counter() - t_build:.0f} s")
     model = build_model(cfg)
@@ -197,7 +199,7 @@ def evaluate(args, config, files) -> dict:
     dt = config.dt_us
     errs = FlowErrors(gate_px=GATE_PX, n_bins=config.n_speed_bins, pred_scale=config.speed_scale)
     t_inf = []
-    for path in tqdm(files, desc="eval test", unit="seq", file=sys.stderr):
+    for path in tqdm(files, desc="eval test", unit="seq", file=sys.stderr, disable=not show_progress(args)):
         with open_events(path) as src:
             gt, focal = src.ground_truth, sequence_focal_px(src.attrs)
             for t0 in _sample_starts(src.t_start_us, src.t_end_us, dt, args.eval_windows):
