@@ -595,45 +595,42 @@ def box_gap(a, b):
 @njit(cache=True, nogil=True)
 def min_gap(xa, ya, xb, yb, t):
     """Smallest Euclidean distance between a pixel of set a and one of set b when it is <= t,
-    else inf. Set b must be sorted by x: each pixel of a scans only the pixels of b with
-    |dx| <= the best distance so far (found by binary search), so the scan narrows as soon as
-    a close pair is found; pixels of a farther than that from b's bounding box are skipped.
-    Distances are compared as exact integer squares; the result is sqrt of the smallest
-    (correctly rounded: the smallest of the pairs' float distances)."""
+    else inf (any order of either set). Brute force over the pairs, as exact integer squares:
+    for each pixel of a that can still come closer (the gap from it to b's bounding box is
+    below the smallest square so far and within t), the smallest square to b's pixels is one
+    branch-free loop that LLVM vectorizes, several times faster on the few hundred pixels of
+    a frame's components than a scan that narrows by x but branches per pair. The result is
+    sqrt of the smallest square (correctly rounded: the smallest of the pairs' float distances)."""
     nb = xb.shape[0]
     if nb == 0:
         return np.inf
-    bx0 = xb[0]
-    bx1 = xb[nb - 1]
+    bx0 = bx1 = xb[0]
     by0 = by1 = yb[0]
     for j in range(nb):
+        bx0 = min(bx0, xb[j])
+        bx1 = max(bx1, xb[j])
         by0 = min(by0, yb[j])
         by1 = max(by1, yb[j])
-    best = t
-    best2 = 0
-    found = False
     t2_hi = t * t * (1.0 + 1e-12) + 1.0      # no pair with a larger square is within t
+    best2 = np.int64(1) << 62
     for i in range(xa.shape[0]):
         x = xa[i]
         y = ya[i]
-        if x < bx0 - best or x > bx1 + best or y < by0 - best or y > by1 + best:
+        gx = max(bx0 - x, x - bx1, 0)
+        gy = max(by0 - y, y - by1, 0)
+        g2 = gx * gx + gy * gy
+        if g2 >= best2 or g2 > t2_hi:
             continue
-        j = np.searchsorted(xb, x - best)
-        while j < nb and xb[j] <= x + best:
+        m = best2
+        for j in range(nb):
+            dx = x - xb[j]
             dy = y - yb[j]
-            if abs(dy) <= best:
-                dx = x - xb[j]
-                d2 = dx * dx + dy * dy
-                if found:
-                    if d2 < best2:
-                        best2 = d2
-                        best = np.sqrt(d2)
-                elif d2 <= t2_hi and np.sqrt(d2) <= t:
-                    found = True
-                    best2 = d2
-                    best = np.sqrt(d2)
-            j += 1
-    return best if found else np.inf
+            m = min(m, dx * dx + dy * dy)
+        best2 = m
+    if best2 > t2_hi:
+        return np.inf
+    d = np.sqrt(best2)
+    return d if d <= t else np.inf
 
 
 @njit(cache=True, nogil=True)
