@@ -1379,6 +1379,101 @@ def sorted_unique(values):
 
 
 @njit(cache=True, nogil=True)
+def _div_small(v, d, inv_d):
+    """v // d for 0 <= v < 2**31 and d >= 1 from a float estimate corrected by one (no integer
+    division: it costs more than the rest of a pass over a window's ones)."""
+    q = int(v * inv_d)
+    if q * d > v:
+        q -= 1
+    elif (q + 1) * d <= v:
+        q += 1
+    return q
+
+
+@njit(cache=True, nogil=True)
+def pool_index(idx, n_pixels, width, p, hp, wp):
+    """spikes.SpikeVolume.pool on a sorted unique linear index into a (B, C, H, W) volume, in
+    O(n) without sorting: (u, inverse, u_bc, u_pix, bc, pix) with u = np.unique of the pooled
+    ids (bc * hp + y // p) * wp + x // p and u[inverse] the pooled id of each one; u_bc, u_pix
+    the plane and pooled pixel of each u, bc, pix those of each one (idx = bc * n_pixels + pix).
+
+    Sorted idx lists the ones plane by plane and row by row, so the ones of one pooled row
+    (plane, y // p) are contiguous: up to p runs (one per sensor row), each sorted by x. A
+    p-way merge of the runs by x // p gives that row's pooled ids in order."""
+    n = idx.shape[0]
+    u = np.empty(n, np.int64)
+    inverse = np.empty(n, np.int64)
+    bc = np.empty(n, np.int64)
+    pix = np.empty(n, np.int64)
+    rowkey = np.empty(n, np.int64)
+    ys = np.empty(n, np.int64)
+    xp = np.empty(n, np.int64)
+    if n == 0:
+        return u, inverse, bc.copy(), pix.copy(), bc, pix
+    plane = idx[0] // n_pixels
+    base = plane * n_pixels
+    inv_w = 1.0 / width
+    inv_p = 1.0 / p
+    for i in range(n):
+        v = idx[i]
+        while v >= base + n_pixels:
+            base += n_pixels
+            plane += 1
+        q = v - base
+        bc[i] = plane
+        pix[i] = q
+        y = _div_small(q, width, inv_w)
+        ys[i] = y
+        xp[i] = _div_small(q - y * width, p, inv_p)
+        rowkey[i] = plane * hp + _div_small(y, p, inv_p)
+    ptr = np.empty(p, np.int64)
+    end = np.empty(p, np.int64)
+    m = 0
+    i = 0
+    gp = hp * wp
+    while i < n:
+        rk = rowkey[i]
+        e = i
+        while e < n and rowkey[e] == rk:
+            e += 1
+        nr = 0
+        j = i
+        while j < e:                         # the runs of the pooled row: one per sensor row
+            ptr[nr] = j
+            k = j + 1
+            while k < e and ys[k] == ys[j]:
+                k += 1
+            end[nr] = k
+            nr += 1
+            j = k
+        last = -1
+        while True:
+            best = -1
+            bx = 0
+            for r in range(nr):
+                if ptr[r] < end[r] and (best < 0 or xp[ptr[r]] < bx):
+                    bx = xp[ptr[r]]
+                    best = r
+            if best < 0:
+                break
+            if bx != last:
+                u[m] = rk * wp + bx
+                m += 1
+                last = bx
+            inverse[ptr[best]] = m - 1
+            ptr[best] += 1
+        i = e
+    u = u[:m].copy()
+    u_bc = np.empty(m, np.int64)
+    u_pix = np.empty(m, np.int64)
+    inv_g = 1.0 / gp
+    for j in range(m):
+        u_bc[j] = _div_small(u[j], gp, inv_g)
+        u_pix[j] = u[j] - u_bc[j] * gp
+    return u, inverse, u_bc, u_pix, bc, pix
+
+
+@njit(cache=True, nogil=True)
 def unique_inverse(values):
     """np.unique(values, return_inverse=True) of non-negative ints in O(n) passes: the stable
     radix order (_stable_order), then one pass numbering the distinct values."""
@@ -1404,7 +1499,7 @@ KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_l
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops, object_input,
            in_rects,
-           cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique, unique_inverse)
+           cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique, unique_inverse, pool_index)
 
 
 def warm_up() -> None:
@@ -1451,3 +1546,4 @@ def warm_up() -> None:
     ev = np.zeros(1, EVENT_DTYPE)
     sorted_unique(bin_index(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1))
     unique_inverse(i64)
+    pool_index(i64, 1, 1, 1, 1, 1)
