@@ -46,6 +46,19 @@ def _slot(slot_of, key, keys, n):
 
 
 @njit(cache=True, nogil=True)
+def _div_small(v, d, inv_d):
+    """v // d for v >= 0 and d >= 1 (inv_d = 1.0 / d) from a float estimate corrected to the
+    exact quotient: an integer division per element costs more than the rest of a pass over a
+    window's ones (it is neither pipelined nor vectorized), a multiply and a compare do not."""
+    q = int(v * inv_d)
+    while q * d > v:
+        q -= 1
+    while (q + 1) * d <= v:
+        q += 1
+    return q
+
+
+@njit(cache=True, nogil=True)
 def dedupe(values, slot_of):
     """(unique values in order of first appearance, inverse) of non-negative ints below
     len(slot_of), in O(n) without sorting: values = unique[inverse]."""
@@ -76,8 +89,9 @@ def active_set(in_pix, width, height, kernel, slot_of):
     tap_target = np.empty((u, kk), np.int64)
     active = np.empty(u * kk, np.int64)
     m = 0
+    inv_w = 1.0 / width
     for q in range(u):
-        y = in_pix[q] // width
+        y = _div_small(in_pix[q], width, inv_w)
         x = in_pix[q] - y * width
         for i in range(kernel):
             ty = y + r - i                      # out[ty, tx] += w[i, j] * in[ty + i - r, tx + j - r]
@@ -235,7 +249,10 @@ def compact_image(pix, height, width, radius):
     """The pixels ``pix`` (linear ids, non-empty) on the sensor compacted to the rows and columns
     within ``radius`` of one of them (morph.CompactClosing): (keep_r, keep_c, map_r, map_c,
     image (kept rows, kept columns) uint8 with 1 at each pixel)."""
-    rows = pix // width
+    rows = np.empty(pix.shape[0], np.int64)
+    inv_w = 1.0 / width
+    for i in range(pix.shape[0]):
+        rows[i] = _div_small(pix[i], width, inv_w)
     cols = pix - rows * width
     keep_r, map_r, n_r = _kept(rows, height, radius)
     keep_c, map_c, n_c = _kept(cols, width, radius)
@@ -309,8 +326,9 @@ def compact_lookup(pix, width, keep_r, keep_c, map_r, map_c, image):
     """image at the compacted position of each pixel of ``pix``, False outside the kept rows
     and columns: (n,) bool."""
     out = np.zeros(pix.shape[0], np.bool_)
+    inv_w = 1.0 / width
     for i in range(pix.shape[0]):
-        y = pix[i] // width
+        y = _div_small(pix[i], width, inv_w)
         x = pix[i] - y * width
         if keep_r[y] and keep_c[x]:
             out[i] = image[map_r[y], map_c[x]] != 0
@@ -1152,6 +1170,29 @@ def cell_centres(origins, g, coord_scale):
 
 
 @njit(cache=True, nogil=True)
+def _cell_table(origins, g):
+    """(pool (N,), cell_of (N, max S)) for crops at origins (N, 3) = (x0, y0, S): P = S // g and
+    cell_of[o, v] = v // P for 0 <= v < S, so that the passes over the ones divide nothing."""
+    n_obj = origins.shape[0]
+    side = 0
+    for o in range(n_obj):
+        side = max(side, origins[o, 2])
+    pool_of = np.empty(n_obj, np.int64)
+    cell_of = np.empty((n_obj, side), np.int64)
+    for o in range(n_obj):
+        pool_of[o] = pool = origins[o, 2] // g
+        c = 0
+        k = 0
+        for v in range(origins[o, 2]):
+            cell_of[o, v] = c
+            k += 1
+            if k == pool:
+                k = 0
+                c += 1
+    return pool_of, cell_of
+
+
+@njit(cache=True, nogil=True)
 def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
     """The OFPD input of ofpd_io.prepare_xy into ``out`` (N, n_channels + 2, g, g) float32 of
     zeros: out[obj, ch, y // P, x // P] = the number of ones (object obj, pixel (x, y), channel
@@ -1165,20 +1206,7 @@ def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
     flat = out.reshape(-1)
     plane = g * g
     cell = np.empty(xs.shape[0], np.int64)
-    side = 0
-    for o in range(n_obj):
-        side = max(side, origins[o, 2])
-    cell_of = np.empty((n_obj, side), np.int64)    # v // P for 0 <= v < S, without a division per one
-    for o in range(n_obj):
-        pool = origins[o, 2] // g
-        c = 0
-        k = 0
-        for v in range(origins[o, 2]):
-            cell_of[o, v] = c
-            k += 1
-            if k == pool:
-                k = 0
-                c += 1
+    pool_of, cell_of = _cell_table(origins, g)
     for i in range(xs.shape[0]):               # counts, negative until divided
         o = obj[i]
         size = origins[o, 2]
@@ -1191,7 +1219,7 @@ def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
     for i in range(xs.shape[0]):               # each counted cell divided once
         at = cell[i]
         if at >= 0 and flat[at] < 0:
-            pool = origins[obj[i], 2] // g
+            pool = pool_of[obj[i]]
             flat[at] = -flat[at] / np.float32(pool * pool)
     px, py = cell_centres(origins.astype(np.float64), g, coord_scale)
     for o in range(n_obj):
@@ -1222,25 +1250,28 @@ def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
     # one cost more than the sums) and finished only for the cells some one touched
     slot_of = np.full(n_obj * g * g, -1, np.int32)
     acc = np.zeros((xs.shape[0], 6), np.int64)
-    touched = np.empty(xs.shape[0], np.int64)
+    touched = np.empty((xs.shape[0], 3), np.int64)     # object, cy, cx of each touched cell
     n_touched = 0
+    pool_of, cell_of = _cell_table(origins, g)
     for i in range(xs.shape[0]):
         o = obj[i]
         size = origins[o, 2]
-        pool = size // g
+        pool = pool_of[o]
         x = xs[i] - origins[o, 0]
         y = ys[i] - origins[o, 1]
         if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < 2 * n_bins:
-            cx = x // pool
-            cy = y // pool
-            tt = 2 * (ch[i] // 2) - (n_bins - 1)
+            cx = cell_of[o, x]
+            cy = cell_of[o, y]
+            tt = 2 * (ch[i] >> 1) - (n_bins - 1)
             uu = 2 * (x - cx * pool) - (pool - 1)
             vv = 2 * (y - cy * pool) - (pool - 1)
             cell = (o * g + cy) * g + cx
             c = slot_of[cell]
             if c < 0:
                 c = slot_of[cell] = n_touched
-                touched[n_touched] = cell
+                touched[n_touched, 0] = o
+                touched[n_touched, 1] = cy
+                touched[n_touched, 2] = cx
                 n_touched += 1
             acc[c, 0] += 1
             acc[c, 1] += tt
@@ -1249,11 +1280,10 @@ def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
             acc[c, 4] += tt * uu
             acc[c, 5] += tt * vv
     for c in range(n_touched):
-        cell = touched[c]
-        o = cell // (g * g)
-        cy = (cell // g) % g
-        cx = cell % g
-        pool = origins[o, 2] // g
+        o = touched[c, 0]
+        cy = touched[c, 1]
+        cx = touched[c, 2]
+        pool = pool_of[o]
         n = acc[c, 0]
         if n > 1 and n_bins > 1:
             den = float(n * pool * (n_bins - 1) * pool * pool)
@@ -1348,11 +1378,12 @@ def bin_index(t, x, y, p, t0, dt_us, n_bins, height, width):
     out = np.empty(n, np.int64)
     m = 0
     t1 = t0 + dt_us
+    inv_dt = 1.0 / dt_us
     for i in range(n):
         ti = np.int64(t[i])
         if ti < t0 or ti >= t1:
             continue
-        b = ((ti - t0) * n_bins) // dt_us
+        b = _div_small((ti - t0) * n_bins, dt_us, inv_dt)
         pol = np.int64(1) if p[i] > 0 else np.int64(0)
         out[m] = ((b * 2 + pol) * height + np.int64(y[i])) * width + np.int64(x[i])
         m += 1
@@ -1376,18 +1407,6 @@ def sorted_unique(values):
             a[m] = v
             m += 1
     return a[:m].copy()
-
-
-@njit(cache=True, nogil=True)
-def _div_small(v, d, inv_d):
-    """v // d for 0 <= v < 2**31 and d >= 1 from a float estimate corrected by one (no integer
-    division: it costs more than the rest of a pass over a window's ones)."""
-    q = int(v * inv_d)
-    if q * d > v:
-        q -= 1
-    elif (q + 1) * d <= v:
-        q += 1
-    return q
 
 
 @njit(cache=True, nogil=True)
