@@ -196,30 +196,61 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
     n = b.shape[0]
     m = active.shape[0]
     n_st = weights.shape[0]
+    kk = tap_target.shape[1]
     spikes = np.empty((n_st, n_bins, m), np.bool_)
-    fired = np.empty((n_st, m), np.bool_)
+    fired = np.zeros((n_st, m), np.bool_)
     inputs = np.empty((n_st, n), np.bool_)
     frames = np.zeros((n_st, n), np.bool_)
     alive = np.ones(n, np.bool_)
+    # ofs_stage's scatter without its branch: off-sensor taps add into a dummy slot m
+    tt = tap_target.copy()
+    for q in range(tt.shape[0]):
+        for j in range(kk):
+            if tt[q, j] < 0:
+                tt[q, j] = m
+    a_in = np.empty((n_bins, m + 1), np.int64)
+    # rows and columns of the active and input pixels, once per window (closed_at)
+    inv_w = 1.0 / width
+    act_r = np.empty(m, np.int64)
+    act_c = np.empty(m, np.int64)
+    for s in range(m):
+        act_r[s] = _div_small(active[s], width, inv_w)
+        act_c[s] = active[s] - act_r[s] * width
+    u = input_pixels.shape[0]
+    in_r = np.empty(u, np.int64)
+    in_c = np.empty(u, np.int64)
+    for q in range(u):
+        in_r[q] = _div_small(input_pixels[q], width, inv_w)
+        in_c[q] = input_pixels[q] - in_r[q] * width
     for k in range(n_st - 1, -1, -1):
         inputs[k] = alive
-        sp, fk = ofs_stage(alive, b, c, pix_inverse, tap_target, weights[k], n_bins, m, dv[k], vth_mant[k],
-                           reset_zero[k])
-        spikes[k] = sp
-        fired[k] = fk
+        a_in[:] = 0
+        for i in range(n):
+            if alive[i]:
+                q = pix_inverse[i]
+                t = b[i]
+                ch = c[i]
+                for j in range(kk):
+                    a_in[t, tt[q, j]] += weights[k, ch, j]
+        sp = lif_window(a_in, dv[k], vth_mant[k], reset_zero[k])
         n_fired = 0
-        for s in range(m):
-            n_fired += fk[s]
+        for t in range(n_bins):
+            for s in range(m):
+                spikes[k, t, s] = sp[t, s]
+                if sp[t, s] and not fired[k, s]:
+                    fired[k, s] = True
+                    n_fired += 1
         if n_fired == 0:
             continue
-        fp = np.empty(n_fired, np.int64)
+        f_r = np.empty(n_fired, np.int64)
+        f_c = np.empty(n_fired, np.int64)
         j = 0
         for s in range(m):
-            if fk[s]:
-                fp[j] = active[s]
+            if fired[k, s]:
+                f_r[j] = act_r[s]
+                f_c[j] = act_c[s]
                 j += 1
-        keep_r, keep_c, map_r, map_c, closed = compact_closed(fp, height, width, max(mask_kernel, 1), mask_kernel)
-        at = compact_lookup(input_pixels, width, keep_r, keep_c, map_r, map_c, closed)
+        at = closed_at(f_r, f_c, in_r, in_c, height, width, mask_kernel)
         frame, alive = split_closed(alive, pix_inverse, at)
         frames[k] = frame
     return spikes, fired, inputs, frames
@@ -304,14 +335,49 @@ def close_square(image, kernel):
     for y in range(n_r):
         for x in range(n_c):
             src[(y + a) * pw + x + a] = image[y, x]
+    ero = _close_padded(src, n_r, n_c, kernel).reshape(ph, pw)
+    return ero[a:a + n_r, a:a + n_c].copy()
+
+
+@njit(cache=True, nogil=True)
+def _close_padded(src, n_r, n_c, kernel):
+    """close_square of the (n_r, n_c) image held in ``src``: flat, padded by a = kernel // 2 on
+    every side with 0 (row width n_c + 2a). Returns the closing in the same padded layout."""
+    a = kernel // 2
+    pw = n_c + 2 * a
+    ph = n_r + 2 * a
     dil = _shift_pass(_shift_pass(src, kernel, 1, True), kernel, pw, True)
     grid = dil.reshape(ph, pw)
     grid[:a, :] = 1                                  # the erosion's neutral border
     grid[a + n_r:, :] = 1
     grid[:, :a] = 1
     grid[:, a + n_c:] = 1
-    ero = _shift_pass(_shift_pass(dil, kernel, 1, False), kernel, pw, False).reshape(ph, pw)
-    return ero[a:a + n_r, a:a + n_c].copy()
+    return _shift_pass(_shift_pass(dil, kernel, 1, False), kernel, pw, False)
+
+
+@njit(cache=True, nogil=True)
+def closed_at(f_rows, f_cols, rows, cols, height, width, kernel):
+    """compact_lookup(pixels, ..., compact_closed(fired pixels, height, width, max(kernel, 1),
+    kernel)) from the rows and columns of both sets: (n,) bool, whether each pixel (rows, cols)
+    lies in the closing of the fired pixels (f_rows, f_cols, non-empty). The compacted image is
+    written straight into the closing's padded layout (_close_padded) and read there: no
+    image copies, no division."""
+    radius = max(kernel, 1)
+    keep_r, map_r, n_r = _kept(f_rows, height, radius)
+    keep_c, map_c, n_c = _kept(f_cols, width, radius)
+    a = kernel // 2
+    pw = n_c + 2 * a
+    src = np.zeros((n_r + 2 * a) * pw, np.uint8)
+    for i in range(f_rows.shape[0]):
+        src[(map_r[f_rows[i]] + a) * pw + map_c[f_cols[i]] + a] = 1
+    closed = _close_padded(src, n_r, n_c, kernel)
+    out = np.zeros(rows.shape[0], np.bool_)
+    for i in range(rows.shape[0]):
+        y = rows[i]
+        x = cols[i]
+        if keep_r[y] and keep_c[x]:
+            out[i] = closed[(map_r[y] + a) * pw + map_c[x] + a] != 0
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -870,16 +936,20 @@ def _near_members(gx, gy, box, obox, head, nxt, xs, ys, t, buf_x, buf_y):
         return False
     x0, y0, x1, y1 = box[0] - t, box[1] - t, box[2] + t, box[3] + t
     t2 = t * t
+    bx = buf_x[:k]
+    by = buf_y[:k]
     p = head
     while p >= 0:
         mx = xs[p]
         my = ys[p]
         if x0 <= mx <= x1 and y0 <= my <= y1:
+            m = np.int64(1) << 62                # the member's smallest square: a vectorized loop
             for i in range(k):
-                dx = buf_x[i] - mx
-                dy = buf_y[i] - my
-                if dx * dx + dy * dy <= t2:
-                    return True
+                dx = bx[i] - mx
+                dy = by[i] - my
+                m = min(m, dx * dx + dy * dy)
+            if m <= t2:
+                return True
         p = nxt[p]
     return False
 
