@@ -90,9 +90,20 @@ def active_set(in_pix, width, height, kernel, slot_of):
     active = np.empty(u * kk, np.int64)
     m = 0
     inv_w = 1.0 / width
+    off = np.empty(kk, np.int64)              # linear offset of each tap's target
+    for i in range(kernel):
+        for j in range(kernel):
+            off[i * kernel + j] = (r - i) * width + (r - j)
+    lo = kernel - 1 - r                        # targets span y - lo .. y + r (and x)
     for q in range(u):
         y = _div_small(in_pix[q], width, inv_w)
         x = in_pix[q] - y * width
+        if y >= lo and y + r < height and x >= lo and x + r < width:    # every target on the sensor
+            for k in range(kk):
+                tap_target[q, k] = s = _slot(slot_of, in_pix[q] + off[k], active, m)
+                if s == m:
+                    m += 1
+            continue
         for i in range(kernel):
             ty = y + r - i                      # out[ty, tx] += w[i, j] * in[ty + i - r, tx + j - r]
             for j in range(kernel):
