@@ -1398,6 +1398,7 @@ def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of):
     base = plane * n_pixels
     c = plane % n_channels
     inv_w = 1.0 / width
+    nbr = np.array([-width - 1, -width, -width + 1, -1, 1, width - 1, width, width + 1])
     u = 0
     for i in range(n):
         v = idx[i]
@@ -1420,17 +1421,23 @@ def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of):
                 elif (y + 1) * width <= p:
                     y += 1
                 x = p - y * width
-                for dy in range(-1, 2):
-                    yy = y + dy
-                    if yy < 0 or yy * width >= n_pixels:
-                        continue
-                    for dx in range(-1, 2):
-                        xx = x + dx
-                        if (dy == 0 and dx == 0) or xx < 0 or xx >= width:
-                            continue
-                        q = slot_of[yy * width + xx]
+                if y >= 1 and p + width < n_pixels and x >= 1 and x + 1 < width:   # all 8 on the sensor
+                    for k in range(8):
+                        q = slot_of[p + nbr[k]]
                         if q >= 0:
                             _union(parent, u, q)
+                else:
+                    for dy in range(-1, 2):
+                        yy = y + dy
+                        if yy < 0 or yy * width >= n_pixels:
+                            continue
+                        for dx in range(-1, 2):
+                            xx = x + dx
+                            if (dy == 0 and dx == 0) or xx < 0 or xx >= width:
+                                continue
+                            q = slot_of[yy * width + xx]
+                            if q >= 0:
+                                _union(parent, u, q)
             u += 1
         slot[i] = s
         if first:
