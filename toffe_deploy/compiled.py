@@ -213,12 +213,8 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
     inputs = np.empty((n_st, n), np.bool_)
     frames = np.zeros((n_st, n), np.bool_)
     alive = np.ones(n, np.bool_)
-    # ofs_stage's scatter without its branch: off-sensor taps add into a dummy slot m
-    tt = tap_target.copy()
-    for q in range(tt.shape[0]):
-        for j in range(kk):
-            if tt[q, j] < 0:
-                tt[q, j] = m
+    # ofs_stage's scatter without its branch: an off-sensor tap (target -1) adds into the dummy
+    # last column m of a_in, where index -1 lands (numba wraps negative indices as numpy does)
     a_in = np.empty((n_bins, m + 1), np.int64)
     # rows and columns of the active and input pixels, once per window (closed_at)
     inv_w = 1.0 / width
@@ -242,7 +238,7 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
                 t = b[i]
                 ch = c[i]
                 for j in range(kk):
-                    a_in[t, tt[q, j]] += weights[k, ch, j]
+                    a_in[t, tap_target[q, j]] += weights[k, ch, j]
         sp = lif_window(a_in, dv[k], vth_mant[k], reset_zero[k])
         n_fired = 0
         for t in range(n_bins):
