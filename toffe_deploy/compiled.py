@@ -120,6 +120,29 @@ def active_set(in_pix, width, height, kernel, slot_of):
 
 
 @njit(cache=True, nogil=True)
+def ofs_window(bc, pix, n_channels, width, height, kernel, slot_of):
+    """runtime.ofs_sparse.SparseOFSWindow's indexing of a window's ones in one call: (b, c) of
+    each one from its plane bc = b * C + c, (unique pixels in order of first appearance,
+    inverse) = dedupe(pix), then active_set of those pixels: (b, c, in_pix, pix_inverse,
+    active, tap_target)."""
+    n = bc.shape[0]
+    b = np.empty(n, np.int64)
+    c = np.empty(n, np.int64)
+    if n_channels == 2:
+        for i in range(n):
+            b[i] = bc[i] >> 1
+            c[i] = bc[i] & 1
+    else:
+        inv_c = 1.0 / n_channels
+        for i in range(n):
+            b[i] = _div_small(bc[i], n_channels, inv_c)
+            c[i] = bc[i] - b[i] * n_channels
+    in_pix, inverse = dedupe(pix, slot_of)
+    active, tap_target = active_set(in_pix, width, height, kernel, slot_of)
+    return b, c, in_pix, inverse, active, tap_target
+
+
+@njit(cache=True, nogil=True)
 def lif_window(a_in, dv, vth_mant, reset_zero=False):
     """Spikes (B, M) of fixed_point.lif_step iterated over a window of a_in (B, M) int64 from
     v = 0, o = 0 (the neuron of ofs_stage); ``reset_zero``: the stock "zero" reset, else "subtract".
@@ -1597,7 +1620,7 @@ def unique_inverse(values):
 
 
 # the kernels called from Python (the others are compiled into their callers)
-KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, compact_closed,
+KERNELS = (dedupe, active_set, ofs_window, ofs_stage, split_closed, compact_image, compact_lookup, compact_closed,
            cascade_window,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops, object_input,
@@ -1614,6 +1637,7 @@ def warm_up() -> None:
     scratch = new_scratch(4)
     uniq, inverse = dedupe(i64, scratch)
     active, tap_target = active_set(uniq, 2, 2, 1, scratch)
+    ofs_window(i64, i64, 2, 2, 2, 1, scratch)
     weight = np.ones((1, 1), np.int64)
     alive = np.ones(1, np.bool_)
     spikes, fired = ofs_stage(alive, i64, i64, inverse, tap_target, weight, 1, active.shape[0], 0, 1, False)
