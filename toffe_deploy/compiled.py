@@ -812,33 +812,6 @@ def surrounds(xs, ys):
 
 
 @njit(cache=True, nogil=True)
-def _by_component_then_x(labels, xs, start):
-    """The pixels ordered by component (component c at start[c]:start[c + 1]), then by x: two
-    counting sorts (x, then a stable pass over the components)."""
-    n = xs.shape[0]
-    order = np.empty(n, np.int64)
-    if n == 0:
-        return order
-    x_lo = xs.min()
-    cnt = np.zeros(xs.max() - x_lo + 2, np.int64)
-    for i in range(n):
-        cnt[xs[i] - x_lo + 1] += 1
-    for v in range(cnt.shape[0] - 1):
-        cnt[v + 1] += cnt[v]
-    by_x = np.empty(n, np.int64)
-    for i in range(n):
-        v = xs[i] - x_lo
-        by_x[cnt[v]] = i
-        cnt[v] += 1
-    fill = start[:-1].copy()
-    for i in by_x:
-        c = labels[i]
-        order[fill[c]] = i
-        fill[c] += 1
-    return order
-
-
-@njit(cache=True, nogil=True)
 def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
     """Groups a frame's components into objects, closest pairs first.
 
@@ -855,9 +828,14 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
     start = np.zeros(n + 1, np.int64)
     for c in range(n):
         start[c + 1] = start[c] + count[c]
-    order = _by_component_then_x(labels, xs, start)       # min_gap's order
-    px = xs[order]
-    py = ys[order]
+    px = np.empty(labels.shape[0], np.int64)              # the pixels by component (any order within)
+    py = np.empty(labels.shape[0], np.int64)
+    fill = start[:n].copy()
+    for i in range(labels.shape[0]):
+        c = labels[i]
+        px[fill[c]] = xs[i]
+        py[fill[c]] = ys[i]
+        fill[c] += 1
     parent = np.arange(n)
     ext = np.empty(n)
     for c in range(n):
