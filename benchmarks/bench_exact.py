@@ -9,7 +9,8 @@ a speed-up): dump one version's full output, then compare two dumps.
 A dump holds, per window: every object's fields as ``Pipeline`` reports them, at full float
 precision (repr of the float64, not the 4 decimals of the JSON lines), track ids included, and a
 SHA-256 of the window's cascade result (each stage's input, spikes and frame masks) and of the
-OFPD input batch. ``compare`` prints the first differing window and exits 1, else 0.
+OFPD input batch. ``compare`` prints the first differing window and exits 1, else 0. The code
+compared is the ``toffe_deploy`` on PYTHONPATH (this script adds nothing to sys.path).
 """
 from __future__ import annotations
 
@@ -98,10 +99,19 @@ def main(argv=None) -> int:
     c.add_argument("a")
     c.add_argument("b")
     args = ap.parse_args(argv)
-    if args.cmd == "dump":
-        Path(args.out).write_text(json.dumps(dump(args.bundle, args.events, args.max_windows)))
-        return 0
-    return compare(json.loads(Path(args.a).read_text()), json.loads(Path(args.b).read_text()))
+    from toffe_deploy.errors import ToffeError        # from PYTHONPATH: the version under test
+    from toffe_deploy.fileio import atomic_path
+
+    try:
+        if args.cmd == "dump":
+            out = dump(args.bundle, args.events, args.max_windows)
+            with atomic_path(args.out) as tmp:
+                tmp.write_text(json.dumps(out))
+            return 0
+        return compare(json.loads(Path(args.a).read_text()), json.loads(Path(args.b).read_text()))
+    except ToffeError as exc:
+        print(f"bench_exact: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
