@@ -226,7 +226,9 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
                  input pixels (compact_lookup)
         frames[k-1], alive = split_closed(alive, closed)      (nothing fired: frame empty)
     weights (N, C, K*K), dv, vth_mant, reset_zero (N,) per stage. Returns (spikes (N, B, M),
-    fired (N, M), inputs (N, n), frames (N, n)) bool."""
+    fired (N, M), inputs (N, n), frames (N, n)) bool. ofs_stage's scatter is inlined on one
+    buffer and the closing is closed_at (the same values; tests/test_run_sparse.py checks the
+    cascade against the dense reference)."""
     n = b.shape[0]
     m = active.shape[0]
     n_st = weights.shape[0]
