@@ -216,3 +216,21 @@ def test_link_components_equals_brute_force(rng):
         assert n == k
         assert all(len(set(ref[labels == g])) == 1 for g in range(n))     # same partition
         assert labels[np.argmin(ys * w + xs)] == 0                          # numbered row-major
+
+
+def test_min_gap_equals_brute_force_also_at_the_threshold(rng):
+    """compiled.min_gap (vectorized brute force with bounding-box skips, any pixel order)
+    against the definition: the smallest pairwise distance when it is <= t, else inf; t drawn
+    also as exact distances sqrt(k), where float rounding decides."""
+    from toffe_deploy.compiled import min_gap
+
+    for _ in range(400):
+        na, nb = rng.integers(1, 40, 2)
+        s = int(rng.integers(3, 60))
+        xa, ya = rng.integers(0, s, na), rng.integers(0, s, na)
+        xb, yb = rng.integers(0, s, nb) + int(rng.integers(-30, 30)), rng.integers(0, s, nb)
+        d = float(np.sqrt(((xa[:, None] - xb[None]) ** 2 + (ya[:, None] - yb[None]) ** 2).min()))
+        for t in (float(rng.uniform(0, 40)), d, float(np.sqrt(max(round(d * d) - 1, 0)))):
+            got = min_gap(xa, ya, xb, yb, t)
+            assert got == (d if d <= t else np.inf), (d, t, got)
+    assert min_gap(np.zeros(0, np.int64), np.zeros(0, np.int64), xb, yb, 5.0) == np.inf

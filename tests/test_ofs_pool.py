@@ -87,3 +87,21 @@ def test_pool_2_puts_four_640x480_stages_on_one_chip():
     assert full["chips"] == 2 and not full["fits_one_chip"]
     assert pooled["ofs_grid"] == [320, 240] and pooled["neurons"] == 4 * 76800
     assert pooled["cores"] == 40 and pooled["chips"] == 1 and pooled["fits_one_chip"]
+
+
+def test_spike_volume_pool_equals_numpy_unique_for_any_block_size(rng):
+    """SpikeVolume.pool (compiled.pool_index: a merge of each pooled row's sorted runs) gives
+    np.unique of the pooled ids with its inverse, and both volumes' planes and pixels."""
+    for p in (2, 3, 4):
+        for _ in range(20):
+            shape = (int(rng.integers(1, 6)), 2, int(rng.integers(1, 30)), int(rng.integers(1, 30)))
+            vol = SpikeVolume.from_dense(rng.random(shape) < rng.uniform(0, 0.5))
+            grid, inv = vol.pool(p)
+            b, c, h, w = shape
+            hp, wp = -(-h // p), -(-w // p)
+            bc, pix = np.divmod(vol.idx, h * w)
+            want, want_inv = np.unique((bc * hp + pix // w // p) * wp + pix % w // p, return_inverse=True)
+            assert np.array_equal(grid.idx, want) and np.array_equal(inv, want_inv.reshape(-1))
+            assert grid.shape == (b, c, hp, wp)
+            assert np.array_equal(grid.bc, grid.idx // (hp * wp)) and np.array_equal(grid.pix, grid.idx % (hp * wp))
+            assert np.array_equal(vol.bc, bc) and np.array_equal(vol.pix, pix)

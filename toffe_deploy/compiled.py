@@ -46,6 +46,19 @@ def _slot(slot_of, key, keys, n):
 
 
 @njit(cache=True, nogil=True)
+def _div_small(v, d, inv_d):
+    """v // d for v >= 0 and d >= 1 (inv_d = 1.0 / d) from a float estimate corrected to the
+    exact quotient: an integer division per element costs more than the rest of a pass over a
+    window's ones (it is neither pipelined nor vectorized), a multiply and a compare do not."""
+    q = int(v * inv_d)
+    while q * d > v:
+        q -= 1
+    while (q + 1) * d <= v:
+        q += 1
+    return q
+
+
+@njit(cache=True, nogil=True)
 def dedupe(values, slot_of):
     """(unique values in order of first appearance, inverse) of non-negative ints below
     len(slot_of), in O(n) without sorting: values = unique[inverse]."""
@@ -76,9 +89,21 @@ def active_set(in_pix, width, height, kernel, slot_of):
     tap_target = np.empty((u, kk), np.int64)
     active = np.empty(u * kk, np.int64)
     m = 0
+    inv_w = 1.0 / width
+    off = np.empty(kk, np.int64)              # linear offset of each tap's target
+    for i in range(kernel):
+        for j in range(kernel):
+            off[i * kernel + j] = (r - i) * width + (r - j)
+    lo = kernel - 1 - r                        # targets span y - lo .. y + r (and x)
     for q in range(u):
-        y = in_pix[q] // width
+        y = _div_small(in_pix[q], width, inv_w)
         x = in_pix[q] - y * width
+        if y >= lo and y + r < height and x >= lo and x + r < width:    # every target on the sensor
+            for k in range(kk):
+                tap_target[q, k] = s = _slot(slot_of, in_pix[q] + off[k], active, m)
+                if s == m:
+                    m += 1
+            continue
         for i in range(kernel):
             ty = y + r - i                      # out[ty, tx] += w[i, j] * in[ty + i - r, tx + j - r]
             for j in range(kernel):
@@ -92,6 +117,29 @@ def active_set(in_pix, width, height, kernel, slot_of):
     for s in range(m):
         slot_of[active[s]] = -1
     return active[:m].copy(), tap_target
+
+
+@njit(cache=True, nogil=True)
+def ofs_window(bc, pix, n_channels, width, height, kernel, slot_of):
+    """runtime.ofs_sparse.SparseOFSWindow's indexing of a window's ones in one call: (b, c) of
+    each one from its plane bc = b * C + c, (unique pixels in order of first appearance,
+    inverse) = dedupe(pix), then active_set of those pixels: (b, c, in_pix, pix_inverse,
+    active, tap_target)."""
+    n = bc.shape[0]
+    b = np.empty(n, np.int64)
+    c = np.empty(n, np.int64)
+    if n_channels == 2:
+        for i in range(n):
+            b[i] = bc[i] >> 1
+            c[i] = bc[i] & 1
+    else:
+        inv_c = 1.0 / n_channels
+        for i in range(n):
+            b[i] = _div_small(bc[i], n_channels, inv_c)
+            c[i] = bc[i] - b[i] * n_channels
+    in_pix, inverse = dedupe(pix, slot_of)
+    active, tap_target = active_set(in_pix, width, height, kernel, slot_of)
+    return b, c, in_pix, inverse, active, tap_target
 
 
 @njit(cache=True, nogil=True)
@@ -178,34 +226,63 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
                  input pixels (compact_lookup)
         frames[k-1], alive = split_closed(alive, closed)      (nothing fired: frame empty)
     weights (N, C, K*K), dv, vth_mant, reset_zero (N,) per stage. Returns (spikes (N, B, M),
-    fired (N, M), inputs (N, n), frames (N, n)) bool."""
+    fired (N, M), inputs (N, n), frames (N, n)) bool. ofs_stage's scatter is inlined on one
+    buffer and the closing is closed_at (the same values; tests/test_run_sparse.py checks the
+    cascade against the dense reference)."""
     n = b.shape[0]
     m = active.shape[0]
     n_st = weights.shape[0]
+    kk = tap_target.shape[1]
     spikes = np.empty((n_st, n_bins, m), np.bool_)
-    fired = np.empty((n_st, m), np.bool_)
+    fired = np.zeros((n_st, m), np.bool_)
     inputs = np.empty((n_st, n), np.bool_)
     frames = np.zeros((n_st, n), np.bool_)
     alive = np.ones(n, np.bool_)
+    # ofs_stage's scatter without its branch: an off-sensor tap (target -1) adds into the dummy
+    # last column m of a_in, where index -1 lands (numba wraps negative indices as numpy does)
+    a_in = np.empty((n_bins, m + 1), np.int64)
+    # rows and columns of the active and input pixels, once per window (closed_at)
+    inv_w = 1.0 / width
+    act_r = np.empty(m, np.int64)
+    act_c = np.empty(m, np.int64)
+    for s in range(m):
+        act_r[s] = _div_small(active[s], width, inv_w)
+        act_c[s] = active[s] - act_r[s] * width
+    u = input_pixels.shape[0]
+    in_r = np.empty(u, np.int64)
+    in_c = np.empty(u, np.int64)
+    for q in range(u):
+        in_r[q] = _div_small(input_pixels[q], width, inv_w)
+        in_c[q] = input_pixels[q] - in_r[q] * width
     for k in range(n_st - 1, -1, -1):
         inputs[k] = alive
-        sp, fk = ofs_stage(alive, b, c, pix_inverse, tap_target, weights[k], n_bins, m, dv[k], vth_mant[k],
-                           reset_zero[k])
-        spikes[k] = sp
-        fired[k] = fk
+        a_in[:] = 0
+        for i in range(n):
+            if alive[i]:
+                q = pix_inverse[i]
+                t = b[i]
+                ch = c[i]
+                for j in range(kk):
+                    a_in[t, tap_target[q, j]] += weights[k, ch, j]
+        sp = lif_window(a_in, dv[k], vth_mant[k], reset_zero[k])
         n_fired = 0
-        for s in range(m):
-            n_fired += fk[s]
+        for t in range(n_bins):
+            for s in range(m):
+                spikes[k, t, s] = sp[t, s]
+                if sp[t, s] and not fired[k, s]:
+                    fired[k, s] = True
+                    n_fired += 1
         if n_fired == 0:
             continue
-        fp = np.empty(n_fired, np.int64)
+        f_r = np.empty(n_fired, np.int64)
+        f_c = np.empty(n_fired, np.int64)
         j = 0
         for s in range(m):
-            if fk[s]:
-                fp[j] = active[s]
+            if fired[k, s]:
+                f_r[j] = act_r[s]
+                f_c[j] = act_c[s]
                 j += 1
-        keep_r, keep_c, map_r, map_c, closed = compact_closed(fp, height, width, max(mask_kernel, 1), mask_kernel)
-        at = compact_lookup(input_pixels, width, keep_r, keep_c, map_r, map_c, closed)
+        at = closed_at(f_r, f_c, in_r, in_c, height, width, mask_kernel)
         frame, alive = split_closed(alive, pix_inverse, at)
         frames[k] = frame
     return spikes, fired, inputs, frames
@@ -235,7 +312,10 @@ def compact_image(pix, height, width, radius):
     """The pixels ``pix`` (linear ids, non-empty) on the sensor compacted to the rows and columns
     within ``radius`` of one of them (morph.CompactClosing): (keep_r, keep_c, map_r, map_c,
     image (kept rows, kept columns) uint8 with 1 at each pixel)."""
-    rows = pix // width
+    rows = np.empty(pix.shape[0], np.int64)
+    inv_w = 1.0 / width
+    for i in range(pix.shape[0]):
+        rows[i] = _div_small(pix[i], width, inv_w)
     cols = pix - rows * width
     keep_r, map_r, n_r = _kept(rows, height, radius)
     keep_c, map_c, n_c = _kept(cols, width, radius)
@@ -287,14 +367,49 @@ def close_square(image, kernel):
     for y in range(n_r):
         for x in range(n_c):
             src[(y + a) * pw + x + a] = image[y, x]
+    ero = _close_padded(src, n_r, n_c, kernel).reshape(ph, pw)
+    return ero[a:a + n_r, a:a + n_c].copy()
+
+
+@njit(cache=True, nogil=True)
+def _close_padded(src, n_r, n_c, kernel):
+    """close_square of the (n_r, n_c) image held in ``src``: flat, padded by a = kernel // 2 on
+    every side with 0 (row width n_c + 2a). Returns the closing in the same padded layout."""
+    a = kernel // 2
+    pw = n_c + 2 * a
+    ph = n_r + 2 * a
     dil = _shift_pass(_shift_pass(src, kernel, 1, True), kernel, pw, True)
     grid = dil.reshape(ph, pw)
     grid[:a, :] = 1                                  # the erosion's neutral border
     grid[a + n_r:, :] = 1
     grid[:, :a] = 1
     grid[:, a + n_c:] = 1
-    ero = _shift_pass(_shift_pass(dil, kernel, 1, False), kernel, pw, False).reshape(ph, pw)
-    return ero[a:a + n_r, a:a + n_c].copy()
+    return _shift_pass(_shift_pass(dil, kernel, 1, False), kernel, pw, False)
+
+
+@njit(cache=True, nogil=True)
+def closed_at(f_rows, f_cols, rows, cols, height, width, kernel):
+    """compact_lookup(pixels, ..., compact_closed(fired pixels, height, width, max(kernel, 1),
+    kernel)) from the rows and columns of both sets: (n,) bool, whether each pixel (rows, cols)
+    lies in the closing of the fired pixels (f_rows, f_cols, non-empty). The compacted image is
+    written straight into the closing's padded layout (_close_padded) and read there: no
+    image copies, no division."""
+    radius = max(kernel, 1)
+    keep_r, map_r, n_r = _kept(f_rows, height, radius)
+    keep_c, map_c, n_c = _kept(f_cols, width, radius)
+    a = kernel // 2
+    pw = n_c + 2 * a
+    src = np.zeros((n_r + 2 * a) * pw, np.uint8)
+    for i in range(f_rows.shape[0]):
+        src[(map_r[f_rows[i]] + a) * pw + map_c[f_cols[i]] + a] = 1
+    closed = _close_padded(src, n_r, n_c, kernel)
+    out = np.zeros(rows.shape[0], np.bool_)
+    for i in range(rows.shape[0]):
+        y = rows[i]
+        x = cols[i]
+        if keep_r[y] and keep_c[x]:
+            out[i] = closed[(map_r[y] + a) * pw + map_c[x] + a] != 0
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -309,8 +424,9 @@ def compact_lookup(pix, width, keep_r, keep_c, map_r, map_c, image):
     """image at the compacted position of each pixel of ``pix``, False outside the kept rows
     and columns: (n,) bool."""
     out = np.zeros(pix.shape[0], np.bool_)
+    inv_w = 1.0 / width
     for i in range(pix.shape[0]):
-        y = pix[i] // width
+        y = _div_small(pix[i], width, inv_w)
         x = pix[i] - y * width
         if keep_r[y] and keep_c[x]:
             out[i] = image[map_r[y], map_c[x]] != 0
@@ -595,45 +711,42 @@ def box_gap(a, b):
 @njit(cache=True, nogil=True)
 def min_gap(xa, ya, xb, yb, t):
     """Smallest Euclidean distance between a pixel of set a and one of set b when it is <= t,
-    else inf. Set b must be sorted by x: each pixel of a scans only the pixels of b with
-    |dx| <= the best distance so far (found by binary search), so the scan narrows as soon as
-    a close pair is found; pixels of a farther than that from b's bounding box are skipped.
-    Distances are compared as exact integer squares; the result is sqrt of the smallest
-    (correctly rounded: the smallest of the pairs' float distances)."""
+    else inf (any order of either set). Brute force over the pairs, as exact integer squares:
+    for each pixel of a that can still come closer (the gap from it to b's bounding box is
+    below the smallest square so far and within t), the smallest square to b's pixels is one
+    branch-free loop that LLVM vectorizes, several times faster on the few hundred pixels of
+    a frame's components than a scan that narrows by x but branches per pair. The result is
+    sqrt of the smallest square (correctly rounded: the smallest of the pairs' float distances)."""
     nb = xb.shape[0]
     if nb == 0:
         return np.inf
-    bx0 = xb[0]
-    bx1 = xb[nb - 1]
+    bx0 = bx1 = xb[0]
     by0 = by1 = yb[0]
     for j in range(nb):
+        bx0 = min(bx0, xb[j])
+        bx1 = max(bx1, xb[j])
         by0 = min(by0, yb[j])
         by1 = max(by1, yb[j])
-    best = t
-    best2 = 0
-    found = False
     t2_hi = t * t * (1.0 + 1e-12) + 1.0      # no pair with a larger square is within t
+    best2 = np.int64(1) << 62
     for i in range(xa.shape[0]):
         x = xa[i]
         y = ya[i]
-        if x < bx0 - best or x > bx1 + best or y < by0 - best or y > by1 + best:
+        gx = max(bx0 - x, x - bx1, 0)
+        gy = max(by0 - y, y - by1, 0)
+        g2 = gx * gx + gy * gy
+        if g2 >= best2 or g2 > t2_hi:
             continue
-        j = np.searchsorted(xb, x - best)
-        while j < nb and xb[j] <= x + best:
+        m = best2
+        for j in range(nb):
+            dx = x - xb[j]
             dy = y - yb[j]
-            if abs(dy) <= best:
-                dx = x - xb[j]
-                d2 = dx * dx + dy * dy
-                if found:
-                    if d2 < best2:
-                        best2 = d2
-                        best = np.sqrt(d2)
-                elif d2 <= t2_hi and np.sqrt(d2) <= t:
-                    found = True
-                    best2 = d2
-                    best = np.sqrt(d2)
-            j += 1
-    return best if found else np.inf
+            m = min(m, dx * dx + dy * dy)
+        best2 = m
+    if best2 > t2_hi:
+        return np.inf
+    d = np.sqrt(best2)
+    return d if d <= t else np.inf
 
 
 @njit(cache=True, nogil=True)
@@ -701,33 +814,6 @@ def surrounds(xs, ys):
 
 
 @njit(cache=True, nogil=True)
-def _by_component_then_x(labels, xs, start):
-    """The pixels ordered by component (component c at start[c]:start[c + 1]), then by x: two
-    counting sorts (x, then a stable pass over the components)."""
-    n = xs.shape[0]
-    order = np.empty(n, np.int64)
-    if n == 0:
-        return order
-    x_lo = xs.min()
-    cnt = np.zeros(xs.max() - x_lo + 2, np.int64)
-    for i in range(n):
-        cnt[xs[i] - x_lo + 1] += 1
-    for v in range(cnt.shape[0] - 1):
-        cnt[v + 1] += cnt[v]
-    by_x = np.empty(n, np.int64)
-    for i in range(n):
-        v = xs[i] - x_lo
-        by_x[cnt[v]] = i
-        cnt[v] += 1
-    fill = start[:-1].copy()
-    for i in by_x:
-        c = labels[i]
-        order[fill[c]] = i
-        fill[c] += 1
-    return order
-
-
-@njit(cache=True, nogil=True)
 def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
     """Groups a frame's components into objects, closest pairs first.
 
@@ -744,9 +830,14 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
     start = np.zeros(n + 1, np.int64)
     for c in range(n):
         start[c + 1] = start[c] + count[c]
-    order = _by_component_then_x(labels, xs, start)       # min_gap's order
-    px = xs[order]
-    py = ys[order]
+    px = np.empty(labels.shape[0], np.int64)              # the pixels by component (any order within)
+    py = np.empty(labels.shape[0], np.int64)
+    fill = start[:n].copy()
+    for i in range(labels.shape[0]):
+        c = labels[i]
+        px[fill[c]] = xs[i]
+        py[fill[c]] = ys[i]
+        fill[c] += 1
     parent = np.arange(n)
     ext = np.empty(n)
     for c in range(n):
@@ -855,16 +946,20 @@ def _near_members(gx, gy, box, obox, head, nxt, xs, ys, t, buf_x, buf_y):
         return False
     x0, y0, x1, y1 = box[0] - t, box[1] - t, box[2] + t, box[3] + t
     t2 = t * t
+    bx = buf_x[:k]
+    by = buf_y[:k]
     p = head
     while p >= 0:
         mx = xs[p]
         my = ys[p]
         if x0 <= mx <= x1 and y0 <= my <= y1:
+            m = np.int64(1) << 62                # the member's smallest square: a vectorized loop
             for i in range(k):
-                dx = buf_x[i] - mx
-                dy = buf_y[i] - my
-                if dx * dx + dy * dy <= t2:
-                    return True
+                dx = bx[i] - mx
+                dy = by[i] - my
+                m = min(m, dx * dx + dy * dy)
+            if m <= t2:
+                return True
         p = nxt[p]
     return False
 
@@ -1155,6 +1250,29 @@ def cell_centres(origins, g, coord_scale):
 
 
 @njit(cache=True, nogil=True)
+def _cell_table(origins, g):
+    """(pool (N,), cell_of (N, max S)) for crops at origins (N, 3) = (x0, y0, S): P = S // g and
+    cell_of[o, v] = v // P for 0 <= v < S, so that the passes over the ones divide nothing."""
+    n_obj = origins.shape[0]
+    side = 0
+    for o in range(n_obj):
+        side = max(side, origins[o, 2])
+    pool_of = np.empty(n_obj, np.int64)
+    cell_of = np.empty((n_obj, side), np.int64)
+    for o in range(n_obj):
+        pool_of[o] = pool = origins[o, 2] // g
+        c = 0
+        k = 0
+        for v in range(origins[o, 2]):
+            cell_of[o, v] = c
+            k += 1
+            if k == pool:
+                k = 0
+                c += 1
+    return pool_of, cell_of
+
+
+@njit(cache=True, nogil=True)
 def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
     """The OFPD input of ofpd_io.prepare_xy into ``out`` (N, n_channels + 2, g, g) float32 of
     zeros: out[obj, ch, y // P, x // P] = the number of ones (object obj, pixel (x, y), channel
@@ -1168,20 +1286,7 @@ def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
     flat = out.reshape(-1)
     plane = g * g
     cell = np.empty(xs.shape[0], np.int64)
-    side = 0
-    for o in range(n_obj):
-        side = max(side, origins[o, 2])
-    cell_of = np.empty((n_obj, side), np.int64)    # v // P for 0 <= v < S, without a division per one
-    for o in range(n_obj):
-        pool = origins[o, 2] // g
-        c = 0
-        k = 0
-        for v in range(origins[o, 2]):
-            cell_of[o, v] = c
-            k += 1
-            if k == pool:
-                k = 0
-                c += 1
+    pool_of, cell_of = _cell_table(origins, g)
     for i in range(xs.shape[0]):               # counts, negative until divided
         o = obj[i]
         size = origins[o, 2]
@@ -1194,7 +1299,7 @@ def fill_input(out, obj, xs, ys, ch, origins, n_channels, coord_scale):
     for i in range(xs.shape[0]):               # each counted cell divided once
         at = cell[i]
         if at >= 0 and flat[at] < 0:
-            pool = origins[obj[i], 2] // g
+            pool = pool_of[obj[i]]
             flat[at] = -flat[at] / np.float32(pool * pool)
     px, py = cell_centres(origins.astype(np.float64), g, coord_scale)
     for o in range(n_obj):
@@ -1225,25 +1330,28 @@ def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
     # one cost more than the sums) and finished only for the cells some one touched
     slot_of = np.full(n_obj * g * g, -1, np.int32)
     acc = np.zeros((xs.shape[0], 6), np.int64)
-    touched = np.empty(xs.shape[0], np.int64)
+    touched = np.empty((xs.shape[0], 3), np.int64)     # object, cy, cx of each touched cell
     n_touched = 0
+    pool_of, cell_of = _cell_table(origins, g)
     for i in range(xs.shape[0]):
         o = obj[i]
         size = origins[o, 2]
-        pool = size // g
+        pool = pool_of[o]
         x = xs[i] - origins[o, 0]
         y = ys[i] - origins[o, 1]
         if 0 <= x < size and 0 <= y < size and 0 <= ch[i] < 2 * n_bins:
-            cx = x // pool
-            cy = y // pool
-            tt = 2 * (ch[i] // 2) - (n_bins - 1)
+            cx = cell_of[o, x]
+            cy = cell_of[o, y]
+            tt = 2 * (ch[i] >> 1) - (n_bins - 1)
             uu = 2 * (x - cx * pool) - (pool - 1)
             vv = 2 * (y - cy * pool) - (pool - 1)
             cell = (o * g + cy) * g + cx
             c = slot_of[cell]
             if c < 0:
                 c = slot_of[cell] = n_touched
-                touched[n_touched] = cell
+                touched[n_touched, 0] = o
+                touched[n_touched, 1] = cy
+                touched[n_touched, 2] = cx
                 n_touched += 1
             acc[c, 0] += 1
             acc[c, 1] += tt
@@ -1252,11 +1360,10 @@ def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
             acc[c, 4] += tt * uu
             acc[c, 5] += tt * vv
     for c in range(n_touched):
-        cell = touched[c]
-        o = cell // (g * g)
-        cy = (cell // g) % g
-        cx = cell % g
-        pool = origins[o, 2] // g
+        o = touched[c, 0]
+        cy = touched[c, 1]
+        cx = touched[c, 2]
+        pool = pool_of[o]
         n = acc[c, 0]
         if n > 1 and n_bins > 1:
             den = float(n * pool * (n_bins - 1) * pool * pool)
@@ -1290,6 +1397,7 @@ def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of):
     base = plane * n_pixels
     c = plane % n_channels
     inv_w = 1.0 / width
+    nbr = np.array([-width - 1, -width, -width + 1, -1, 1, width - 1, width, width + 1])
     u = 0
     for i in range(n):
         v = idx[i]
@@ -1312,17 +1420,23 @@ def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of):
                 elif (y + 1) * width <= p:
                     y += 1
                 x = p - y * width
-                for dy in range(-1, 2):
-                    yy = y + dy
-                    if yy < 0 or yy * width >= n_pixels:
-                        continue
-                    for dx in range(-1, 2):
-                        xx = x + dx
-                        if (dy == 0 and dx == 0) or xx < 0 or xx >= width:
-                            continue
-                        q = slot_of[yy * width + xx]
+                if y >= 1 and p + width < n_pixels and x >= 1 and x + 1 < width:   # all 8 on the sensor
+                    for k in range(8):
+                        q = slot_of[p + nbr[k]]
                         if q >= 0:
                             _union(parent, u, q)
+                else:
+                    for dy in range(-1, 2):
+                        yy = y + dy
+                        if yy < 0 or yy * width >= n_pixels:
+                            continue
+                        for dx in range(-1, 2):
+                            xx = x + dx
+                            if (dy == 0 and dx == 0) or xx < 0 or xx >= width:
+                                continue
+                            q = slot_of[yy * width + xx]
+                            if q >= 0:
+                                _union(parent, u, q)
             u += 1
         slot[i] = s
         if first:
@@ -1351,11 +1465,12 @@ def bin_index(t, x, y, p, t0, dt_us, n_bins, height, width):
     out = np.empty(n, np.int64)
     m = 0
     t1 = t0 + dt_us
+    inv_dt = 1.0 / dt_us
     for i in range(n):
         ti = np.int64(t[i])
         if ti < t0 or ti >= t1:
             continue
-        b = ((ti - t0) * n_bins) // dt_us
+        b = _div_small((ti - t0) * n_bins, dt_us, inv_dt)
         pol = np.int64(1) if p[i] > 0 else np.int64(0)
         out[m] = ((b * 2 + pol) * height + np.int64(y[i])) * width + np.int64(x[i])
         m += 1
@@ -1382,6 +1497,89 @@ def sorted_unique(values):
 
 
 @njit(cache=True, nogil=True)
+def pool_index(idx, n_pixels, width, p, hp, wp):
+    """spikes.SpikeVolume.pool on a sorted unique linear index into a (B, C, H, W) volume, in
+    O(n) without sorting: (u, inverse, u_bc, u_pix, bc, pix) with u = np.unique of the pooled
+    ids (bc * hp + y // p) * wp + x // p and u[inverse] the pooled id of each one; u_bc, u_pix
+    the plane and pooled pixel of each u, bc, pix those of each one (idx = bc * n_pixels + pix).
+
+    Sorted idx lists the ones plane by plane and row by row, so the ones of one pooled row
+    (plane, y // p) are contiguous: up to p runs (one per sensor row), each sorted by x. A
+    p-way merge of the runs by x // p gives that row's pooled ids in order."""
+    n = idx.shape[0]
+    u = np.empty(n, np.int64)
+    inverse = np.empty(n, np.int64)
+    bc = np.empty(n, np.int64)
+    pix = np.empty(n, np.int64)
+    rowkey = np.empty(n, np.int64)
+    ys = np.empty(n, np.int64)
+    xp = np.empty(n, np.int64)
+    if n == 0:
+        return u, inverse, bc.copy(), pix.copy(), bc, pix
+    plane = idx[0] // n_pixels
+    base = plane * n_pixels
+    inv_w = 1.0 / width
+    inv_p = 1.0 / p
+    for i in range(n):
+        v = idx[i]
+        while v >= base + n_pixels:
+            base += n_pixels
+            plane += 1
+        q = v - base
+        bc[i] = plane
+        pix[i] = q
+        y = _div_small(q, width, inv_w)
+        ys[i] = y
+        xp[i] = _div_small(q - y * width, p, inv_p)
+        rowkey[i] = plane * hp + _div_small(y, p, inv_p)
+    ptr = np.empty(p, np.int64)
+    end = np.empty(p, np.int64)
+    m = 0
+    i = 0
+    gp = hp * wp
+    while i < n:
+        rk = rowkey[i]
+        e = i
+        while e < n and rowkey[e] == rk:
+            e += 1
+        nr = 0
+        j = i
+        while j < e:                         # the runs of the pooled row: one per sensor row
+            ptr[nr] = j
+            k = j + 1
+            while k < e and ys[k] == ys[j]:
+                k += 1
+            end[nr] = k
+            nr += 1
+            j = k
+        last = -1
+        while True:
+            best = -1
+            bx = 0
+            for r in range(nr):
+                if ptr[r] < end[r] and (best < 0 or xp[ptr[r]] < bx):
+                    bx = xp[ptr[r]]
+                    best = r
+            if best < 0:
+                break
+            if bx != last:
+                u[m] = rk * wp + bx
+                m += 1
+                last = bx
+            inverse[ptr[best]] = m - 1
+            ptr[best] += 1
+        i = e
+    u = u[:m].copy()
+    u_bc = np.empty(m, np.int64)
+    u_pix = np.empty(m, np.int64)
+    inv_g = 1.0 / gp
+    for j in range(m):
+        u_bc[j] = _div_small(u[j], gp, inv_g)
+        u_pix[j] = u[j] - u_bc[j] * gp
+    return u, inverse, u_bc, u_pix, bc, pix
+
+
+@njit(cache=True, nogil=True)
 def unique_inverse(values):
     """np.unique(values, return_inverse=True) of non-negative ints in O(n) passes: the stable
     radix order (_stable_order), then one pass numbering the distinct values."""
@@ -1402,12 +1600,12 @@ def unique_inverse(values):
 
 
 # the kernels called from Python (the others are compiled into their callers)
-KERNELS = (dedupe, active_set, ofs_stage, split_closed, compact_image, compact_lookup, compact_closed,
+KERNELS = (dedupe, active_set, ofs_window, ofs_stage, split_closed, compact_image, compact_lookup, compact_closed,
            cascade_window,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops, object_input,
            in_rects,
-           cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique, unique_inverse)
+           cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique, unique_inverse, pool_index)
 
 
 def warm_up() -> None:
@@ -1419,6 +1617,7 @@ def warm_up() -> None:
     scratch = new_scratch(4)
     uniq, inverse = dedupe(i64, scratch)
     active, tap_target = active_set(uniq, 2, 2, 1, scratch)
+    ofs_window(i64, i64, 2, 2, 2, 1, scratch)
     weight = np.ones((1, 1), np.int64)
     alive = np.ones(1, np.bool_)
     spikes, fired = ofs_stage(alive, i64, i64, inverse, tap_target, weight, 1, active.shape[0], 0, 1, False)
@@ -1454,3 +1653,4 @@ def warm_up() -> None:
     ev = np.zeros(1, EVENT_DTYPE)
     sorted_unique(bin_index(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1))
     unique_inverse(i64)
+    pool_index(i64, 1, 1, 1, 1, 1)

@@ -40,11 +40,16 @@ class SparseOFSWindow:
         self.kernel_size = k = int(kernel_size)
         if scratch is None:
             scratch = compiled.new_scratch(height * width)
-        self.b = volume.b
-        self.c = volume.c
-        in_pix, self.pix_inverse = volume.pixel_index(scratch)
+        if "_pixel_index" in volume.__dict__:           # the volume's own pixel order, as it was made
+            self.b = volume.b
+            self.c = volume.c
+            in_pix, self.pix_inverse = volume.pixel_index(scratch)
+            self.active, self.tap_target = compiled.active_set(in_pix, width, height, k, scratch)
+        else:                                           # all of it in one compiled call (the cpu hot path)
+            self.b, self.c, in_pix, self.pix_inverse, self.active, self.tap_target = compiled.ofs_window(
+                volume.bc, volume.pix, volume.shape[1], width, height, k, scratch)
+            volume.__dict__.update(b=self.b, c=self.c, _pixel_index=(in_pix, self.pix_inverse))
         self.input_pixels = in_pix          # unique pixels of the window's ones; pix = in_pix[pix_inverse]
-        self.active, self.tap_target = compiled.active_set(in_pix, width, height, k, scratch)
         self.n_bins = n_bins
 
     @property

@@ -118,11 +118,16 @@ class SpikeVolume:
             return self, None
         b, c, h, w = self.shape
         hp, wp = -(-h // p), -(-w // p)
-        ys, xs = np.divmod(self.pix, w)
-        from ..compiled import unique_inverse
+        from ..compiled import pool_index
 
-        u, inv = unique_inverse((self.bc * hp + ys // p) * wp + xs // p)      # np.unique's, radix sorted
-        return SpikeVolume(u, (b, c, hp, wp)), inv
+        # np.unique of (bc * hp + y // p) * wp + x // p with its inverse, in one O(n) pass that
+        # also gives both volumes' planes and pixels (kept: the cascade and the grouping use them)
+        u, inv, u_bc, u_pix, bc, pix = pool_index(self.idx, h * w, w, int(p), hp, wp)
+        self.__dict__.setdefault("bc", bc)
+        self.__dict__.setdefault("pix", pix)
+        grid = SpikeVolume(u, (b, c, hp, wp))
+        grid.__dict__["bc"], grid.__dict__["pix"] = u_bc, u_pix
+        return grid, inv
 
     def to_dense(self, dtype=bool) -> np.ndarray:
         out = np.zeros(int(np.prod(self.shape)), dtype=dtype)
