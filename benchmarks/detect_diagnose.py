@@ -8,16 +8,18 @@
 The windows, the cascade, the grouping and the matching are those of ``eval`` (evaluate.py:
 the same sampled windows, front end, fixed-point OFS stages, ofpd_io.group_objects_xy and
 metrics.match_gated within the 20 px gate); ``--ofpd KEY=VALUE`` overrides config.ofpd keys to
-measure a grouping rule without writing a checkpoint. Each ground-truth object the matching
+measure a grouping rule without writing a checkpoint (``--config KEY=VALUE`` a top-level key,
+e.g. the front end's input_min_cluster: an experiment, the OFS was trained with its own). Each ground-truth object the matching
 leaves unmatched (a miss) and each prediction it leaves unmatched (a false positive) becomes
 one row:
 
 miss: true bin, speed (m/s, px/ms, px per window), size now (size_m * focal / depth, px), log
-    contrast and events per edge (the generator's), input events (raw, and unique pixels after
-    the front end) within R = size / 2 + 8 px of its centre, spike cells of each OFS stage and
+    contrast and events per edge (the generator's), input events within R = size / 2 + 8 px
+    of its centre (raw events, their unique pixels, and the pixels the front end keeps), spike cells of each OFS stage and
     frame pixels of each stage within R, the candidate groups near it (stage, pixels vs
     ofpd.min_events, reported or joined or dropped), and a cause, the first that holds:
-      few_events    < min_events input pixels near it (the sensor gave too little);
+      few_events    < min_events input pixels near it (the sensor gave too little: raw px
+                    near < min_events, or the front end's cluster filter dropped them);
       no_stage      no stage frame keeps >= min_events of them (the OFS stages did not fire);
       dropped       its pixels form groups that no object claims (each < min_events);
       merged        its pixels are claimed by an object matched to another true object;
@@ -70,6 +72,8 @@ def parse_args(argv=None):
     ap.add_argument("--max-windows", type=int, default=6)
     ap.add_argument("--ofpd", action="append", default=[], metavar="KEY=VALUE",
                     help="override a config.ofpd key (JSON value), e.g. merge_frac=0.3")
+    ap.add_argument("--config", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a top-level config key (JSON value), e.g. input_min_cluster=2")
     ap.add_argument("--json", help="write rows and tables here")
     ap.add_argument("--render", metavar="JSON", help="only print the tables of a --json file written earlier")
     return ap.parse_args(argv)
@@ -147,7 +151,10 @@ def diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, dt):
         def near(xs, ys, cx=t.x, cy=t.y, r=r):
             return (np.asarray(xs) - cx) ** 2 + (np.asarray(ys) - cy) ** 2 <= r * r
 
-        n_raw = int(near(raw["x"].astype(np.int64), raw["y"].astype(np.int64)).sum())
+        rx, ry = raw["x"].astype(np.int64), raw["y"].astype(np.int64)
+        at = near(rx, ry)
+        n_raw = int(at.sum())
+        n_raw_px = int(np.unique(ry[at] * w + rx[at]).size)
         n_in = int(near(in_x, in_y).sum())
         sel = near(sx, sy)
         frame_k = [int((sel & (sst == k)).sum()) for k in range(len(stage_px))]
@@ -172,7 +179,7 @@ def diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, dt):
         v_px = float(t.speed_px_ms) if t.speed_px_ms is not None else math.nan
         misses.append({"bin": int(t.speed_bin), "speed_mps": float(t.speed), "speed_px_ms": v_px,
                        "px_per_window": v_px * dt / 1000.0, "size_px": size, "log_contrast": contrast,
-                       "events_per_edge": epe, "raw_events": n_raw, "input_px": n_in, "spike_cells": spikes_k,
+                       "events_per_edge": epe, "raw_events": n_raw, "raw_px": n_raw_px, "input_px": n_in, "spike_cells": spikes_k,
                        "frame_px": frame_k, "groups": gdesc, "cause": cause,
                        "nearest_pred_px": min((float(np.hypot(p.x - t.x, p.y - t.y)) for p in preds), default=math.inf)})
     for j, p in enumerate(preds):
@@ -215,8 +222,8 @@ def tables(misses, fps, n_windows, n_gt) -> str:
     lines = [f"{n_windows} windows, {n_gt} true objects, {len(misses)} missed, {len(fps)} false positives "
              f"({len(fps) / max(n_windows, 1):.3f} / window).", "",
              "Misses by true bin (quantiles 10/50/90 %):", "",
-             "| bin | missed | causes | px / window | size px | raw events near | input px near "
-             "| frame px near (all stages) |", "|---|---|---|---|---|---|---|---|"]
+             "| bin | missed | causes | px / window | size px | raw events near | raw px near | input px near "
+             "| frame px near (all stages) |", "|---|---|---|---|---|---|---|---|---|"]
     by_bin = defaultdict(list)
     for m in misses:
         by_bin[m["bin"]].append(m)
@@ -225,6 +232,7 @@ def tables(misses, fps, n_windows, n_gt) -> str:
         causes = ", ".join(f"{c} {n}" for c, n in Counter(m["cause"] for m in ms).most_common())
         lines.append(f"| {b} | {len(ms)} | {causes} | {_q([m['px_per_window'] for m in ms])} | "
                      f"{_q([m['size_px'] for m in ms])} | {_q([m['raw_events'] for m in ms])} | "
+                     f"{_q([m.get('raw_px', math.nan) for m in ms])} | "
                      f"{_q([m['input_px'] for m in ms])} | "
                      f"{_q([sum(m['frame_px']) for m in ms])} |")
     lines += ["", "False positives by cause and reported stage (quantiles 10/50/90 %):", "",
@@ -266,6 +274,9 @@ def main(argv=None) -> int:
             k, _, v = kv.partition("=")
             extra[k.strip()] = json.loads(v)
         cfg = replace(cfg, ofpd=extra)
+    for kv in a.config:
+        k, _, v = kv.partition("=")
+        cfg = replace(cfg, **{k.strip(): json.loads(v)})
     misses, fps = [], []
     n_windows = n_gt = n_pred = 0
     for path in split_files(Path(a.data), a.split):
@@ -287,11 +298,11 @@ def main(argv=None) -> int:
                 n_pred += n
     md = tables(misses, fps, n_windows, n_gt)
     if a.json:
-        Path(a.json).write_text(json.dumps({"split": a.split, "overrides": a.ofpd, "n_windows": n_windows,
+        Path(a.json).write_text(json.dumps({"split": a.split, "overrides": a.ofpd + a.config, "n_windows": n_windows,
                                             "n_gt": n_gt, "n_pred": n_pred, "misses": misses, "fps": fps,
                                             "markdown": md}, indent=1, default=float))
     print(f"split {a.split}, recall {1 - len(misses) / max(n_gt, 1):.3f}, FP / window {len(fps) / max(n_windows, 1):.3f}"
-          + (f", ofpd overrides {a.ofpd}" if a.ofpd else ""))
+          + (f", overrides {a.ofpd + a.config}" if a.ofpd or a.config else ""))
     print(md)
     return 0
 
