@@ -22,14 +22,17 @@ miss: true bin, speed (m/s, px/ms, px per window), size now (size_m * focal / de
                     near < min_events, or the front end's cluster filter dropped them);
       no_stage      no stage frame keeps >= min_events of them (the OFS stages did not fire);
       dropped       its pixels form groups that no object claims (each < min_events);
-      merged        its pixels are claimed by an object matched to another true object;
-      mislocated    claimed by an unmatched object (reported > gate away: also a FP);
+      merged        its pixels are claimed by an object matched to another true object, or
+                    by one whose pixels reach two or more true objects (within R of each);
+      mislocated    claimed by another unmatched object (reported > gate away: also a FP);
       other         none of these (e.g. the matching gave the prediction to a neighbour).
 fp: reported stage and bin, pixels it claims, extent, whether they surround their centroid,
     distance to the nearest true object (in its radii) and to the nearest other prediction,
     and for a duplicate the gap between its pixels and those of the object that was matched to
     that truth, over the larger extent (the ratio blob grouping compares with merge_frac /
     edge_merge_frac). Cause:
+      merged        its pixels lie near two or more true objects (R of each): several
+                    objects reported as one, between them;
       mislocated    nearest truth within its radius + 10 px is unmatched: the object was
                     found but reported > gate from its centre;
       slower_edge   nearest truth (within 1.5 radii + 10 px) is matched by a faster stage's
@@ -141,12 +144,15 @@ def diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, dt):
     t_of_p = {j: i for i, j in pairs}
     p_of_t = {i: j for i, j in pairs}
     sizes = [object_size_px(attrs, t.object_id, t.depth_m, focal) for t in truth]
+    reach = [(s[0] / 2 if math.isfinite(s[0]) else 20.0) + NEAR_PAD for s in sizes]
+    spans = [sum(bool(np.any((sx[own_m[j]] - t.x) ** 2 + (sy[own_m[j]] - t.y) ** 2 <= rr * rr))
+                 for t, rr in zip(truth, reach)) for j in range(len(objs))]     # true objects each one's pixels reach
     misses, fps = [], []
     for i, t in enumerate(truth):
         if i in p_of_t:
             continue
         size, contrast, epe = sizes[i]
-        r = (size / 2 if math.isfinite(size) else 20.0) + NEAR_PAD
+        r = reach[i]
 
         def near(xs, ys, cx=t.x, cy=t.y, r=r):
             return (np.asarray(xs) - cx) ** 2 + (np.asarray(ys) - cy) ** 2 <= r * r
@@ -175,7 +181,7 @@ def diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, dt):
             cause = "dropped"
         else:
             o = owners_near.most_common(1)[0][0]          # i is unmatched: o is matched elsewhere or not at all
-            cause = "merged" if o in t_of_p else "mislocated"
+            cause = "merged" if o in t_of_p or spans[o] >= 2 else "mislocated"
         v_px = float(t.speed_px_ms) if t.speed_px_ms is not None else math.nan
         misses.append({"bin": int(t.speed_bin), "speed_mps": float(t.speed), "speed_px_ms": v_px,
                        "px_per_window": v_px * dt / 1000.0, "size_px": size, "log_contrast": contrast,
@@ -193,7 +199,10 @@ def diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, dt):
                "closed": bool(surrounds(fx, fy)) if fx.size else False,
                "nearest_truth_px": min(d_t, default=math.inf), "nearest_pred_px": min(d_p, default=math.inf),
                "truth_radii": math.nan, "gap_ratio": math.nan, "host_stage": None, "cause": "noise"}
-        if truth:
+        row["truths_spanned"] = spans[j]
+        if spans[j] >= 2:
+            row["cause"] = "merged"
+        elif truth:
             i = int(np.argmin(d_t))
             size = sizes[i][0]
             rad = size / 2 if math.isfinite(size) else 20.0
