@@ -96,8 +96,9 @@ def test_matching_counts_misses_and_false_positives():
         sorted(match_nearest([[0, 0], [5, 5]], [[4, 4], [1, 1]])) == [(0, 1), (1, 0)]
 
 
-def test_fastest_stage_reports_and_leftovers_join_its_object():
-    cfg = ToffeConfig(sensor_size=(200, 160))
+@pytest.mark.parametrize("stages", ["union", "join"])
+def test_fastest_stage_reports_and_leftovers_join_its_object(stages):
+    cfg = ToffeConfig(sensor_size=(200, 160), ofpd={**ofpd_io.OFPD_DEFAULTS, "stages": stages})
     frames = np.zeros((4, 5, 2, 160, 200), bool)
     frames[2, :, 1, 20:30, 20:30] = True           # stage 3 takes most of object A
     frames[1, 0, 0, 20:30, 31:33] = True           # stage 2 gets A's leftover edge (20 px)
@@ -111,7 +112,9 @@ def test_fastest_stage_reports_and_leftovers_join_its_object():
     np.testing.assert_array_equal(merged[1], frames[0] & ~left)                            # only B
     objs = ofpd_io.report_objects(ofpd_io.event_pixels(frames), cfg)
     assert [o[0] for o in objs] == [2, 0]
-    assert objs[0][1:] == pytest.approx((24.5, 24.5)) and objs[1][1:] == pytest.approx((164.5, 134.5))
+    # "join": the centroid of the stage that reports it; "union": of all of its pixels
+    ys, xs = np.nonzero(ofpd_io.event_pixels(merged[:1])[0] if stages == "union" else frames[2].any(axis=(0, 1)))
+    assert objs[0][1:] == pytest.approx((xs.mean(), ys.mean())) and objs[1][1:] == pytest.approx((164.5, 134.5))
 
 
 def test_two_objects_of_one_bin_are_reported_separately():

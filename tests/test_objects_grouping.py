@@ -234,3 +234,94 @@ def test_min_gap_equals_brute_force_also_at_the_threshold(rng):
             got = min_gap(xa, ya, xb, yb, t)
             assert got == (d if d <= t else np.inf), (d, t, got)
     assert min_gap(np.zeros(0, np.int64), np.zeros(0, np.int64), xb, yb, 5.0) == np.inf
+
+
+# ---- ofpd.stages "union" (the current default) against "join" (each stage apart, checkpoints
+# before it): the cascade hands one object's edges to several stages; together they are one
+# object, and two objects stay two.
+
+JOIN = ToffeConfig(sensor_size=SENSOR, ofpd={**ofpd_io.OFPD_DEFAULTS, "stages": "join"})
+
+
+def square_ring(cx, cy, side, width=3):
+    """The outline of a square (what a square moving by ``width`` px along its diagonal gives)."""
+    ys, xs = np.ogrid[:SENSOR[1], :SENSOR[0]]
+    d = np.maximum(np.abs(xs - cx), np.abs(ys - cy))
+    return (d <= side / 2) & (d > side / 2 - width)
+
+
+def test_settings_current_union_legacy_join():
+    assert ofpd_io.ofpd_settings(CFG)["stages"] == "union"
+    assert ofpd_io.ofpd_settings(ToffeConfig(ofpd={"grouping": "blobs"}))["stages"] == "join"   # an older config.json
+    with pytest.raises(ValueError, match="stages"):
+        ofpd_io.ofpd_settings(ToffeConfig(ofpd={"stages": "all"}))
+
+
+def test_pieces_a_faster_stage_reported_apart_are_one_object():
+    """The appearance split's commonest false positive: a 140 px square whose four corners
+    reached stage 2 (each >= min_events) and whose outline went to stage 1. "join" reports
+    each corner (the outline joins the first); "union" one object at the centre, of stage 2,
+    claiming every pixel."""
+    cx, cy, side = 240, 180, 140
+    ring = square_ring(cx, cy, side)
+    ys, xs = np.ogrid[:SENSOR[1], :SENSOR[0]]
+    corners = ring & (np.abs(xs - cx) > side / 2 - 6) & (np.abs(ys - cy) > side / 2 - 6)
+    pix = stages(ring & ~corners, corners)
+    assert len(ofpd_io.group_objects_xy(pix, SENSOR, JOIN)[0]) == 4
+    objs, claims = ofpd_io.group_objects_xy(pix, SENSOR, CFG)
+    assert len(objs) == 1 and objs[0][0] == 1
+    assert np.hypot(objs[0][1] - cx, objs[0][2] - cy) <= 1.0
+    assert ofpd_io.object_masks_xy(*xy(ring), objs, claims)[0].all()
+
+
+@pytest.mark.parametrize("radii", [3.5, 4.0, 5.0])
+def test_two_objects_whose_edges_the_cascade_split_stay_two(radii):
+    """The pairs split's merge: disc A's sides on stage 4 and the rest of its edges on stage
+    2, disc B's left edge on stage 2 and its right edge on stage 3 (each stage sees open
+    pieces; stage 2 holds pieces of both). "union": two objects at their centres, each
+    claiming exactly its own events, A of stage 4 and B of stage 3."""
+    d, r = 36, 18.0
+    a = np.array([150.0, 180.0])
+    b = a + [radii * r, 0.0]
+    ea, eb = moving_disc(*a, d), moving_disc(*b, d)
+    cols = np.arange(SENSOR[0])[None, :]
+    sides = ea & (np.abs(cols - a[0]) > 0.6 * r)
+    pix = stages(None, (ea & ~sides) | (eb & (cols < b[0])), eb & (cols >= b[0]), sides)
+    objs, claims = ofpd_io.group_objects_xy(pix, SENSOR, CFG)
+    assert [o[0] for o in objs] == [3, 2]
+    np.testing.assert_allclose([o[1:] for o in objs], [a, b], atol=2.0)
+    xs, ys = xy(ea | eb)
+    masks = ofpd_io.object_masks_xy(xs, ys, objs, claims)
+    assert np.array_equal(masks[0], ea[ys, xs]) and np.array_equal(masks[1], eb[ys, xs])
+
+
+def test_sparse_arcs_of_a_large_slow_object_are_one_object():
+    """A 160 px disc moving 0.5 px: its two edges come out as short pieces (< min_events each,
+    gaps > link_px), two open arcs 150 px apart. The second merge on the groups joins them:
+    one object at the centre (as "join" joined them), not two reported on the arcs."""
+    cx, cy, d = 240.0, 180.0, 160
+    ring = disc(cx + 1, cy, d) ^ disc(cx - 1, cy, d)
+    ys, xs = np.nonzero(ring)
+    theta = np.arctan2(ys - cy, xs - cx)
+    keep = np.floor(theta / 0.1).astype(int) % 2 == 0                 # pieces of ~8 px, gaps of ~8 px
+    m = np.zeros_like(ring)
+    m[ys[keep], xs[keep]] = True
+    objs, claims = ofpd_io.group_objects_xy(stages(m), SENSOR, CFG)
+    assert len(objs) == 1 and np.hypot(objs[0][1] - cx, objs[0][2] - cy) <= 3.0
+    assert ofpd_io.object_masks_xy(*xy(m), objs, claims)[0].mean() > 0.95     # all but isolated specks
+    assert len(ofpd_io.group_objects_xy(stages(m), SENSOR, JOIN)[0]) == 1    # (at the first arc's centroid)
+
+
+def test_stage_is_the_fastest_holding_min_events():
+    """A few pixels (below min_events) of the object on stage 4 do not make it a stage-4
+    object; stage 3's 30 do; the rest of its edges are on stage 1."""
+    cx, cy = 200.0, 150.0
+    e = moving_disc(cx, cy, 40)
+    ys, xs = np.nonzero(e)
+    order = np.argsort(xs, kind="stable")
+    s4, s3 = np.zeros_like(e), np.zeros_like(e)
+    s4[ys[order[-5:]], xs[order[-5:]]] = True
+    s3[ys[order[-35:-5]], xs[order[-35:-5]]] = True
+    objs, claims = ofpd_io.group_objects_xy(stages(e & ~s4 & ~s3, None, s3, s4), SENSOR, CFG)
+    assert [o[0] for o in objs] == [2]
+    assert ofpd_io.object_masks_xy(xs, ys, objs, claims)[0].all()

@@ -96,22 +96,18 @@ def split_files(data: Path, split: str) -> list[Path]:
     return files
 
 
-def evaluate(opts: EvalOptions) -> dict:
-    """Run the evaluation; returns a JSON-able dict (see ``format_markdown``)."""
+def reference_models(ckpt: Path, ofs: str = "fixed"):
+    """(config, run_stage, ofpd) of a checkpoint as eval runs it: the OFS stages in Loihi fixed
+    point (ofs "fixed") or float, the OFPD in torch (model/reference.py's functions)."""
     import torch
-    from tqdm import tqdm
 
-    from .dataset.groundtruth import window_truth
-    from .events.io import open_events
     from .model.ofpd import OFPD
     from .model.ofs import OFS
-    from .model.reference import fixed_stage_fn, float_stage_fn, ofpd_torch_fn, predict_window, quantize_stages
-    from .runtime.truth import sequence_focal_px
+    from .model.reference import fixed_stage_fn, float_stage_fn, ofpd_torch_fn, quantize_stages
 
-    ck = load_checkpoint(opts.ckpt)
+    ck = load_checkpoint(ckpt)
     cfg = ck.config
-    files = split_files(opts.data, opts.split)
-    if opts.ofs == "fixed":
+    if ofs == "fixed":
         run_stage = fixed_stage_fn(quantize_stages(ck.ofs, cfg.reset))
     else:
         models = []
@@ -123,7 +119,20 @@ def evaluate(opts: EvalOptions) -> dict:
         run_stage = float_stage_fn(models)
     model = OFPD.from_config(cfg)
     model.load_state_dict({k: torch.from_numpy(v) for k, v in ck.ofpd_state.items()})
-    ofpd = ofpd_torch_fn(model.eval())
+    return cfg, run_stage, ofpd_torch_fn(model.eval())
+
+
+def evaluate(opts: EvalOptions) -> dict:
+    """Run the evaluation; returns a JSON-able dict (see ``format_markdown``)."""
+    from tqdm import tqdm
+
+    from .dataset.groundtruth import window_truth
+    from .events.io import open_events
+    from .model.reference import predict_window
+    from .runtime.truth import sequence_focal_px
+
+    cfg, run_stage, ofpd = reference_models(opts.ckpt, opts.ofs)
+    files = split_files(opts.data, opts.split)
 
     attrs = []
     for path in files:

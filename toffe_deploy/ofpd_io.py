@@ -58,7 +58,8 @@ import cv2
 import numpy as np
 
 from .compiled import (blob_objects, box_mean, cell_centres, claimed_by, component_stats, crop_origin, crop_pool,
-                       density_groups, fill_input, fill_motion, in_rects, link_components, merge_blobs, two_pass_centroid)
+                       density_groups, fill_input, fill_motion, in_rects, link_components, merge_blobs, two_pass_centroid,
+                       union_objects)
 from .compiled import in_boxes as in_boxes_compiled
 from .config import ToffeConfig
 
@@ -70,12 +71,15 @@ MAX_SPEED_PX_MS = 16.0     # the same cap in px/ms (150 m/s at 5 m seen with 554
 # The OFPD input/output layout. A config.ofpd written before these keys existed (a non-empty
 # dict without "grouping") keeps the layout its OFPD was trained on (LEGACY_LAYOUT); a config
 # without any OFPD settings, and every OFPD trained from now on, get CURRENT_LAYOUT.
+# "stages" (grouping "blobs"): "join", each stage's blobs apart, a slower stage's joining the
+# objects reported so far (checkpoints before "union": it keeps their outputs as they were), or
+# "union", blobs of all stages' pixels together (blob_objects_xy).
 LEGACY_LAYOUT: dict[str, str] = {"grouping": "boxes", "crop": "fixed", "speed_unit": "mps", "motion": "none",
-                                 "bin_from": "ofs"}
+                                 "bin_from": "ofs", "stages": "join"}
 CURRENT_LAYOUT: dict[str, str] = {"grouping": "blobs", "crop": "scaled", "speed_unit": "px_ms", "motion": "time_cov",
-                                  "bin_from": "ofpd"}
+                                  "bin_from": "ofpd", "stages": "union"}
 LAYOUT_CHOICES = {"grouping": ("boxes", "blobs"), "crop": ("fixed", "scaled"), "speed_unit": ("mps", "px_ms"),
-                  "motion": ("none", "time_cov"), "bin_from": ("ofs", "ofpd")}
+                  "motion": ("none", "time_cov"), "bin_from": ("ofs", "ofpd"), "stages": ("join", "union")}
 MOTION_PLANES = {"none": 0, "time_cov": 2}     # extra input planes of each ofpd.motion choice
 
 OFPD_DEFAULTS: dict[str, Any] = {
@@ -397,11 +401,28 @@ def blobs_xy(xs: np.ndarray, ys: np.ndarray, width: int, config: ToffeConfig
 
 def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
                     config: ToffeConfig) -> tuple[Objects, Claims]:
-    """Grouping "blobs" (see group_objects_xy): from the fastest stage down, each frame's pixels
-    form candidate groups (blobs_xy). A group within merge_frac (edge_merge_frac if neither
-    surrounds its centroid) * the larger extent of an object already reported (some pixel pair
-    that close: the object's leftover edges on a slower stage, or a piece of it) joins that
-    object's pixels. Any other with >= min_events pixels is an object of bin k at its centroid.
+    """Grouping "blobs" (see group_objects_xy), two ways (ofpd.stages):
+
+    "union" (compiled.union_objects): the pixels of all stage frames form blobs together
+    (blobs_xy's rule on their union, then once more on the groups it gives, so that the open
+    pieces of one sparse object join as its components did); each group with >= min_events
+    pixels is an object of the fastest stage holding >= min_events of them, at its centroid.
+    The cascade hands one object's edges to several stages (a disc's sides to stage 4, its
+    diagonals to stage 2, what the closed masks missed to stage 1): each stage alone sees open
+    pieces, which "join" groups generously (edge_merge_frac), also with a neighbour's; together
+    they close around the object, and a neighbour then joins only within merge_frac.
+    Measured (benchmarks/detect_diagnose.py, dt 500, appearance split): 29 of 47 false
+    positives were pieces of one object reported apart (the four corners of a 140 px square
+    on stage 2, its outline on stage 1), and pairs of objects 3-5 radii apart were merged into
+    one report between them; see ckpt/README.md for the tables.
+
+    "join" (compiled.blob_objects, checkpoints before "union"): from the fastest stage down,
+    each frame's pixels form candidate groups (blobs_xy). A group within merge_frac
+    (edge_merge_frac if neither surrounds its centroid) * the larger extent of an object
+    already reported (some pixel pair that close: the object's leftover edges on a slower
+    stage, or a piece of it) joins that object's pixels. Any other with >= min_events pixels
+    is an object of bin k at its centroid.
+
     An object claims exactly its pixels, of every stage. Objects of radius r at centre distance
     >= 3r stay two when their events close around them (they are r apart, minus their motion,
     > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob."""
@@ -417,8 +438,9 @@ def _blob_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, w: in
     """blob_objects_xy on flat stage pixels (group_objects_flat), in one compiled pass."""
     s = ofpd_settings(config)
     need = int(s["min_events"])
-    stage, cx, cy, _owner, keys, owner = blob_objects(xs, ys, starts, w, int(s["link_px"]), float(s["merge_frac"]),
-                                                      float(s["edge_merge_frac"]), need, max(1, -(-need // 4)))
+    group = union_objects if s["stages"] == "union" else blob_objects
+    stage, cx, cy, _owner, keys, owner = group(xs, ys, starts, w, int(s["link_px"]), float(s["merge_frac"]),
+                                               float(s["edge_merge_frac"]), need, max(1, -(-need // 4)))
     objs = [(int(k), float(x), float(y)) for k, x, y in zip(stage.tolist(), cx.tolist(), cy.tolist())]
     return objs, Claims(width=w, keys=keys, owner=owner)
 

@@ -107,9 +107,13 @@ camera, and the reported speed bin: `config.ofpd.bin_from = "ofpd"`, the bin of 
 cascade's stage, the speed clipped into it. Which events form one object is
 `config.ofpd.grouping`: `"blobs"` (connected event blobs of any size, an object's edges joined
 until they surround it; keys `link_px`, `merge_frac`, `edge_merge_frac`, `min_events`) or
-`"boxes"` (a fixed +-`dedupe_px` box, older checkpoints); config.json's `ofpd` keys are listed
+`"boxes"` (a fixed +-`dedupe_px` box, older checkpoints); with blobs, `config.ofpd.stages`
+says how the stage frames meet: `"union"`, the blobs of all stages' pixels together (an
+object's edges that the cascade gave to several stages are one outline; its stage is the
+fastest holding `min_events` of its pixels), or `"join"` (older checkpoints), each stage's
+blobs apart, a slower stage's joining the objects reported so far. config.json's `ofpd` keys are listed
 in `toffe_deploy/ofpd_io.py` (OFPD_DEFAULTS; each layout key a non-empty `ofpd` lacks takes its
-legacy value: boxes / fixed / mps / no motion planes / bin from the OFS). Checked with `onnx.checker` (full check) at export.
+legacy value: boxes / fixed / mps / no motion planes / bin from the OFS / join). Checked with `onnx.checker` (full check) at export.
 
 ## netx/ofs_stage<k>.net (lava-dl netx HDF5)
 
