@@ -8,8 +8,8 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     associate  d_ij = |p_i' - z_j|; pairs within the gate d_ij <= R_i, the most pairs then the
                least total distance (metrics.match_within: Hungarian on the gated matrix),
                confirmed tracks first, then tentative ones with the detections left over;
-               R_i = gate_px + gate_growth m_i s_i dt grows with the m_i windows the track has
-               coasted (a turning object leaves its straight-line prediction)
+               R_i = gate_px + (gate_speed + gate_growth m_i) s_i dt grows with the m_i windows
+               the track has coasted (a turning object leaves its straight-line prediction)
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
                v_i = (1 - beta) v_i + beta u_j,  u_j = s_j (cos th_j, sin th_j)
                s_i = (1 - beta) s_i + beta s_j                            (smoothed speed, px/s)
@@ -18,8 +18,11 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                object's leading and trailing edges; reported without a track); a tentative
                track is confirmed at ``confirm_hits`` hits
     deaths     a tentative track dies after more than ``tentative_misses`` misses in a row (0: at
-               its first miss); a confirmed one coasts (predicted, and
-               listed as coasting) through up to ``max_misses`` windows in a row, then dies
+               its first miss); a confirmed one coasts (predicted; listed as coasting, with
+               its misses m_i, for the first ``report_misses``) through up to ``max_misses``
+               windows in a row, then dies; one that is occluded (its prediction within R_i of
+               a detection another track took: a merged blob) lives, and is listed, up to
+               ``max_occluded`` misses in a row
     bin        hysteresis on the smoothed speed: a track keeps bin b while
                lo_b (1 - h) <= s_i <= hi_b (1 + h), else takes the bin of s_i
                (lo_1 = 0, hi_N = inf; edges are the bundle's bins in px/s)
@@ -38,13 +41,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from .metrics import GATE_PX, match_within
+from .metrics import match_within
 
 
 @dataclass(frozen=True)
 class TrackerConfig:
     """Settings of ``step`` (equations in the module doc). gate_px: association radius around a
-    track's predicted centre (the eval matching gate by default); alpha, beta: position and
+    track's predicted centre (tighter than eval's 20 px scoring gate: a detection 15-20 px off a
+    prediction was more often a merged blob or another object than the track's own; README's
+    tracking section has the measurements); gate_speed: how much of one window's travel s_i dt
+    widens every gate (fast objects' predictions err more); alpha, beta: position and
     velocity / speed gains of the alpha-beta filter (1 = trust the detection only);
     confirm_hits: hits before a track is confirmed (reported with ``confirmed`` true and counted
     by the tracking metrics); tentative_misses: misses in a row a tentative track survives (a
@@ -52,9 +58,13 @@ class TrackerConfig:
     detection before it dies; hysteresis: h, the fraction by which the smoothed speed must leave
     its bin before the bin changes; gate_growth: how much of the distance a coasting track's
     prediction covers per missed window widens its gate; birth_gap_px: no track is born this close to
-    a confirmed one."""
+    a confirmed one; report_misses: windows a coasting track is listed (``coasting``, scored)
+    before it is only kept for re-association (a long straight-line prediction drifts off a
+    curving object); max_occluded: misses in a row an occluded track survives (occluded: missed
+    while its prediction lies within its gate of a detection another track took, i.e. two
+    objects seen as one blob; listed in ``coasting`` all that time)."""
 
-    gate_px: float = GATE_PX
+    gate_px: float = 15.0
     gate_growth: float = 0.5
     birth_gap_px: float = 30.0
     alpha: float = 0.7
@@ -63,6 +73,9 @@ class TrackerConfig:
     tentative_misses: int = 0
     max_misses: int = 10
     hysteresis: float = 0.1
+    gate_speed: float = 0.0
+    report_misses: int = 5
+    max_occluded: int = 10
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -71,13 +84,16 @@ class TrackerConfig:
             raise ValueError(f"alpha and beta must be in (0, 1], got {self.alpha}, {self.beta}")
         if self.confirm_hits < 1 or self.max_misses < 0 or self.tentative_misses < 0:
             raise ValueError("confirm_hits must be >= 1, max_misses and tentative_misses >= 0")
+        if not (self.gate_speed >= 0 and self.report_misses >= 0 and self.max_occluded >= 0):
+            raise ValueError("gate_speed, report_misses and max_occluded must be >= 0")
         if not self.hysteresis >= 0:
             raise ValueError(f"hysteresis must be >= 0, got {self.hysteresis}")
 
 
 _F = np.float64
 #: columns of Tracks.a
-ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF = range(12)
+ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF, OCC = range(13)
+N_COLS = 13
 
 
 @dataclass(frozen=True)
@@ -86,9 +102,10 @@ class Tracks:
     and adding rows is one operation, not one per field): id (stable int), x, y (px), vx, vy
     (px/s), speed (smoothed, px/s), bin (1-based, with hysteresis), age (windows since birth),
     hits (detections assigned), streak (hits in a row), misses (windows in a row without a
-    detection), confirmed (0/1); the properties give the columns."""
+    detection), confirmed (0/1), occluded (0/1: missed under another track's detection); the
+    properties give the columns."""
 
-    a: np.ndarray = field(default_factory=lambda: np.zeros((0, 12), _F))
+    a: np.ndarray = field(default_factory=lambda: np.zeros((0, N_COLS), _F))
 
     def __len__(self) -> int:
         return int(self.a.shape[0])
@@ -104,6 +121,7 @@ class Tracks:
     hits = property(lambda self: self.a[:, HITS].astype(np.int64))
     misses = property(lambda self: self.a[:, MISS].astype(np.int64))
     confirmed = property(lambda self: self.a[:, CONF] > 0)
+    occluded = property(lambda self: self.a[:, OCC] > 0)
 
 
 @dataclass(frozen=True)
@@ -145,14 +163,16 @@ class BinEdges:
 
 
 #: entries of the settings vector the compiled loops take (``params``)
-P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP = range(10)
+(P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
+ P_MAX_OCCLUDED) = range(12)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     """The settings and the window length as one float64 vector (one argument for the compiled
     loops: numba's per-call dispatch cost grows with the number of arguments)."""
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
-                     cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px], dtype=_F)
+                     cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded],
+                    dtype=_F)
 
 
 @njit(cache=True, nogil=True)
@@ -169,7 +189,7 @@ def _predict(t, z, p):
     for i in range(n_t):
         a[i, X] += t[i, VX] * dt_s
         a[i, Y] += t[i, VY] * dt_s
-        gate = p[P_GATE] + p[P_GROWTH] * t[i, MISS] * t[i, S] * dt_s
+        gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * dt_s
         n_row = 0
         for k in range(n_d):
             d[i, k] = math.hypot(a[i, X] - z[k, 0], a[i, Y] - z[k, 1])
@@ -202,14 +222,23 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
         if not (lo[b] * (1.0 - h) <= a[i, S] <= hi[b] * (1.0 + h)):
             a[i, BIN] = np.searchsorted(inner, a[i, S], side="right") + 1
     keep = np.zeros(n_t, np.bool_)
+    taken = ~free                                            # detections assigned to a track
+    dt_s = p[P_DT]
     for i in range(n_t):
+        a[i, OCC] = 0.0
+        if not hit[i] and t[i, CONF] > 0:                    # missed: under another track's detection?
+            gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * dt_s
+            for k in range(n_d):
+                if taken[k] and d[i, k] <= gate:
+                    a[i, OCC] = 1.0
         a[i, AGE] += 1
         a[i, HITS] += hit[i]
         a[i, STREAK] = t[i, STREAK] + 1 if hit[i] else 0.0
         a[i, MISS] = 0.0 if hit[i] else t[i, MISS] + 1
         if a[i, HITS] >= p[P_CONFIRM]:
             a[i, CONF] = 1.0
-        keep[i] = a[i, MISS] <= (p[P_MAX_MISSES] if a[i, CONF] > 0 else p[P_TENTATIVE])
+        lim = max(p[P_MAX_MISSES], p[P_MAX_OCCLUDED] * a[i, OCC])
+        keep[i] = a[i, MISS] <= (lim if a[i, CONF] > 0 else p[P_TENTATIVE])
         if a[i, CONF] > 0:                                   # no births next to a confirmed track
             for k in range(n_d):
                 if d[i, k] <= p[P_BIRTH_GAP]:
@@ -315,13 +344,14 @@ class Tracker:
         rows = self.tracks.a.tolist()
         for o, r in zip(objects, assigned.tolist()):
             o.track_id, o.track = (int(rows[r][ID]), self.track_state(rows[r])) if r >= 0 else (None, None)
-        self._coasting = [row for row in rows if row[CONF] > 0 and row[MISS] > 0]
+        self._coasting = [row for row in rows if row[CONF] > 0 and row[MISS] > 0
+                          and (row[MISS] <= self.settings.report_misses or row[OCC] > 0)]
         return self.tracks
 
     def coasting(self) -> list[dict]:
-        """The confirmed tracks no detection of the last window was assigned to (they coast on
-        their prediction for up to max_misses windows): [{"track_id", "track"}], the window line's
-        ``coasting`` list."""
+        """The confirmed tracks no detection of the last window was assigned to, for their first
+        report_misses misses or while occluded (they coast on their prediction):
+        [{"track_id", "track"}], the window line's ``coasting`` list."""
         return [{"track_id": int(row[ID]), "track": self.track_state(row)} for row in self._coasting]
 
     def track_state(self, row: list) -> "TrackState":
@@ -331,7 +361,9 @@ class Tracker:
 
 class TrackState(Mapping):
     """A track's smoothed state after a window, the JSON ``track`` object: x, y (px),
-    direction_deg, speed_px_s, speed_mps (with a speed scale), speed_bin, age, hits, confirmed.
+    direction_deg, speed_px_s, speed_mps (with a speed scale), speed_bin, age, hits, confirmed,
+    misses (windows in a row without a detection: 0 when detected in this window, > 0 when
+    coasting on its prediction) and occluded (coasting under a detection another track took).
     A read-only mapping built from the track's row when first read (a robot loop that reads a
     few tracks does not pay for formatting every one; ``dict(state)`` for JSON)."""
 
@@ -348,7 +380,8 @@ class TrackState(Mapping):
                  "direction_deg": round(math.degrees(math.atan2(vy, vx)), 4), "speed_px_s": round(sp, 4)}
             if self._k_mps is not None:
                 d["speed_mps"] = round(sp * self._k_mps, 4)
-            d.update(speed_bin=int(row[BIN]), age=int(row[AGE]), hits=int(row[HITS]), confirmed=row[CONF] > 0)
+            d.update(speed_bin=int(row[BIN]), age=int(row[AGE]), hits=int(row[HITS]), confirmed=row[CONF] > 0,
+                     misses=int(row[MISS]), occluded=row[OCC] > 0)
             self._d = d
         return self._d
 
