@@ -13,6 +13,8 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
                v_i = (1 - beta) v_i + beta u_j,  u_j = s_j (cos th_j, sin th_j)
                s_i = (1 - beta) s_i + beta s_j                            (smoothed speed, px/s)
+               h_i = (1 - g_j) h_i + g_j u_j,  g_j = min(1, max(heading_beta, s_j dt / heading_px))
+                                          (heading: the reported direction_deg is that of h_i)
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
@@ -28,7 +30,13 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                (lo_1 = 0, hi_N = inf; edges are the bundle's bins in px/s)
 
 The smoothed speed s_i is tracked apart from |v_i|: averaging velocity vectors whose directions
-are noisy shortens them, averaging speeds does not. The per-window loops are numba-compiled like
+are noisy shortens them, averaging speeds does not. The heading h_i is apart from v_i because a
+detection's direction is as good as the distance the object moved during the window: an
+object moving heading_px or more per window is reported in the direction it was just seen
+moving (no lag on a curve: v_i's beta lagged 12 deg behind bin-4 objects), a slow one (bin 1,
+0.05-1 px per window, 40-75 deg per-window errors) in an average over its last ~1 / heading_beta
+windows (causal: past and current windows only); v_i, what the prediction uses, keeps beta
+(a slower v_i cost MOTA on curves: README's tracking section). The per-window loops are numba-compiled like
 compiled.py's (a window has a handful of objects, where numpy's per-call overhead dominates: 11
 us per window against 94 us in numpy); torch- and Lava-free, so it runs on every target.
 """
@@ -62,7 +70,9 @@ class TrackerConfig:
     before it is only kept for re-association (a long straight-line prediction drifts off a
     curving object); max_occluded: misses in a row an occluded track survives (occluded: missed
     while its prediction lies within its gate of a detection another track took, i.e. two
-    objects seen as one blob; listed in ``coasting`` all that time)."""
+    objects seen as one blob; listed in ``coasting`` all that time); heading_px, heading_beta:
+    the travel per window (px) at which a detection's direction is taken as it is, and the
+    smallest heading gain (slow objects)."""
 
     gate_px: float = 15.0
     gate_growth: float = 0.5
@@ -76,6 +86,8 @@ class TrackerConfig:
     gate_speed: float = 0.0
     report_misses: int = 5
     max_occluded: int = 10
+    heading_px: float = 5.0
+    heading_beta: float = 0.15
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -88,12 +100,14 @@ class TrackerConfig:
             raise ValueError("gate_speed, report_misses and max_occluded must be >= 0")
         if not self.hysteresis >= 0:
             raise ValueError(f"hysteresis must be >= 0, got {self.hysteresis}")
+        if not (self.heading_px > 0 and 0 < self.heading_beta <= 1):
+            raise ValueError("heading_px must be > 0 and heading_beta in (0, 1]")
 
 
 _F = np.float64
 #: columns of Tracks.a
-ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF, OCC = range(13)
-N_COLS = 13
+ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF, OCC, HX, HY = range(15)
+N_COLS = 15
 
 
 @dataclass(frozen=True)
@@ -102,8 +116,8 @@ class Tracks:
     and adding rows is one operation, not one per field): id (stable int), x, y (px), vx, vy
     (px/s), speed (smoothed, px/s), bin (1-based, with hysteresis), age (windows since birth),
     hits (detections assigned), streak (hits in a row), misses (windows in a row without a
-    detection), confirmed (0/1), occluded (0/1: missed under another track's detection); the
-    properties give the columns."""
+    detection), confirmed (0/1), occluded (0/1: missed under another track's detection), heading
+    hx, hy (px/s: the reported direction's vector); the properties give the columns."""
 
     a: np.ndarray = field(default_factory=lambda: np.zeros((0, N_COLS), _F))
 
@@ -164,14 +178,15 @@ class BinEdges:
 
 #: entries of the settings vector the compiled loops take (``params``)
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
- P_MAX_OCCLUDED) = range(12)
+ P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA) = range(14)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     """The settings and the window length as one float64 vector (one argument for the compiled
     loops: numba's per-call dispatch cost grows with the number of arguments)."""
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
-                     cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded],
+                     cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
+                     cfg.heading_px, cfg.heading_beta],
                     dtype=_F)
 
 
@@ -218,6 +233,10 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
         for c in range(X, S + 1):
             g = p[P_ALPHA] if c <= Y else p[P_BETA]
             a[i, c] += g * (z[k, c - X] - a[i, c])
+        # heading: a detection's direction is as good as the distance it moved in the window
+        g_h = min(1.0, max(p[P_HEADING_BETA], z[k, S - X] * p[P_DT] / p[P_HEADING_PX]))
+        a[i, HX] += g_h * (z[k, 2] - a[i, HX])
+        a[i, HY] += g_h * (z[k, 3] - a[i, HY])
         b = int(a[i, BIN]) - 1
         if not (lo[b] * (1.0 - h) <= a[i, S] <= hi[b] * (1.0 + h)):
             a[i, BIN] = np.searchsorted(inner, a[i, S], side="right") + 1
@@ -259,6 +278,7 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
             out[row, ID] = next_id
             for c in range(X, S + 1):
                 out[row, c] = z[k, c - X]
+            out[row, HX], out[row, HY] = z[k, 2], z[k, 3]
             out[row, BIN] = z[k, 5]
             out[row, AGE] = out[row, HITS] = out[row, STREAK] = 1.0
             out[row, CONF] = 1.0 if p[P_CONFIRM] <= 1 else 0.0
@@ -375,7 +395,7 @@ class TrackState(Mapping):
     def _dict(self) -> dict:
         if self._d is None:
             row = self._row
-            vx, vy, sp = row[VX], row[VY], row[S]
+            vx, vy, sp = row[HX], row[HY], row[S]
             d = {"x": round(row[X], 4), "y": round(row[Y], 4),
                  "direction_deg": round(math.degrees(math.atan2(vy, vx)), 4), "speed_px_s": round(sp, 4)}
             if self._k_mps is not None:
