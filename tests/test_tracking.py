@@ -287,3 +287,22 @@ def test_heading_follows_a_fast_turn_without_lag_and_averages_a_slow_objects_noi
             det_err.append(_angle_err(math.degrees(o.direction_rad), 30))
             trk_err.append(_angle_err(o.track["direction_deg"], 30))
     assert np.mean(trk_err) < 0.45 * np.mean(det_err) and o.track_id == 0
+
+
+def test_a_blob_of_two_tracks_moves_one_but_leaves_its_motion():
+    """A detection inside two confirmed tracks' gates (two objects seen as one blob) reports a
+    motion that is neither object's (here 90 deg off): with shared_keeps_motion (default) the
+    track it is assigned to follows it in position only and keeps its direction; without, the
+    blob's direction takes over."""
+    for keep in (True, False):
+        tr = Tracker(CFG, DT_US, TrackerConfig(shared_keeps_motion=keep))
+        for w in range(12):
+            a, b = mover(50, 200, 0, 6000, w), mover(50, 210, 0, 6000, w)
+            if w < 8:
+                tr.update([a, b], w * DT_US)
+            else:
+                blob = Obj((a.x + b.x) / 2, (a.y + b.y) / 2, math.pi / 2, 6000)
+                tr.update([blob], w * DT_US)
+                assert abs(blob.track["y"] - blob.y) < 5              # the position follows the blob
+        turned = _angle_err(blob.track["direction_deg"], 0.0)
+        assert (turned < 1.0) if keep else (turned > 45.0)

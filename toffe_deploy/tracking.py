@@ -11,6 +11,8 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                R_i = gate_px + (gate_speed + gate_growth m_i) s_i dt grows with the m_i windows
                the track has coasted (a turning object leaves its straight-line prediction)
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
+               (a detection within the gates of 2+ confirmed tracks, a blob of two objects, moves
+               p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay)
                v_i = (1 - beta) v_i + beta u_j,  u_j = s_j (cos th_j, sin th_j)
                s_i = (1 - beta) s_i + beta s_j                            (smoothed speed, px/s)
                h_i = (1 - g_j) h_i + g_j u_j,  g_j = min(1, max(heading_beta, s_j dt / heading_px))
@@ -72,7 +74,9 @@ class TrackerConfig:
     while its prediction lies within its gate of a detection another track took, i.e. two
     objects seen as one blob; listed in ``coasting`` all that time); heading_px, heading_beta:
     the travel per window (px) at which a detection's direction is taken as it is, and the
-    smallest heading gain (slow objects)."""
+    smallest heading gain (slow objects); shared_keeps_motion: a detection inside the gates of
+    two or more confirmed tracks (two objects seen as one blob) moves the track it is assigned
+    to but leaves its velocity, speed, heading and bin as they were."""
 
     gate_px: float = 15.0
     gate_growth: float = 0.5
@@ -88,6 +92,7 @@ class TrackerConfig:
     max_occluded: int = 10
     heading_px: float = 5.0
     heading_beta: float = 0.15
+    shared_keeps_motion: bool = True
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -178,7 +183,7 @@ class BinEdges:
 
 #: entries of the settings vector the compiled loops take (``params``)
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
- P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA) = range(14)
+ P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS) = range(15)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -186,7 +191,7 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     loops: numba's per-call dispatch cost grows with the number of arguments)."""
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
                      cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
-                     cfg.heading_px, cfg.heading_beta],
+                     cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion)],
                     dtype=_F)
 
 
@@ -227,9 +232,20 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
     hit = np.zeros(n_t, np.bool_)
     free = np.ones(n_d, np.bool_)
     det_of = np.full(n_t, -1, np.int64)
+    shared = np.zeros(n_d, np.int64)                         # confirmed tracks whose gate holds detection k
+    for i in range(n_t):
+        if t[i, CONF] > 0:
+            gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * p[P_DT]
+            for k in range(n_d):
+                if d[i, k] <= gate:
+                    shared[k] += 1
     for m in range(r.shape[0]):
         i, k = r[m], j[m]
         hit[i], free[k], det_of[i] = True, False, k
+        if shared[k] > 1 and p[P_SHARED_KEEPS] > 0:         # one blob of two objects: its motion is neither's
+            a[i, X] += p[P_ALPHA] * (z[k, 0] - a[i, X])
+            a[i, Y] += p[P_ALPHA] * (z[k, 1] - a[i, Y])
+            continue
         for c in range(X, S + 1):
             g = p[P_ALPHA] if c <= Y else p[P_BETA]
             a[i, c] += g * (z[k, c - X] - a[i, c])
