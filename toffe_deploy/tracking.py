@@ -117,7 +117,7 @@ N_COLS = 15
 
 @dataclass(frozen=True)
 class Tracks:
-    """Every live track, one row of ``a`` (n, 12) float64 per track (one array, so that keeping
+    """Every live track, one row of ``a`` (n, N_COLS) float64 per track (one array, so that keeping
     and adding rows is one operation, not one per field): id (stable int), x, y (px), vx, vy
     (px/s), speed (smoothed, px/s), bin (1-based, with hysteresis), age (windows since birth),
     hits (detections assigned), streak (hits in a row), misses (windows in a row without a
