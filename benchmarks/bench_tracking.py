@@ -2,15 +2,26 @@
 """Tracking accuracy of the deployed pipeline on whole sequences of a data-set split.
 
     .venv/bin/python benchmarks/bench_tracking.py --bundle export/ --data data/synth --split multi,pairs
-        [--max-windows 200] [--limit N] [--gate 20] [--alpha A] [--beta B] [--confirm K] [--max-misses M] [--tentative-misses T]
-        [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--json FILE]
+        [--max-windows 200] [--limit N] [--score-gate 20] [--gate 15] [--alpha A] [--beta B] [--confirm K] [--max-misses M] [--tentative-misses T]
+        [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--gate-speed K] [--report-misses R]
+        [--max-occluded O] [--no-shared-keeps-motion] [--truth-blobs] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
 ``Pipeline(bundle, "cpu", track=TrackerConfig(...))``; its detections are scored like `run`
 does (metrics.FlowErrors) and its confirmed tracks by tracking_metrics.TrackingErrors (CLEAR MOT,
 IDF1 through motmetrics). Also counted: speed-bin changes between consecutive windows of one
-ground-truth object, as the detections report them and as its track reports them (flicker).
-Prints one markdown row per split; the JSON holds every figure and the settings.
+ground-truth object, as the detections report them and as its track reports them (flicker),
+and per ground-truth speed bin the mean direction error of the matched detections, as the
+detection reports it (this window only) and as its confirmed track's smoothed velocity does
+(tracked, causal: from past and current windows only). Prints one markdown row per split and
+a direction table; the JSON holds every figure and the settings.
+
+``--truth-blobs``: the tracker alone, on detections made from the ground truth (each object's
+centre, direction and image-plane speed, every window), except that objects whose discs
+overlap (centre distance below their mean diameter, ``appearance.objects[].size_px`` of the
+generator's attrs) are reported as one blob at their mean centre with the first one's motion:
+what a perfect detector that cannot split touching objects would give. Scores identities
+through crossings apart from the detector's misses and false positives.
 
 ``--cost``: instead, the CPU time per window of the cpu pipeline with and without tracking on
 the shipped sample (or --events; time.process_time, one pinned core, best of --repeats
@@ -41,7 +52,18 @@ def bin_flicker(rows) -> int:
     return n
 
 
+def angle_err_deg(a: float, b: float) -> float:
+    """|a - b| wrapped to [0, 180] degrees (a, b in rad)."""
+    import math
+
+    return abs(math.degrees((a - b + math.pi) % (2 * math.pi) - math.pi))
+
+
 def run_split(bundle, files, settings, max_windows, gate) -> dict:
+    import math
+
+    import numpy as np
+
     from toffe_deploy.events.io import open_events
     from toffe_deploy.metrics import FlowErrors, Prediction, match_gated
     from toffe_deploy.runtime.pipeline import Pipeline
@@ -53,6 +75,8 @@ def run_split(bundle, files, settings, max_windows, gate) -> dict:
     flow = FlowErrors(gate_px=gate, n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
     track = TrackingErrors(gate)
     det_bins, trk_bins, t_track, n_win = [], [], 0.0, 0
+    dir_det = {k: [] for k in range(1, cfg.n_speed_bins + 1)}
+    dir_trk = {k: [] for k in range(1, cfg.n_speed_bins + 1)}
     for fi, path in enumerate(files):
         with open_events(path) as src:
             truth, focal = TruthIndex(src.ground_truth), sequence_focal_px(src.attrs)
@@ -73,15 +97,77 @@ def run_split(bundle, files, settings, max_windows, gate) -> dict:
                     track.add_result(res, gt)
                     for i, j in match_gated([(o.x, o.y) for o in res.objects], [(t.x, t.y) for t in gt], gate):
                         key = (fi, gt[i].object_id)
-                        det_bins.append((key, w, res.objects[j].speed_bin))
-                        if res.objects[j].track is not None:
-                            trk_bins.append((key, w, res.objects[j].track["speed_bin"]))
+                        o, b = res.objects[j], int(gt[i].speed_bin)
+                        det_bins.append((key, w, o.speed_bin))
+                        if b in dir_det:
+                            dir_det[b].append(angle_err_deg(o.direction_rad, gt[i].direction))
+                        if o.track is not None:
+                            trk_bins.append((key, w, o.track["speed_bin"]))
+                            if b in dir_trk and o.track.confirmed:
+                                dir_trk[b].append(angle_err_deg(math.radians(o.track["direction_deg"]),
+                                                                gt[i].direction))
                     n_win += 1
     e = flow.summary()
     return {"sequences": len(files), "windows": n_win, "recall": e["recall"], "fp_per_window": e["fp_per_window"],
             "bin_accuracy": e["bin_accuracy"], "tracking": track.summary(),
             "bin_changes_detections": bin_flicker(det_bins), "bin_changes_tracks": bin_flicker(trk_bins),
-            "matched": len(det_bins)}
+            "matched": len(det_bins),
+            "direction_error_deg": {str(k): {"detection": float(np.mean(dir_det[k])) if dir_det[k] else None,
+                                             "tracked_causal": float(np.mean(dir_trk[k])) if dir_trk[k] else None,
+                                             "n": len(dir_det[k]), "n_tracked": len(dir_trk[k])} for k in dir_det}}
+
+
+def truth_blobs(truths, size_px, speed_bin_of) -> list:
+    """One window's detections from its ground truth: overlapping objects merged into one blob
+    (module doc). truths: ObjectTruth list; size_px: diameter per object id."""
+    import math
+
+    from toffe_deploy.runtime.pipeline import ObjectFlow
+
+    out, used = [], set()
+    for i, t in enumerate(truths):
+        if i in used:
+            continue
+        grp = [i] + [j for j in range(i + 1, len(truths)) if j not in used and math.hypot(
+            t.x - truths[j].x, t.y - truths[j].y) < (size_px[t.object_id] + size_px[truths[j].object_id]) / 2.0]
+        used.update(grp)
+        v = 1000.0 * t.speed_px_ms
+        b = max(1, speed_bin_of(t.speed_px_ms))
+        out.append(ObjectFlow(b, b, t.speed, t.speed, v,
+                              sum(truths[j].x for j in grp) / len(grp), sum(truths[j].y for j in grp) / len(grp),
+                              t.direction, 0))
+    return out
+
+
+def run_split_truth_blobs(config, files, settings, max_windows, gate) -> dict:
+    """CLEAR MOT / IDF1 of the tracker alone on truth_blobs detections (``--truth-blobs``)."""
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.runtime.pipeline import WindowResult
+    from toffe_deploy.runtime.truth import TruthIndex
+    from toffe_deploy.tracking import Tracker
+    from toffe_deploy.tracking_metrics import TrackingErrors
+
+    track, n_win, n_blob = TrackingErrors(gate), 0, 0
+    dt = config.dt_us
+    for path in files:
+        with open_events(path) as src:
+            objs = (src.attrs.get("appearance") or {}).get("objects")
+            if not objs:
+                raise SystemExit(f"{path}: no appearance.objects[].size_px in its attrs (generated by dataset synth?)")
+            size_px = [float(o["size_px"]) for o in objs]
+            truth, t_start = TruthIndex(src.ground_truth), int(src.t_start_us)
+            n = min(max_windows, (int(src.t_end_us) - t_start) // dt)
+        tracker = Tracker(config, dt, settings)
+        track.new_sequence()
+        for w in range(n):
+            t0 = t_start + w * dt
+            gt = truth.window(t0, dt)
+            dets = truth_blobs(gt, size_px, config.speed_bin_of_px_ms)
+            n_blob += len(dets) < len(gt)
+            tracker.update(dets, t0)
+            track.add_result(WindowResult(t0, t0 + dt, dets, coasting=tracker.coasting()), gt)
+            n_win += 1
+    return {"sequences": len(files), "windows": n_win, "windows_with_a_blob": n_blob, "tracking": track.summary()}
 
 
 def tracker_cost(bundle, events, settings, repeats: int) -> dict:
@@ -128,6 +214,7 @@ def tracker_cost(bundle, events, settings, repeats: int) -> dict:
 def main(argv=None) -> int:
     from toffe_deploy.deploy.bundle import load_bundle
     from toffe_deploy.evaluate import split_files
+    from toffe_deploy.metrics import GATE_PX
     from toffe_deploy.tracking import TrackerConfig
 
     d = TrackerConfig()
@@ -137,7 +224,9 @@ def main(argv=None) -> int:
     ap.add_argument("--split", default="multi,pairs", help="comma-separated splits")
     ap.add_argument("--max-windows", type=int, default=200, help="windows per sequence from its start")
     ap.add_argument("--limit", type=int, default=0, help="first N sequences per split (0: all)")
-    ap.add_argument("--gate", type=float, default=d.gate_px)
+    ap.add_argument("--gate", type=float, default=d.gate_px, help="the tracker's association gate (px)")
+    ap.add_argument("--score-gate", type=float, default=GATE_PX,
+                    help="the scoring gate: a hypothesis within it of an object matches (px; eval's, default 20)")
     ap.add_argument("--alpha", type=float, default=d.alpha)
     ap.add_argument("--beta", type=float, default=d.beta)
     ap.add_argument("--confirm", type=int, default=d.confirm_hits)
@@ -146,6 +235,13 @@ def main(argv=None) -> int:
     ap.add_argument("--hysteresis", type=float, default=d.hysteresis)
     ap.add_argument("--gate-growth", type=float, default=d.gate_growth)
     ap.add_argument("--birth-gap", type=float, default=d.birth_gap_px)
+    ap.add_argument("--gate-speed", type=float, default=d.gate_speed)
+    ap.add_argument("--report-misses", type=int, default=d.report_misses)
+    ap.add_argument("--max-occluded", type=int, default=d.max_occluded)
+    ap.add_argument("--no-shared-keeps-motion", dest="shared_keeps_motion", action="store_false",
+                    help="a blob inside two tracks' gates updates the assigned track's motion too")
+    ap.add_argument("--truth-blobs", action="store_true",
+                    help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--cost", action="store_true", help="measure the tracker's CPU time per window instead")
     ap.add_argument("--events", default=str(ROOT / "toffe_deploy" / "samples" / "sample_multi.h5"))
@@ -153,7 +249,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     settings = TrackerConfig(gate_px=a.gate, alpha=a.alpha, beta=a.beta, confirm_hits=a.confirm,
                              max_misses=a.max_misses, hysteresis=a.hysteresis, gate_growth=a.gate_growth,
-                             birth_gap_px=a.birth_gap, tentative_misses=a.tentative_misses)
+                             birth_gap_px=a.birth_gap, tentative_misses=a.tentative_misses, gate_speed=a.gate_speed,
+                             report_misses=a.report_misses, max_occluded=a.max_occluded,
+                             shared_keeps_motion=a.shared_keeps_motion)
     bundle = load_bundle(a.bundle)
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)
@@ -163,20 +261,47 @@ def main(argv=None) -> int:
         if a.json:
             a.json.write_text(json.dumps({"settings": dataclasses.asdict(settings), **c}, indent=1) + "\n")
         return 0
-    out = {"bundle": a.bundle, "settings": dataclasses.asdict(settings), "max_windows": a.max_windows, "splits": {}}
+    out = {"bundle": a.bundle, "settings": dataclasses.asdict(settings), "max_windows": a.max_windows,
+           "score_gate_px": a.score_gate, "splits": {}}
+    if a.truth_blobs:
+        out["detections"] = "truth_blobs"
+        print("| split | sequences | windows | windows with a blob | MOTA | IDF1 | ID switches | frag. | misses | FP |\n"
+              "|---|---|---|---|---|---|---|---|---|---|")
+        for split in a.split.split(","):
+            files = split_files(Path(a.data), split)
+            r = run_split_truth_blobs(bundle.config, files[:a.limit] if a.limit else files, settings,
+                                      a.max_windows, a.score_gate)
+            out["splits"][split] = r
+            m = r["tracking"]
+            print(f"| {split} | {r['sequences']} | {r['windows']} | {r['windows_with_a_blob']} | {m['mota']:.3f} "
+                  f"| {m['idf1']:.3f} | {m['id_switches']} | {m['fragmentations']} | {m['misses']} "
+                  f"| {m['false_positives']} |", flush=True)
+        if a.json:
+            a.json.write_text(json.dumps(out, indent=1) + "\n")
+        return 0
     print("| split | sequences | windows | recall | MOTA | IDF1 | MOTP (px) | ID switches | frag. | misses | FP "
           "| bin changes det. / track |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
     for split in a.split.split(","):
         files = split_files(Path(a.data), split)
         files = files[:a.limit] if a.limit else files
         t = time.perf_counter()
-        r = run_split(bundle, files, settings, a.max_windows, a.gate)
+        r = run_split(bundle, files, settings, a.max_windows, a.score_gate)
         r["wall_s"] = time.perf_counter() - t
         out["splits"][split] = r
         m = r["tracking"]
         print(f"| {split} | {r['sequences']} | {r['windows']} | {r['recall']:.3f} | {m['mota']:.3f} | {m['idf1']:.3f} "
               f"| {m['motp_px']:.2f} | {m['id_switches']} | {m['fragmentations']} | {m['misses']} "
               f"| {m['false_positives']} | {r['bin_changes_detections']} / {r['bin_changes_tracks']} |", flush=True)
+    bins = sorted({k for r in out["splits"].values() for k in r["direction_error_deg"]})
+    print("\nDirection error per ground-truth speed bin (deg, mean over detections matched to the truth): "
+          "the detection's own (this window) / its confirmed track's (tracked, causal: from past windows only)\n")
+    print("| split | " + " | ".join(f"bin {k}" for k in bins) + " |\n|---|" + "---|" * len(bins))
+
+    def cell(e):
+        f = (lambda v: "-" if v is None else f"{v:.1f}")
+        return f"{f(e['detection'])} / {f(e['tracked_causal'])}" if e else "-"
+    for split, r in out["splits"].items():
+        print(f"| {split} | " + " | ".join(cell(r["direction_error_deg"].get(k)) for k in bins) + " |")
     if a.json:
         a.json.write_text(json.dumps(out, indent=1) + "\n")
     return 0

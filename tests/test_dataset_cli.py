@@ -23,7 +23,7 @@ def synth_dir(tmp_path_factory):
 def test_synth_writes_files_and_index(synth_dir):
     index = json.loads((synth_dir / "index.json").read_text())
     rows = index["sequences"]
-    assert index["splits"] == {"train": 0, "test": 4, "multi": 0, "appearance": 0, "pairs": 0}
+    assert index["splits"] == {"train": 0, "test": 4, "multi": 0, "appearance": 0, "pairs": 0, "crossing": 0}
     assert sorted(r["speed_bin"] for r in rows) == [1, 2, 3, 4]  # --limit keeps every bin
     for r in rows:
         assert {"shape", "trajectory", "orientation_deg", "direction", "sensor_size"} <= set(r)
@@ -46,7 +46,7 @@ def test_synth_resumes_and_adds_splits(synth_dir, capsys):
     assert main(["dataset", "synth", "--out", str(synth_dir), "--split", "multi", "--multi-count", "1",
                  "--duration-s", "0.005", "--seed", "3"]) == 0
     index = json.loads((synth_dir / "index.json").read_text())
-    assert index["splits"] == {"train": 0, "test": 4, "multi": 1, "appearance": 0, "pairs": 0}  # test rows kept
+    assert index["splits"] == {"train": 0, "test": 4, "multi": 1, "appearance": 0, "pairs": 0, "crossing": 0}  # test rows kept
     assert index["sequences"][-1]["n_objects"] >= 2
     assert "5 sequences" in capsys.readouterr().out
 

@@ -202,3 +202,107 @@ def test_track_sequence_scores_a_generated_multi_object_recording(tmp_path, make
     assert s["windows"] == 60 and s["gt_tracks"] == n_obj >= 2
     assert s["id_switches"] == 0 and s["false_positives"] == 0 and s["misses"] == n_obj
     assert s["mota"] > 0.95 and s["idf1"] > 0.97
+
+
+def test_coasting_tracks_are_flagged_listed_for_report_misses_and_their_lines_validate():
+    """A hidden object's track coasts: its state says misses n > 0 (0 when seen); it is listed in
+    ``coasting`` for report_misses windows, lives on to max_misses, and every window line
+    (objects and coasting tracks) validates against the shipped schema."""
+    import jsonschema
+
+    from toffe_deploy.runtime.pipeline import ObjectFlow, WindowResult
+    from toffe_deploy.schema import load_schema
+
+    v = jsonschema.Draft202012Validator(load_schema())
+    tr = Tracker(CFG, DT_US, TrackerConfig(report_misses=2, max_misses=4))
+    listed = []
+    for w in range(14):
+        m = mover(50, 200, 0, 12000, w)
+        objs = [] if 8 <= w < 12 else [ObjectFlow(4, 4, 80.0, 80.0, m.speed_px_s, m.x, m.y, m.direction_rad, 9)]
+        tr.update(objs, w * DT_US)
+        line = WindowResult(w * DT_US, (w + 1) * DT_US, objs, coasting=tr.coasting()).to_json()
+        v.validate(line)
+        listed.append([(c["track_id"], c["track"]["misses"], c["track"]["occluded"]) for c in line["coasting"]])
+        assert all(o["track"]["misses"] == 0 and o["track"]["occluded"] is False for o in line["objects"])
+    assert listed[8:12] == [[(0, 1, False)], [(0, 2, False)], [], []]     # alive but no longer reported
+    assert objs[0].track_id == 0 and tr.next_id == 1                      # and found again after 4 misses
+
+
+def test_a_merged_detection_leaves_the_other_track_occluded_not_dead():
+    """Two objects 12 px apart moving together are seen as one blob at their midpoint for 8
+    windows (more than max_misses): the blob goes to one track, the other coasts flagged
+    occluded and lives on (max_occluded); when they part, both keep their ids."""
+    tr = Tracker(CFG, DT_US, TrackerConfig(gate_px=15, max_misses=3, max_occluded=20))
+    for w in range(30):
+        a, b = mover(50, 200, 0, 6000, w), mover(50, 212, 0, 6000, w)
+        merged = 10 <= w < 18
+        objs = [Obj((a.x + b.x) / 2, (a.y + b.y) / 2, 0.0, 6000)] if merged else [a, b]
+        tr.update(objs, w * DT_US)
+        if w == 9:
+            ids = (a.track_id, b.track_id)
+        if merged:
+            (c,) = tr.coasting()
+            assert c["track"]["occluded"] and c["track"]["misses"] == w - 9
+            assert {c["track_id"], objs[0].track_id} == set(ids)
+    assert (a.track_id, b.track_id) == ids and tr.next_id == 2
+
+
+def test_gate_grows_with_speed():
+    """A fast track (12 px per window) whose detection lands 14 px off its prediction: outside a
+    10 px gate (a new track is born), inside 10 px + gate_speed x one window's travel."""
+    for gate_speed, same in ((0.0, False), (1.0, True)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(gate_px=10, gate_speed=gate_speed, birth_gap_px=5))
+        for w in range(6):
+            o = mover(50, 200, 0, 24000, w)
+            if w == 5:
+                o.y += 14
+            tr.update([o], w * DT_US)
+        assert (o.track_id == 0) == same
+
+
+def _angle_err(a_deg, b_deg):
+    return abs((a_deg - b_deg + 180.0) % 360.0 - 180.0)
+
+
+def test_heading_follows_a_fast_turn_without_lag_and_averages_a_slow_objects_noise(rng):
+    """The reported direction (track heading): a fast object (12 px per window) turning 5 deg per
+    window is reported in its current direction, not behind it; a slow one (0.5 px per window)
+    whose per-window directions scatter by 60 deg is reported far closer to its true direction
+    than its detections are (from past windows only)."""
+    tr = Tracker(CFG, DT_US)
+    th, x, y = 0.0, 100.0, 200.0
+    for w in range(30):
+        th += math.radians(5.0)
+        x, y = x + 12 * math.cos(th), y + 12 * math.sin(th)
+        o = Obj(x, y, th, 24000, 4)
+        tr.update([o], w * DT_US)
+    assert _angle_err(o.track["direction_deg"], math.degrees(th)) < 1.0
+    tr = Tracker(CFG, DT_US)
+    det_err, trk_err = [], []
+    for w in range(120):
+        o = mover(300, 200, 30, 1000, w, speed_bin=1)
+        o.direction_rad = math.radians(30 + 60 * rng.standard_normal())
+        tr.update([o], w * DT_US)
+        if w >= 20:
+            det_err.append(_angle_err(math.degrees(o.direction_rad), 30))
+            trk_err.append(_angle_err(o.track["direction_deg"], 30))
+    assert np.mean(trk_err) < 0.45 * np.mean(det_err) and o.track_id == 0
+
+
+def test_a_blob_of_two_tracks_moves_one_but_leaves_its_motion():
+    """A detection inside two confirmed tracks' gates (two objects seen as one blob) reports a
+    motion that is neither object's (here 90 deg off): with shared_keeps_motion (default) the
+    track it is assigned to follows it in position only and keeps its direction; without, the
+    blob's direction takes over."""
+    for keep in (True, False):
+        tr = Tracker(CFG, DT_US, TrackerConfig(shared_keeps_motion=keep))
+        for w in range(12):
+            a, b = mover(50, 200, 0, 6000, w), mover(50, 210, 0, 6000, w)
+            if w < 8:
+                tr.update([a, b], w * DT_US)
+            else:
+                blob = Obj((a.x + b.x) / 2, (a.y + b.y) / 2, math.pi / 2, 6000)
+                tr.update([blob], w * DT_US)
+                assert abs(blob.track["y"] - blob.y) < 5              # the position follows the blob
+        turned = _angle_err(blob.track["direction_deg"], 0.0)
+        assert (turned < 1.0) if keep else (turned > 45.0)

@@ -8,24 +8,37 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     associate  d_ij = |p_i' - z_j|; pairs within the gate d_ij <= R_i, the most pairs then the
                least total distance (metrics.match_within: Hungarian on the gated matrix),
                confirmed tracks first, then tentative ones with the detections left over;
-               R_i = gate_px + gate_growth m_i s_i dt grows with the m_i windows the track has
-               coasted (a turning object leaves its straight-line prediction)
+               R_i = gate_px + (gate_speed + gate_growth m_i) s_i dt grows with the m_i windows
+               the track has coasted (a turning object leaves its straight-line prediction)
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
+               (a detection within the gates of 2+ confirmed tracks, a blob of two objects, moves
+               p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay)
                v_i = (1 - beta) v_i + beta u_j,  u_j = s_j (cos th_j, sin th_j)
                s_i = (1 - beta) s_i + beta s_j                            (smoothed speed, px/s)
+               h_i = (1 - g_j) h_i + g_j u_j,  g_j = min(1, max(heading_beta, s_j dt / heading_px))
+                                          (heading: the reported direction_deg is that of h_i)
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
                track is confirmed at ``confirm_hits`` hits
     deaths     a tentative track dies after more than ``tentative_misses`` misses in a row (0: at
-               its first miss); a confirmed one coasts (predicted, and
-               listed as coasting) through up to ``max_misses`` windows in a row, then dies
+               its first miss); a confirmed one coasts (predicted; listed as coasting, with
+               its misses m_i, for the first ``report_misses``) through up to ``max_misses``
+               windows in a row, then dies; one that is occluded (its prediction within R_i of
+               a detection another track took: a merged blob) lives, and is listed, up to
+               ``max_occluded`` misses in a row
     bin        hysteresis on the smoothed speed: a track keeps bin b while
                lo_b (1 - h) <= s_i <= hi_b (1 + h), else takes the bin of s_i
                (lo_1 = 0, hi_N = inf; edges are the bundle's bins in px/s)
 
 The smoothed speed s_i is tracked apart from |v_i|: averaging velocity vectors whose directions
-are noisy shortens them, averaging speeds does not. The per-window loops are numba-compiled like
+are noisy shortens them, averaging speeds does not. The heading h_i is apart from v_i because a
+detection's direction is as good as the distance the object moved during the window: an
+object moving heading_px or more per window is reported in the direction it was just seen
+moving (no lag on a curve: v_i's beta lagged 12 deg behind bin-4 objects), a slow one (bin 1,
+0.05-1 px per window, 40-75 deg per-window errors) in an average over its last ~1 / heading_beta
+windows (causal: past and current windows only); v_i, what the prediction uses, keeps beta
+(a slower v_i cost MOTA on curves: README's tracking section). The per-window loops are numba-compiled like
 compiled.py's (a window has a handful of objects, where numpy's per-call overhead dominates: 11
 us per window against 94 us in numpy); torch- and Lava-free, so it runs on every target.
 """
@@ -38,13 +51,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from .metrics import GATE_PX, match_within
+from .metrics import match_within
 
 
 @dataclass(frozen=True)
 class TrackerConfig:
     """Settings of ``step`` (equations in the module doc). gate_px: association radius around a
-    track's predicted centre (the eval matching gate by default); alpha, beta: position and
+    track's predicted centre (tighter than eval's 20 px scoring gate: a detection 15-20 px off a
+    prediction was more often a merged blob or another object than the track's own; README's
+    tracking section has the measurements); gate_speed: how much of one window's travel s_i dt
+    widens every gate (fast objects' predictions err more); alpha, beta: position and
     velocity / speed gains of the alpha-beta filter (1 = trust the detection only);
     confirm_hits: hits before a track is confirmed (reported with ``confirmed`` true and counted
     by the tracking metrics); tentative_misses: misses in a row a tentative track survives (a
@@ -52,9 +68,17 @@ class TrackerConfig:
     detection before it dies; hysteresis: h, the fraction by which the smoothed speed must leave
     its bin before the bin changes; gate_growth: how much of the distance a coasting track's
     prediction covers per missed window widens its gate; birth_gap_px: no track is born this close to
-    a confirmed one."""
+    a confirmed one; report_misses: windows a coasting track is listed (``coasting``, scored)
+    before it is only kept for re-association (a long straight-line prediction drifts off a
+    curving object); max_occluded: misses in a row an occluded track survives (occluded: missed
+    while its prediction lies within its gate of a detection another track took, i.e. two
+    objects seen as one blob; listed in ``coasting`` all that time); heading_px, heading_beta:
+    the travel per window (px) at which a detection's direction is taken as it is, and the
+    smallest heading gain (slow objects); shared_keeps_motion: a detection inside the gates of
+    two or more confirmed tracks (two objects seen as one blob) moves the track it is assigned
+    to but leaves its velocity, speed, heading and bin as they were."""
 
-    gate_px: float = GATE_PX
+    gate_px: float = 15.0
     gate_growth: float = 0.5
     birth_gap_px: float = 30.0
     alpha: float = 0.7
@@ -63,6 +87,12 @@ class TrackerConfig:
     tentative_misses: int = 0
     max_misses: int = 10
     hysteresis: float = 0.1
+    gate_speed: float = 0.0
+    report_misses: int = 5
+    max_occluded: int = 10
+    heading_px: float = 5.0
+    heading_beta: float = 0.15
+    shared_keeps_motion: bool = True
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -71,24 +101,30 @@ class TrackerConfig:
             raise ValueError(f"alpha and beta must be in (0, 1], got {self.alpha}, {self.beta}")
         if self.confirm_hits < 1 or self.max_misses < 0 or self.tentative_misses < 0:
             raise ValueError("confirm_hits must be >= 1, max_misses and tentative_misses >= 0")
+        if not (self.gate_speed >= 0 and self.report_misses >= 0 and self.max_occluded >= 0):
+            raise ValueError("gate_speed, report_misses and max_occluded must be >= 0")
         if not self.hysteresis >= 0:
             raise ValueError(f"hysteresis must be >= 0, got {self.hysteresis}")
+        if not (self.heading_px > 0 and 0 < self.heading_beta <= 1):
+            raise ValueError("heading_px must be > 0 and heading_beta in (0, 1]")
 
 
 _F = np.float64
 #: columns of Tracks.a
-ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF = range(12)
+ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF, OCC, HX, HY = range(15)
+N_COLS = 15
 
 
 @dataclass(frozen=True)
 class Tracks:
-    """Every live track, one row of ``a`` (n, 12) float64 per track (one array, so that keeping
+    """Every live track, one row of ``a`` (n, N_COLS) float64 per track (one array, so that keeping
     and adding rows is one operation, not one per field): id (stable int), x, y (px), vx, vy
     (px/s), speed (smoothed, px/s), bin (1-based, with hysteresis), age (windows since birth),
     hits (detections assigned), streak (hits in a row), misses (windows in a row without a
-    detection), confirmed (0/1); the properties give the columns."""
+    detection), confirmed (0/1), occluded (0/1: missed under another track's detection), heading
+    hx, hy (px/s: the reported direction's vector); the properties give the columns."""
 
-    a: np.ndarray = field(default_factory=lambda: np.zeros((0, 12), _F))
+    a: np.ndarray = field(default_factory=lambda: np.zeros((0, N_COLS), _F))
 
     def __len__(self) -> int:
         return int(self.a.shape[0])
@@ -104,6 +140,7 @@ class Tracks:
     hits = property(lambda self: self.a[:, HITS].astype(np.int64))
     misses = property(lambda self: self.a[:, MISS].astype(np.int64))
     confirmed = property(lambda self: self.a[:, CONF] > 0)
+    occluded = property(lambda self: self.a[:, OCC] > 0)
 
 
 @dataclass(frozen=True)
@@ -145,14 +182,17 @@ class BinEdges:
 
 
 #: entries of the settings vector the compiled loops take (``params``)
-P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP = range(10)
+(P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
+ P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS) = range(15)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     """The settings and the window length as one float64 vector (one argument for the compiled
     loops: numba's per-call dispatch cost grows with the number of arguments)."""
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
-                     cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px], dtype=_F)
+                     cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
+                     cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion)],
+                    dtype=_F)
 
 
 @njit(cache=True, nogil=True)
@@ -169,7 +209,7 @@ def _predict(t, z, p):
     for i in range(n_t):
         a[i, X] += t[i, VX] * dt_s
         a[i, Y] += t[i, VY] * dt_s
-        gate = p[P_GATE] + p[P_GROWTH] * t[i, MISS] * t[i, S] * dt_s
+        gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * dt_s
         n_row = 0
         for k in range(n_d):
             d[i, k] = math.hypot(a[i, X] - z[k, 0], a[i, Y] - z[k, 1])
@@ -192,24 +232,48 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
     hit = np.zeros(n_t, np.bool_)
     free = np.ones(n_d, np.bool_)
     det_of = np.full(n_t, -1, np.int64)
+    shared = np.zeros(n_d, np.int64)                         # confirmed tracks whose gate holds detection k
+    for i in range(n_t):
+        if t[i, CONF] > 0:
+            gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * p[P_DT]
+            for k in range(n_d):
+                if d[i, k] <= gate:
+                    shared[k] += 1
     for m in range(r.shape[0]):
         i, k = r[m], j[m]
         hit[i], free[k], det_of[i] = True, False, k
+        if shared[k] > 1 and p[P_SHARED_KEEPS] > 0:         # one blob of two objects: its motion is neither's
+            a[i, X] += p[P_ALPHA] * (z[k, 0] - a[i, X])
+            a[i, Y] += p[P_ALPHA] * (z[k, 1] - a[i, Y])
+            continue
         for c in range(X, S + 1):
             g = p[P_ALPHA] if c <= Y else p[P_BETA]
             a[i, c] += g * (z[k, c - X] - a[i, c])
+        # heading: a detection's direction is as good as the distance it moved in the window
+        g_h = min(1.0, max(p[P_HEADING_BETA], z[k, S - X] * p[P_DT] / p[P_HEADING_PX]))
+        a[i, HX] += g_h * (z[k, 2] - a[i, HX])
+        a[i, HY] += g_h * (z[k, 3] - a[i, HY])
         b = int(a[i, BIN]) - 1
         if not (lo[b] * (1.0 - h) <= a[i, S] <= hi[b] * (1.0 + h)):
             a[i, BIN] = np.searchsorted(inner, a[i, S], side="right") + 1
     keep = np.zeros(n_t, np.bool_)
+    taken = ~free                                            # detections assigned to a track
+    dt_s = p[P_DT]
     for i in range(n_t):
+        a[i, OCC] = 0.0
+        if not hit[i] and t[i, CONF] > 0:                    # missed: under another track's detection?
+            gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * dt_s
+            for k in range(n_d):
+                if taken[k] and d[i, k] <= gate:
+                    a[i, OCC] = 1.0
         a[i, AGE] += 1
         a[i, HITS] += hit[i]
         a[i, STREAK] = t[i, STREAK] + 1 if hit[i] else 0.0
         a[i, MISS] = 0.0 if hit[i] else t[i, MISS] + 1
         if a[i, HITS] >= p[P_CONFIRM]:
             a[i, CONF] = 1.0
-        keep[i] = a[i, MISS] <= (p[P_MAX_MISSES] if a[i, CONF] > 0 else p[P_TENTATIVE])
+        lim = max(p[P_MAX_MISSES], p[P_MAX_OCCLUDED] * a[i, OCC])
+        keep[i] = a[i, MISS] <= (lim if a[i, CONF] > 0 else p[P_TENTATIVE])
         if a[i, CONF] > 0:                                   # no births next to a confirmed track
             for k in range(n_d):
                 if d[i, k] <= p[P_BIRTH_GAP]:
@@ -230,6 +294,7 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
             out[row, ID] = next_id
             for c in range(X, S + 1):
                 out[row, c] = z[k, c - X]
+            out[row, HX], out[row, HY] = z[k, 2], z[k, 3]
             out[row, BIN] = z[k, 5]
             out[row, AGE] = out[row, HITS] = out[row, STREAK] = 1.0
             out[row, CONF] = 1.0 if p[P_CONFIRM] <= 1 else 0.0
@@ -315,13 +380,14 @@ class Tracker:
         rows = self.tracks.a.tolist()
         for o, r in zip(objects, assigned.tolist()):
             o.track_id, o.track = (int(rows[r][ID]), self.track_state(rows[r])) if r >= 0 else (None, None)
-        self._coasting = [row for row in rows if row[CONF] > 0 and row[MISS] > 0]
+        self._coasting = [row for row in rows if row[CONF] > 0 and row[MISS] > 0
+                          and (row[MISS] <= self.settings.report_misses or row[OCC] > 0)]
         return self.tracks
 
     def coasting(self) -> list[dict]:
-        """The confirmed tracks no detection of the last window was assigned to (they coast on
-        their prediction for up to max_misses windows): [{"track_id", "track"}], the window line's
-        ``coasting`` list."""
+        """The confirmed tracks no detection of the last window was assigned to, for their first
+        report_misses misses or while occluded (they coast on their prediction):
+        [{"track_id", "track"}], the window line's ``coasting`` list."""
         return [{"track_id": int(row[ID]), "track": self.track_state(row)} for row in self._coasting]
 
     def track_state(self, row: list) -> "TrackState":
@@ -331,7 +397,9 @@ class Tracker:
 
 class TrackState(Mapping):
     """A track's smoothed state after a window, the JSON ``track`` object: x, y (px),
-    direction_deg, speed_px_s, speed_mps (with a speed scale), speed_bin, age, hits, confirmed.
+    direction_deg, speed_px_s, speed_mps (with a speed scale), speed_bin, age, hits, confirmed,
+    misses (windows in a row without a detection: 0 when detected in this window, > 0 when
+    coasting on its prediction) and occluded (coasting under a detection another track took).
     A read-only mapping built from the track's row when first read (a robot loop that reads a
     few tracks does not pay for formatting every one; ``dict(state)`` for JSON)."""
 
@@ -343,12 +411,13 @@ class TrackState(Mapping):
     def _dict(self) -> dict:
         if self._d is None:
             row = self._row
-            vx, vy, sp = row[VX], row[VY], row[S]
+            vx, vy, sp = row[HX], row[HY], row[S]
             d = {"x": round(row[X], 4), "y": round(row[Y], 4),
                  "direction_deg": round(math.degrees(math.atan2(vy, vx)), 4), "speed_px_s": round(sp, 4)}
             if self._k_mps is not None:
                 d["speed_mps"] = round(sp * self._k_mps, 4)
-            d.update(speed_bin=int(row[BIN]), age=int(row[AGE]), hits=int(row[HITS]), confirmed=row[CONF] > 0)
+            d.update(speed_bin=int(row[BIN]), age=int(row[AGE]), hits=int(row[HITS]), confirmed=row[CONF] > 0,
+                     misses=int(row[MISS]), occluded=row[OCC] > 0)
             self._d = d
         return self._d
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from ..errors import ToffeError
 from . import add_progress_flag, show_progress
 
-SPLIT_CHOICES = ("train", "test", "multi", "appearance", "pairs", "all")
+SPLIT_CHOICES = ("train", "test", "multi", "appearance", "pairs", "crossing", "all")
 
 
 def _number(cast, low: float, strict: bool):
@@ -92,12 +92,13 @@ def register(sub) -> None:
                    help="which split to generate: train (384 sequences), test (64), multi "
                    "(--multi-count sequences of 2-4 objects), appearance (40: held-out appearance "
                    "combinations, single and multi-object), pairs (32: two objects of one bin 3-8 radii "
-                   "apart) or all five (default: all)")
+                   "apart), crossing (16: 2-3 objects whose paths cross while the sequence runs, one bin or "
+                   "distinct bins) or all six (default: all)")
     s.add_argument("--appearance", choices=("paper", "random"), default=None,
                    help="appearance of train/test/multi: paper (the paper protocol: 640x480, 60 deg, 5 m, "
                    "0.4 m, bright, C=0.25+-0.03, no noise) or random (camera, scene, object and sensor "
                    "drawn per sequence from the ranges below; train skips the held-out region). Default: "
-                   "random for train, paper for test and multi. appearance and pairs are always random")
+                   "random for train, paper for test and multi. appearance, pairs and crossing are always random")
     s.add_argument("--duration-s", type=_positive_float, default=None,
                    help="sensor time per sequence in seconds (default: 0.1 for train/test, 0.25 for multi)")
     s.add_argument("--seed", type=_nonneg_int, default=0, help="data-set seed (default: 0)")
@@ -180,7 +181,7 @@ RANDOM_ONLY = ("hfov_deg", "focal_px", "depth_m", "size_px", "size_m", "object_c
 
 def _split_appearance(split: str, appearance: str | None) -> str:
     """The appearance a split is generated with (see --appearance)."""
-    if split in ("appearance", "pairs"):
+    if split in ("appearance", "pairs", "crossing"):
         return "random"
     return appearance or ("random" if split == "train" else "paper")
 

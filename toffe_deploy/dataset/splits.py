@@ -11,7 +11,11 @@ appearance, held-out appearance and close pairs).
   APPEARANCE_MULTI_COUNT multi-object ones;
 - pairs: PAIRS_PER_BIN x 4 bins sequences of two objects of one size on the same trajectory
   (same bin, parallel motion), their centres PAIR_SPACING_RADII = 3-8 object radii apart
-  (meta: spacing_radii, spacing_px, gap_px, offset_angle_deg).
+  (meta: spacing_radii, spacing_px, gap_px, offset_angle_deg);
+- crossing: CROSSING_COUNT sequences of 2-3 objects whose paths cross inside the view while the
+  sequence runs (even-numbered: one bin for all, odd: distinct bins), for tracking through
+  merges; object k's starting phase is set so that it meets object k - 1 at a point of their
+  paths at a drawn time (meta: same_bin, bins, crossings [{objects, t_s, x_px, y_px, angle_deg}]).
 
 Appearance ``paper`` (the geometry below, fixed in metres) or ``random`` (appearance.py ranges,
 laid out in pixels then converted at each object's drawn depth and the drawn focal length: the
@@ -49,7 +53,7 @@ from .shapes import SHAPES
 from .synth import BRIGHT, DARK, ObjectSpec, SequenceSpec
 from .trajectories import TAU, TEST_CURVES, TRAIN_CURVES, Trajectory, lap_time_for_speeds
 
-SPLITS = ("train", "test", "multi", "appearance", "pairs")
+SPLITS = ("train", "test", "multi", "appearance", "pairs", "crossing")
 APPEARANCES = ("paper", "random")
 ORIENTATIONS_DEG = (0.0, 45.0, 90.0, 145.0)
 #: Programmed speed range (m/s) per target bin (the bins of ToffeConfig, bin 4 capped at 144).
@@ -63,7 +67,7 @@ MULTI_QUADRANTS_M = ((-1.35, -0.95), (1.35, -0.95), (-1.35, 0.95), (1.35, 0.95))
 #: Longest generated sequence (s): the generator holds a whole sequence in memory (events of a
 #: 640x480 scene run to ~70 MB per second), so a typo like 1e9 must not try to allocate it.
 MAX_SYNTH_DURATION_S = 10.0
-DEFAULT_DURATION_S = {"train": 0.1, "test": 0.1, "multi": 0.25, "appearance": 0.1, "pairs": 0.1}
+DEFAULT_DURATION_S = {"train": 0.1, "test": 0.1, "multi": 0.25, "appearance": 0.1, "pairs": 0.1, "crossing": 0.1}
 DEFAULT_MULTI_COUNT = 16
 #: The programmed speed ranges as image-plane speeds (px/ms) at the reference camera and depth.
 PROGRAMMED_PX_MS = {k: tuple(SpeedScale(REFERENCE_FOCAL_PX, REFERENCE_DEPTH_M).to_px_ms(v) for v in r)
@@ -76,6 +80,11 @@ EXCURSION_FRAC, MULTI_EXCURSION_FRAC, DEPTH_AMP_PER_SCALE = 0.74, 0.51, 0.1875
 MULTI_QUADRANTS_FRAC = ((-0.47, -0.44), (0.47, -0.44), (-0.47, 0.44), (0.47, 0.44))
 APPEARANCE_MULTI_COUNT, PAIRS_PER_BIN = 8, 8
 PAIR_SPACING_RADII = (3.0, 8.0)
+#: Crossing scenes: sequences; each crossing's time as fractions of the duration (the
+#: tracks have windows before and after it); curve centres offset by this fraction of the room
+#: from the view's centre (so that two paths cut each other rather than nest); smallest angle
+#: (deg) between the two directions of motion at a crossing (no grazing).
+CROSSING_COUNT, CROSSING_TIME_FRAC, CROSSING_OFFSET_FRAC, CROSSING_MIN_ANGLE_DEG = 16, (0.3, 0.7), 0.3, 20.0
 
 
 def sequence_seed(seed: int, name: str) -> int:
@@ -250,6 +259,82 @@ def _random_pair(rng, ranges, b):
     return scene, meta
 
 
+def _pixel_path(cam: PinholeCamera, traj: Trajectory, phi: np.ndarray) -> np.ndarray:
+    """(n, 2) projected centres (px) of a trajectory at phases phi."""
+    u, v = cam.project(traj.position_at_phase(phi))
+    return np.stack([u, v], axis=-1)
+
+
+def _meeting(cam, lead: Trajectory, other: Trajectory, t_lo: float, t_hi: float, t_want: float):
+    """Where ``lead``'s path during [t_lo, t_hi] (s) cuts ``other``'s closed path: (time, phase of
+    ``other`` there, (x, y) px, crossing angle deg) of the cut nearest t_want, None if there is
+    none at CROSSING_MIN_ANGLE_DEG or more. Both paths as polylines (200 times, 1,024 phases: chords
+    within 0.05 px of the curves); segments p + s r and q + u w cut where s = (q - p) x w / (r x w)
+    and u = (q - p) x r / (r x w) lie in [0, 1]."""
+    t = np.linspace(t_lo, t_hi, 200)
+    phi = np.linspace(0.0, TAU, 1025)
+    a, b = _pixel_path(cam, lead, lead.phase(t)), _pixel_path(cam, other, phi)
+    r, w = np.diff(a, axis=0)[:, None, :], np.diff(b, axis=0)[None, :, :]
+    qp = b[None, :-1, :] - a[:-1, None, :]
+
+    def cross(x, y):
+        return x[..., 0] * y[..., 1] - x[..., 1] * y[..., 0]
+
+    den = cross(r, w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s, u = cross(qp, w) / den, cross(qp, r) / den
+    i, k = np.nonzero((den != 0) & (s >= 0) & (s <= 1) & (u >= 0) & (u <= 1))
+    best = None
+    for i, k in zip(i.tolist(), k.tolist()):
+        ri, wk = r[i, 0], w[0, k]
+        cos = abs(float(ri @ wk)) / float(np.linalg.norm(ri) * np.linalg.norm(wk))
+        angle = math.degrees(math.acos(min(1.0, cos)))
+        t_c = float(t[i] + s[i, k] * (t[i + 1] - t[i]))
+        if angle >= CROSSING_MIN_ANGLE_DEG and (best is None or abs(t_c - t_want) < abs(best[0] - t_want)):
+            x, y = a[i] + s[i, k] * ri
+            best = (t_c, float(phi[k] + u[i, k] * (phi[k + 1] - phi[k])), (float(x), float(y)), angle)
+    return best
+
+
+def _random_crossing(rng, ranges, n_obj: int, same_bin: bool, duration_s: float):
+    """2-3 objects on test curves around centres offset from the view's, object k timed to meet
+    object k - 1 where their paths cut (module doc); redrawn until every meeting exists."""
+    bins = [int(rng.integers(1, 5))] * n_obj if same_bin else [int(b) for b in rng.choice([1, 2, 3, 4], n_obj,
+                                                                                          replace=False)]
+    meta = {}
+
+    def place(cam, dvs, bg, looks):
+        room = min(cam.sensor_size) / 2.0
+        for _ in range(200):
+            objs, crossings = [], []
+            for k, (lk, b) in enumerate(zip(looks, bins)):
+                ang = rng.uniform(0.0, TAU)
+                off = CROSSING_OFFSET_FRAC * room
+                o = _random_object(rng, cam, lk, bg, dvs.log_eps, str(rng.choice(SHAPES)), str(rng.choice(TEST_CURVES)),
+                                   b, float(rng.choice(ORIENTATIONS_DEG)), bool(rng.random() < 0.5),
+                                   (off * math.cos(ang), off * math.sin(ang)), room - off)
+                if k:
+                    lo, hi = CROSSING_TIME_FRAC
+                    hit = _meeting(cam, objs[-1].trajectory, o.trajectory, lo * duration_s, hi * duration_s,
+                                   float(rng.uniform(lo, hi)) * duration_s)
+                    if hit is None:
+                        break
+                    t_c, phi, (x, y), angle = hit
+                    sense = 1.0 if o.trajectory.clockwise else -1.0
+                    phase0 = round(float((phi - sense * TAU * t_c / o.trajectory.lap_time_s) % TAU), 9)
+                    o = dataclasses.replace(o, trajectory=dataclasses.replace(o.trajectory, phase0=phase0))
+                    crossings.append({"objects": [k - 1, k], "t_s": round(t_c, 6), "x_px": round(x, 2),
+                                      "y_px": round(y, 2), "angle_deg": round(angle, 1)})
+                objs.append(o)
+            if len(objs) == n_obj:
+                meta.update(same_bin=same_bin, bins=bins, crossings=crossings)
+                return objs
+        raise ValueError("no crossing paths found for this scene (crossing split)")
+    # like pairs: objects up to 0.12 of the smaller side leave room for the curves
+    scene = _random_scene(rng, ranges, None, place, n_obj, 0.12)
+    return scene, meta
+
+
 def split_specs(split: str, seed: int = 0, duration_s: float | None = None, dvs: DVSParams | None = None,
                 texture: float = 0.0, multi_count: int = DEFAULT_MULTI_COUNT,
                 contrast: str = "bright", appearance: str = "paper",
@@ -260,7 +345,7 @@ def split_specs(split: str, seed: int = 0, duration_s: float | None = None, dvs:
     when ``ranges`` is given, drawn per sequence from its sensor fields (and its sensor_size).
     appearance "random": everything drawn from ``ranges`` (default appearance.RANDOM); the train
     split skips the held-out region. The appearance split is always random, inside the region;
-    pairs are always random.
+    pairs and crossing are always random.
     """
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r} (expected one of {', '.join(SPLITS)})")
@@ -269,7 +354,7 @@ def split_specs(split: str, seed: int = 0, duration_s: float | None = None, dvs:
     if appearance not in APPEARANCES:
         raise ValueError(f"unknown appearance {appearance!r} (expected one of {', '.join(APPEARANCES)})")
     dur = float(duration_s if duration_s is not None else DEFAULT_DURATION_S[split])
-    random_look = appearance == "random" or split in ("appearance", "pairs")
+    random_look = appearance == "random" or split in ("appearance", "pairs", "crossing")
     specs = []
 
     def add(name, objects, cam=None, seq_dvs=None, seq_texture=None, background=None, meta=None):
@@ -327,11 +412,17 @@ def split_specs(split: str, seed: int = 0, duration_s: float | None = None, dvs:
             name = f"appearance_multi_{i:03d}"
             rng = np.random.default_rng(sequence_seed(seed, name))
             add_random(name, _random_multi(rng, rr, "only"), "only")
-    else:
+    elif split == "pairs":
         for b, i in itertools.product((1, 2, 3, 4), range(PAIRS_PER_BIN)):
             name = f"pairs_b{b}_{i:03d}"
             rng = np.random.default_rng(sequence_seed(seed, name))
             scene, meta = _random_pair(rng, rr, b)
+            add_random(name, scene, None, meta)
+    else:
+        for i in range(CROSSING_COUNT):
+            name = f"crossing_{i:03d}"
+            rng = np.random.default_rng(sequence_seed(seed, name))
+            scene, meta = _random_crossing(rng, rr, int(rng.integers(2, 4)), i % 2 == 0, dur)
             add_random(name, scene, None, meta)
     return specs
 

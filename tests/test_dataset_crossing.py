@@ -1,0 +1,78 @@
+"""The crossing split (objects whose paths cross while the sequence runs) and the promise that
+adding it left every other split's sequences as they were (data set v3 stays reproducible)."""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from toffe_deploy.dataset.appearance import PAPER, RANDOM
+from toffe_deploy.dataset.splits import CROSSING_COUNT, CROSSING_MIN_ANGLE_DEG, sequence_seed, split_specs
+from toffe_deploy.dataset.synth import object_tracks
+
+ROOT = Path(__file__).resolve().parent.parent
+#: sha256 (16 hex) of the concatenated digests of every spec of a split, seed 0, as `dataset synth`
+#: draws them (taken before the crossing split was added; equal to data/synth v3's index.json)
+V3_SPLITS = {"test": ("paper", "762d16720d0345a6"), "multi": ("paper", "b9cda47a3fc429ec"),
+             "appearance": ("random", "2f74949cb8a1aeed"), "pairs": ("random", "7b97caad163aa0ff")}
+CROSSING_SEED0 = "e971f8338c543bd3"
+
+
+def _digests(split, appearance):
+    specs = split_specs(split, seed=0, appearance=appearance, ranges=RANDOM if appearance == "random" else PAPER)
+    return specs, [s.digest(sequence_seed(0, "dvs:" + s.name)) for s in specs]
+
+
+@pytest.mark.parametrize("split", sorted(V3_SPLITS))
+def test_existing_splits_are_unchanged(split):
+    """A spec's digest fixes its file (generator version + spec + seed): equal digests, equal events."""
+    appearance, want = V3_SPLITS[split]
+    specs, digests = _digests(split, appearance)
+    assert hashlib.sha256("".join(digests).encode()).hexdigest()[:16] == want
+    index = ROOT / "data" / "synth" / "index.json"
+    if index.exists():                                  # the generated data set, where present
+        have = {r["name"]: r["digest"] for r in json.loads(index.read_text())["sequences"]}
+        assert all(have.get(s.name, d) == d for s, d in zip(specs, digests))
+
+
+@pytest.fixture(scope="module")
+def crossing():
+    return split_specs("crossing", seed=0)
+
+
+def test_crossing_paths_meet_inside_the_view_during_the_sequence(crossing):
+    assert len(crossing) == CROSSING_COUNT and len({s.name for s in crossing}) == CROSSING_COUNT
+    kinds = {(s.meta["same_bin"], len(s.objects)) for s in crossing}
+    assert {True, False} == {k[0] for k in kinds} and {2, 3} == {k[1] for k in kinds}
+    for s in crossing:
+        bins = [o.target_bin for o in s.objects]
+        assert s.meta["bins"] == bins and (len(set(bins)) == 1) == s.meta["same_bin"]
+        assert s.meta["same_bin"] or len(set(bins)) == len(bins)
+        assert len(s.meta["crossings"]) == len(s.objects) - 1
+        t = np.array([c["t_s"] for c in s.meta["crossings"]])
+        assert np.all((t > 0.2 * s.duration_s) & (t < 0.8 * s.duration_s))
+        _, gt = object_tracks(s, t)
+        n = len(s.objects)
+        xy = np.stack([gt["x"], gt["y"]], axis=1).reshape(len(t), n, 2)
+        vis = gt["visible"].reshape(len(t), n)
+        for j, c in enumerate(s.meta["crossings"]):
+            a, b = c["objects"]
+            assert np.linalg.norm(xy[j, a] - xy[j, b]) < 0.5        # the centres meet at the recorded time
+            assert np.linalg.norm(xy[j, a] - (c["x_px"], c["y_px"])) < 0.5
+            assert vis[j, a] and vis[j, b] and c["angle_deg"] >= CROSSING_MIN_ANGLE_DEG
+        # before and after the crossing they are apart: paths that cut, not objects that ride together
+        _, gt2 = object_tracks(s, np.array([0.0, s.duration_s]))
+        xy2 = np.stack([gt2["x"], gt2["y"]], axis=1).reshape(2, n, 2)
+        for c in s.meta["crossings"]:
+            a, b = c["objects"]
+            assert np.linalg.norm(xy2[0, a] - xy2[0, b]) > 1.0 or np.linalg.norm(xy2[1, a] - xy2[1, b]) > 1.0
+
+
+def test_crossing_split_is_pinned_and_its_meta_is_json(crossing):
+    """The crossing split is deterministic for a seed (its digests pinned like the v3 splits')."""
+    digests = "".join(s.digest(sequence_seed(0, "dvs:" + s.name)) for s in crossing)
+    assert hashlib.sha256(digests.encode()).hexdigest()[:16] == CROSSING_SEED0
+    assert json.loads(json.dumps(crossing[0].to_dict()))["meta"]["crossings"][0]["objects"] == [0, 1]
