@@ -619,6 +619,7 @@ class Decoder:
         self.bounds = speed_bounds(config) if self.mode == "mps" else speed_bounds_px_ms(config)
         self.lower = np.ascontiguousarray(self.bounds[1:, 0])
         self.scale = config.speed_scale
+        self.px_ms_per_mps = self.scale.px_ms_per_mps           # speed_scale.to_mps / to_px_ms's factor
         self.representative = np.asarray(config.representative_speeds, dtype=np.float64)
 
     def __call__(self, pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: np.ndarray
@@ -629,27 +630,29 @@ class Decoder:
         k = np.asarray(stage_k, dtype=np.int64).reshape(-1)
         if not (pose.shape[0] == direction.shape[0] == speed.shape[0] == k.shape[0]):
             raise ValueError("pose, direction, speed and stage_k must have the same number of rows")
-        if k.size and (k.min() < 1 or k.max() > self.n_speed_bins):
-            raise ValueError(f"stage_k must be in 1..{self.n_speed_bins}")
+        if k.size:
+            ks = k.tolist()                     # Python min / max: a window has a handful of rows
+            if min(ks) < 1 or max(ks) > self.n_speed_bins:
+                raise ValueError(f"stage_k must be in 1..{self.n_speed_bins}")
         # np.minimum(np.maximum(...)) is np.clip's result (NaN included) at a fraction of its call cost
         reg = np.exp(np.minimum(np.maximum(speed, -10.0), 10.0))
-        scale = self.scale
         if self.mode == "ofpd":
             edges = self.bounds
             v_px = np.minimum(np.maximum(reg, edges[0, 0]), edges[-1, 1])
             clipped = v_px != reg
-            k = np.minimum(np.maximum(np.searchsorted(self.lower, v_px, side="right") + 1, 1), len(edges)).astype(np.int64)
-            v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
+            # in 1..N without clamping: N - 1 lower edges (a NaN sorts after them all: bin N)
+            k = self.lower.searchsorted(v_px, side="right") + 1
+            v_mps = v_px / self.px_ms_per_mps                    # speed_scale.to_mps
         elif self.mode == "px_ms":
             bounds = self.bounds[k - 1] if k.size else np.zeros((0, 2))
             v_px = np.clip(reg, bounds[:, 0], bounds[:, 1])
             clipped = v_px != reg
-            v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
+            v_mps = v_px / self.px_ms_per_mps                    # speed_scale.to_mps
         else:
             bounds = self.bounds[k - 1] if k.size else np.zeros((0, 2))
             v_mps = np.clip(reg, bounds[:, 0], bounds[:, 1])
             clipped = v_mps != reg
-            v_px = np.asarray(scale.to_px_ms(v_mps), dtype=np.float64)
+            v_px = v_mps * self.px_ms_per_mps                    # speed_scale.to_px_ms
         return {
             "x_px": pose[:, 0],
             "y_px": pose[:, 1],

@@ -151,7 +151,7 @@ def up_frames(frames, inverse: np.ndarray | None):
     if inverse is None:
         return frames
     if isinstance(frames, np.ndarray):
-        return frames[:, inverse]
+        return frames.take(inverse, axis=1)      # = frames[:, inverse], ~4x faster than 2-d fancy indexing
     return [np.asarray(f)[inverse] for f in frames]
 
 
@@ -254,11 +254,12 @@ class Pipeline:
         pose, direction, speed = self.ofpd.run(x)
         dec = self._decode(pose, direction, speed, ks)
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
-        return [ObjectFlow(speed_bin=int(dec["speed_bin"][i]), ofs_bin=int(k), speed_mps=mps[i], speed_bin_mps=bin_mps[i],
-                           speed_px_s=px_ms[i] * 1000.0, x=float(dec["x_px"][i]),
-                           y=float(dec["y_px"][i]), direction_rad=float(dec["direction_rad"][i]),
-                           n_events=int(n_events[i]), speed_clipped=bool(dec["speed_clipped"][i]))
-                for i, k in enumerate(ks)]
+        # each column to Python numbers once (tolist), not one numpy scalar per field and object
+        return [ObjectFlow(speed_bin=sb, ofs_bin=k, speed_mps=v, speed_bin_mps=vb, speed_px_s=v_px * 1000.0, x=cx, y=cy,
+                           direction_rad=d, n_events=n, speed_clipped=c)
+                for sb, k, v, vb, v_px, cx, cy, d, n, c in zip(
+            dec["speed_bin"].tolist(), ks.tolist(), mps, bin_mps, px_ms, dec["x_px"].tolist(), dec["y_px"].tolist(),
+            dec["direction_rad"].tolist(), n_events.tolist(), dec["speed_clipped"].tolist())]
 
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
         """(t0_us, window) pairs in, WindowResult per window out, in order, streaming."""
