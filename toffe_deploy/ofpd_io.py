@@ -420,7 +420,7 @@ def _blob_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, w: in
     need = int(s["min_events"])
     stage, cx, cy, _owner, keys, owner = blob_objects(xs, ys, starts, w, int(s["link_px"]), float(s["merge_frac"]),
                                                       float(s["edge_merge_frac"]), need, max(1, -(-need // 4)))
-    objs = [(int(k), float(x), float(y)) for k, x, y in zip(stage.tolist(), cx.tolist(), cy.tolist())]
+    objs = list(zip(stage.tolist(), cx.tolist(), cy.tolist()))       # (int, float, float) rows
     return objs, Claims(width=w, keys=keys, owner=owner)
 
 
