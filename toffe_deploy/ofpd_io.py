@@ -673,7 +673,7 @@ class Decoder:
                 else:
                     v_mps.append(v)
                     v_px.append(v * f)                           # speed_scale.to_px_ms
-        xy = np.asarray(pose, dtype=np.float64).T.tolist() if pose.shape[0] else [[], []]
+        xy = np.asarray(pose, dtype=np.float64).T.tolist()          # [xs, ys], also for no rows
         rep = self._representative
         return {"x_px": xy[0], "y_px": xy[1],
                 "direction_rad": np.arctan2(direction[:, 1], direction[:, 0]).tolist(),
