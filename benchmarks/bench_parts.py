@@ -13,7 +13,7 @@ took from it, so parts compare across runs on a busy machine better than wall ti
     cascade  CpuCascade.cascade_sparse (the N OFS stages, closings, masks)
     batch    runtime.ofpd_input.batch (object grouping, crops, OFPD input)
     ort      the onnxruntime call
-    decode   ofpd_io.Decoder and pipeline.speeds_of
+    decode   ofpd_io.Decoder.columns and pipeline.speeds_of
 
 Prints one JSON line: the median of each part over windows and repeats (us), the median and
 mean of their sum, the number of windows and the 1-minute load average when it ended.
@@ -73,7 +73,7 @@ def main(argv=None) -> int:
                 out = pipe.ofpd.run(x) if ks.size else None
                 t.append(clock())
                 if ks.size:
-                    speeds_of(pipe._decode(*out, ks), cfg, pipe.speed_scale)
+                    speeds_of(pipe._decode.columns(*out, ks), cfg, pipe.speed_scale)   # as Pipeline.objects_of
                 t.append(clock())
                 for name, a, b in zip(PARTS, t[:-1], t[1:]):
                     parts[name].append((b - a) / 1e3)

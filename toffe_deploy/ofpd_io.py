@@ -51,6 +51,7 @@ finds and separates the objects; the stage each came from stays in the output as
 """
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -441,7 +442,7 @@ def _blob_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, w: in
     group = union_objects if s["stages"] == "union" else blob_objects
     stage, cx, cy, _owner, keys, owner = group(xs, ys, starts, w, int(s["link_px"]), float(s["merge_frac"]),
                                                float(s["edge_merge_frac"]), need, max(1, -(-need // 4)))
-    objs = [(int(k), float(x), float(y)) for k, x, y in zip(stage.tolist(), cx.tolist(), cy.tolist())]
+    objs = list(zip(stage.tolist(), cx.tolist(), cy.tolist()))       # (int, float, float) rows
     return objs, Claims(width=w, keys=keys, owner=owner)
 
 
@@ -632,7 +633,13 @@ def decode(pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: 
 class Decoder:
     """``decode`` with the config's settings, bin edges and camera worked out once: the cpu
     runtime decodes every window, and building them (ofpd_settings, speed_bounds_px_ms) cost
-    more than the arithmetic. ``Decoder(config)(pose, direction, speed, stage_k)`` is decode."""
+    more than the arithmetic. ``Decoder(config)(pose, direction, speed, stage_k)`` is decode;
+    ``columns`` gives the same values as Python lists (the runtime's per-window form).
+
+    Only exp and atan2 run in numpy (its float64 kernels are the reference; libm's may differ
+    in the last bit); the clipping, the bin search and the unit factors are IEEE scalar
+    operations, the same in Python as in numpy, done per row: a window has a handful of
+    objects, where one numpy call costs more than the row's arithmetic."""
 
     def __init__(self, config: ToffeConfig):
         s = ofpd_settings(config)
@@ -641,44 +648,67 @@ class Decoder:
         self.bounds = speed_bounds(config) if self.mode == "mps" else speed_bounds_px_ms(config)
         self.lower = np.ascontiguousarray(self.bounds[1:, 0])
         self.scale = config.speed_scale
+        self.px_ms_per_mps = self.scale.px_ms_per_mps           # speed_scale.to_mps / to_px_ms's factor
         self.representative = np.asarray(config.representative_speeds, dtype=np.float64)
+        self._bounds = [tuple(b) for b in self.bounds.tolist()]
+        self._lower = self.lower.tolist()
+        self._representative = self.representative.tolist()
 
     def __call__(self, pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: np.ndarray
                  ) -> dict[str, np.ndarray]:
-        pose = np.asarray(pose, dtype=np.float64).reshape(-1, 2)
+        c = self.columns(pose, direction, speed, stage_k)
+        return {name: np.array(c[name], dtype=dtype) for name, dtype in _DECODED}
+
+    def columns(self, pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: np.ndarray
+                ) -> dict[str, list]:
+        """decode's result as one list per key (float, int, bool)."""
+        pose = np.asarray(pose).reshape(-1, 2)
         direction = np.asarray(direction, dtype=np.float64).reshape(-1, 2)
         speed = np.asarray(speed, dtype=np.float64).reshape(-1)
-        k = np.asarray(stage_k, dtype=np.int64).reshape(-1)
-        if not (pose.shape[0] == direction.shape[0] == speed.shape[0] == k.shape[0]):
+        ks = np.asarray(stage_k, dtype=np.int64).reshape(-1).tolist()
+        if not (pose.shape[0] == direction.shape[0] == speed.shape[0] == len(ks)):
             raise ValueError("pose, direction, speed and stage_k must have the same number of rows")
-        if k.size and (k.min() < 1 or k.max() > self.n_speed_bins):
+        if ks and (min(ks) < 1 or max(ks) > self.n_speed_bins):
             raise ValueError(f"stage_k must be in 1..{self.n_speed_bins}")
         # np.minimum(np.maximum(...)) is np.clip's result (NaN included) at a fraction of its call cost
-        reg = np.exp(np.minimum(np.maximum(speed, -10.0), 10.0))
-        scale = self.scale
+        reg = np.exp(np.minimum(np.maximum(speed, -10.0), 10.0)).tolist()
+        f = self.px_ms_per_mps
+        v_px, v_mps, clipped, bins = [], [], [], []
         if self.mode == "ofpd":
-            edges = self.bounds
-            v_px = np.minimum(np.maximum(reg, edges[0, 0]), edges[-1, 1])
-            clipped = v_px != reg
-            k = np.minimum(np.maximum(np.searchsorted(self.lower, v_px, side="right") + 1, 1), len(edges)).astype(np.int64)
-            v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
-        elif self.mode == "px_ms":
-            bounds = self.bounds[k - 1] if k.size else np.zeros((0, 2))
-            v_px = np.clip(reg, bounds[:, 0], bounds[:, 1])
-            clipped = v_px != reg
-            v_mps = np.asarray(scale.to_mps(v_px), dtype=np.float64)
+            lo, hi = self._bounds[0][0], self._bounds[-1][1]
+            for r in reg:
+                v = _clip(r, lo, hi)
+                v_px.append(v)
+                v_mps.append(v / f)                              # speed_scale.to_mps
+                clipped.append(v != r)
+                # searchsorted(lower, v, "right") + 1, in 1..N (a NaN sorts after every edge: bin N)
+                bins.append(bisect.bisect_right(self._lower, v) + 1)
         else:
-            bounds = self.bounds[k - 1] if k.size else np.zeros((0, 2))
-            v_mps = np.clip(reg, bounds[:, 0], bounds[:, 1])
-            clipped = v_mps != reg
-            v_px = np.asarray(scale.to_px_ms(v_mps), dtype=np.float64)
-        return {
-            "x_px": pose[:, 0],
-            "y_px": pose[:, 1],
-            "direction_rad": np.arctan2(direction[:, 1], direction[:, 0]),
-            "speed_px_ms": v_px,
-            "speed_mps": v_mps,
-            "speed_bin": k,
-            "speed_clipped": clipped,
-            "speed_bin_mps": self.representative[k - 1] if k.size else np.zeros(0),
-        }
+            bins = ks
+            for r, k in zip(reg, ks):
+                lo, hi = self._bounds[k - 1]
+                v = _clip(r, lo, hi)
+                clipped.append(v != r)
+                if self.mode == "px_ms":
+                    v_px.append(v)
+                    v_mps.append(v / f)                          # speed_scale.to_mps
+                else:
+                    v_mps.append(v)
+                    v_px.append(v * f)                           # speed_scale.to_px_ms
+        xy = np.asarray(pose, dtype=np.float64).T.tolist()          # [xs, ys], also for no rows
+        rep = self._representative
+        return {"x_px": xy[0], "y_px": xy[1],
+                "direction_rad": np.arctan2(direction[:, 1], direction[:, 0]).tolist(),
+                "speed_px_ms": v_px, "speed_mps": v_mps, "speed_bin": bins, "speed_clipped": clipped,
+                "speed_bin_mps": [rep[k - 1] for k in bins]}
+
+
+#: decode's keys and the dtypes of its arrays
+_DECODED = (("x_px", np.float64), ("y_px", np.float64), ("direction_rad", np.float64), ("speed_px_ms", np.float64),
+            ("speed_mps", np.float64), ("speed_bin", np.int64), ("speed_clipped", bool), ("speed_bin_mps", np.float64))
+
+
+def _clip(v: float, lo: float, hi: float) -> float:
+    """np.minimum(np.maximum(v, lo), hi) (np.clip) of one float, NaN kept: no comparison with a NaN is true."""
+    m = lo if v < lo else v
+    return hi if m > hi else m

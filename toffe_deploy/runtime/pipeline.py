@@ -132,10 +132,14 @@ def speeds_of(dec: dict, config: ToffeConfig, scale: SpeedScale) -> tuple[list, 
     k_bundle = config.focal_px / (1000.0 * config.depth_m)       # px/ms per m/s, config.speed_scale
     k_run = scale.px_ms_per_mps
     px_ms = dec.get("speed_px_ms")
-    px_ms = ([v * k_bundle for v in dec["speed_mps"].tolist()] if px_ms is None
-             else np.asarray(px_ms, dtype=np.float64).tolist())
+    px_ms = [v * k_bundle for v in _floats(dec["speed_mps"])] if px_ms is None else _floats(px_ms)
     ratio = k_bundle / k_run
-    return px_ms, [v / k_run for v in px_ms], [v * ratio for v in np.asarray(dec["speed_bin_mps"]).tolist()]
+    return px_ms, [v / k_run for v in px_ms], [v * ratio for v in _floats(dec["speed_bin_mps"])]
+
+
+def _floats(a) -> list:
+    """A decoded column as a list of floats (Decoder.columns gives lists, decode arrays)."""
+    return a if isinstance(a, list) else np.asarray(a, dtype=np.float64).tolist()
 
 
 def sensor_frames(cascade: CpuCascade, volume: SpikeVolume, pool: int) -> list[np.ndarray]:
@@ -151,7 +155,7 @@ def up_frames(frames, inverse: np.ndarray | None):
     if inverse is None:
         return frames
     if isinstance(frames, np.ndarray):
-        return frames[:, inverse]
+        return frames.take(inverse, axis=1)      # = frames[:, inverse], ~4x faster than 2-d fancy indexing
     return [np.asarray(f)[inverse] for f in frames]
 
 
@@ -252,13 +256,13 @@ class Pipeline:
         if not ks.size:
             return []
         pose, direction, speed = self.ofpd.run(x)
-        dec = self._decode(pose, direction, speed, ks)
+        dec = self._decode.columns(pose, direction, speed, ks)          # Python lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
-        return [ObjectFlow(speed_bin=int(dec["speed_bin"][i]), ofs_bin=int(k), speed_mps=mps[i], speed_bin_mps=bin_mps[i],
-                           speed_px_s=px_ms[i] * 1000.0, x=float(dec["x_px"][i]),
-                           y=float(dec["y_px"][i]), direction_rad=float(dec["direction_rad"][i]),
-                           n_events=int(n_events[i]), speed_clipped=bool(dec["speed_clipped"][i]))
-                for i, k in enumerate(ks)]
+        return [ObjectFlow(speed_bin=sb, ofs_bin=k, speed_mps=v, speed_bin_mps=vb, speed_px_s=v_px * 1000.0, x=cx, y=cy,
+                           direction_rad=d, n_events=n, speed_clipped=c)
+                for sb, k, v, vb, v_px, cx, cy, d, n, c in zip(
+            dec["speed_bin"], ks.tolist(), mps, bin_mps, px_ms, dec["x_px"], dec["y_px"], dec["direction_rad"],
+            n_events.tolist(), dec["speed_clipped"])]
 
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
         """(t0_us, window) pairs in, WindowResult per window out, in order, streaming."""

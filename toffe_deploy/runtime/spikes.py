@@ -16,6 +16,7 @@ from functools import cached_property
 
 import numpy as np
 
+from ..compiled import dedupe, pool_index, sorted_unique     # at import: a call-time import costs ~1 us per window
 from ..events.binning import event_bin_index
 from ..events.frontend import apply_index
 
@@ -71,8 +72,6 @@ class SpikeVolume:
                 u, inv = np.unique(self.pix, return_inverse=True)
                 got = (u, inv.reshape(-1))
             else:
-                from ..compiled import dedupe
-
                 got = dedupe(self.pix, scratch)
             self.__dict__["_pixel_index"] = got
         return got
@@ -96,8 +95,6 @@ class SpikeVolume:
         Events outside [t0, t0 + dt_us) are ignored. O(n): the indices' np.unique by a radix
         sort (compiled.sorted_unique).
         """
-        from ..compiled import sorted_unique
-
         width, height = int(sensor_size[0]), int(sensor_size[1])
         idx = event_bin_index(events, t0, dt_us, n_bins, sensor_size)
         return cls(sorted_unique(idx), (int(n_bins), 2, height, width))
@@ -118,8 +115,6 @@ class SpikeVolume:
             return self, None
         b, c, h, w = self.shape
         hp, wp = -(-h // p), -(-w // p)
-        from ..compiled import pool_index
-
         # np.unique of (bc * hp + y // p) * wp + x // p with its inverse, in one O(n) pass that
         # also gives both volumes' planes and pixels (kept: the cascade and the grouping use them)
         u, inv, u_bc, u_pix, bc, pix = pool_index(self.idx, h * w, w, int(p), hp, wp)
