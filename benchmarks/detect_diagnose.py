@@ -296,7 +296,7 @@ def main(argv=None) -> int:
                 truth = window_truth(gt, int(t0), a.dt)
                 raw = src.read(int(t0), int(t0) + a.dt)
                 binned = apply_dense(bin_window(raw, int(t0), a.dt, cfg.n_bins, src.sensor_size, dtype=np.uint8),
-                                     cfg.input_norm, cfg.input_min_cluster, cfg.input_cluster_radius)
+                                     cfg.input_norm, cfg.input_min_cluster)
                 ms, fs, n = diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, a.dt)
                 for r in ms + fs:
                     r["sequence"], r["t0"] = Path(path).stem, int(t0)

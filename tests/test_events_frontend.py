@@ -106,37 +106,3 @@ def test_index_front_end_equals_dense_for_any_channel_count_and_sensor(rng, shap
         for n in (1, 2, 4):
             got = apply_index(np.flatnonzero(vol), vol.shape, norm, n)
             assert np.array_equal(got, np.flatnonzero(apply_dense(vol, norm, n))), (norm, n)
-
-
-def test_cluster_radius_links_pixels_within_chebyshev_distance():
-    """radius r: two event pixels within max(|dy|, |dx|) <= r are neighbours (r = 1: 8-connected)."""
-    gap1 = [(0, 0, 2, 2), (1, 0, 2, 4), (2, 1, 4, 4)]                # 2 apart along x, then along y
-    far = [(0, 0, 8, 0), (3, 1, 8, 3)]                                # 3 apart
-    vol = _one_window(gap1 + far)
-    assert not apply_dense(vol, "none", 2, 1).any()                   # nothing 8-connected
-    assert {tuple(p) for p in np.argwhere(apply_dense(vol, "none", 3, 2))} == set(gap1)
-    assert {tuple(p) for p in np.argwhere(apply_dense(vol, "none", 2, 2))} == set(gap1)
-    assert np.array_equal(apply_dense(vol, "none", 2, 3), vol)        # r = 3 joins the far pair too
-    assert not apply_dense(vol, "none", 4, 3).any()                   # ... into clusters of 3 and 2
-
-
-@pytest.mark.parametrize("shape", [(5, 2, 17, 23), (3, 2, 2, 40), (2, 1, 30, 3)])
-@pytest.mark.parametrize("radius", [2, 3])
-def test_cluster_radius_dense_and_index_agree(rng, shape, radius):
-    """compiled.front_end_keep's neighbourhood of radius r (interior and border pixels) against the
-    dense definition (grown squares, cv2 components); idempotent like r = 1."""
-    vol = rng.random(shape) < 0.04
-    for norm in ("none", "first"):
-        for n in (2, 4, 7):
-            dense = apply_dense(vol, norm, n, radius)
-            assert np.array_equal(apply_index(np.flatnonzero(vol), vol.shape, norm, n, radius),
-                                  np.flatnonzero(dense)), (norm, n)
-            assert np.array_equal(apply_dense(dense, norm, n, radius), dense)
-            sv = SpikeVolume.from_dense(vol)
-            assert np.array_equal(sv.front_end(norm, n, radius).idx, np.flatnonzero(dense))
-
-
-def test_bad_cluster_radius_is_refused():
-    for r in (0, 9, 1.5, True):
-        with pytest.raises(ValueError, match="input_cluster_radius"):
-            apply_index(np.zeros(0, np.int64), (5, 2, 4, 4), "first", 4, r)

@@ -1454,13 +1454,12 @@ def fill_motion(out, obj, xs, ys, ch, origins, n_bins, at):
 
 
 @njit(cache=True, nogil=True)
-def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of, radius=1):
+def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of):
     """Keep mask of the input front end (events/frontend.py) over a sorted, unique linear index
     of ones into a (B, C, H, W) volume, in one pass: with ``first``, only the first one (the
     smallest b) of each (c, pixel); with min_size > 1, only the ones whose pixel lies in an
     8-connected cluster of >= min_size of the window's event pixels (the pixel set is the
-    same with or without ``first``, so the two filters commute); with radius r > 1, pixels
-    within Chebyshev distance r of each other count as neighbours (r = 1: 8-connected).
+    same with or without ``first``, so the two filters commute).
 
     Each one's pixel gets a slot (``slot_of``, an all -1 (n_pixels,) scratch left so); a new
     pixel joins the clusters of its already seen 8 neighbours (union-find over slots); a bit
@@ -1479,13 +1478,7 @@ def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of, r
     base = plane * n_pixels
     c = plane % n_channels
     inv_w = 1.0 / width
-    nbr = np.empty((2 * radius + 1) ** 2 - 1, np.int64)
-    k = 0
-    for dy in range(-radius, radius + 1):
-        for dx in range(-radius, radius + 1):
-            if dy != 0 or dx != 0:
-                nbr[k] = dy * width + dx
-                k += 1
+    nbr = np.array([-width - 1, -width, -width + 1, -1, 1, width - 1, width, width + 1])
     u = 0
     for i in range(n):
         v = idx[i]
@@ -1508,17 +1501,17 @@ def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of, r
                 elif (y + 1) * width <= p:
                     y += 1
                 x = p - y * width
-                if y >= radius and p + radius * width < n_pixels and x >= radius and x + radius < width:
-                    for k in range(nbr.shape[0]):           # all neighbours on the sensor
+                if y >= 1 and p + width < n_pixels and x >= 1 and x + 1 < width:   # all 8 on the sensor
+                    for k in range(8):
                         q = slot_of[p + nbr[k]]
                         if q >= 0:
                             _union(parent, u, q)
                 else:
-                    for dy in range(-radius, radius + 1):
+                    for dy in range(-1, 2):
                         yy = y + dy
                         if yy < 0 or yy * width >= n_pixels:
                             continue
-                        for dx in range(-radius, radius + 1):
+                        for dx in range(-1, 2):
                             xx = x + dx
                             if (dy == 0 and dx == 0) or xx < 0 or xx >= width:
                                 continue

@@ -16,7 +16,7 @@ from typing import Any
 
 from .camera import REFERENCE_DEPTH_M, REFERENCE_FOCAL_PX, SpeedScale
 from .errors import InputError
-from .events.frontend import INPUT_NORMS, MAX_RADIUS
+from .events.frontend import INPUT_NORMS
 from .fileio import read_json
 
 #: Keys a config.json on disk (checkpoint or bundle) must state: a trained network is only valid
@@ -58,7 +58,6 @@ class ToffeConfig:
     depth_m: float = REFERENCE_DEPTH_M     # ... and the object depth
     input_norm: str = "none"               # OFS/OFPD input front end (events/frontend.py)
     input_min_cluster: int = 1             # ... then keep pixels in 8-connected clusters of >= this many (1: all)
-    input_cluster_radius: int = 1          # ... pixels within this Chebyshev distance are neighbours (1: 8-connected)
     reset: str = "subtract"                # OFS neuron reset (RESETS); configs without it: subtract
     ofpd: dict[str, Any] = field(default_factory=dict)
     dataset: dict[str, Any] = field(default_factory=dict)
@@ -122,7 +121,7 @@ class ToffeConfig:
             if "representative_speeds" in kw:
                 kw["representative_speeds"] = tuple(float(v) for v in kw["representative_speeds"])
             for k in ("n_bins", "dt_us", "ofs_kernel", "ofs_in_channels", "mask_kernel", "format_version",
-                      "input_min_cluster", "input_cluster_radius", "ofs_pool"):
+                      "input_min_cluster", "ofs_pool"):
                 if k in kw:
                     kw[k] = int(kw[k])
             for k in ("focal_px", "depth_m"):
@@ -171,8 +170,6 @@ class ToffeConfig:
             bad(f"input_norm must be one of {', '.join(INPUT_NORMS)}, got {self.input_norm!r}")
         if self.input_min_cluster < 1:
             bad(f"input_min_cluster must be >= 1, got {self.input_min_cluster}")
-        if not 1 <= self.input_cluster_radius <= MAX_RADIUS:
-            bad(f"input_cluster_radius must be 1..{MAX_RADIUS}, got {self.input_cluster_radius}")
 
     def speed_bin_of(self, speed_mps: float) -> int:
         """1-based speed bin of a speed; 0 below the first bin, N above the last."""

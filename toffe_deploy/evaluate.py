@@ -169,8 +169,7 @@ def evaluate(opts: EvalOptions) -> dict:
                 for t0 in _sample_starts(src.t_start_us, src.t_end_us, dt, opts.max_windows):
                     truth = window_truth(gt, int(t0), dt)
                     binned = apply_dense(bin_window(src.read(int(t0), int(t0) + dt), int(t0), dt, cfg.n_bins, sensor,
-                                                    dtype=np.uint8), cfg.input_norm, cfg.input_min_cluster,
-                                                    cfg.input_cluster_radius)
+                                                    dtype=np.uint8), cfg.input_norm, cfg.input_min_cluster)
                     preds, res = predict_window(binned, run_stage, ofpd, cfg)
                     errs.add_window(preds, truth, focal)
                     for g, (_paths, labels, _order) in enumerate(groups):
@@ -184,8 +183,7 @@ def evaluate(opts: EvalOptions) -> dict:
                 if track_errs is not None:
                     def predict(t0, src=src, sensor=sensor):
                         binned = apply_dense(bin_window(src.read(t0, t0 + dt), t0, dt, cfg.n_bins, sensor,
-                                                        dtype=np.uint8), cfg.input_norm, cfg.input_min_cluster,
-                                                    cfg.input_cluster_radius)
+                                                        dtype=np.uint8), cfg.input_norm, cfg.input_min_cluster)
                         return predict_window(binned, run_stage, ofpd, cfg)[0]
 
                     track_sequence(src, gt, dt, opts.track_windows, predict, cfg, track_errs)

@@ -32,7 +32,6 @@ from __future__ import annotations
 import numpy as np
 
 INPUT_NORMS = ("none", "first")
-MAX_RADIUS = 8
 _SLOTS: dict[int, np.ndarray] = {}    # front_end_index's scratch per H * W (compiled.new_scratch; reused: no page faults)
 
 
@@ -59,8 +58,7 @@ def first_spikes_index(idx: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return front_end_index(idx, shape, True, 1)
 
 
-def front_end_index(idx: np.ndarray, shape: tuple[int, ...], first: bool, min_cluster: int,
-                    radius: int = 1) -> np.ndarray:
+def front_end_index(idx: np.ndarray, shape: tuple[int, ...], first: bool, min_cluster: int) -> np.ndarray:
     """The ones of a sorted unique linear index into a (B, C, H, W) volume that ``first`` (if
     set) and the cluster filter of ``min_cluster`` keep, in one compiled pass
     (compiled.front_end_keep). Returns a sorted index."""
@@ -74,7 +72,7 @@ def front_end_index(idx: np.ndarray, shape: tuple[int, ...], first: bool, min_cl
     slots = _SLOTS.get(n_pixels)
     if slots is None:                  # one all -1 scratch per sensor size, left so by the kernel
         slots = _SLOTS[n_pixels] = new_scratch(n_pixels)
-    return idx[front_end_keep(idx, int(shape[1]), n_pixels, w, bool(first), int(min_cluster), slots, int(radius))]
+    return idx[front_end_keep(idx, int(shape[1]), n_pixels, w, bool(first), int(min_cluster), slots)]
 
 
 def check_min_cluster(n: int) -> int:
@@ -83,56 +81,38 @@ def check_min_cluster(n: int) -> int:
     return int(n)
 
 
-def check_radius(r: int) -> int:
-    if isinstance(r, bool) or not isinstance(r, (int, np.integer)) or not 1 <= r <= MAX_RADIUS:
-        raise ValueError(f"input_cluster_radius must be an integer 1..{MAX_RADIUS}, got {r!r}")
-    return int(r)
-
-
-def min_cluster_dense(volume: np.ndarray, n: int, radius: int = 1) -> np.ndarray:
-    """(..., B, C, H, W) bool: the spikes of the pixels whose cluster of event pixels (any b,
-    c) has >= n pixels, two pixels being neighbours within Chebyshev distance ``radius`` (1:
-    8-connected). Reference form: each pixel grows to the radius x radius square below and right
-    of it; two such squares touch (8-connected) iff their pixels are within ``radius``."""
+def min_cluster_dense(volume: np.ndarray, n: int) -> np.ndarray:
+    """(..., B, C, H, W) bool: the spikes of the pixels whose 8-connected cluster of event
+    pixels (any b, c) has >= n pixels."""
     import cv2
 
     v = np.asarray(volume) > 0
     if n <= 1:
         return v
-    r = int(radius)
     lead = v.shape[:-4]
     flat = v.reshape((-1,) + v.shape[-4:])
     out = np.zeros_like(flat)
     for i in range(flat.shape[0]):
         pix = flat[i].any(axis=(0, 1))
-        h, w = pix.shape
-        grown = np.zeros((h + r - 1, w + r - 1), np.uint8)
-        for dy in range(r):
-            for dx in range(r):
-                grown[dy:dy + h, dx:dx + w] |= pix
-        _n, labels, _s, _c = cv2.connectedComponentsWithStats(grown, connectivity=8)
-        own = labels[:h, :w]
-        size = np.bincount(own[pix], minlength=_n)
-        keep = (size[own] >= n) & pix
+        _n, labels, stats, _c = cv2.connectedComponentsWithStats(pix.view(np.uint8), connectivity=8)
+        keep = (stats[:, cv2.CC_STAT_AREA] >= n)[labels] & pix
         out[i] = flat[i] & keep
     return out.reshape(lead + v.shape[-4:])
 
 
-def min_cluster_index(idx: np.ndarray, shape: tuple[int, ...], n: int, radius: int = 1) -> np.ndarray:
+def min_cluster_index(idx: np.ndarray, shape: tuple[int, ...], n: int) -> np.ndarray:
     """The same on a sorted unique linear index of ones into a (B, C, H, W) volume, in one
     compiled pass (front_end_index: union-find over the window's event pixels). Returns a
     sorted index."""
-    return front_end_index(idx, shape, False, n, radius)
+    return front_end_index(idx, shape, False, n)
 
 
-def apply_dense(volume: np.ndarray, norm: str, min_cluster: int = 1, radius: int = 1) -> np.ndarray:
+def apply_dense(volume: np.ndarray, norm: str, min_cluster: int = 1) -> np.ndarray:
     """The front end on a dense (..., B, C, H, W) volume; returns a bool volume."""
     out = first_spikes_dense(volume) if check_norm(norm) == "first" else np.asarray(volume) > 0
-    return min_cluster_dense(out, check_min_cluster(min_cluster), check_radius(radius))
+    return min_cluster_dense(out, check_min_cluster(min_cluster))
 
 
-def apply_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluster: int = 1,
-                radius: int = 1) -> np.ndarray:
+def apply_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluster: int = 1) -> np.ndarray:
     """The front end on a sorted unique linear index of ones into a (B, C, H, W) volume."""
-    return front_end_index(idx, shape, check_norm(norm) == "first", check_min_cluster(min_cluster),
-                           check_radius(radius))
+    return front_end_index(idx, shape, check_norm(norm) == "first", check_min_cluster(min_cluster))

@@ -102,12 +102,12 @@ class SpikeVolume:
         idx = event_bin_index(events, t0, dt_us, n_bins, sensor_size)
         return cls(sorted_unique(idx), (int(n_bins), 2, height, width))
 
-    def front_end(self, norm: str, min_cluster: int = 1, radius: int = 1) -> "SpikeVolume":
+    def front_end(self, norm: str, min_cluster: int = 1) -> "SpikeVolume":
         """The ones the network sees through the input front end (events/frontend.py); self
         when it keeps them all. Idempotent, so a caller may apply it again."""
         if norm == "none" and min_cluster <= 1:
             return self
-        return SpikeVolume(apply_index(self.idx, self.shape, norm, min_cluster, radius), self.shape)
+        return SpikeVolume(apply_index(self.idx, self.shape, norm, min_cluster), self.shape)
 
     def pool(self, p: int) -> tuple["SpikeVolume", np.ndarray | None]:
         """(the volume OR-pooled over p x p pixel blocks, inverse): shape (B, C, ceil(H / p),
