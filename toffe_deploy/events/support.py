@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .frontend import apply_dense, apply_index
+from .frontend import apply_dense
 
 
 def event_pixels(volume: np.ndarray) -> np.ndarray:
@@ -59,25 +59,29 @@ def support_dense(volume: np.ndarray, norm: str, min_cluster: int, counts: np.nd
 
 
 @njit(cache=True, nogil=True)
-def _support_keep(pix, cand, counts, height, width, radius, m, mark):
-    """For each candidate pixel (linear id), whether S >= m: ``mark`` ((H * W,) uint8 zeros, left
-    so) holds this window's event pixels while the box sums are read."""
-    for i in range(pix.shape[0]):
-        mark[pix[i]] = 1
-    out = np.zeros(cand.shape[0], np.bool_)
-    for i in range(cand.shape[0]):
-        p = cand[i]
+def _support_keep(idx, n_pixels, width, height, keep_base, keep_every, counts, radius, m, mark):
+    """keep_base | (keep_every & S >= m) over the ones of a sorted linear index (module doc):
+    ``mark`` ((n_pixels,) uint8 zeros, left so) holds the window's event pixels while the box
+    sums are read; S is read only for the ones the cluster filter dropped."""
+    n = idx.shape[0]
+    for i in range(n):
+        mark[idx[i] % n_pixels] = 1
+    keep = keep_base.copy()
+    for i in range(n):
+        if keep_base[i] or not keep_every[i]:
+            continue
+        p = idx[i] % n_pixels
         y = p // width
         x = p - y * width
         s = 0
         for yy in range(max(0, y - radius), min(height, y + radius + 1)):
             row = yy * width
             for xx in range(max(0, x - radius), min(width, x + radius + 1)):
-                s += counts[row + xx] + mark[row + xx]
-        out[i] = s >= m
-    for i in range(pix.shape[0]):
-        mark[pix[i]] = 0
-    return out
+                s += np.int64(counts[row + xx]) + np.int64(mark[row + xx])
+        keep[i] = s >= m
+    for i in range(n):
+        mark[idx[i] % n_pixels] = 0
+    return keep
 
 
 _MARKS: dict[int, np.ndarray] = {}
@@ -86,21 +90,25 @@ _MARKS: dict[int, np.ndarray] = {}
 def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluster: int, counts: np.ndarray,
                   radius: int, m: int) -> np.ndarray:
     """The same on a sorted unique linear index of ones into a (B, C, H, W) volume; ``counts`` an
-    (H, W) or (H * W,) uint8 count image. Box sums are read only around the pixels the cluster
-    filter dropped. Returns a sorted index."""
+    (H, W) or (H * W,) uint8 count image. Two passes of compiled.front_end_keep (with and
+    without the cluster filter) and one that reads box sums around the ones it dropped.
+    Returns a sorted index."""
+    from ..compiled import front_end_keep, new_scratch
+    from .frontend import _SLOTS, check_min_cluster, check_norm
+
     idx = np.asarray(idx, dtype=np.int64)
-    h, w = int(shape[2]), int(shape[3])
-    every = apply_index(idx, shape, norm, 1)
-    base = apply_index(idx, shape, norm, min_cluster)
-    if every.size == base.size:
-        return base
+    if idx.size == 0:
+        return idx
+    c, h, w = int(shape[1]), int(shape[2]), int(shape[3])
     n_pixels = h * w
-    pix_every = every % n_pixels
-    dropped = np.setdiff1d(pix_every, base % n_pixels)
+    first = check_norm(norm) == "first"
+    slots = _SLOTS.get(n_pixels)
+    if slots is None:
+        slots = _SLOTS[n_pixels] = new_scratch(n_pixels)
+    every = front_end_keep(idx, c, n_pixels, w, first, 1, slots)
+    base = front_end_keep(idx, c, n_pixels, w, first, check_min_cluster(min_cluster), slots)
     mark = _MARKS.get(n_pixels)
     if mark is None:
         mark = _MARKS[n_pixels] = np.zeros(n_pixels, np.uint8)
-    ok = _support_keep(np.unique(idx % n_pixels), dropped, np.ascontiguousarray(counts, np.uint8).reshape(-1),
-                       h, w, int(radius), int(m), mark)
-    rescued = dropped[ok]
-    return np.union1d(base, every[np.isin(pix_every, rescued)])
+    cnt = np.ascontiguousarray(counts, np.uint8).reshape(-1)
+    return idx[_support_keep(idx, n_pixels, w, h, base, every, cnt, int(radius), int(m), mark)]
