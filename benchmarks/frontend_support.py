@@ -2,13 +2,14 @@
 """``eval`` of a checkpoint with the front end's temporal support (events/support.py), before it
 is wired into the runtime targets (issue 11): what it would gain with the shipped weights.
 
-    python benchmarks/frontend_support.py --split test --support 4,1,6 --json /tmp/s.json
+    python benchmarks/frontend_support.py --split test --support 4,1,5,2 --json /tmp/s.json
     python benchmarks/frontend_support.py --data /work/exp/noise50 --split test --support 4,1,6
 
 Everything is evaluate.evaluate (same sampled windows, cascade, grouping and matching), except
 that each window's front end is events/support.py's ``support_dense`` with the counts of the K
 windows before it, read from the same recording ([t0 - K dt, t0), as a reader streaming the
-windows in order would have them). ``--support 0,0,0`` (K = 0) is the checkpoint's own front end.
+windows in order would have them). ``--support K,r,m[,c]`` (module doc of events/support.py; c
+defaults to 0, a fixed threshold m); ``--support 0,0,0`` (K = 0) is the checkpoint's own front end.
 Prints recall, false positives per window and bin accuracy, overall and for speed bin 1.
 """
 from __future__ import annotations
@@ -61,10 +62,11 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=str(ROOT / "data" / "synth"))
     ap.add_argument("--split", default="test")
     ap.add_argument("--max-windows", type=int, default=6)
-    ap.add_argument("--support", default="4,1,6", help="K,r,m: windows before, box radius, min count")
+    ap.add_argument("--support", default="4,1,5,2",
+                    help="K,r,m[,c]: windows before, box radius, min count, noise factor")
     ap.add_argument("--json", help="write eval's result dict here")
     a = ap.parse_args(argv)
-    k, r, m = (int(v) for v in a.support.split(","))
+    k, r, m, c = ([int(v) for v in a.support.split(",")] + [0])[:4]
 
     def front_end(volume, norm, min_cluster, *_rest):
         if k == 0:
@@ -74,7 +76,7 @@ def main(argv=None) -> int:
         for j in range(1, k + 1):
             s = t0 - j * dt
             counts += event_pixels(bin_window(src.read(s, s + dt), s, dt, volume.shape[0], src.sensor_size))
-        return support_dense(volume, norm, min_cluster, counts, r, m)
+        return support_dense(volume, norm, min_cluster, counts, r, m, c)
 
     open_events = events_io.open_events
     events_io.open_events = lambda *args, **kw: _Recorded(open_events(*args, **kw))
@@ -85,7 +87,7 @@ def main(argv=None) -> int:
         Path(a.json).write_text(json.dumps(res, indent=1))
     row = res["per_dt"][0]
     for name, s in (("all", row["all"]), ("bin 1", row["per_bin"]["1"])):
-        print(f"{a.split} K,r,m={k},{r},{m} {name}: recall {s['recall']:.3f}  FP/window {s['fp_per_window']:.3f}  "
+        print(f"{a.split} K,r,m,c={k},{r},{m},{c} {name}: recall {s['recall']:.3f}  FP/window {s['fp_per_window']:.3f}  "
               f"bin acc {s['bin_accuracy']:.3f}")
     return 0
 

@@ -51,8 +51,25 @@ def test_support_dense_and_index_agree(rng, shape):
     counts = history_counts(rng.random((4,) + shape[2:]) < 0.1)
     for norm in ("none", "first"):
         for n in (1, 2, 4):
-            for r, m in ((1, 3), (1, 6), (2, 8)):
-                dense = support_dense(vol, norm, n, counts, r, m)
-                got = support_index(np.flatnonzero(vol), vol.shape, norm, n, counts, r, m)
-                assert np.array_equal(got, np.flatnonzero(dense)), (norm, n, r, m)
+            for r, m, c in ((1, 3, 0), (1, 6, 0), (2, 8, 0), (1, 2, 2), (1, 3, 5)):
+                dense = support_dense(vol, norm, n, counts, r, m, c)
+                got = support_index(np.flatnonzero(vol), vol.shape, norm, n, counts, r, m, c)
+                assert np.array_equal(got, np.flatnonzero(dense)), (norm, n, r, m, c)
+                total = int(counts.sum())
+                assert np.array_equal(support_index(np.flatnonzero(vol), vol.shape, norm, n, counts, r, m, c, total), got)
     assert support_index(np.zeros(0, np.int64), shape, "first", 4, counts, 1, 6).size == 0
+
+
+def test_noise_factor_raises_the_threshold_with_the_event_density():
+    """T = m + floor(c (2r+1)^2 E / (H W)): the same window and history keep fewer pixels back
+    when the sensor fires more (E larger), none more."""
+    edge = [(b % 5, 1, y, 5) for b, y in enumerate(range(1, 11, 2))]
+    vol = _window(edge)
+    before = np.zeros((4, 12, 16), bool)
+    before[:, :, 5] = True
+    quiet = history_counts(before)
+    assert support_dense(vol, "first", 4, quiet, 1, 6, 2).sum() == len(edge)    # S = 13 >= T = 6 + 18 * 53 // 192 = 10
+    noisy = quiet.copy()
+    noisy[:, 10:] += 4                                                          # far from the edge: E up, S the same
+    assert not support_dense(vol, "first", 4, noisy, 1, 6, 2).any()
+    assert support_dense(vol, "first", 4, noisy, 1, 6, 0).sum() == len(edge)
