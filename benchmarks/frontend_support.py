@@ -3,7 +3,8 @@
 is wired into the runtime targets (issue 11): what it would gain with the shipped weights.
 
     python benchmarks/frontend_support.py --split test --support 4,1,5,2 --json /tmp/s.json
-    python benchmarks/frontend_support.py --data /work/exp/noise50 --split test --support 4,1,6
+    toffe-deploy dataset synth --out data/noise50 --split test --noise-hz 50,50 --seed 1   # the 50 Hz rows
+    python benchmarks/frontend_support.py --data data/noise50 --split test --support 4,1,6
 
 Everything is evaluate.evaluate (same sampled windows, cascade, grouping and matching), except
 that each window's front end is events/support.py's ``support_dense`` with the counts of the K

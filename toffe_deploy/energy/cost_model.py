@@ -1,7 +1,7 @@
 """Modelled energy and latency from counted operations, for machines without a readable counter.
 
 Every figure made here is a *model*: counted operations times published per-operation costs.
-Each constant carries its source (see /work/shared/notes/anchors.md) and every result says
+Each constant carries its source (see shared/notes/anchors.md beside the repository) and every result says
 ``modelled (constants: ...)``. Two models:
 
 Host (CPU/GPU, von Neumann), compute-and-SRAM energy in the style of Horowitz (ISSCC 2014, 45 nm):
