@@ -4,7 +4,8 @@
     .venv/bin/python benchmarks/bench_tracking.py --bundle export/ --data data/synth --split multi,pairs
         [--max-windows 200] [--limit N] [--score-gate 20] [--gate 15] [--alpha A] [--beta B] [--confirm K] [--max-misses M] [--tentative-misses T]
         [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--gate-speed K] [--report-misses R]
-        [--max-occluded O] [--no-shared-keeps-motion] [--truth-blobs] [--json FILE]
+        [--max-occluded O] [--turn-beta B] [--max-turn RAD] [--merge PX] [--merge-move PX]
+        [--no-shared-keeps-motion] [--truth-blobs] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
 ``Pipeline(bundle, "cpu", track=TrackerConfig(...))``; its detections are scored like `run`
@@ -15,6 +16,12 @@ and per ground-truth speed bin the mean direction error of the matched detection
 detection reports it (this window only) and as its confirmed track's smoothed velocity does
 (tracked, causal: from past and current windows only). Prints one markdown row per split and
 a direction table; the JSON holds every figure and the settings.
+
+``--save-detections DIR``: also write each split's per-window detections (the pipeline's
+objects, before tracking) to DIR/SPLIT.jsonl (JSON lines: a header {"split", "files", "fields"},
+then one {"seq", "t0_us", "objects": [[fields...]]} per window); ``--detections DIR``: replay
+them into the tracker instead of running the OFS and OFPD (the same figures in seconds; the
+sequences must be the ones saved: same --data, --split, --limit), to compare tracker settings.
 
 ``--truth-blobs``: the tracker alone, on detections made from the ground truth (each object's
 centre, direction and image-plane speed, every window), except that objects whose discs
@@ -292,8 +299,6 @@ def main(argv=None) -> int:
     ap.add_argument("--max-occluded", type=int, default=d.max_occluded)
     ap.add_argument("--turn-beta", type=float, default=d.turn_beta, help="turn-rate gain (0: constant velocity)")
     ap.add_argument("--max-turn", type=float, default=d.max_turn_rad, help="largest turn per window (rad)")
-    ap.add_argument("--bin-cost", type=float, default=d.bin_cost_px, help="association cost per bin of difference (px)")
-    ap.add_argument("--dir-cost", type=float, default=d.dir_cost_px, help="association cost of opposite directions (px)")
     ap.add_argument("--merge", type=float, default=d.merge_px, help="merge_px: pairs of tracks this close may share a blob")
     ap.add_argument("--merge-move", type=float, default=d.merge_move_px,
                     help="merge_move_px: tracks slower than this (px per window) share no blob")
@@ -315,8 +320,7 @@ def main(argv=None) -> int:
                              birth_gap_px=a.birth_gap, tentative_misses=a.tentative_misses, gate_speed=a.gate_speed,
                              report_misses=a.report_misses, max_occluded=a.max_occluded,
                              shared_keeps_motion=a.shared_keeps_motion, turn_beta=a.turn_beta,
-                             max_turn_rad=a.max_turn, bin_cost_px=a.bin_cost, dir_cost_px=a.dir_cost,
-                             merge_px=a.merge, merge_move_px=a.merge_move)
+                             max_turn_rad=a.max_turn, merge_px=a.merge, merge_move_px=a.merge_move)
     bundle = load_bundle(a.bundle)
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)

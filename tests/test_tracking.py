@@ -378,6 +378,6 @@ def test_a_blob_between_two_tracks_moves_both_and_stays_with_one():
 
 def test_new_settings_reject_nonsense():
     for bad in (dict(turn_beta=-0.1), dict(turn_beta=1.5), dict(max_turn_rad=-1), dict(merge_px=-1),
-                dict(merge_move_px=-1), dict(bin_cost_px=-1), dict(dir_cost_px=-1)):
+                dict(merge_move_px=-1)):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)

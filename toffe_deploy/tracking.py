@@ -14,6 +14,12 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
                (a detection within the gates of 2+ confirmed tracks, a blob of two objects, moves
                p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay)
+    merges     a detection z nearer the midpoint c of two confirmed tracks' predictions than to
+               either, within gate_px of c, the two at most merge_px apart and each moving at
+               least merge_move_px per window, is one blob of both: both move by alpha (z - c)
+               (each keeps its own motion, so the pair parts where their motions take them), the
+               blob is reported as the one of the two missed for fewer windows (it stays with
+               the track that had it), the other coasts occluded
                v_i = (1 - beta) v_i + beta u_j,  u_j = s_j (cos th_j, sin th_j)
                s_i = (1 - beta) s_i + beta s_j                            (smoothed speed, px/s)
                h_i = (1 - g_j) h_i + g_j u_j,  g_j = min(1, max(heading_beta, s_j dt / heading_px))
@@ -75,11 +81,18 @@ class TrackerConfig:
     before it is only kept for re-association (a long straight-line prediction drifts off a
     curving object); max_occluded: misses in a row an occluded track survives (occluded: missed
     while its prediction lies within its gate of a detection another track took, i.e. two
-    objects seen as one blob; listed in ``coasting`` all that time); heading_px, heading_beta:
+    objects seen as one blob, or the other track of a blob of two (merges); listed in ``coasting``
+    all that time); heading_px, heading_beta:
     the travel per window (px) at which a detection's direction is taken as it is, and the
     smallest heading gain (slow objects); shared_keeps_motion: a detection inside the gates of
     two or more confirmed tracks (two objects seen as one blob) moves the track it is assigned
-    to but leaves its velocity, speed, heading and bin as they were."""
+    to but leaves its velocity, speed, heading and bin as they were; turn_beta: gain of the turn
+    rate (0: constant velocity; the objects follow curves, and a straight-line prediction left
+    them during merges that last tens of windows), max_turn_rad: its bound per window; merge_px:
+    the farthest apart two tracks' predictions may be for a detection between them to be their
+    blob (0: no merges; objects up to ~50 px across touch at that distance), merge_move_px: the
+    slowest track (px per window) that can be in a merge (a slow object's two edge fragments
+    would otherwise hold two tracks on it)."""
 
     gate_px: float = 15.0
     gate_growth: float = 0.5
@@ -98,8 +111,6 @@ class TrackerConfig:
     shared_keeps_motion: bool = True
     turn_beta: float = 0.2
     max_turn_rad: float = 0.1
-    bin_cost_px: float = 0.0
-    dir_cost_px: float = 0.0
     merge_px: float = 40.0
     merge_move_px: float = 1.0
 
@@ -118,8 +129,8 @@ class TrackerConfig:
             raise ValueError("heading_px must be > 0 and heading_beta in (0, 1]")
         if not (0 <= self.turn_beta <= 1 and self.max_turn_rad >= 0):
             raise ValueError("turn_beta must be in [0, 1] and max_turn_rad >= 0")
-        if not min(self.merge_px, self.merge_move_px, self.bin_cost_px, self.dir_cost_px) >= 0:
-            raise ValueError("merge_px, merge_move_px, bin_cost_px and dir_cost_px must be >= 0")
+        if not min(self.merge_px, self.merge_move_px) >= 0:
+            raise ValueError("merge_px and merge_move_px must be >= 0")
 
 
 _F = np.float64
@@ -387,21 +398,6 @@ def _step_simple(t, z, p, lo, hi, inner, next_id):
     return out, assigned, next_id, True
 
 
-def association_cost(a: np.ndarray, z: np.ndarray, d: np.ndarray, cfg: TrackerConfig, dt_s: float) -> np.ndarray:
-    """The cost the Hungarian method minimizes where gates overlap: distance d_ij plus
-    bin_cost_px |bin_i - bin_j| plus dir_cost_px q_j (1 - cos(angle(h_i) - th_j)) / 2 (q_j as the
-    turn rate's: a slow detection's direction says little)."""
-    if cfg.bin_cost_px <= 0 and cfg.dir_cost_px <= 0:
-        return d
-    cost = d + cfg.bin_cost_px * np.abs(a[:, BIN, None] - z[None, :, 5])
-    if cfg.dir_cost_px > 0:
-        q = np.minimum(1.0, z[:, 4] * dt_s / cfg.heading_px)
-        cos = ((a[:, HX, None] * z[None, :, 2] + a[:, HY, None] * z[None, :, 3])
-               / np.maximum(np.hypot(a[:, HX], a[:, HY])[:, None] * z[None, :, 4], 1e-9))
-        cost = cost + cfg.dir_cost_px * q[None, :] * (1.0 - cos) / 2.0
-    return cost
-
-
 def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edges: BinEdges,
          next_id: int, p: np.ndarray | None = None) -> tuple[Tracks, np.ndarray, int]:
     """One window of tracking (module doc): -> (live tracks, assigned track row of each detection
@@ -415,11 +411,10 @@ def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edge
     if not done:                                             # confirmed tracks first, then tentative ones
         a, d, ok, _simple = _predict(t, z, p)
         conf = t[:, CONF] > 0
-        cost = association_cost(a, z, d, cfg, dt_s)
-        pairs = match_within(cost, ok & conf[:, None])
+        pairs = match_within(d, ok & conf[:, None])
         taken = np.zeros(z.shape[0], bool)
         taken[[c for _r, c in pairs]] = True
-        pairs += match_within(cost, ok & ~conf[:, None] & ~taken[None, :])
+        pairs += match_within(d, ok & ~conf[:, None] & ~taken[None, :])
         r, j = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
         out, assigned, nid = _update(a, t, z, np.ascontiguousarray(r), np.ascontiguousarray(j), d, p, edges.lo,
                                      edges.hi, edges.inner, int(next_id))
