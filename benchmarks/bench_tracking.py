@@ -4,7 +4,8 @@
     .venv/bin/python benchmarks/bench_tracking.py --bundle export/ --data data/synth --split multi,pairs
         [--max-windows 200] [--limit N] [--score-gate 20] [--gate 15] [--alpha A] [--beta B] [--confirm K] [--max-misses M] [--tentative-misses T]
         [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--gate-speed K] [--report-misses R]
-        [--max-occluded O] [--no-shared-keeps-motion] [--truth-blobs] [--json FILE]
+        [--max-occluded O] [--turn-beta B] [--max-turn RAD] [--merge PX] [--merge-move PX]
+        [--no-shared-keeps-motion] [--truth-blobs] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
 ``Pipeline(bundle, "cpu", track=TrackerConfig(...))``; its detections are scored like `run`
@@ -15,6 +16,12 @@ and per ground-truth speed bin the mean direction error of the matched detection
 detection reports it (this window only) and as its confirmed track's smoothed velocity does
 (tracked, causal: from past and current windows only). Prints one markdown row per split and
 a direction table; the JSON holds every figure and the settings.
+
+``--save-detections DIR``: also write each split's per-window detections (the pipeline's
+objects, before tracking) to DIR/SPLIT.jsonl (JSON lines: a header {"split", "files", "fields"},
+then one {"seq", "t0_us", "objects": [[fields...]]} per window); ``--detections DIR``: replay
+them into the tracker instead of running the OFS and OFPD (the same figures in seconds; the
+sequences must be the ones saved: same --data, --split, --limit), to compare tracker settings.
 
 ``--truth-blobs``: the tracker alone, on detections made from the ground truth (each object's
 centre, direction and image-plane speed, every window), except that objects whose discs
@@ -30,6 +37,7 @@ passes), i.e. what tracking adds to `run --target cpu`.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import sys
@@ -59,17 +67,61 @@ def angle_err_deg(a: float, b: float) -> float:
     return abs(math.degrees((a - b + math.pi) % (2 * math.pi) - math.pi))
 
 
-def run_split(bundle, files, settings, max_windows, gate) -> dict:
+#: an ObjectFlow's fields in a detections file (``--save-detections``), in this order
+DET_FIELDS = ("speed_bin", "ofs_bin", "speed_mps", "speed_bin_mps", "speed_px_s", "x", "y", "direction_rad",
+              "n_events", "speed_clipped")
+
+
+def save_detections(path: Path, split: str, files, windows: list) -> None:
+    """The pipeline's detections of a split, one JSON line per window ({"seq": file index, "t0_us",
+    "objects": [[DET_FIELDS...], ...]}) after a header line ({"split", "files", "fields"}): what
+    ``--detections`` replays into the tracker. windows: (file index, t0_us, objects) per window."""
+    from toffe_deploy.fileio import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "w") as f:
+        f.write(json.dumps({"split": split, "files": [str(p) for p in files], "fields": DET_FIELDS}) + "\n")
+        for fi, t0, objs in windows:
+            f.write(json.dumps({"seq": fi, "t0_us": int(t0),
+                                "objects": [[getattr(o, k) for k in DET_FIELDS] for o in objs]}) + "\n")
+
+
+def load_detections(path: Path, files) -> dict:
+    """{file index: [(t0_us, [field tuples])]} from a ``save_detections`` file, which must be of
+    the same sequences (SystemExit otherwise)."""
+    with open(path) as f:
+        head = json.loads(f.readline())
+        if head["files"] != [str(p) for p in files] or tuple(head["fields"]) != DET_FIELDS:
+            raise SystemExit(f"{path}: saved for other sequences or fields (--data, --split, --limit)")
+        out: dict = {i: [] for i in range(len(files))}
+        for line in f:
+            r = json.loads(line)
+            out[r["seq"]].append((r["t0_us"], r["objects"]))
+    return out
+
+
+def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None) -> dict:
+    """One split through the pipeline (or, with ``saved`` from load_detections, its saved
+    detections through the tracker alone); ``keep``: a list that gets (file index, t0_us,
+    objects) of every window (for save_detections)."""
     import math
 
     import numpy as np
 
     from toffe_deploy.events.io import open_events
     from toffe_deploy.metrics import FlowErrors, Prediction, match_gated
-    from toffe_deploy.runtime.pipeline import Pipeline
+    from toffe_deploy.runtime.pipeline import ObjectFlow, Pipeline, WindowResult
     from toffe_deploy.runtime.spikes import SpikeVolume
     from toffe_deploy.runtime.truth import TruthIndex, sequence_focal_px
+    from toffe_deploy.tracking import Tracker
     from toffe_deploy.tracking_metrics import TrackingErrors
+
+    def replay(fi):
+        """The saved windows of sequence fi through a fresh Tracker (what Pipeline(track=) does)."""
+        tracker = Tracker(cfg, cfg.dt_us, settings, cfg.speed_scale.px_ms_per_mps)
+        for t0, rows in saved[fi][:max_windows]:
+            objs = [ObjectFlow(*r) for r in rows]
+            tracker.update(objs, t0)
+            yield WindowResult(t0, t0 + cfg.dt_us, objs, coasting=tracker.coasting())
 
     cfg = bundle.config
     flow = FlowErrors(gate_px=gate, n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
@@ -89,8 +141,15 @@ def run_split(bundle, files, settings, max_windows, gate) -> dict:
                     yield t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor)
 
             track.new_sequence()
-            with Pipeline(bundle, "cpu", sensor_size=sensor, track=settings) as pipe:
-                for w, res in enumerate(pipe.process_stream(windows())):
+            with contextlib.ExitStack() as stack:
+                if saved is None:
+                    pipe = stack.enter_context(Pipeline(bundle, "cpu", sensor_size=sensor, track=settings))
+                    results = pipe.process_stream(windows())
+                else:
+                    results = replay(fi)
+                for w, res in enumerate(results):
+                    if keep is not None:
+                        keep.append((fi, res.t0_us, res.objects))
                     gt = truth.window(res.t0_us, cfg.dt_us)
                     flow.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps, o.speed_bin_mps,
                                                 o.speed_px_s / 1000.0) for o in res.objects], gt, focal)
@@ -238,10 +297,19 @@ def main(argv=None) -> int:
     ap.add_argument("--gate-speed", type=float, default=d.gate_speed)
     ap.add_argument("--report-misses", type=int, default=d.report_misses)
     ap.add_argument("--max-occluded", type=int, default=d.max_occluded)
+    ap.add_argument("--turn-beta", type=float, default=d.turn_beta, help="turn-rate gain (0: constant velocity)")
+    ap.add_argument("--max-turn", type=float, default=d.max_turn_rad, help="largest turn per window (rad)")
+    ap.add_argument("--merge", type=float, default=d.merge_px, help="merge_px: pairs of tracks this close may share a blob")
+    ap.add_argument("--merge-move", type=float, default=d.merge_move_px,
+                    help="merge_move_px: tracks slower than this (px per window) share no blob")
     ap.add_argument("--no-shared-keeps-motion", dest="shared_keeps_motion", action="store_false",
                     help="a blob inside two tracks' gates updates the assigned track's motion too")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
+    ap.add_argument("--save-detections", type=Path, metavar="DIR",
+                    help="also write each split's per-window detections to DIR/SPLIT.jsonl")
+    ap.add_argument("--detections", type=Path, metavar="DIR",
+                    help="replay DIR/SPLIT.jsonl (--save-detections) into the tracker instead of running the pipeline")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--cost", action="store_true", help="measure the tracker's CPU time per window instead")
     ap.add_argument("--events", default=str(ROOT / "toffe_deploy" / "samples" / "sample_multi.h5"))
@@ -251,7 +319,8 @@ def main(argv=None) -> int:
                              max_misses=a.max_misses, hysteresis=a.hysteresis, gate_growth=a.gate_growth,
                              birth_gap_px=a.birth_gap, tentative_misses=a.tentative_misses, gate_speed=a.gate_speed,
                              report_misses=a.report_misses, max_occluded=a.max_occluded,
-                             shared_keeps_motion=a.shared_keeps_motion)
+                             shared_keeps_motion=a.shared_keeps_motion, turn_beta=a.turn_beta,
+                             max_turn_rad=a.max_turn, merge_px=a.merge, merge_move_px=a.merge_move)
     bundle = load_bundle(a.bundle)
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)
@@ -285,7 +354,12 @@ def main(argv=None) -> int:
         files = split_files(Path(a.data), split)
         files = files[:a.limit] if a.limit else files
         t = time.perf_counter()
-        r = run_split(bundle, files, settings, a.max_windows, a.score_gate)
+        saved = None if a.detections is None else load_detections(a.detections / f"{split}.jsonl", files)
+        keep = [] if a.save_detections else None
+        r = run_split(bundle, files, settings, a.max_windows, a.score_gate, saved, keep)
+        if keep is not None:
+            a.save_detections.mkdir(parents=True, exist_ok=True)
+            save_detections(a.save_detections / f"{split}.jsonl", split, files, keep)
         r["wall_s"] = time.perf_counter() - t
         out["splits"][split] = r
         m = r["tracking"]

@@ -293,9 +293,9 @@ def test_a_blob_of_two_tracks_moves_one_but_leaves_its_motion():
     """A detection inside two confirmed tracks' gates (two objects seen as one blob) reports a
     motion that is neither object's (here 90 deg off): with shared_keeps_motion (default) the
     track it is assigned to follows it in position only and keeps its direction; without, the
-    blob's direction takes over."""
+    blob's direction takes over (merge_px 0: the pair is not treated as one blob, next test)."""
     for keep in (True, False):
-        tr = Tracker(CFG, DT_US, TrackerConfig(shared_keeps_motion=keep))
+        tr = Tracker(CFG, DT_US, TrackerConfig(shared_keeps_motion=keep, merge_px=0))
         for w in range(12):
             a, b = mover(50, 200, 0, 6000, w), mover(50, 210, 0, 6000, w)
             if w < 8:
@@ -306,3 +306,78 @@ def test_a_blob_of_two_tracks_moves_one_but_leaves_its_motion():
                 assert abs(blob.track["y"] - blob.y) < 5              # the position follows the blob
         turned = _angle_err(blob.track["direction_deg"], 0.0)
         assert (turned < 1.0) if keep else (turned > 45.0)
+
+
+def _tangent_pair(tr, om, n=120, blob_px=8.0, r=100.0, d=20.0):
+    """Objects A and B on two internally tangent circles (radii r and r + d, touching at the
+    left), the same angular speed om per window, at the touching point mid-sequence: seen as one
+    blob at their midpoint (with A's motion) while closer than blob_px. -> (windows of one blob,
+    ids of A and B in the first window of two detections after the start, the same in the last)."""
+    ids, merged = [], 0
+    for w in range(n):
+        th = math.pi / 2 + om * (w - n / 2)
+        ax, ay = r * math.cos(th), r * math.sin(th)
+        bx, by = d + (r + d) * math.cos(th), (r + d) * math.sin(th)
+        heading, sp = th + math.pi / 2, r * om / (DT_US * 1e-6)
+        a, b = Obj(300 + ax, 240 + ay, heading, sp, 4), Obj(300 + bx, 240 + by, heading, sp * (r + d) / r, 4)
+        if math.hypot(ax - bx, ay - by) < blob_px:
+            objs, merged = [Obj(300 + (ax + bx) / 2, 240 + (ay + by) / 2, heading, sp, 4)], merged + 1
+        else:
+            objs = [a, b] if w % 2 else [b, a]
+        tr.update(objs, w * DT_US)
+        if len(objs) == 2:
+            ids.append((a.track_id, b.track_id))
+    return merged, ids[2], ids[-1]
+
+
+def test_two_objects_on_curves_merged_for_20_windows_keep_their_ids():
+    """Two objects on curves (0.04 rad per window) seen as one blob for 20 windows: with the turn
+    rate and the pair sharing the blob (defaults) both keep their ids; a constant-velocity track
+    that only the blob's owner updates (turn_beta 0, merge_px 0, the earlier tracker) loses B."""
+    merged, first, last = _tangent_pair(Tracker(CFG, DT_US), 0.04)
+    assert merged >= 20 and first == last and first[0] != first[1]
+    merged, first, last = _tangent_pair(Tracker(CFG, DT_US, TrackerConfig(turn_beta=0.0, merge_px=0.0)), 0.04)
+    assert merged >= 20 and first[1] is not None and last[1] != first[1]
+
+
+def test_turn_rate_keeps_a_coasting_track_on_a_circle():
+    """An object on a circle (6 px and 0.06 rad per window) tracked for 40 windows, then unseen
+    for 8: the coasting track's prediction stays within 3 px of it with the turn rate, and
+    drifts more than 10 px off on a straight line without (turn_beta 0)."""
+    for turn_beta, ok in ((0.2, lambda e: e < 3.0), (0.0, lambda e: e > 10.0)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(turn_beta=turn_beta))
+        for w in range(48):
+            th = 0.06 * w
+            x, y = 300 + 100 * math.cos(th), 240 + 100 * math.sin(th)
+            tr.update([Obj(x, y, th + math.pi / 2, 12000, 4)] if w < 40 else [], w * DT_US)
+        assert len(tr.tracks) == 1 and tr.tracks.misses[0] == 8
+        assert ok(math.hypot(tr.tracks.x[0] - x, tr.tracks.y[0] - y))
+
+
+def test_a_blob_between_two_tracks_moves_both_and_stays_with_one():
+    """Two objects 24 px apart moving together, then one blob at their midpoint, 4 px lower
+    than the pair: the blob is the same track every window (the one that took it first), the
+    other coasts flagged occluded, and both tracks move down with the blob, keeping their 24 px
+    (each is predicted from its own motion and the pair's midpoint is put on the blob)."""
+    tr = Tracker(CFG, DT_US)
+    owners = []
+    for w in range(20):
+        a, b = mover(50, 200, 0, 6000, w), mover(50, 224, 0, 6000, w)
+        if w < 8:
+            tr.update([a, b], w * DT_US)
+            continue
+        blob = Obj((a.x + b.x) / 2, (a.y + b.y) / 2 + 4, 0.0, 6000)
+        tr.update([blob], w * DT_US)
+        owners.append(blob.track_id)
+        (c,) = tr.coasting()
+        assert c["track"]["occluded"] and c["track_id"] != blob.track_id
+    assert len(set(owners)) == 1
+    ys = sorted(tr.tracks.y)
+    assert abs(ys[0] - 204) < 1.0 and abs(ys[1] - 228) < 1.0
+
+
+def test_new_settings_reject_nonsense():
+    for bad in (dict(turn_beta=-0.1), dict(turn_beta=1.5), dict(max_turn_rad=-1), dict(merge_px=-1),
+                dict(merge_move_px=-1)):
+        with pytest.raises(ValueError):
+            TrackerConfig(**bad)

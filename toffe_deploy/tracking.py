@@ -4,7 +4,8 @@ TOFFE reports each window's objects independently (their order changes from wind
 the object flow it measures (position, direction, speed) is what makes tracking simple. Per
 window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and px/s:
 
-    predict    p_i' = p_i + v_i dt                                        (constant velocity)
+    predict    v_i' = R(w_i dt) v_i,  p_i' = p_i + R(w_i dt / 2) v_i dt   (constant turn rate w_i;
+               R(a) rotates by a; w_i = 0 is constant velocity)
     associate  d_ij = |p_i' - z_j|; pairs within the gate d_ij <= R_i, the most pairs then the
                least total distance (metrics.match_within: Hungarian on the gated matrix),
                confirmed tracks first, then tentative ones with the detections left over;
@@ -13,10 +14,18 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
                (a detection within the gates of 2+ confirmed tracks, a blob of two objects, moves
                p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay)
+    merges     a detection z nearer the midpoint c of two confirmed tracks' predictions than to
+               either, within gate_px of c, the two at most merge_px apart and each moving at
+               least merge_move_px per window, is one blob of both: both move by alpha (z - c)
+               (each keeps its own motion, so the pair parts where their motions take them), the
+               blob is reported as the one of the two missed for fewer windows (it stays with
+               the track that had it), the other coasts occluded
                v_i = (1 - beta) v_i + beta u_j,  u_j = s_j (cos th_j, sin th_j)
                s_i = (1 - beta) s_i + beta s_j                            (smoothed speed, px/s)
                h_i = (1 - g_j) h_i + g_j u_j,  g_j = min(1, max(heading_beta, s_j dt / heading_px))
                                           (heading: the reported direction_deg is that of h_i)
+               w_i = w_i + turn_beta q_j angle(u_j, v_i') / dt,  q_j = min(1, s_j dt / heading_px),
+               |w_i dt| <= max_turn_rad (turn rate: a direction error of a slow object is no turn)
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
@@ -72,11 +81,18 @@ class TrackerConfig:
     before it is only kept for re-association (a long straight-line prediction drifts off a
     curving object); max_occluded: misses in a row an occluded track survives (occluded: missed
     while its prediction lies within its gate of a detection another track took, i.e. two
-    objects seen as one blob; listed in ``coasting`` all that time); heading_px, heading_beta:
+    objects seen as one blob, or the other track of a blob of two (merges); listed in ``coasting``
+    all that time); heading_px, heading_beta:
     the travel per window (px) at which a detection's direction is taken as it is, and the
     smallest heading gain (slow objects); shared_keeps_motion: a detection inside the gates of
     two or more confirmed tracks (two objects seen as one blob) moves the track it is assigned
-    to but leaves its velocity, speed, heading and bin as they were."""
+    to but leaves its velocity, speed, heading and bin as they were; turn_beta: gain of the turn
+    rate (0: constant velocity; the objects follow curves, and a straight-line prediction left
+    them during merges that last tens of windows), max_turn_rad: its bound per window; merge_px:
+    the farthest apart two tracks' predictions may be for a detection between them to be their
+    blob (0: no merges; objects up to ~50 px across touch at that distance), merge_move_px: the
+    slowest track (px per window) that can be in a merge (a slow object's two edge fragments
+    would otherwise hold two tracks on it)."""
 
     gate_px: float = 15.0
     gate_growth: float = 0.5
@@ -89,10 +105,14 @@ class TrackerConfig:
     hysteresis: float = 0.1
     gate_speed: float = 0.0
     report_misses: int = 5
-    max_occluded: int = 10
+    max_occluded: int = 20
     heading_px: float = 5.0
     heading_beta: float = 0.15
     shared_keeps_motion: bool = True
+    turn_beta: float = 0.2
+    max_turn_rad: float = 0.1
+    merge_px: float = 40.0
+    merge_move_px: float = 1.0
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -107,12 +127,16 @@ class TrackerConfig:
             raise ValueError(f"hysteresis must be >= 0, got {self.hysteresis}")
         if not (self.heading_px > 0 and 0 < self.heading_beta <= 1):
             raise ValueError("heading_px must be > 0 and heading_beta in (0, 1]")
+        if not (0 <= self.turn_beta <= 1 and self.max_turn_rad >= 0):
+            raise ValueError("turn_beta must be in [0, 1] and max_turn_rad >= 0")
+        if not min(self.merge_px, self.merge_move_px) >= 0:
+            raise ValueError("merge_px and merge_move_px must be >= 0")
 
 
 _F = np.float64
 #: columns of Tracks.a
-ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF, OCC, HX, HY = range(15)
-N_COLS = 15
+ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF, OCC, HX, HY, W = range(16)
+N_COLS = 16
 
 
 @dataclass(frozen=True)
@@ -122,7 +146,8 @@ class Tracks:
     (px/s), speed (smoothed, px/s), bin (1-based, with hysteresis), age (windows since birth),
     hits (detections assigned), streak (hits in a row), misses (windows in a row without a
     detection), confirmed (0/1), occluded (0/1: missed under another track's detection), heading
-    hx, hy (px/s: the reported direction's vector); the properties give the columns."""
+    hx, hy (px/s: the reported direction's vector), turn rate w (rad/s, + turns from x towards y);
+    the properties give the columns."""
 
     a: np.ndarray = field(default_factory=lambda: np.zeros((0, N_COLS), _F))
 
@@ -183,7 +208,7 @@ class BinEdges:
 
 #: entries of the settings vector the compiled loops take (``params``)
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
- P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS) = range(15)
+ P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE) = range(19)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -191,7 +216,8 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     loops: numba's per-call dispatch cost grows with the number of arguments)."""
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
                      cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
-                     cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion)],
+                     cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion), cfg.turn_beta,
+                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px],
                     dtype=_F)
 
 
@@ -207,8 +233,11 @@ def _predict(t, z, p):
     per_col = np.zeros(n_d, np.int64)
     simple = True
     for i in range(n_t):
-        a[i, X] += t[i, VX] * dt_s
-        a[i, Y] += t[i, VY] * dt_s
+        th = t[i, W] * dt_s
+        c, s, ch, sh = math.cos(th), math.sin(th), math.cos(0.5 * th), math.sin(0.5 * th)
+        a[i, VX], a[i, VY] = c * t[i, VX] - s * t[i, VY], s * t[i, VX] + c * t[i, VY]
+        a[i, X] += (ch * t[i, VX] - sh * t[i, VY]) * dt_s
+        a[i, Y] += (sh * t[i, VX] + ch * t[i, VY]) * dt_s
         gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * dt_s
         n_row = 0
         for k in range(n_d):
@@ -221,6 +250,46 @@ def _predict(t, z, p):
     for k in range(n_d):
         simple = simple and per_col[k] <= 1
     return a, d, ok, simple
+
+
+@njit(cache=True, nogil=True)
+def _merges(a, t, z, r, j, d, p):
+    """Blobs of two confirmed tracks (module doc): -> (track of each detection's blob or -1, the
+    other track of the pair or -1); the pair's predictions are shifted alpha of the way that
+    puts their midpoint on the blob (in place in ``a``)."""
+    n_t, n_d = a.shape[0], z.shape[0]
+    owner = np.full(n_d, -1, np.int64)
+    busy = np.zeros(n_t, np.bool_)
+    for m in range(r.shape[0]):
+        owner[j[m]] = r[m]
+        busy[r[m]] = True
+    blob_of = np.full(n_d, -1, np.int64)
+    mate = np.full(n_d, -1, np.int64)
+    for k in range(n_d):
+        best, bi, bm = np.inf, -1, -1
+        for i in range(n_t):
+            if t[i, CONF] <= 0 or (busy[i] and owner[k] != i) or t[i, S] * p[P_DT] < p[P_MERGE_MOVE]:
+                continue
+            for m in range(i + 1, n_t):
+                if t[m, CONF] <= 0 or (busy[m] and owner[k] != m) or t[m, S] * p[P_DT] < p[P_MERGE_MOVE]:
+                    continue
+                if math.hypot(a[i, X] - a[m, X], a[i, Y] - a[m, Y]) > p[P_MERGE_PX]:
+                    continue
+                dm = math.hypot(z[k, 0] - 0.5 * (a[i, X] + a[m, X]), z[k, 1] - 0.5 * (a[i, Y] + a[m, Y]))
+                if dm <= p[P_GATE] and dm <= min(d[i, k], d[m, k]) and dm < best:
+                    best, bi, bm = dm, i, m
+        if bi < 0:
+            continue
+        if t[bm, MISS] < t[bi, MISS] or (t[bm, MISS] == t[bi, MISS] and d[bm, k] < d[bi, k]):
+            bi, bm = bm, bi                                  # bi: the track the blob is reported as (sticky)
+        sx = p[P_ALPHA] * (z[k, 0] - 0.5 * (a[bi, X] + a[bm, X]))
+        sy = p[P_ALPHA] * (z[k, 1] - 0.5 * (a[bi, Y] + a[bm, Y]))
+        for i in (bi, bm):
+            a[i, X] += sx
+            a[i, Y] += sy
+            busy[i] = True
+        blob_of[k], mate[k] = bi, bm
+    return blob_of, mate
 
 
 @njit(cache=True, nogil=True)
@@ -239,13 +308,26 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
             for k in range(n_d):
                 if d[i, k] <= gate:
                     shared[k] += 1
+    blob_of, mate = _merges(a, t, z, r, j, d, p) if p[P_MERGE_PX] > 0 else (np.full(n_d, -1, np.int64),
+                                                                           np.full(n_d, -1, np.int64))
+    for k in range(n_d):
+        if blob_of[k] >= 0:
+            hit[blob_of[k]], free[k], det_of[blob_of[k]] = True, False, k
     for m in range(r.shape[0]):
         i, k = r[m], j[m]
+        if blob_of[k] >= 0:                                  # a blob of two tracks: moved in _merges
+            continue
         hit[i], free[k], det_of[i] = True, False, k
         if shared[k] > 1 and p[P_SHARED_KEEPS] > 0:         # one blob of two objects: its motion is neither's
             a[i, X] += p[P_ALPHA] * (z[k, 0] - a[i, X])
             a[i, Y] += p[P_ALPHA] * (z[k, 1] - a[i, Y])
             continue
+        if p[P_TURN_BETA] > 0:                              # turn rate from the direction's innovation
+            q = min(1.0, z[k, S - X] * p[P_DT] / p[P_HEADING_PX])
+            e = math.atan2(z[k, 3], z[k, 2]) - math.atan2(a[i, VY], a[i, VX])
+            e = (e + math.pi) % (2.0 * math.pi) - math.pi
+            wmax = p[P_MAX_TURN] / p[P_DT]
+            a[i, W] = min(wmax, max(-wmax, a[i, W] + p[P_TURN_BETA] * q * e / p[P_DT]))
         for c in range(X, S + 1):
             g = p[P_ALPHA] if c <= Y else p[P_BETA]
             a[i, c] += g * (z[k, c - X] - a[i, c])
@@ -264,7 +346,7 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
         if not hit[i] and t[i, CONF] > 0:                    # missed: under another track's detection?
             gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * dt_s
             for k in range(n_d):
-                if taken[k] and d[i, k] <= gate:
+                if (taken[k] and d[i, k] <= gate) or mate[k] == i:
                     a[i, OCC] = 1.0
         a[i, AGE] += 1
         a[i, HITS] += hit[i]
