@@ -133,3 +133,110 @@ def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluste
     total = int(cnt.sum(dtype=np.int64)) if counts_total is None and noise_factor else int(counts_total or 0)
     return idx[_support_keep(idx, n_pixels, w, h, base, every, cnt, int(radius), int(m), int(noise_factor), total,
                              mark)]
+
+
+class SupportHistory:
+    """The event pixels of the last K windows (a ring of their linear pixel indices) and their
+    (H * W,) uint8 count image ``counts`` with sum ``total``: what ``front_end`` reads as the
+    windows before. ``advance(t0)`` moves it to the window starting at t0: the next window
+    (t0 = last + dt) keeps it, a gap of whole windows shifts in empty ones (a skipped window had
+    no events), anything else (a jump back, a gap that is no multiple of dt) forgets it
+    (``reset``); a fresh history is K empty windows, as before a recording's start."""
+
+    def __init__(self, k: int, sensor_size: tuple[int, int], dt_us: int):
+        self.k = int(k)
+        self.width, self.height = int(sensor_size[0]), int(sensor_size[1])
+        self.dt_us = int(dt_us)
+        self.counts = np.zeros(self.width * self.height, np.uint8)
+        self.reset()
+
+    def reset(self) -> None:
+        self.counts[:] = 0
+        self.total = 0
+        self._ring: list[np.ndarray] = []
+        self.last_t0: int | None = None
+
+    def advance(self, t0: int) -> None:
+        if self.last_t0 is None:
+            return
+        gap = int(t0) - self.last_t0
+        if gap <= 0 or gap % self.dt_us:
+            self.reset()
+            return
+        for _ in range(min(gap // self.dt_us - 1, self.k)):
+            self._push(np.zeros(0, np.int64))
+
+    def push(self, t0: int, pixels: np.ndarray) -> None:
+        """Add the window at t0 (``advance`` to it first): ``pixels`` its sorted unique linear
+        pixel indices (y * W + x) with an event."""
+        self.advance(t0)
+        self._push(np.asarray(pixels, np.int64))
+        self.last_t0 = int(t0)
+
+    def _push(self, pixels: np.ndarray) -> None:
+        if len(self._ring) == self.k:
+            old = self._ring.pop(0)
+            self.counts[old] -= 1
+            self.total -= old.size
+        self.counts[pixels] += 1
+        self.total += pixels.size
+        self._ring.append(pixels)
+
+    @classmethod
+    def before(cls, read, t0: int, dt_us: int, k: int, sensor_size: tuple[int, int]) -> "SupportHistory":
+        """The history a stream would hold at window t0, from the K windows [t0 - K dt, t0):
+        ``read(t_lo, t_hi)`` gives their events (none before a recording's start)."""
+        hist = cls(k, sensor_size, dt_us)
+        for j in range(k, 0, -1):
+            s = int(t0) - j * int(dt_us)
+            hist.push(s, window_pixels(read(s, s + int(dt_us)), s, dt_us, sensor_size))
+        return hist
+
+
+def window_pixels(events: np.ndarray, t0: int, dt_us: int, sensor_size: tuple[int, int]) -> np.ndarray:
+    """Sorted unique linear pixel indices (y * W + x) with an event in [t0, t0 + dt_us), the
+    pixels of bin_window's volume (events outside the sensor are dropped there too)."""
+    from .binning import event_bin_index
+
+    w, h = int(sensor_size[0]), int(sensor_size[1])
+    idx = event_bin_index(events, t0, dt_us, 1, sensor_size)
+    return np.unique(idx % (w * h))
+
+
+def front_end(volume, config, history: "SupportHistory | None" = None, t0: int | None = None):
+    """The input front end of ``config`` (input_norm, input_min_cluster, input_support) on one
+    raw window: a dense (B, C, H, W) array (-> bool volume) or a SpikeVolume (-> SpikeVolume).
+    With input_support, ``history`` holds the windows before (``SupportHistory``; streaming: the
+    same object for every window, ``t0`` the window's start; sampled: ``SupportHistory.before``)
+    and gets this window's event pixels. Not idempotent with support: pass raw windows."""
+    norm, min_cluster = config.input_norm, config.input_min_cluster
+    dense = isinstance(volume, np.ndarray)
+    if config.input_support is None:
+        return apply_dense(volume, norm, min_cluster) if dense else volume.front_end(norm, min_cluster)
+    if history is None:
+        raise ValueError("input_support needs the windows before: pass a SupportHistory")
+    if t0 is None:
+        raise ValueError("input_support needs the window's start t0")
+    _k, r, m, c = config.input_support
+    history.advance(t0)
+    if dense:
+        pix = event_pixels(volume)
+        out = support_dense(volume, norm, min_cluster, history.counts.reshape(pix.shape), r, m, c)
+        history.push(t0, np.flatnonzero(pix))
+        return out
+    idx = support_index(volume.idx, volume.shape, norm, min_cluster, history.counts, r, m, c, history.total)
+    history.push(t0, np.unique(volume.idx % (volume.shape[2] * volume.shape[3])))
+    return type(volume)(idx, volume.shape)
+
+
+def sampled_window(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int]) -> np.ndarray:
+    """The front end's (B, 2, H, W) bool volume of the window [t0, t0 + dt_us) of a recording read
+    at chosen starts (eval, held-out and training windows): ``read(t_lo, t_hi)`` gives events
+    (a superset is fine); with input_support the K windows before are read too (SupportHistory.before)."""
+    from .binning import bin_window
+
+    t0, dt_us = int(t0), int(dt_us)
+    binned = bin_window(read(t0, t0 + dt_us), t0, dt_us, config.n_bins, sensor_size, dtype=np.uint8)
+    hist = (SupportHistory.before(read, t0, dt_us, config.input_support[0], sensor_size)
+            if config.input_support is not None else None)
+    return front_end(binned, config, hist, t0)

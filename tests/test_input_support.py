@@ -1,0 +1,142 @@
+"""ToffeConfig.input_support wired through every path (issue 11): the config key, the streaming
+SupportHistory against the windows read before, and the pipeline (cpu and Lava) against the
+dense reference fed the same history."""
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from toffe_deploy import ofpd_io
+from toffe_deploy.cascade import run_cascade
+from toffe_deploy.config import ToffeConfig, load_config
+from toffe_deploy.errors import InputError
+from toffe_deploy.events.binning import bin_window
+from toffe_deploy.events.frontend import apply_dense
+from toffe_deploy.events.io import open_events
+from toffe_deploy.events.support import SupportHistory, front_end, sampled_window, window_pixels
+from toffe_deploy.fixed_point import run_ofs_fixed
+from toffe_deploy.runtime.spikes import SpikeVolume
+
+SENSOR = (64, 48)
+SUPPORT = (3, 1, 3, 1)       # low threshold: on a tiny sensor it must keep some pixels the clusters drop
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory, make_bundle, make_recording):
+    root = tmp_path_factory.mktemp("support")
+    return {"on": make_bundle(root / "on", sensor=SENSOR, input_min_cluster=4, input_support=SUPPORT),
+            "rec": make_recording(root / "rec.h5", sensor=SENSOR, duration=0.008)}
+
+
+def _windows(rec, cfg):
+    with open_events(rec) as src:
+        return [(t0, bin_window(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size)) for t0, ev in src.iter_windows(cfg.dt_us)]
+
+
+def test_config_round_trip_validation_and_absent_key(tmp_path):
+    on = ToffeConfig(input_support=(4, 1, 5, 2))
+    d = on.to_dict()
+    assert d["input_support"] == [4, 1, 5, 2]
+    assert ToffeConfig.from_dict(json.loads(json.dumps(d))) == on
+    off = ToffeConfig()
+    assert "input_support" not in off.to_dict()            # configs written before it stay as they were
+    assert ToffeConfig.from_dict(off.to_dict()).input_support is None
+    assert ToffeConfig.from_dict({**off.to_dict(), "input_support": None}).input_support is None
+    for bad in ([4, 1, 5], [0, 1, 5, 2], [4, 1, 0, 2], [4, -1, 5, 2], [4, 1, 5, 2.5], "4,1,5,2", [True, 1, 5, 2]):
+        with pytest.raises(InputError, match="input_support must be"):
+            ToffeConfig.from_dict({**off.to_dict(), "input_support": bad}, tmp_path / "c.json")
+
+
+def test_bundle_carries_the_key(env):
+    cfg = load_config(env["on"].root / "config.json")
+    assert cfg.input_support == SUPPORT
+    manifest = json.loads((env["on"].root / "manifest.json").read_text())
+    assert manifest["config"]["input_support"] == list(SUPPORT)
+
+
+def test_without_the_key_the_front_end_is_the_old_one(env):
+    cfg = dataclasses.replace(env["on"].config, input_support=None)
+    for t0, x in _windows(env["rec"], cfg)[:6]:
+        want = apply_dense(x, cfg.input_norm, cfg.input_min_cluster)
+        assert np.array_equal(front_end(x, cfg), want)
+        vol = SpikeVolume.from_dense(x > 0)
+        assert np.array_equal(front_end(vol, cfg).to_dense(), want)
+
+
+def test_streaming_history_equals_the_windows_read_before(env):
+    cfg = env["on"].config
+    k = cfg.input_support[0]
+    hist = SupportHistory(k, SENSOR, cfg.dt_us)
+    with open_events(env["rec"]) as src:
+        wins = list(src.iter_windows(cfg.dt_us))
+        for i, (t0, ev) in enumerate(wins):
+            if i == 5:
+                continue                                   # a skipped window: a gap of 2 dt
+            hist.advance(t0)
+            before = SupportHistory.before(src.read, t0, cfg.dt_us, k, SENSOR)
+            if i == 6:       # the skipped window's pixels are missing from the stream, not from the read
+                missing = window_pixels(wins[5][1], wins[5][0], cfg.dt_us, SENSOR)
+                assert np.array_equal(before.counts - hist.counts, np.isin(np.arange(hist.counts.size), missing))
+            elif i < 6 or i > 6 + k:
+                assert np.array_equal(hist.counts, before.counts) and hist.total == before.total
+            hist.push(t0, window_pixels(ev, t0, cfg.dt_us, SENSOR))
+        assert hist.total > 0
+        hist.advance(wins[2][0])                           # a jump back forgets
+        assert hist.total == 0 and not hist.counts.any()
+
+
+def test_support_keeps_more_and_sampled_equals_streamed(env):
+    cfg = env["on"].config
+    off = dataclasses.replace(cfg, input_support=None)
+    hist = SupportHistory(cfg.input_support[0], SENSOR, cfg.dt_us)
+    n_on = n_off = 0
+    with open_events(env["rec"]) as src:
+        for t0, x in _windows(env["rec"], cfg):
+            streamed = front_end(SpikeVolume.from_dense(x > 0), cfg, hist, t0).to_dense()
+            sampled = sampled_window(src.read, t0, cfg.dt_us, cfg, SENSOR)
+            assert np.array_equal(streamed, sampled)
+            n_on += int(sampled.sum())
+            n_off += int(apply_dense(x, off.input_norm, off.input_min_cluster).sum())
+    assert n_on > n_off
+
+
+def test_cpu_pipeline_with_support_equals_dense_reference(env):
+    import onnxruntime as ort
+
+    from toffe_deploy.runtime.pipeline import Pipeline
+
+    b = env["on"]
+    cfg = b.config
+    sess = ort.InferenceSession(str(b.ofpd_onnx), providers=["CPUExecutionProvider"])
+    wins = _windows(env["rec"], cfg)
+    with Pipeline(b, "cpu") as pipe:
+        got = list(pipe.process_stream(wins[:8])) + list(pipe.process_stream(wins[8:]))   # history kept over calls
+    n_obj = 0
+    with open_events(env["rec"]) as src:
+        for (t0, _x), res in zip(wins, got):
+            x = sampled_window(src.read, t0, cfg.dt_us, cfg, SENSOR)
+            ref = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, b.ofs[k - 1]), cfg.n_speed_bins, cfg.mask_kernel,
+                              cfg.ofs_pool)
+            ks, merged = ofpd_io.merge_frames(np.stack(ref.frames), cfg)
+            assert [o.speed_bin for o in res.objects] == ks.tolist()
+            assert [o.n_events for o in res.objects] == [int(m.sum()) for m in merged]
+            if ks.size:
+                pose, _d, _s = sess.run(None, {"events": ofpd_io.prepare(merged, cfg)})
+                dec = ofpd_io.decode(pose, _d, _s, ks, cfg)
+                assert np.allclose([o.x for o in res.objects], dec["x_px"], atol=1e-3)
+            n_obj += int(ks.size)
+    assert n_obj > 0
+
+
+def test_cpu_equals_loihi_sim_with_support(env):
+    pytest.importorskip("lava")
+    from toffe_deploy.runtime.pipeline import Pipeline
+
+    wins = _windows(env["rec"], env["on"].config)[:6]
+    out = {}
+    for target in ("cpu", "loihi-sim"):
+        with Pipeline(env["on"], target, track=False) as pipe:
+            out[target] = [json.dumps(r.to_json(), sort_keys=True) for r in pipe.process_stream(wins)]
+    assert out["cpu"] == out["loihi-sim"]
+    assert any(json.loads(s)["objects"] for s in out["cpu"])
