@@ -129,19 +129,29 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
     window's events; the input's ground truth (runtime.truth.TruthIndex, or None) and camera
     focal length go to ``args.truth`` / ``args.focal_px`` for the quality columns. Timed runs start from the events (each model builds its own input, as
     ``toffe-deploy run`` does); the binned copies feed the op counting and the Lava simulator."""
+    import copy
+
     from toffe_deploy.events.binning import bin_window, window_slice
-    from toffe_deploy.events.frontend import apply_dense
+    from toffe_deploy.events.support import SupportHistory, front_end, window_pixels
 
     dt, b, size = config.dt_us, config.n_bins, tuple(config.sensor_size)
     out: list[tuple[int, np.ndarray]] = []
     events: list[np.ndarray] = []
     counts: list[int] = []
+    # input_support: every window read goes into the history; args.supports[i]: window i's (registry.BenchContext)
+    hist = SupportHistory(config.input_support[0], size, dt) if config.input_support is not None else None
+    args.supports = []
 
     def take(t0, ev) -> bool:
         if len(ev) < args.min_events:
+            if hist is not None:
+                hist.push(t0, window_pixels(ev, t0, dt, size))
             return False
-        # the counts the network sees: through the bundle's input front end (events/frontend.py)
-        out.append((int(t0), apply_dense(bin_window(ev, t0, dt, b, size), config.input_norm, config.input_min_cluster).astype(np.uint8)))
+        if hist is not None:
+            hist.advance(t0)
+            args.supports.append(copy.deepcopy(hist))
+        # the counts the network sees: through the bundle's input front end (events/support.py's front_end)
+        out.append((int(t0), front_end(bin_window(ev, t0, dt, b, size), config, hist, int(t0)).astype(np.uint8)))
         events.append(np.array(ev))
         counts.append(len(ev))
         return len(out) >= args.windows
@@ -355,7 +365,8 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         from toffe_deploy.baselines.registry import BenchContext
 
         ctx = BenchContext(windows=windows, events=events, bundle=bundle, config=cfg, pipe=cpu_pipe,
-                           counts={"toffe": toffe_counts, "dotie": dotie_counts, "dotie_cluster": dotie_cl_counts})
+                           counts={"toffe": toffe_counts, "dotie": dotie_counts, "dotie_cluster": dotie_cl_counts},
+                           supports=args.supports)
         lfl = like_for_like(args, ctx, machine, reader)
 
     # ---- cpu: DOTIE without / with clustering and TOFFE (deployed pipeline), timed in turn ------

@@ -1,6 +1,7 @@
 """ToffeConfig.input_support wired through every path (issue 11): the config key, the streaming
 SupportHistory against the windows read before, and the pipeline (cpu and Lava) against the
 dense reference fed the same history."""
+import copy
 import dataclasses
 import json
 
@@ -140,3 +141,58 @@ def test_cpu_equals_loihi_sim_with_support(env):
             out[target] = [json.dumps(r.to_json(), sort_keys=True) for r in pipe.process_stream(wins)]
     assert out["cpu"] == out["loihi-sim"]
     assert any(json.loads(s)["objects"] for s in out["cpu"])
+
+
+def test_training_crops_of_the_whole_sensor_front_end(env):
+    """model/data.py: with support the crop is cut from the whole window's front end (its
+    threshold follows the sensor's event density); without, crop_index == crop_window."""
+    from toffe_deploy.events.support import sampled_index
+    from toffe_deploy.model.data import crop_index, crop_window
+
+    cfg = env["on"].config
+    plain = dataclasses.replace(cfg, input_support=None, input_norm="first", input_min_cluster=1)
+    with open_events(env["rec"]) as src:
+        for t0, ev in list(src.iter_windows(cfg.dt_us))[3:9]:
+            for centre in ((20.4, 30.0), (3.0, 44.6)):                     # the second one partly outside
+                want = crop_window(ev, t0, cfg.dt_us, cfg.n_bins, centre, 24, "first", 1)
+                got = crop_index(sampled_index(src.read, t0, cfg.dt_us, plain, SENSOR), SENSOR, centre, 24)
+                assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+                dense = sampled_window(src.read, t0, cfg.dt_us, cfg, SENSOR)
+                x0, y0 = got[1]
+                pad = np.zeros((cfg.n_bins, 2, 24 + 2 * 48, 24 + 2 * 64), bool)
+                pad[:, :, 48:96, 64:128] = dense
+                idx, _ = crop_index(sampled_index(src.read, t0, cfg.dt_us, cfg, SENSOR), SENSOR, centre, 24)
+                assert np.array_equal(idx, np.flatnonzero(pad[:, :, 48 + y0:72 + y0, 64 + x0:88 + x0]))
+
+
+def test_noise_crops_with_support_are_packed(env):
+    """Training's noise-only crops get K noise windows before them: m = 1 keeps every pixel the
+    cluster filter drops, so more events are packed than without support."""
+    from toffe_deploy.model.data import WindowSet
+    from toffe_deploy.model.train import pack_training_windows
+
+    empty = WindowSet(5, 32, np.zeros(0, np.int32), np.zeros(1, np.int64), np.zeros((0, 2), np.int64),
+                      *[np.zeros(0) for _ in range(7)])
+    n_event = {}
+    for support in (None, (4, 1, 1, 0)):
+        sw, bins = pack_training_windows(empty, 3, 0, False, "first", 4, 1, support=support)
+        assert bins.tolist() == [0, 0, 0, 0]
+        n_event[support] = int(sw.event.sum())
+    assert n_event[(4, 1, 1, 0)] > n_event[None]
+
+
+def test_parity_windows_and_runtime_with_support(env):
+    """deploy/windows.py keeps each held-out window's raw form and history, so the runtime's
+    Pipeline redoes the same front end: its objects equal the reference cascade's."""
+    from toffe_deploy.deploy.parity import _predictions_fixed_reference, _predictions_runtime
+    from toffe_deploy.deploy.windows import heldout_windows
+
+    b = env["on"]
+    held = heldout_windows(b.config, None, seed=0, n_windows=4)
+    assert len(held.support) == len(held.windows) == 4
+    for t0, w, (raw, hist) in zip(held.t0, held.windows, held.support):
+        assert np.array_equal(front_end(raw, b.config, copy.deepcopy(hist), t0), w)
+    run, ref = _predictions_runtime(b, held), _predictions_fixed_reference(b, held)
+    rows = [[[(p.stage, round(p.x, 3), round(p.y, 3)) for p in r] for r in preds] for preds in (run, ref)]
+    assert rows[0] == rows[1]
+    assert any(rows[0])

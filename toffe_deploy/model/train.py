@@ -44,6 +44,7 @@ from ..checkpoint import (CONFIG_FILE, load_checkpoint, random_ofpd_state, save_
 from ..config import ToffeConfig
 from ..errors import InputError, ToffeError
 from ..events.frontend import apply_dense
+from ..events.support import event_pixels, history_counts, support_dense
 from ..fileio import atomic_path
 from .. import ofpd_io
 from ..cascade import pool_any, run_cascade, stage_frame
@@ -91,10 +92,12 @@ def noise_crops(n: int, n_bins: int, crop: int, rng: np.random.Generator) -> np.
 
 
 def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: bool = True,
-                          input_norm: str = "none", min_cluster: int = 1, pool: int = 1):
+                          input_norm: str = "none", min_cluster: int = 1, pool: int = 1, support=None):
     """Sparse rows of all training crops plus n/8 noise-only crops (through the same input front
-    end as the crops), on the OFS grid (pooled by ``pool``, as the cascade sees them); returns
-    (SparseWindows, speed_bin) with speed_bin 0 for the noise crops (a negative for every stage)."""
+    end as the crops; with ``support`` (K, r, m, c), config.input_support, each noise crop has
+    K noise windows of its density before it), on the OFS grid (pooled by ``pool``, as the
+    cascade sees them); returns (SparseWindows, speed_bin) with speed_bin 0 for the noise crops
+    (a negative for every stage)."""
     from .ofs_sparse import pack_windows
 
     rng = np.random.default_rng(seed)
@@ -109,7 +112,13 @@ def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: 
         for i in tqdm(range(len(windows)), desc="packing OFS windows", leave=False, disable=not progress):
             yield pool_any(windows.dense([i])[0][:, :, c0:c0 + r, c0:c0 + r], pool)
         for _ in range(n_noise):
-            yield pool_any(apply_dense(noise_crops(1, windows.n_bins, r, rng)[0], input_norm, min_cluster), pool)
+            if support is None:
+                yield pool_any(apply_dense(noise_crops(1, windows.n_bins, r, rng)[0], input_norm, min_cluster), pool)
+                continue
+            k, rad, m, c = support           # one density over the crop and the K windows before it
+            seq = noise_crops(1, windows.n_bins * (k + 1), r, rng)[0].reshape(k + 1, windows.n_bins, 2, r, r)
+            counts = history_counts([event_pixels(w) for w in seq[:k]])
+            yield pool_any(support_dense(seq[k], input_norm, min_cluster, counts, rad, m, c), pool)
 
     sw = pack_windows(vols(), kernel)
     return sw, np.concatenate([windows.speed_bin, np.zeros(n_noise, np.int64)])
@@ -495,7 +504,7 @@ def train(opts: TrainOptions) -> Path:
         done = set(state.get("ofs_done", []))
         if len(done) < config.n_speed_bins:
             packed, bins = pack_training_windows(windows, config.ofs_kernel, opts.seed, opts.progress, config.input_norm,
-                                                  config.input_min_cluster, config.ofs_pool)
+                                                  config.input_min_cluster, config.ofs_pool, config.input_support)
         for k in range(1, config.n_speed_bins + 1):
             if k in done:
                 continue
