@@ -72,16 +72,18 @@ def support_dense(volume: np.ndarray, norm: str, min_cluster: int, counts: np.nd
 
 @njit(cache=True, nogil=True)
 def _support_keep(idx, n_pixels, width, height, keep_base, keep_every, counts, radius, m, noise_factor,
-                  counts_total, mark):
+                  counts_total, mark, pixels):
     """keep_base | (keep_every & S >= T) over the ones of a sorted linear index (module doc):
     ``mark`` ((n_pixels,) uint8 zeros, left so) holds the window's event pixels while the box
-    sums are read; S is read only for the ones the cluster filter dropped."""
+    sums are read; S is read only for the ones the cluster filter dropped. ``pixels`` (>= len(idx))
+    gets the window's event pixels, first seen first; returns (keep, their number)."""
     n = idx.shape[0]
     n_pix = 0
     for i in range(n):
         q = idx[i] % n_pixels
         if mark[q] == 0:
             mark[q] = 1
+            pixels[n_pix] = q
             n_pix += 1
     m = m + (noise_factor * (2 * radius + 1) ** 2 * (counts_total + n_pix)) // n_pixels
     keep = keep_base.copy()
@@ -97,27 +99,29 @@ def _support_keep(idx, n_pixels, width, height, keep_base, keep_every, counts, r
             for xx in range(max(0, x - radius), min(width, x + radius + 1)):
                 s += np.int64(counts[row + xx]) + np.int64(mark[row + xx])
         keep[i] = s >= m
-    for i in range(n):
-        mark[idx[i] % n_pixels] = 0
-    return keep
+    for i in range(n_pix):
+        mark[pixels[i]] = 0
+    return keep, n_pix
 
 
 _MARKS: dict[int, np.ndarray] = {}
 
 
 def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluster: int, counts: np.ndarray,
-                  radius: int, m: int, noise_factor: int = 0, counts_total: int | None = None) -> np.ndarray:
+                  radius: int, m: int, noise_factor: int = 0, counts_total: int | None = None,
+                  return_pixels: bool = False):
     """The same on a sorted unique linear index of ones into a (B, C, H, W) volume; ``counts`` an
     (H, W) or (H * W,) uint8 count image, ``counts_total`` its sum (a streaming caller keeps it;
     None: summed here, only when noise_factor > 0). Two passes of compiled.front_end_keep (with and
     without the cluster filter) and one that reads box sums around the ones it dropped.
-    Returns a sorted index."""
+    Returns a sorted index; with ``return_pixels`` also the window's event pixels (unique linear
+    y * W + x, unsorted: what SupportHistory.push takes)."""
     from ..compiled import front_end_keep, new_scratch
     from .frontend import _SLOTS, check_min_cluster, check_norm
 
     idx = np.asarray(idx, dtype=np.int64)
     if idx.size == 0:
-        return idx
+        return (idx, idx) if return_pixels else idx
     c, h, w = int(shape[1]), int(shape[2]), int(shape[3])
     n_pixels = h * w
     first = check_norm(norm) == "first"
@@ -131,8 +135,10 @@ def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluste
         mark = _MARKS[n_pixels] = np.zeros(n_pixels, np.uint8)
     cnt = np.ascontiguousarray(counts, np.uint8).reshape(-1)
     total = int(cnt.sum(dtype=np.int64)) if counts_total is None and noise_factor else int(counts_total or 0)
-    return idx[_support_keep(idx, n_pixels, w, h, base, every, cnt, int(radius), int(m), int(noise_factor), total,
-                             mark)]
+    pixels = np.empty(idx.size, np.int64)
+    keep, n_pix = _support_keep(idx, n_pixels, w, h, base, every, cnt, int(radius), int(m), int(noise_factor), total,
+                                mark, pixels)
+    return (idx[keep], pixels[:n_pix]) if return_pixels else idx[keep]
 
 
 class SupportHistory:
@@ -167,8 +173,8 @@ class SupportHistory:
             self._push(np.zeros(0, np.int64))
 
     def push(self, t0: int, pixels: np.ndarray) -> None:
-        """Add the window at t0 (``advance`` to it first): ``pixels`` its sorted unique linear
-        pixel indices (y * W + x) with an event."""
+        """Add the window at t0 (``advance`` to it first): ``pixels`` its unique linear pixel
+        indices (y * W + x) with an event."""
         self.advance(t0)
         self._push(np.asarray(pixels, np.int64))
         self.last_t0 = int(t0)
@@ -224,8 +230,9 @@ def front_end(volume, config, history: "SupportHistory | None" = None, t0: int |
         out = support_dense(volume, norm, min_cluster, history.counts.reshape(pix.shape), r, m, c)
         history.push(t0, np.flatnonzero(pix))
         return out
-    idx = support_index(volume.idx, volume.shape, norm, min_cluster, history.counts, r, m, c, history.total)
-    history.push(t0, np.unique(volume.idx % (volume.shape[2] * volume.shape[3])))
+    idx, pixels = support_index(volume.idx, volume.shape, norm, min_cluster, history.counts, r, m, c, history.total,
+                                return_pixels=True)
+    history.push(t0, pixels)
     return type(volume)(idx, volume.shape)
 
 
@@ -258,3 +265,9 @@ def sampled_index(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int
     k, r, m, c = config.input_support
     hist = SupportHistory.before(read, t0, dt_us, k, sensor_size)
     return support_index(idx, shape, config.input_norm, config.input_min_cluster, hist.counts, r, m, c, hist.total)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the support kernel before the first window is timed."""
+    support_index(np.zeros(1, np.int64), (1, 2, 1, 1), "first", 2, np.zeros(1, np.uint8), 1, 1, 1, 0,
+                  return_pixels=True)

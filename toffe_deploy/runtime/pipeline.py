@@ -38,6 +38,7 @@ from ..camera import SpeedScale
 from ..config import ToffeConfig
 from ..errors import InputError
 from ..events.support import SupportHistory, front_end
+from ..events.support import warm_up as support_warm_up
 from ..ofpd_io import Decoder
 from ..tracking import Tracker, TrackerConfig
 from . import ofpd_input
@@ -231,6 +232,8 @@ class Pipeline:
 
     def __enter__(self) -> "Pipeline":
         warm_up()                    # the compiled kernels (every target de-duplicates pixels with them)
+        if self.support is not None:
+            support_warm_up()
         self.cascade.__enter__()
         self._entered = True
         return self
