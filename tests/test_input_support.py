@@ -8,15 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from toffe_deploy import ofpd_io
-from toffe_deploy.cascade import run_cascade
 from toffe_deploy.config import ToffeConfig, load_config
 from toffe_deploy.errors import InputError
 from toffe_deploy.events.binning import bin_window
 from toffe_deploy.events.frontend import apply_dense
 from toffe_deploy.events.io import open_events
 from toffe_deploy.events.support import SupportHistory, front_end, sampled_window, window_pixels
-from toffe_deploy.fixed_point import run_ofs_fixed
 from toffe_deploy.runtime.spikes import SpikeVolume
 
 SENSOR = (64, 48)
@@ -103,31 +100,27 @@ def test_support_keeps_more_and_sampled_equals_streamed(env):
 
 
 def test_cpu_pipeline_with_support_equals_dense_reference(env):
-    import onnxruntime as ort
-
+    """The streaming cpu Pipeline == eval's reference (model.reference.predict_window: dense
+    fixed-point cascade, OFPD in onnxruntime) on the windows read with their K windows before."""
+    from toffe_deploy.deploy.onnx_export import ort_session, run_onnx
+    from toffe_deploy.model.reference import fixed_stage_fn, predict_window
     from toffe_deploy.runtime.pipeline import Pipeline
 
     b = env["on"]
     cfg = b.config
-    sess = ort.InferenceSession(str(b.ofpd_onnx), providers=["CPUExecutionProvider"])
+    sess, run = ort_session(b.ofpd_onnx), fixed_stage_fn(b.ofs)
     wins = _windows(env["rec"], cfg)
     with Pipeline(b, "cpu") as pipe:
         got = list(pipe.process_stream(wins[:8])) + list(pipe.process_stream(wins[8:]))   # history kept over calls
-    n_obj = 0
+    rows = []
     with open_events(env["rec"]) as src:
         for (t0, _x), res in zip(wins, got):
-            x = sampled_window(src.read, t0, cfg.dt_us, cfg, SENSOR)
-            ref = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, b.ofs[k - 1]), cfg.n_speed_bins, cfg.mask_kernel,
-                              cfg.ofs_pool)
-            ks, merged = ofpd_io.merge_frames(np.stack(ref.frames), cfg)
-            assert [o.speed_bin for o in res.objects] == ks.tolist()
-            assert [o.n_events for o in res.objects] == [int(m.sum()) for m in merged]
-            if ks.size:
-                pose, _d, _s = sess.run(None, {"events": ofpd_io.prepare(merged, cfg)})
-                dec = ofpd_io.decode(pose, _d, _s, ks, cfg)
-                assert np.allclose([o.x for o in res.objects], dec["x_px"], atol=1e-3)
-            n_obj += int(ks.size)
-    assert n_obj > 0
+            ref = predict_window(sampled_window(src.read, t0, cfg.dt_us, cfg, SENSOR), run,
+                                 lambda x: run_onnx(sess, x), cfg)[0]
+            rows.append(([(o.speed_bin, round(o.x, 3), round(o.y, 3)) for o in res.objects],
+                         [(p.stage, round(p.x, 3), round(p.y, 3)) for p in ref]))
+    assert [a for a, _ in rows] == [r for _, r in rows]
+    assert sum(len(a) for a, _ in rows) > 0
 
 
 def test_cpu_equals_loihi_sim_with_support(env):
