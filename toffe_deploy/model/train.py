@@ -357,6 +357,7 @@ class TrainOptions:
     init_from: Path | None = None     # checkpoint whose config and OFS stages a new run starts from (fine-tune)
     ofs_pool: int | None = None       # OFS grid pooling (config.ofs_pool); None: the checkpoint's, NEW_OFS_POOL for a new one
     mask_kernel: int | None = None    # cascade closing kernel in grid cells; None: the checkpoint's, else ToffeConfig's
+    input_support: tuple[int, int, int, int] | None = None   # front end's temporal support of a new checkpoint (off)
 
 
 def _state_path(out: Path) -> Path:
@@ -463,7 +464,8 @@ def train(opts: TrainOptions) -> Path:
             raise InputError(out, "--stage ofpd needs a checkpoint with trained OFS stages in --out (run --stage ofs first)")
         config = make_config(files, Path(opts.data), opts.dt_us, opts.seed, opts.input_norm, opts.ofs_kernel,
                              opts.min_cluster)
-        config = dataclasses.replace(config, ofs_pool=NEW_OFS_POOL if opts.ofs_pool is None else int(opts.ofs_pool))
+        config = dataclasses.replace(config, ofs_pool=NEW_OFS_POOL if opts.ofs_pool is None else int(opts.ofs_pool),
+                                     input_support=opts.input_support)
         ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
         state = {}
     if opts.reset is not None and opts.reset != config.reset:
