@@ -198,6 +198,22 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
     return out, events, desc
 
 
+def pipeline_objects(pipe, i: int, windows, events, args) -> list:
+    """The objects the Pipeline reports for window i (untimed). With input_support it gets the raw
+    window and the windows before it (load_windows' args.supports): its front end is not
+    idempotent; without, the front end's window (which it is)."""
+    if not args.supports:
+        return list(pipe.process_stream([windows[i]]))[0].objects
+    import copy
+
+    from toffe_deploy.events.binning import bin_window
+
+    cfg, t0 = pipe.config, windows[i][0]
+    pipe.support = copy.deepcopy(args.supports[i])
+    raw = bin_window(events[i], t0, cfg.dt_us, cfg.n_bins, pipe.sensor_size)
+    return list(pipe.process_stream([(t0, raw)]))[0].objects
+
+
 def _truth_index(gt):
     if gt is None or not len(gt.get("t", [])):
         return None
@@ -329,7 +345,7 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
                   disable=not show_progress(args)):
         binned = windows[i][1]
         # OFPD rows = the objects the deployed pipeline reports for this window (untimed run)
-        rows_i = len(list(cpu_pipe.process_stream([windows[i]]))[0].objects) if cpu_pipe is not None else None
+        rows_i = len(pipeline_objects(cpu_pipe, i, windows, events, args)) if cpu_pipe is not None else None
         res, mc = count_toffe(binned, list(bundle.ofs), cfg, macs["macs"], in_elems, macs["params"],
                               macs["activations"], ofpd_rows=rows_i)
         toffe_counts.append(mc)
