@@ -38,6 +38,7 @@ def dump(bundle_dir: str, events: str | None, limit: int | None) -> dict:
     from toffe_deploy.commands.run import SAMPLE
     from toffe_deploy.deploy.bundle import load_bundle
     from toffe_deploy.events.io import open_events
+    from toffe_deploy.events.support import SupportHistory, front_end
     from toffe_deploy.runtime import ofpd_input
     from toffe_deploy.runtime.pipeline import Pipeline, up_frames
     from toffe_deploy.runtime.spikes import SpikeVolume
@@ -47,12 +48,14 @@ def dump(bundle_dir: str, events: str | None, limit: int | None) -> dict:
     path = Path(events) if events else SAMPLE
     out = []
     with open_events(path) as src, Pipeline(bundle, "cpu", sensor_size=src.sensor_size) as pipe:
+        hist = (SupportHistory(cfg.input_support[0], pipe.sensor_size, cfg.dt_us)   # the windows before, as pipe keeps them
+                if cfg.input_support is not None else None)
         for t0, ev in src.iter_windows(cfg.dt_us):
             if limit and len(out) >= limit:
                 break
             vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, pipe.sensor_size)
             # the cascade and the OFPD input of the window, as the pipeline computes them
-            fe = vol.front_end(cfg.input_norm, cfg.input_min_cluster)
+            fe = front_end(vol, cfg, hist, t0)
             grid, inverse = fe.pool(cfg.ofs_pool)
             res = pipe.cascade.cascade_sparse(grid)
             frames = np.asarray(up_frames(res.frames, inverse))

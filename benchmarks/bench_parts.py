@@ -47,6 +47,7 @@ def main(argv=None) -> int:
     from bench_run import load_windows, pin_one_core
     from toffe_deploy.commands.run import SAMPLE
     from toffe_deploy.deploy.bundle import load_bundle
+    from toffe_deploy.events.support import front_end
     from toffe_deploy.runtime import ofpd_input
     from toffe_deploy.runtime.pipeline import Pipeline, sensor_frames, speeds_of
     from toffe_deploy.runtime.spikes import SpikeVolume
@@ -64,7 +65,7 @@ def main(argv=None) -> int:
                 t = [clock()]
                 vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size)
                 t.append(clock())
-                vol = vol.front_end(cfg.input_norm, cfg.input_min_cluster)
+                vol = front_end(vol, cfg, pipe.support, t0)       # the Pipeline's own windows before (input_support)
                 t.append(clock())
                 frames = sensor_frames(pipe.cascade, vol, cfg.ofs_pool)     # on the OFS grid, as Pipeline runs it
                 t.append(clock())

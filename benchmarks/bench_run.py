@@ -98,16 +98,17 @@ def bench_dense(bundle, windows) -> dict:
     from toffe_deploy import ofpd_io
     from toffe_deploy.cascade import run_cascade
     from toffe_deploy.events.binning import bin_window
-    from toffe_deploy.events.frontend import apply_dense
+    from toffe_deploy.events.support import SupportHistory, front_end
     from toffe_deploy.fixed_point import run_ofs_fixed
     from toffe_deploy.runtime.ofpd_runner import OFPDRunner
 
     cfg = bundle.config
     ofpd = OFPDRunner(bundle.ofpd_onnx, "cpu", threads=1)
     times = []
+    hist = SupportHistory(cfg.input_support[0], cfg.sensor_size, cfg.dt_us) if cfg.input_support is not None else None
     for i, (t0, ev) in enumerate(windows):
         a = time.perf_counter()
-        x = apply_dense(bin_window(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size), cfg.input_norm, cfg.input_min_cluster)
+        x = front_end(bin_window(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size), cfg, hist, t0)
         res = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, bundle.ofs[k - 1]), cfg.n_speed_bins, cfg.mask_kernel)
         ks, merged = ofpd_io.merge_frames(np.stack(res.frames), cfg)
         for k, m in zip(ks, merged):                   # one OFPD call per object

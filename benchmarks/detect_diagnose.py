@@ -271,9 +271,8 @@ def main(argv=None) -> int:
         return 0
     from toffe_deploy.dataset.groundtruth import window_truth
     from toffe_deploy.evaluate import _sample_starts, reference_models, split_files
-    from toffe_deploy.events.binning import bin_window
-    from toffe_deploy.events.frontend import apply_dense
     from toffe_deploy.events.io import open_events
+    from toffe_deploy.events.support import sampled_window
     from toffe_deploy.runtime.truth import sequence_focal_px
 
     cfg, run_stage, ofpd = reference_models(Path(a.ckpt), "fixed")
@@ -295,8 +294,7 @@ def main(argv=None) -> int:
             for t0 in _sample_starts(src.t_start_us, src.t_end_us, a.dt, a.max_windows):
                 truth = window_truth(gt, int(t0), a.dt)
                 raw = src.read(int(t0), int(t0) + a.dt)
-                binned = apply_dense(bin_window(raw, int(t0), a.dt, cfg.n_bins, src.sensor_size, dtype=np.uint8),
-                                     cfg.input_norm, cfg.input_min_cluster)
+                binned = sampled_window(src.read, int(t0), a.dt, cfg, src.sensor_size)
                 ms, fs, n = diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, a.dt)
                 for r in ms + fs:
                     r["sequence"], r["t0"] = Path(path).stem, int(t0)

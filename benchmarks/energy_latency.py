@@ -129,19 +129,29 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
     window's events; the input's ground truth (runtime.truth.TruthIndex, or None) and camera
     focal length go to ``args.truth`` / ``args.focal_px`` for the quality columns. Timed runs start from the events (each model builds its own input, as
     ``toffe-deploy run`` does); the binned copies feed the op counting and the Lava simulator."""
+    import copy
+
     from toffe_deploy.events.binning import bin_window, window_slice
-    from toffe_deploy.events.frontend import apply_dense
+    from toffe_deploy.events.support import SupportHistory, front_end, window_pixels
 
     dt, b, size = config.dt_us, config.n_bins, tuple(config.sensor_size)
     out: list[tuple[int, np.ndarray]] = []
     events: list[np.ndarray] = []
     counts: list[int] = []
+    # input_support: every window read goes into the history; args.supports[i]: window i's (registry.BenchContext)
+    hist = SupportHistory(config.input_support[0], size, dt) if config.input_support is not None else None
+    args.supports = []
 
     def take(t0, ev) -> bool:
         if len(ev) < args.min_events:
+            if hist is not None:
+                hist.push(t0, window_pixels(ev, t0, dt, size))
             return False
-        # the counts the network sees: through the bundle's input front end (events/frontend.py)
-        out.append((int(t0), apply_dense(bin_window(ev, t0, dt, b, size), config.input_norm, config.input_min_cluster).astype(np.uint8)))
+        if hist is not None:
+            hist.advance(t0)
+            args.supports.append(copy.deepcopy(hist))
+        # the counts the network sees: through the bundle's input front end (events/support.py's front_end)
+        out.append((int(t0), front_end(bin_window(ev, t0, dt, b, size), config, hist, int(t0)).astype(np.uint8)))
         events.append(np.array(ev))
         counts.append(len(ev))
         return len(out) >= args.windows
@@ -186,6 +196,22 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
     desc.update({"sensor_size": list(size), "n_bins": b, "dt_us": dt, "windows": len(out),
                  "events_per_window": {"mean": float(c.mean()), "p50": float(np.median(c)), "max": int(c.max())}})
     return out, events, desc
+
+
+def pipeline_objects(pipe, i: int, windows, events, args) -> list:
+    """The objects the Pipeline reports for window i (untimed). With input_support it gets the raw
+    window and the windows before it (load_windows' args.supports): its front end is not
+    idempotent; without, the front end's window (which it is)."""
+    if not args.supports:
+        return list(pipe.process_stream([windows[i]]))[0].objects
+    import copy
+
+    from toffe_deploy.events.binning import bin_window
+
+    cfg, t0 = pipe.config, windows[i][0]
+    pipe.support = copy.deepcopy(args.supports[i])
+    raw = bin_window(events[i], t0, cfg.dt_us, cfg.n_bins, pipe.sensor_size)
+    return list(pipe.process_stream([(t0, raw)]))[0].objects
 
 
 def _truth_index(gt):
@@ -319,7 +345,7 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
                   disable=not show_progress(args)):
         binned = windows[i][1]
         # OFPD rows = the objects the deployed pipeline reports for this window (untimed run)
-        rows_i = len(list(cpu_pipe.process_stream([windows[i]]))[0].objects) if cpu_pipe is not None else None
+        rows_i = len(pipeline_objects(cpu_pipe, i, windows, events, args)) if cpu_pipe is not None else None
         res, mc = count_toffe(binned, list(bundle.ofs), cfg, macs["macs"], in_elems, macs["params"],
                               macs["activations"], ofpd_rows=rows_i)
         toffe_counts.append(mc)
@@ -355,7 +381,8 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         from toffe_deploy.baselines.registry import BenchContext
 
         ctx = BenchContext(windows=windows, events=events, bundle=bundle, config=cfg, pipe=cpu_pipe,
-                           counts={"toffe": toffe_counts, "dotie": dotie_counts, "dotie_cluster": dotie_cl_counts})
+                           counts={"toffe": toffe_counts, "dotie": dotie_counts, "dotie_cluster": dotie_cl_counts},
+                           supports=args.supports)
         lfl = like_for_like(args, ctx, machine, reader)
 
     # ---- cpu: DOTIE without / with clustering and TOFFE (deployed pipeline), timed in turn ------

@@ -1,60 +1,31 @@
 #!/usr/bin/env python
-"""``eval`` of a checkpoint with the front end's temporal support (events/support.py), before it
-is wired into the runtime targets (issue 11): what it would gain with the shipped weights.
+"""``eval`` of a checkpoint with another setting of the front end's temporal support
+(ToffeConfig.input_support, events/support.py): what it gains with the same weights (issue 11).
 
     python benchmarks/frontend_support.py --split test --support 4,1,5,2 --json /tmp/s.json
     toffe-deploy dataset synth --out data/noise50 --split test --noise-hz 50,50 --seed 1   # the 50 Hz rows
     python benchmarks/frontend_support.py --data data/noise50 --split test --support 4,1,6
 
-Everything is evaluate.evaluate (same sampled windows, cascade, grouping and matching), except
-that each window's front end is events/support.py's ``support_dense`` with the counts of the K
-windows before it, read from the same recording ([t0 - K dt, t0), as a reader streaming the
-windows in order would have them). ``--support K,r,m[,c]`` (module doc of events/support.py; c
-defaults to 0, a fixed threshold m); ``--support 0,0,0`` (K = 0) is the checkpoint's own front end.
-Prints recall, false positives per window and bin accuracy, overall and for speed bin 1.
+The checkpoint is evaluated as it is (evaluate.evaluate: same sampled windows, cascade, grouping
+and matching, the K windows before each read from its recording) with its config's
+``input_support`` set to ``--support K,r,m[,c]`` (c defaults to 0, a fixed threshold m;
+``--support 0,0,0`` removes it: the cluster filter alone), through a temporary copy of the
+checkpoint whose weights are links. Prints recall, false positives per window and bin accuracy,
+overall and for speed bin 1.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+import tempfile
 from pathlib import Path
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import toffe_deploy.evaluate as evaluate  # noqa: E402
-import toffe_deploy.events.io as events_io  # noqa: E402
-from toffe_deploy.events.binning import bin_window  # noqa: E402
-from toffe_deploy.events.frontend import apply_dense  # noqa: E402
-from toffe_deploy.events.support import event_pixels, support_dense  # noqa: E402
-
-
-class _Recorded:
-    """An event source that remembers its last read window, so the front end can read the K
-    windows before it (evaluate.py reads each window just before it bins it)."""
-
-    last: dict = {}
-
-    def __init__(self, src):
-        self._src = src
-
-    def __getattr__(self, k):
-        return getattr(self._src, k)
-
-    def __enter__(self):
-        self._src.__enter__()
-        return self
-
-    def __exit__(self, *exc):
-        return self._src.__exit__(*exc)
-
-    def read(self, t0, t1):
-        _Recorded.last = {"src": self._src, "t0": int(t0), "dt": int(t1) - int(t0)}
-        return self._src.read(t0, t1)
 
 
 def main(argv=None) -> int:
@@ -64,26 +35,23 @@ def main(argv=None) -> int:
     ap.add_argument("--split", default="test")
     ap.add_argument("--max-windows", type=int, default=6)
     ap.add_argument("--support", default="4,1,5,2",
-                    help="K,r,m[,c]: windows before, box radius, min count, noise factor")
+                    help="K,r,m[,c]: windows before, box radius, min count, noise factor (K = 0: off)")
     ap.add_argument("--json", help="write eval's result dict here")
     a = ap.parse_args(argv)
     k, r, m, c = ([int(v) for v in a.support.split(",")] + [0])[:4]
-
-    def front_end(volume, norm, min_cluster, *_rest):
-        if k == 0:
-            return apply_dense(volume, norm, min_cluster)
-        src, t0, dt = _Recorded.last["src"], _Recorded.last["t0"], _Recorded.last["dt"]
-        counts = np.zeros(volume.shape[-2:], np.uint8)
-        for j in range(1, k + 1):
-            s = t0 - j * dt
-            counts += event_pixels(bin_window(src.read(s, s + dt), s, dt, volume.shape[0], src.sensor_size))
-        return support_dense(volume, norm, min_cluster, counts, r, m, c)
-
-    open_events = events_io.open_events
-    events_io.open_events = lambda *args, **kw: _Recorded(open_events(*args, **kw))
-    evaluate.apply_dense = front_end
-    res = evaluate.evaluate(evaluate.EvalOptions(ckpt=Path(a.ckpt), data=Path(a.data), dts=(500,), split=a.split,
-                                                 max_windows=a.max_windows, progress=False))
+    src = Path(a.ckpt)
+    with tempfile.TemporaryDirectory() as tmp:
+        ck = Path(tmp)
+        for f in src.iterdir():
+            if f.is_file() and f.name != "config.json":
+                (ck / f.name).symlink_to(f.resolve())
+        cfg = json.loads((src / "config.json").read_text())
+        cfg.pop("input_support", None)
+        if k:
+            cfg["input_support"] = [k, r, m, c]
+        (ck / "config.json").write_text(json.dumps(cfg, indent=2))
+        res = evaluate.evaluate(evaluate.EvalOptions(ckpt=ck, data=Path(a.data), dts=(500,), split=a.split,
+                                                     max_windows=a.max_windows, progress=False))
     if a.json:
         Path(a.json).write_text(json.dumps(res, indent=1))
     row = res["per_dt"][0]

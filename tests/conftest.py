@@ -24,8 +24,9 @@ def random_events(rng):
     return make
 
 
-def _make_bundle(root, sensor=(64, 48), ofpd=None, reset="subtract", ofs_pool=1):
-    """init_checkpoint -> quantize -> ONNX -> write_bundle: a real bundle without the exporter."""
+def _make_bundle(root, sensor=(64, 48), ofpd=None, reset="subtract", ofs_pool=1, **config):
+    """init_checkpoint -> quantize -> ONNX -> write_bundle: a real bundle without the exporter
+    (``config``: further ToffeConfig fields, e.g. the front end's)."""
     import torch
 
     from toffe_deploy import ofpd_io
@@ -36,7 +37,7 @@ def _make_bundle(root, sensor=(64, 48), ofpd=None, reset="subtract", ofs_pool=1)
     from toffe_deploy.model.ofpd import OFPD
 
     cfg = ToffeConfig(sensor_size=sensor, ofpd=ofpd or {"crop_px": 32, "pool": 2, "min_events": 4}, reset=reset,
-                      ofs_pool=ofs_pool)
+                      ofs_pool=ofs_pool, **config)
     ck = load_checkpoint(init_checkpoint(root / "ckpt", cfg, seed=1))
     # Low thresholds (0.25 .. 0.55, DOTIE's are 1.0 ..) so the sparse events of a tiny sensor make spikes.
     ofs = [quantize_ofs(p["weight"], 0.25 + 0.1 * k, 0.7, reset) for k, p in enumerate(ck.ofs)]

@@ -137,3 +137,21 @@ def test_init_from_fine_tunes_in_the_zero_reset_arithmetic(data, tmp_path, capsy
     assert main(["train", "--data", str(data), "--out", str(ck), "--stage", "ofpd", "--reset", "subtract",
                  "--no-progress"]) == 2
     assert "reset 'zero'" in capsys.readouterr().err
+
+
+def test_train_and_eval_with_input_support(data, tmp_path, capsys):
+    """--input-support reaches the new checkpoint's config; training crops, noise crops and eval
+    (with tracking: consecutive windows) run through the front end with the K windows before."""
+    ck = tmp_path / "ck"
+    assert main(["train", "--data", str(data), "--out", str(ck), "--ofs-epochs", "1", "--windows-per-seq", "5",
+                 "--no-progress", "--epochs", "1", "--input-support", "4,1,5,2"]) == 0
+    assert load_checkpoint(ck).config.input_support == (4, 1, 5, 2)
+    assert json.loads((ck / "config.json").read_text())["input_support"] == [4, 1, 5, 2]
+    out_json = tmp_path / "eval.json"
+    assert main(["eval", str(ck), "--data", str(data), "--max-windows", "2", "--track-windows", "3",
+                 "--json", str(out_json), "--no-progress"]) == 0
+    assert json.loads(out_json.read_text())["per_dt"][0]["all"]["n_gt"] > 0
+    capsys.readouterr()
+    assert main(["train", "--data", str(data), "--out", str(tmp_path / "bad"), "--input-support", "4,1,5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--input-support" in err and "input_support must be" in err

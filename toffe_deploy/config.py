@@ -16,7 +16,7 @@ from typing import Any
 
 from .camera import REFERENCE_DEPTH_M, REFERENCE_FOCAL_PX, SpeedScale
 from .errors import InputError
-from .events.frontend import INPUT_NORMS
+from .events.frontend import INPUT_NORMS, check_support
 from .fileio import read_json
 
 #: Keys a config.json on disk (checkpoint or bundle) must state: a trained network is only valid
@@ -58,6 +58,8 @@ class ToffeConfig:
     depth_m: float = REFERENCE_DEPTH_M     # ... and the object depth
     input_norm: str = "none"               # OFS/OFPD input front end (events/frontend.py)
     input_min_cluster: int = 1             # ... then keep pixels in 8-connected clusters of >= this many (1: all)
+    input_support: tuple[int, int, int, int] | None = None   # ... and dropped pixels with temporal support:
+                                           # (K, r, m, c) of events/support.py; None: off (configs without it)
     reset: str = "subtract"                # OFS neuron reset (RESETS); configs without it: subtract
     ofpd: dict[str, Any] = field(default_factory=dict)
     dataset: dict[str, Any] = field(default_factory=dict)
@@ -102,6 +104,10 @@ class ToffeConfig:
         d["sensor_size"] = list(self.sensor_size)
         d["speed_bins"] = [list(b) for b in self.speed_bins]
         d["representative_speeds"] = list(self.representative_speeds)
+        if self.input_support is None:     # off: absent, so configs written before it stay byte for byte
+            del d["input_support"]
+        else:
+            d["input_support"] = list(self.input_support)
         return d
 
     @classmethod
@@ -127,6 +133,8 @@ class ToffeConfig:
             for k in ("focal_px", "depth_m"):
                 if k in kw:
                     kw[k] = float(kw[k])
+            if kw.get("input_support") is not None:
+                kw["input_support"] = check_support(kw["input_support"])
             cfg = cls(**kw)
         except (TypeError, ValueError) as exc:
             raise InputError(path, f"malformed config: {exc}") from None
@@ -170,6 +178,11 @@ class ToffeConfig:
             bad(f"input_norm must be one of {', '.join(INPUT_NORMS)}, got {self.input_norm!r}")
         if self.input_min_cluster < 1:
             bad(f"input_min_cluster must be >= 1, got {self.input_min_cluster}")
+        if self.input_support is not None:
+            try:
+                check_support(self.input_support)
+            except ValueError as exc:
+                bad(str(exc))
 
     def speed_bin_of(self, speed_mps: float) -> int:
         """1-based speed bin of a speed; 0 below the first bin, N above the last."""

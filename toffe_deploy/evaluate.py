@@ -27,8 +27,7 @@ from .breakdown import Breakdown, attr_value, bucket_labels, bucket_order
 from .cascade import stage_frame
 from .checkpoint import load_checkpoint
 from .errors import InputError
-from .events.binning import bin_window
-from .events.frontend import apply_dense
+from .events.support import sampled_window
 from .metrics import GATE_PX, FlowErrors, SeparationCounts
 from .tracking_metrics import TrackingErrors
 from . import ofpd_io
@@ -168,8 +167,7 @@ def evaluate(opts: EvalOptions) -> dict:
                 focal = sequence_focal_px(attrs[fi])
                 for t0 in _sample_starts(src.t_start_us, src.t_end_us, dt, opts.max_windows):
                     truth = window_truth(gt, int(t0), dt)
-                    binned = apply_dense(bin_window(src.read(int(t0), int(t0) + dt), int(t0), dt, cfg.n_bins, sensor,
-                                                    dtype=np.uint8), cfg.input_norm, cfg.input_min_cluster)
+                    binned = sampled_window(src.read, int(t0), dt, cfg, sensor)
                     preds, res = predict_window(binned, run_stage, ofpd, cfg)
                     errs.add_window(preds, truth, focal)
                     for g, (_paths, labels, _order) in enumerate(groups):
@@ -182,8 +180,7 @@ def evaluate(opts: EvalOptions) -> dict:
                             sep[k - 1].add(ofpd_io.has_object(frame[None], cfg), truth[0].speed_bin >= k)
                 if track_errs is not None:
                     def predict(t0, src=src, sensor=sensor):
-                        binned = apply_dense(bin_window(src.read(t0, t0 + dt), t0, dt, cfg.n_bins, sensor,
-                                                        dtype=np.uint8), cfg.input_norm, cfg.input_min_cluster)
+                        binned = sampled_window(src.read, t0, dt, cfg, sensor)
                         return predict_window(binned, run_stage, ofpd, cfg)[0]
 
                     track_sequence(src, gt, dt, opts.track_windows, predict, cfg, track_errs)

@@ -30,7 +30,8 @@ LEVELS = ("reference", "optimised")
 class BenchContext:
     """What every factory may use: windows (t0, front-end binned (B, 2, H, W)), their events,
     the bundle and its config, the cpu Pipeline (or None), and the counted ModelCounts per
-    family ("toffe", "dotie", "dotie_cluster"), index i = window i."""
+    family ("toffe", "dotie", "dotie_cluster"), index i = window i; ``supports``: with the
+    config's input_support, window i's SupportHistory of the K windows before it (events/support.py)."""
 
     windows: list
     events: list
@@ -38,6 +39,7 @@ class BenchContext:
     config: Any
     pipe: Any
     counts: dict = field(default_factory=dict)
+    supports: list = field(default_factory=list)
 
 
 @dataclass
@@ -121,8 +123,10 @@ def toffe_models(ctx: BenchContext) -> list[BenchModel]:
     with OFPD in onnxruntime; optimised = the deployed cpu Pipeline (numba, event driven)."""
     if ctx.pipe is None:
         return []
+    import copy
+
     from ..events.binning import bin_window
-    from ..events.frontend import apply_dense
+    from ..events.support import front_end
     from ..model.reference import fixed_stage_fn, predict_window
     from ..runtime.spikes import SpikeVolume
 
@@ -133,12 +137,16 @@ def toffe_models(ctx: BenchContext) -> list[BenchModel]:
     stage = fixed_stage_fn(list(ctx.bundle.ofs))
     pipe = ctx.pipe
 
+    def history(i):          # a copy: the front end adds window i to it, and a model runs a window many times
+        return copy.deepcopy(ctx.supports[i]) if ctx.supports else None
+
     def run_ref(i):
-        binned = apply_dense(bin_window(ev[i], t0s[i], dt, nb, size, dtype=np.uint8), cfg.input_norm,
-                             cfg.input_min_cluster)
+        binned = front_end(bin_window(ev[i], t0s[i], dt, nb, size, dtype=np.uint8), cfg, history(i), t0s[i])
         return predict_window(binned, stage, pipe.ofpd.run, cfg)[0]
 
     def run_opt(i):
+        if ctx.supports:
+            pipe.support = history(i)
         vol = SpikeVolume.from_events(ev[i], t0s[i], dt, nb, size)
         return list(pipe.process_stream([(t0s[i], vol)]))[0].objects
 

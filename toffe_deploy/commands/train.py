@@ -37,6 +37,10 @@ def register(sub) -> None:
                    help="input front end of a new checkpoint: keep only the spikes of pixels in 8-connected "
                         "clusters of >= N event pixels of the window (a background-activity filter; 1 keeps "
                         "all; default 4)")
+    p.add_argument("--input-support", default=None, metavar="K,R,M,C",
+                   help="input front end of a new checkpoint: also keep a pixel the cluster filter drops when the "
+                        "window and the K windows before it fired >= M + C * (2R+1)^2 * (their event-pixel density) "
+                        "pixels in its (2R+1)^2 box (config.input_support; the shipped one's: 4,1,5,2; default off)")
     p.add_argument("--ofs-kernel", type=int, default=5, metavar="K",
                    help="OFS conv kernel size of a new checkpoint (odd; default 5, the shipped one's: slow edges move "
                         "under a pixel per time bin; the paper's is 3)")
@@ -72,6 +76,14 @@ def run(args) -> int:
             raise ToffeError(f"--ofpd-kernels needs two odd sizes like 3,3, got {args.ofpd_kernels!r}") from None
     if args.min_cluster < 1:
         raise ToffeError(f"--min-cluster must be >= 1, got {args.min_cluster}")
+    support = None
+    if args.input_support is not None:
+        from ..events.frontend import check_support
+
+        try:
+            support = check_support([int(v) for v in args.input_support.split(",")])
+        except ValueError as exc:
+            raise ToffeError(f"--input-support: {exc}") from None
     if args.ofs_pool is not None and not 1 <= args.ofs_pool <= 16:
         raise ToffeError(f"--ofs-pool must be 1..16, got {args.ofs_pool}")
     if args.mask_kernel is not None and args.mask_kernel < 1:
@@ -95,6 +107,7 @@ def run(args) -> int:
                              per_file=args.windows_per_seq, device=args.device, ofpd_pool=args.ofpd_pool,
                              ofpd_kernels=kernels, progress=show_progress(args), input_norm=args.input_norm,
                              ofs_kernel=args.ofs_kernel, min_cluster=args.min_cluster, reset=args.reset,
-                             init_from=args.init_from, ofs_pool=args.ofs_pool, mask_kernel=args.mask_kernel))
+                             init_from=args.init_from, ofs_pool=args.ofs_pool, mask_kernel=args.mask_kernel,
+                             input_support=support))
     print(f"checkpoint written to {out}")
     return 0

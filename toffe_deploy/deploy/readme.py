@@ -62,6 +62,20 @@ sensor OR-pooled over p x p pixel blocks (ceil(W / p) x ceil(H / p) neurons per 
 and NIR files have that shape); the host pools each window before it goes to the chip, and a
 closed mask cell covers its p x p sensor pixels, so OFPD still sees every event.
 
+## The host front end (config.json)
+
+Before the OFS, on the host and on every target, each window's binary volume goes through the
+input front end that the checkpoint was trained with (`toffe_deploy/events/frontend.py`,
+`events/support.py`): `input_norm` (`"none"`: every spike; `"first"`: each pixel and polarity's
+first spike of the window), then `input_min_cluster` n (drop the pixels whose 8-connected
+cluster of the window's event pixels has fewer than n pixels; 1 keeps all), then, when
+config.json has `input_support` [K, r, m, c] (absent: off), keep a pixel that the cluster filter
+dropped if the window and the K windows before it fired S >= T pixels in its (2r + 1)^2 box
+(S counts each pixel once per window), T = m + floor(c (2r + 1)^2 E / (H W)), E the event pixels
+of those K + 1 windows. A reader streaming windows in time order keeps the K windows before (windows
+missing from the stream count as empty; a jump back, or by a time that is no multiple of dt,
+forgets them); one that starts at a chosen time reads [t0 - K dt, t0) first.
+
 ## ofs_loihi.json
 
 | field | meaning |

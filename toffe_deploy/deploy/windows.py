@@ -12,6 +12,7 @@ runtime bins it (``events.binning.bin_window``).
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import os
 from dataclasses import dataclass, field
@@ -22,22 +23,33 @@ import numpy as np
 from ..config import ToffeConfig
 from ..errors import InputError
 from ..events.binning import bin_window
-from ..events.frontend import apply_dense
+from ..events.support import SupportHistory, front_end
 
 GEN_SEQUENCES = 2          # multi-object scenes generated when no data set is given
 
 
 @dataclass
 class HeldOut:
-    """windows[i] (B, 2, H, W) counts starting at t0[i]; truths[i] the visible objects (or None)."""
+    """windows[i] (B, 2, H, W) bool, the front end's output for the window starting at t0[i];
+    truths[i] the visible objects (or None). With config.input_support, support[i] is (the raw
+    window, the SupportHistory of the K windows before it): what a Pipeline needs to redo the
+    front end (its temporal support is not idempotent); empty without."""
 
     windows: list[np.ndarray]
     t0: list[int]
     truths: list[list] = field(default_factory=list)
     source: dict = field(default_factory=dict)
+    support: list = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.windows)
+
+    def add(self, t0: int, window: np.ndarray, truths, support) -> None:
+        self.windows.append(window)
+        self.t0.append(t0)
+        self.truths.append(truths)
+        if support is not None:
+            self.support.append(support)
 
 
 def _pick(t_starts: np.ndarray, n: int) -> np.ndarray:
@@ -47,7 +59,8 @@ def _pick(t_starts: np.ndarray, n: int) -> np.ndarray:
 
 
 def _windows_of(events: np.ndarray, gt: dict | None, config: ToffeConfig, t_lo: int, t_hi: int, n: int):
-    """Up to n non-empty windows of [t_lo, t_hi), evenly spread; yields (t0, binned, truths)."""
+    """Up to n non-empty windows of [t_lo, t_hi), evenly spread; yields (t0, front end's window,
+    truths, (raw window, SupportHistory before it) or None)."""
     from ..dataset.groundtruth import window_truth
 
     dt = config.dt_us
@@ -57,10 +70,16 @@ def _windows_of(events: np.ndarray, gt: dict | None, config: ToffeConfig, t_lo: 
     counts = np.diff(np.searchsorted(events["t"], np.append(starts, starts[-1] + dt)))
     starts = starts[counts > 0]
     out = []
+    t = events["t"]
     for t0 in _pick(starts, n):
-        b = apply_dense(bin_window(events, int(t0), dt, config.n_bins, config.sensor_size), config.input_norm,
-                        config.input_min_cluster)
-        out.append((int(t0), b, window_truth(gt, int(t0), dt) if gt is not None else None))
+        raw = bin_window(events, int(t0), dt, config.n_bins, config.sensor_size)
+        hist = before = None
+        if config.input_support is not None:
+            hist = SupportHistory.before(lambda lo, hi: events[np.searchsorted(t, lo):np.searchsorted(t, hi)], int(t0),
+                                         dt, config.input_support[0], config.sensor_size)
+            before = (raw > 0, copy.deepcopy(hist))
+        b = front_end(raw, config, hist, int(t0))
+        out.append((int(t0), b, window_truth(gt, int(t0), dt) if gt is not None else None, before))
     return out
 
 
@@ -80,10 +99,8 @@ def _from_generator(config: ToffeConfig, seed: int, n_windows: int, progress: bo
                                            "'train' split only"})
     for i, spec in enumerate(specs):
         events, gt, _ = generate_sequence(dataclasses.replace(spec, camera=cam), seed + i)
-        for t0, b, tr in _windows_of(events, gt, config, config.dt_us, int(duration_s * 1e6), per_seq):
-            held.windows.append(b)
-            held.t0.append(t0)
-            held.truths.append(tr)
+        for t0, b, tr, sup in _windows_of(events, gt, config, config.dt_us, int(duration_s * 1e6), per_seq):
+            held.add(t0, b, tr, sup)
     return held
 
 
@@ -104,10 +121,8 @@ def _from_data(config: ToffeConfig, data: str | os.PathLike, seed: int, n_window
                                            f"{list(config.sensor_size)}")
             events = src.read(src.t_start_us, src.t_end_us + 1)
             gt = src.ground_truth
-            for t0, b, tr in _windows_of(events, gt, config, src.t_start_us, src.t_end_us + 1, per_file):
-                held.windows.append(b)
-                held.t0.append(t0)
-                held.truths.append(tr)
+            for t0, b, tr, sup in _windows_of(events, gt, config, src.t_start_us, src.t_end_us + 1, per_file):
+                held.add(t0, b, tr, sup)
     return held
 
 
@@ -121,5 +136,6 @@ def heldout_windows(config: ToffeConfig, data: str | os.PathLike | None = None, 
     held.windows = held.windows[:n_windows]
     held.t0 = held.t0[:n_windows]
     held.truths = held.truths[:n_windows]
+    held.support = held.support[:n_windows]
     held.source["n_windows"] = len(held.windows)
     return held

@@ -76,6 +76,20 @@ def front_end_index(idx: np.ndarray, shape: tuple[int, ...], first: bool, min_cl
     return idx.compress(front_end_keep(idx, int(shape[1]), n_pixels, w, bool(first), int(min_cluster), slots))
 
 
+def check_support(value) -> tuple[int, int, int, int]:
+    """``input_support`` (ToffeConfig) as (K, r, m, c): integers, 1 <= K <= 255 (the count image
+    is uint8), 0 <= r <= 16, m >= 1, c >= 0 (events/support.py's rule)."""
+    ok = isinstance(value, (list, tuple)) and len(value) == 4 and all(
+        isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in value)
+    if ok:
+        k, r, m, c = (int(v) for v in value)
+        ok = 1 <= k <= 255 and 0 <= r <= 16 and m >= 1 and c >= 0
+    if not ok:
+        raise ValueError(f"input_support must be [K, r, m, c]: integers with 1 <= K <= 255, 0 <= r <= 16, m >= 1, "
+                         f"c >= 0 (windows before, box radius, min count, noise factor), got {value!r}")
+    return (k, r, m, c)
+
+
 def check_min_cluster(n: int) -> int:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise ValueError(f"input_min_cluster must be an integer >= 1, got {n!r}")

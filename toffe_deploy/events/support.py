@@ -72,16 +72,18 @@ def support_dense(volume: np.ndarray, norm: str, min_cluster: int, counts: np.nd
 
 @njit(cache=True, nogil=True)
 def _support_keep(idx, n_pixels, width, height, keep_base, keep_every, counts, radius, m, noise_factor,
-                  counts_total, mark):
+                  counts_total, mark, pixels):
     """keep_base | (keep_every & S >= T) over the ones of a sorted linear index (module doc):
     ``mark`` ((n_pixels,) uint8 zeros, left so) holds the window's event pixels while the box
-    sums are read; S is read only for the ones the cluster filter dropped."""
+    sums are read; S is read only for the ones the cluster filter dropped. ``pixels`` (>= len(idx))
+    gets the window's event pixels, first seen first; returns (keep, their number)."""
     n = idx.shape[0]
     n_pix = 0
     for i in range(n):
         q = idx[i] % n_pixels
         if mark[q] == 0:
             mark[q] = 1
+            pixels[n_pix] = q
             n_pix += 1
     m = m + (noise_factor * (2 * radius + 1) ** 2 * (counts_total + n_pix)) // n_pixels
     keep = keep_base.copy()
@@ -97,27 +99,29 @@ def _support_keep(idx, n_pixels, width, height, keep_base, keep_every, counts, r
             for xx in range(max(0, x - radius), min(width, x + radius + 1)):
                 s += np.int64(counts[row + xx]) + np.int64(mark[row + xx])
         keep[i] = s >= m
-    for i in range(n):
-        mark[idx[i] % n_pixels] = 0
-    return keep
+    for i in range(n_pix):
+        mark[pixels[i]] = 0
+    return keep, n_pix
 
 
 _MARKS: dict[int, np.ndarray] = {}
 
 
 def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluster: int, counts: np.ndarray,
-                  radius: int, m: int, noise_factor: int = 0, counts_total: int | None = None) -> np.ndarray:
+                  radius: int, m: int, noise_factor: int = 0, counts_total: int | None = None,
+                  return_pixels: bool = False):
     """The same on a sorted unique linear index of ones into a (B, C, H, W) volume; ``counts`` an
     (H, W) or (H * W,) uint8 count image, ``counts_total`` its sum (a streaming caller keeps it;
     None: summed here, only when noise_factor > 0). Two passes of compiled.front_end_keep (with and
     without the cluster filter) and one that reads box sums around the ones it dropped.
-    Returns a sorted index."""
+    Returns a sorted index; with ``return_pixels`` also the window's event pixels (unique linear
+    y * W + x, unsorted: what SupportHistory.push takes)."""
     from ..compiled import front_end_keep, new_scratch
     from .frontend import _SLOTS, check_min_cluster, check_norm
 
     idx = np.asarray(idx, dtype=np.int64)
     if idx.size == 0:
-        return idx
+        return (idx, idx) if return_pixels else idx
     c, h, w = int(shape[1]), int(shape[2]), int(shape[3])
     n_pixels = h * w
     first = check_norm(norm) == "first"
@@ -131,5 +135,139 @@ def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluste
         mark = _MARKS[n_pixels] = np.zeros(n_pixels, np.uint8)
     cnt = np.ascontiguousarray(counts, np.uint8).reshape(-1)
     total = int(cnt.sum(dtype=np.int64)) if counts_total is None and noise_factor else int(counts_total or 0)
-    return idx[_support_keep(idx, n_pixels, w, h, base, every, cnt, int(radius), int(m), int(noise_factor), total,
-                             mark)]
+    pixels = np.empty(idx.size, np.int64)
+    keep, n_pix = _support_keep(idx, n_pixels, w, h, base, every, cnt, int(radius), int(m), int(noise_factor), total,
+                                mark, pixels)
+    return (idx[keep], pixels[:n_pix]) if return_pixels else idx[keep]
+
+
+class SupportHistory:
+    """The event pixels of the last K windows (a ring of their linear pixel indices) and their
+    (H * W,) uint8 count image ``counts`` with sum ``total``: what ``front_end`` reads as the
+    windows before. ``advance(t0)`` moves it to the window starting at t0: the next window
+    (t0 = last + dt) keeps it, a gap of whole windows shifts in empty ones (a skipped window had
+    no events), anything else (a jump back, a gap that is no multiple of dt) forgets it
+    (``reset``); a fresh history is K empty windows, as before a recording's start."""
+
+    def __init__(self, k: int, sensor_size: tuple[int, int], dt_us: int):
+        self.k = int(k)
+        self.width, self.height = int(sensor_size[0]), int(sensor_size[1])
+        self.dt_us = int(dt_us)
+        self.counts = np.zeros(self.width * self.height, np.uint8)
+        self.reset()
+
+    def reset(self) -> None:
+        self.counts[:] = 0
+        self.total = 0
+        self._ring: list[np.ndarray] = []
+        self.last_t0: int | None = None
+
+    def advance(self, t0: int) -> None:
+        if self.last_t0 is None:
+            return
+        gap = int(t0) - self.last_t0
+        if gap <= 0 or gap % self.dt_us:
+            self.reset()
+            return
+        for _ in range(min(gap // self.dt_us - 1, self.k)):
+            self._push(np.zeros(0, np.int64))
+
+    def push(self, t0: int, pixels: np.ndarray) -> None:
+        """Add the window at t0 (``advance`` to it first): ``pixels`` its unique linear pixel
+        indices (y * W + x) with an event."""
+        self.advance(t0)
+        self._push(np.asarray(pixels, np.int64))
+        self.last_t0 = int(t0)
+
+    def _push(self, pixels: np.ndarray) -> None:
+        if len(self._ring) == self.k:
+            old = self._ring.pop(0)
+            self.counts[old] -= 1
+            self.total -= old.size
+        self.counts[pixels] += 1
+        self.total += pixels.size
+        self._ring.append(pixels)
+
+    @classmethod
+    def before(cls, read, t0: int, dt_us: int, k: int, sensor_size: tuple[int, int]) -> "SupportHistory":
+        """The history a stream would hold at window t0, from the K windows [t0 - K dt, t0):
+        ``read(t_lo, t_hi)`` gives their events (none before a recording's start)."""
+        hist = cls(k, sensor_size, dt_us)
+        for j in range(k, 0, -1):
+            s = int(t0) - j * int(dt_us)
+            hist.push(s, window_pixels(read(s, s + int(dt_us)), s, dt_us, sensor_size))
+        return hist
+
+
+def window_pixels(events: np.ndarray, t0: int, dt_us: int, sensor_size: tuple[int, int]) -> np.ndarray:
+    """Sorted unique linear pixel indices (y * W + x) with an event in [t0, t0 + dt_us), the
+    pixels of bin_window's volume (events outside the sensor are dropped there too)."""
+    from .binning import event_bin_index
+
+    w, h = int(sensor_size[0]), int(sensor_size[1])
+    idx = event_bin_index(events, t0, dt_us, 1, sensor_size)
+    return np.unique(idx % (w * h))
+
+
+def front_end(volume, config, history: "SupportHistory | None" = None, t0: int | None = None):
+    """The input front end of ``config`` (input_norm, input_min_cluster, input_support) on one
+    raw window: a dense (B, C, H, W) array (-> bool volume) or a SpikeVolume (-> SpikeVolume).
+    With input_support, ``history`` holds the windows before (``SupportHistory``; streaming: the
+    same object for every window, ``t0`` the window's start; sampled: ``SupportHistory.before``)
+    and gets this window's event pixels. Not idempotent with support: pass raw windows."""
+    norm, min_cluster = config.input_norm, config.input_min_cluster
+    dense = isinstance(volume, np.ndarray)
+    if config.input_support is None:
+        return apply_dense(volume, norm, min_cluster) if dense else volume.front_end(norm, min_cluster)
+    if history is None:
+        raise ValueError("input_support needs the windows before: pass a SupportHistory")
+    if t0 is None:
+        raise ValueError("input_support needs the window's start t0")
+    _k, r, m, c = config.input_support
+    history.advance(t0)
+    if dense:
+        pix = event_pixels(volume)
+        out = support_dense(volume, norm, min_cluster, history.counts.reshape(pix.shape), r, m, c)
+        history.push(t0, np.flatnonzero(pix))
+        return out
+    idx, pixels = support_index(volume.idx, volume.shape, norm, min_cluster, history.counts, r, m, c, history.total,
+                                return_pixels=True)
+    history.push(t0, pixels)
+    return type(volume)(idx, volume.shape)
+
+
+def sampled_window(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int]) -> np.ndarray:
+    """The front end's (B, 2, H, W) bool volume of the window [t0, t0 + dt_us) of a recording read
+    at chosen starts (eval, held-out and training windows): ``read(t_lo, t_hi)`` gives events
+    (a superset is fine); with input_support the K windows before are read too (SupportHistory.before)."""
+    from .binning import bin_window
+
+    t0, dt_us = int(t0), int(dt_us)
+    binned = bin_window(read(t0, t0 + dt_us), t0, dt_us, config.n_bins, sensor_size, dtype=np.uint8)
+    hist = (SupportHistory.before(read, t0, dt_us, config.input_support[0], sensor_size)
+            if config.input_support is not None else None)
+    return front_end(binned, config, hist, t0)
+
+
+def sampled_index(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int]) -> np.ndarray:
+    """``sampled_window``'s ones as a sorted linear index into the (B, 2, H, W) volume, by the
+    compiled index forms (training reads many windows of the whole sensor)."""
+    from ..compiled import sorted_unique
+    from .binning import event_bin_index
+    from .frontend import apply_index
+
+    t0, dt_us = int(t0), int(dt_us)
+    w, h = int(sensor_size[0]), int(sensor_size[1])
+    shape = (int(config.n_bins), 2, h, w)
+    idx = sorted_unique(event_bin_index(read(t0, t0 + dt_us), t0, dt_us, config.n_bins, sensor_size))
+    if config.input_support is None:
+        return apply_index(idx, shape, config.input_norm, config.input_min_cluster)
+    k, r, m, c = config.input_support
+    hist = SupportHistory.before(read, t0, dt_us, k, sensor_size)
+    return support_index(idx, shape, config.input_norm, config.input_min_cluster, hist.counts, r, m, c, hist.total)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the support kernel before the first window is timed."""
+    support_index(np.zeros(1, np.int64), (1, 2, 1, 1), "first", 2, np.zeros(1, np.uint8), 1, 1, 1, 0,
+                  return_pixels=True)

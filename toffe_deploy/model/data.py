@@ -23,6 +23,7 @@ from ..config import ToffeConfig
 from ..errors import InputError
 from ..events.binning import bin_window
 from ..events.frontend import apply_dense
+from ..events.support import sampled_index
 
 CROP_PX = 320   # R: crop side for training windows (holds objects up to ~250 px with their motion)
 
@@ -106,6 +107,22 @@ def crop_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, centre_xy:
     return np.flatnonzero(vol.reshape(-1)).astype(np.int32), np.array([x0, y0], dtype=np.int64)
 
 
+def crop_index(idx: np.ndarray, sensor_size: tuple[int, int], centre_xy: tuple[float, float],
+               crop: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ones of a sorted linear index into a whole-sensor (B, 2, H, W) volume (the front end
+    run on the whole window) inside the crop centred on centre_xy: crop_window's result."""
+    w, h = int(sensor_size[0]), int(sensor_size[1])
+    x0 = int(round(centre_xy[0])) - crop // 2
+    y0 = int(round(centre_xy[1])) - crop // 2
+    plane, pix = np.divmod(np.asarray(idx, np.int64), h * w)
+    ey, ex = np.divmod(pix, w)
+    ex -= x0
+    ey -= y0
+    inside = (ex >= 0) & (ex < crop) & (ey >= 0) & (ey < crop)
+    out = (plane[inside] * crop + ey[inside]) * crop + ex[inside]
+    return out.astype(np.int32), np.array([x0, y0], dtype=np.int64)
+
+
 def find_sequences(data: str | os.PathLike, split: str) -> list[Path]:
     """The sequence files of one split, as the data set's index.json lists them."""
     from ..dataset.build import iter_split_files
@@ -150,9 +167,13 @@ def load_windows(files: list[Path], config: ToffeConfig, dt_us: int | None = Non
                 if len(truth) != 1 or int(truth[0].speed_bin) < 1:
                     continue
                 o = truth[0]
-                ev = src.read(int(t0), int(t0) + dt)
-                idx, org = crop_window(ev, int(t0), dt, config.n_bins, (o.x, o.y), crop, config.input_norm,
-                                       config.input_min_cluster)
+                if config.input_support is None:
+                    ev = src.read(int(t0), int(t0) + dt)
+                    idx, org = crop_window(ev, int(t0), dt, config.n_bins, (o.x, o.y), crop, config.input_norm,
+                                           config.input_min_cluster)
+                else:    # temporal support: its threshold follows the whole sensor's event density
+                    idx, org = crop_index(sampled_index(src.read, int(t0), dt, config, src.sensor_size),
+                                          src.sensor_size, (o.x, o.y), crop)
                 if idx.size < min_events:
                     continue
                 cells.append(idx)

@@ -44,6 +44,7 @@ from ..checkpoint import (CONFIG_FILE, load_checkpoint, random_ofpd_state, save_
 from ..config import ToffeConfig
 from ..errors import InputError, ToffeError
 from ..events.frontend import apply_dense
+from ..events.support import event_pixels, history_counts, support_dense
 from ..fileio import atomic_path
 from .. import ofpd_io
 from ..cascade import pool_any, run_cascade, stage_frame
@@ -91,10 +92,12 @@ def noise_crops(n: int, n_bins: int, crop: int, rng: np.random.Generator) -> np.
 
 
 def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: bool = True,
-                          input_norm: str = "none", min_cluster: int = 1, pool: int = 1):
+                          input_norm: str = "none", min_cluster: int = 1, pool: int = 1, support=None):
     """Sparse rows of all training crops plus n/8 noise-only crops (through the same input front
-    end as the crops), on the OFS grid (pooled by ``pool``, as the cascade sees them); returns
-    (SparseWindows, speed_bin) with speed_bin 0 for the noise crops (a negative for every stage)."""
+    end as the crops; with ``support`` (K, r, m, c), config.input_support, each noise crop has
+    K noise windows of its density before it), on the OFS grid (pooled by ``pool``, as the
+    cascade sees them); returns (SparseWindows, speed_bin) with speed_bin 0 for the noise crops
+    (a negative for every stage)."""
     from .ofs_sparse import pack_windows
 
     rng = np.random.default_rng(seed)
@@ -109,7 +112,13 @@ def pack_training_windows(windows: WindowSet, kernel: int, seed: int, progress: 
         for i in tqdm(range(len(windows)), desc="packing OFS windows", leave=False, disable=not progress):
             yield pool_any(windows.dense([i])[0][:, :, c0:c0 + r, c0:c0 + r], pool)
         for _ in range(n_noise):
-            yield pool_any(apply_dense(noise_crops(1, windows.n_bins, r, rng)[0], input_norm, min_cluster), pool)
+            if support is None:
+                yield pool_any(apply_dense(noise_crops(1, windows.n_bins, r, rng)[0], input_norm, min_cluster), pool)
+                continue
+            k, rad, m, c = support           # one density over the crop and the K windows before it
+            seq = noise_crops(1, windows.n_bins * (k + 1), r, rng)[0].reshape(k + 1, windows.n_bins, 2, r, r)
+            counts = history_counts([event_pixels(w) for w in seq[:k]])
+            yield pool_any(support_dense(seq[k], input_norm, min_cluster, counts, rad, m, c), pool)
 
     sw = pack_windows(vols(), kernel)
     return sw, np.concatenate([windows.speed_bin, np.zeros(n_noise, np.int64)])
@@ -348,6 +357,7 @@ class TrainOptions:
     init_from: Path | None = None     # checkpoint whose config and OFS stages a new run starts from (fine-tune)
     ofs_pool: int | None = None       # OFS grid pooling (config.ofs_pool); None: the checkpoint's, NEW_OFS_POOL for a new one
     mask_kernel: int | None = None    # cascade closing kernel in grid cells; None: the checkpoint's, else ToffeConfig's
+    input_support: tuple[int, int, int, int] | None = None   # front end's temporal support of a new checkpoint (off)
 
 
 def _state_path(out: Path) -> Path:
@@ -454,7 +464,8 @@ def train(opts: TrainOptions) -> Path:
             raise InputError(out, "--stage ofpd needs a checkpoint with trained OFS stages in --out (run --stage ofs first)")
         config = make_config(files, Path(opts.data), opts.dt_us, opts.seed, opts.input_norm, opts.ofs_kernel,
                              opts.min_cluster)
-        config = dataclasses.replace(config, ofs_pool=NEW_OFS_POOL if opts.ofs_pool is None else int(opts.ofs_pool))
+        config = dataclasses.replace(config, ofs_pool=NEW_OFS_POOL if opts.ofs_pool is None else int(opts.ofs_pool),
+                                     input_support=opts.input_support)
         ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
         state = {}
     if opts.reset is not None and opts.reset != config.reset:
@@ -495,7 +506,7 @@ def train(opts: TrainOptions) -> Path:
         done = set(state.get("ofs_done", []))
         if len(done) < config.n_speed_bins:
             packed, bins = pack_training_windows(windows, config.ofs_kernel, opts.seed, opts.progress, config.input_norm,
-                                                  config.input_min_cluster, config.ofs_pool)
+                                                  config.input_min_cluster, config.ofs_pool, config.input_support)
         for k in range(1, config.n_speed_bins + 1):
             if k in done:
                 continue

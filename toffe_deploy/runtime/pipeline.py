@@ -37,7 +37,8 @@ import numpy as np
 from ..camera import SpeedScale
 from ..config import ToffeConfig
 from ..errors import InputError
-from ..events.frontend import apply_dense
+from ..events.support import SupportHistory, front_end
+from ..events.support import warm_up as support_warm_up
 from ..ofpd_io import Decoder
 from ..tracking import Tracker, TrackerConfig
 from . import ofpd_input
@@ -209,11 +210,16 @@ class Pipeline:
         self.keep_stages = bool(keep_stages)
         self._decode = Decoder(self.config)          # ofpd_io.decode, set up once
         self._track = track
+        self.support = (SupportHistory(self.config.input_support[0], self.sensor_size, self.config.dt_us)
+                        if self.config.input_support is not None else None)   # the front end's windows before
         self.reset_tracks()
         self._entered = False
 
     def reset_tracks(self) -> None:
-        """Forget every track (a new recording, or a jump in time); ids start again at 0."""
+        """Forget every track (a new recording, or a jump in time); ids start again at 0. The
+        front end's windows before (``input_support``) are forgotten too."""
+        if self.support is not None:
+            self.support.reset()
         settings = self._track if isinstance(self._track, TrackerConfig) else None
         self.tracker = (Tracker(self.config, self.config.dt_us, settings, self.speed_scale.px_ms_per_mps)
                         if self._track is not False and self._track is not None else None)
@@ -226,6 +232,8 @@ class Pipeline:
 
     def __enter__(self) -> "Pipeline":
         warm_up()                    # the compiled kernels (every target de-duplicates pixels with them)
+        if self.support is not None:
+            support_warm_up()
         self.cascade.__enter__()
         self._entered = True
         return self
@@ -265,19 +273,21 @@ class Pipeline:
             n_events.tolist(), dec["speed_clipped"])]
 
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
-        """(t0_us, window) pairs in, WindowResult per window out, in order, streaming."""
+        """(t0_us, window) pairs in, WindowResult per window out, in order, streaming. Windows are
+        raw (the front end runs here); with ``input_support`` they come in time order, and the
+        Pipeline keeps the windows before over calls (``self.support``: a gap resets it)."""
         if not self._entered:
             with self:
                 yield from self.process_stream(windows)
             return
         dt = self.config.dt_us
-        norm, min_cluster = self.config.input_norm, self.config.input_min_cluster
+        cfg, hist = self.config, self.support
         pool = self.config.ofs_pool
         if self.sparse:
             for t0, x in windows:
                 self._check(x)
                 vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(np.asarray(x) > 0)
-                vol = vol.front_end(norm, min_cluster)
+                vol = front_end(vol, cfg, hist, int(t0))
                 grid, inverse = vol.pool(pool)               # the OFS grid (cascade.py)
                 res = self.cascade.cascade_sparse(grid)
                 frames = up_frames(res.frames, inverse)
@@ -290,8 +300,8 @@ class Pipeline:
         def dense():
             for t0, x in windows:
                 self._check(x)
-                vol = (x.front_end(norm, min_cluster) if isinstance(x, SpikeVolume)
-                       else SpikeVolume.from_dense(apply_dense(x, norm, min_cluster)))
+                vol = (front_end(x, cfg, hist, int(t0)) if isinstance(x, SpikeVolume)
+                       else SpikeVolume.from_dense(front_end(np.asarray(x), cfg, hist, int(t0))))
                 grid, inverse = vol.pool(pool)               # the OFS grid (cascade.py)
                 starts.append((int(t0), vol, grid, inverse))
                 yield grid.to_dense(np.uint8)
