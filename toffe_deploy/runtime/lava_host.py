@@ -127,18 +127,26 @@ def reclaim(shm_dir: str = SHM_DIR) -> Reclaimed:
 
 def unlink_prefix(prefix: str, shm_dir: str = SHM_DIR) -> int:
     """Unlink this process's segments that start with ``prefix`` (a runtime that was force-stopped);
-    they are also dropped from Python's resource tracker, which would otherwise warn at exit."""
+    they are also dropped from Python's resource tracker, which would otherwise warn at exit.
+
+    Only a segment this call unlinked is unregistered: the segment manager's process may unlink
+    (and unregister) the same one at the same moment, and a second UNREGISTER of a name makes the
+    tracker print a KeyError traceback on the shared stderr. Whoever's unlink succeeds
+    unregisters; the other's unlink fails before its unregister (SharedMemory.unlink)."""
     from multiprocessing import resource_tracker
 
     n = 0
     with contextlib.suppress(OSError):
         for name in os.listdir(shm_dir):
-            if name.startswith(prefix):
-                with contextlib.suppress(OSError):
-                    os.unlink(os.path.join(shm_dir, name))
-                    n += 1
-                with contextlib.suppress(Exception):
-                    resource_tracker.unregister("/" + name, "shared_memory")
+            if not name.startswith(prefix):
+                continue
+            try:
+                os.unlink(os.path.join(shm_dir, name))
+            except OSError:
+                continue                      # gone already: its unlinker unregistered it
+            n += 1
+            with contextlib.suppress(Exception):
+                resource_tracker.unregister("/" + name, "shared_memory")
     return n
 
 
