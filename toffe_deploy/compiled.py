@@ -1466,13 +1466,30 @@ def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of):
     per channel and slot marks the (c, pixel)s seen. No division per one: the index is sorted,
     so its plane b * C + c only steps up, and y, x come from a float estimate of p / W
     corrected by one. O(ones), no sorting."""
+    keep, slot, parent, pix, u = front_end_pass(idx, n_channels, n_pixels, width, first, min_size > 1, slot_of)
+    if min_size > 1:
+        size = cluster_sizes(parent, u)
+        for i in range(idx.shape[0]):
+            if keep[i]:
+                keep[i] = size[_root(parent, slot[i])] >= min_size
+    for q in range(u):
+        slot_of[pix[q]] = -1
+    return keep
+
+
+@njit(cache=True, nogil=True)
+def front_end_pass(idx, n_channels, n_pixels, width, first, link, slot_of):
+    """front_end_keep's pass over the ones: (keep (n,) of ``first`` alone, slot (n,) of each
+    one's pixel, parent (n,) union-find over slots (8-neighbour clusters when ``link``),
+    pix (n,) the pixel of each slot (pix[:u]: the window's event pixels, first seen first), u).
+    Leaves slot_of[p] = the slot of each event pixel p: the caller resets pix[:u] to -1."""
     n = idx.shape[0]
     keep = np.empty(n, np.bool_)
-    if n == 0:
-        return keep
     pix = np.empty(n, np.int64)
     slot = np.empty(n, np.int64)
     parent = np.empty(n, np.int64)
+    if n == 0:
+        return keep, slot, parent, pix, 0
     bits = np.zeros(n, np.int64)
     plane = idx[0] // n_pixels
     base = plane * n_pixels
@@ -1494,7 +1511,7 @@ def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of):
             slot_of[p] = u
             pix[u] = p
             parent[u] = u
-            if min_size > 1:
+            if link:
                 y = int(p * inv_w)
                 if y * width > p:
                     y -= 1
@@ -1526,16 +1543,16 @@ def front_end_keep(idx, n_channels, n_pixels, width, first, min_size, slot_of):
             bits[s] |= bit
         else:
             keep[i] = True
-    if min_size > 1:
-        size = np.zeros(u, np.int64)
-        for q in range(u):
-            size[_root(parent, q)] += 1
-        for i in range(n):
-            if keep[i]:
-                keep[i] = size[_root(parent, slot[i])] >= min_size
+    return keep, slot, parent, pix, u
+
+
+@njit(cache=True, nogil=True)
+def cluster_sizes(parent, u):
+    """(u,) the number of slots in each union-find root's set (0 at non-roots)."""
+    size = np.zeros(u, np.int64)
     for q in range(u):
-        slot_of[pix[q]] = -1
-    return keep
+        size[_root(parent, q)] += 1
+    return size
 
 
 @njit(cache=True, nogil=True)

@@ -31,7 +31,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .frontend import apply_dense
+from ..compiled import _root, cluster_sizes, front_end_pass, new_scratch
+from .frontend import _SLOTS, apply_dense, check_min_cluster, check_norm
 
 
 def event_pixels(volume: np.ndarray) -> np.ndarray:
@@ -71,40 +72,39 @@ def support_dense(volume: np.ndarray, norm: str, min_cluster: int, counts: np.nd
 
 
 @njit(cache=True, nogil=True)
-def _support_keep(idx, n_pixels, width, height, keep_base, keep_every, counts, radius, m, noise_factor,
-                  counts_total, mark, pixels):
-    """keep_base | (keep_every & S >= T) over the ones of a sorted linear index (module doc):
-    ``mark`` ((n_pixels,) uint8 zeros, left so) holds the window's event pixels while the box
-    sums are read; S is read only for the ones the cluster filter dropped. ``pixels`` (>= len(idx))
-    gets the window's event pixels, first seen first; returns (keep, their number)."""
-    n = idx.shape[0]
-    n_pix = 0
-    for i in range(n):
-        q = idx[i] % n_pixels
-        if mark[q] == 0:
-            mark[q] = 1
-            pixels[n_pix] = q
-            n_pix += 1
-    m = m + (noise_factor * (2 * radius + 1) ** 2 * (counts_total + n_pix)) // n_pixels
-    keep = keep_base.copy()
-    for i in range(n):
-        if keep_base[i] or not keep_every[i]:
-            continue
-        p = idx[i] % n_pixels
-        y = p // width
-        x = p - y * width
-        s = 0
-        for yy in range(max(0, y - radius), min(height, y + radius + 1)):
-            row = yy * width
-            for xx in range(max(0, x - radius), min(width, x + radius + 1)):
-                s += np.int64(counts[row + xx]) + np.int64(mark[row + xx])
-        keep[i] = s >= m
-    for i in range(n_pix):
-        mark[pixels[i]] = 0
-    return keep, n_pix
-
-
-_MARKS: dict[int, np.ndarray] = {}
+def support_keep(idx, n_channels, n_pixels, width, height, first, min_size, slot_of, counts, radius, m, noise_factor,
+                 counts_total):
+    """The front end with temporal support over a sorted linear index of ones, in one pass
+    (compiled.front_end_pass, as front_end_keep): a one that ``first`` keeps stays when its
+    pixel's cluster has >= min_size pixels or S >= T (module doc). While the pass's slots are
+    set, slot_of[q] >= 0 marks the window's event pixels, so S = box sum of counts + marks;
+    S is read once per dropped pixel. Returns (keep, the window's event pixels, first seen
+    first: what SupportHistory.push takes); leaves slot_of all -1."""
+    keep, slot, parent, pix, u = front_end_pass(idx, n_channels, n_pixels, width, first, min_size > 1, slot_of)
+    if min_size > 1:
+        t = m + (noise_factor * (2 * radius + 1) ** 2 * (counts_total + u)) // n_pixels
+        size = cluster_sizes(parent, u)
+        passed = np.zeros(u, np.int8)           # per slot: 0 not read yet, 1 S >= T, -1 S < T
+        for i in range(idx.shape[0]):
+            if not keep[i]:
+                continue
+            q = slot[i]
+            if size[_root(parent, q)] >= min_size:
+                continue
+            if passed[q] == 0:
+                p = pix[q]
+                y = p // width
+                x = p - y * width
+                s = 0
+                for yy in range(max(0, y - radius), min(height, y + radius + 1)):
+                    row = yy * width
+                    for xx in range(max(0, x - radius), min(width, x + radius + 1)):
+                        s += np.int64(counts[row + xx]) + (slot_of[row + xx] >= 0)
+                passed[q] = 1 if s >= t else -1
+            keep[i] = passed[q] > 0
+    for q in range(u):
+        slot_of[pix[q]] = -1
+    return keep, pix[:u]
 
 
 def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluster: int, counts: np.ndarray,
@@ -112,13 +112,9 @@ def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluste
                   return_pixels: bool = False):
     """The same on a sorted unique linear index of ones into a (B, C, H, W) volume; ``counts`` an
     (H, W) or (H * W,) uint8 count image, ``counts_total`` its sum (a streaming caller keeps it;
-    None: summed here, only when noise_factor > 0). Two passes of compiled.front_end_keep (with and
-    without the cluster filter) and one that reads box sums around the ones it dropped.
+    None: summed here, only when noise_factor > 0). One compiled pass (support_keep).
     Returns a sorted index; with ``return_pixels`` also the window's event pixels (unique linear
     y * W + x, unsorted: what SupportHistory.push takes)."""
-    from ..compiled import front_end_keep, new_scratch
-    from .frontend import _SLOTS, check_min_cluster, check_norm
-
     idx = np.asarray(idx, dtype=np.int64)
     if idx.size == 0:
         return (idx, idx) if return_pixels else idx
@@ -128,17 +124,12 @@ def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluste
     slots = _SLOTS.get(n_pixels)
     if slots is None:
         slots = _SLOTS[n_pixels] = new_scratch(n_pixels)
-    every = front_end_keep(idx, c, n_pixels, w, first, 1, slots)
-    base = front_end_keep(idx, c, n_pixels, w, first, check_min_cluster(min_cluster), slots)
-    mark = _MARKS.get(n_pixels)
-    if mark is None:
-        mark = _MARKS[n_pixels] = np.zeros(n_pixels, np.uint8)
     cnt = np.ascontiguousarray(counts, np.uint8).reshape(-1)
     total = int(cnt.sum(dtype=np.int64)) if counts_total is None and noise_factor else int(counts_total or 0)
-    pixels = np.empty(idx.size, np.int64)
-    keep, n_pix = _support_keep(idx, n_pixels, w, h, base, every, cnt, int(radius), int(m), int(noise_factor), total,
-                                mark, pixels)
-    return (idx[keep], pixels[:n_pix]) if return_pixels else idx[keep]
+    keep, pixels = support_keep(idx, c, n_pixels, w, h, first, check_min_cluster(min_cluster), slots, cnt, int(radius),
+                                int(m), int(noise_factor), total)
+    kept = idx.compress(keep)
+    return (kept, pixels) if return_pixels else kept
 
 
 class SupportHistory:
