@@ -575,13 +575,26 @@ def _union(parent, a, b):
 
 @njit(cache=True, nogil=True)
 def row_major(xs, ys):
-    """(order (n,), row_start (R + 1,), y0): the pixels (non-empty) in row-major order, by a
-    counting sort on the rows y0..y0 + R - 1 and a sort of each row by x (insertion sort for
-    the short rows of edges, argsort for long ones); row r's pixels are order[row_start[r]:
-    row_start[r + 1]]."""
+    """(order (n,), row_start (R + 1,), y0): the pixels (non-empty) in row-major order, by two
+    stable counting sorts, on x over x0..x0 + X - 1, then on the rows y0..y0 + R - 1: O(n + X + R),
+    no comparisons (the pixels of a window come as runs of sorted planes, which cost an insertion
+    sort many moves); row r's pixels are order[row_start[r]:row_start[r + 1]], by x, equal
+    pixels in input order."""
     n = xs.shape[0]
     y0 = ys.min()
     n_rows = ys.max() - y0 + 1
+    x0 = xs.min()
+    n_cols = xs.max() - x0 + 1
+    col_start = np.zeros(n_cols + 1, np.int64)
+    for i in range(n):
+        col_start[xs[i] - x0 + 1] += 1
+    for c in range(n_cols):
+        col_start[c + 1] += col_start[c]
+    by_x = np.empty(n, np.int64)
+    for i in range(n):
+        c = xs[i] - x0
+        by_x[col_start[c]] = i
+        col_start[c] += 1
     row_start = np.zeros(n_rows + 1, np.int64)
     for i in range(n):
         row_start[ys[i] - y0 + 1] += 1
@@ -589,25 +602,11 @@ def row_major(xs, ys):
         row_start[r + 1] += row_start[r]
     fill = row_start[:n_rows].copy()
     order = np.empty(n, np.int64)
-    for i in range(n):
+    for a in range(n):
+        i = by_x[a]
         r = ys[i] - y0
         order[fill[r]] = i
         fill[r] += 1
-    for r in range(n_rows):
-        lo = row_start[r]
-        hi = row_start[r + 1]
-        if hi - lo > 32:
-            seg = order[lo:hi].copy()
-            order[lo:hi] = seg[np.argsort(xs[seg])]
-            continue
-        for a in range(lo + 1, hi):
-            v = order[a]
-            xv = xs[v]
-            b = a - 1
-            while b >= lo and xs[order[b]] > xv:
-                order[b + 1] = order[b]
-                b -= 1
-            order[b + 1] = v
     return order, row_start, y0
 
 
@@ -1213,14 +1212,28 @@ def crop_pool(extent, g, pool_min, pool_max):
 
 
 @njit(cache=True, nogil=True)
-def frame_pixels(frames, pix_inverse, ux, uy):
-    """The unique pixels of a window's stage frames: frames (N, n) bool over the window's ones,
-    pix_inverse (n,) the window pixel of each one, (ux, uy) the window pixels' coordinates.
-    Returns (xs, ys (M,) the pixels of frame 0, then frame 1, ..., each frame's in order of
-    first appearance, starts (N + 1,) where each frame's begin, every (E,) the ones in any
-    frame, in order)."""
+def frame_pixels(frames, pix_inverse, upix, width, plane, n_channels):
+    """The unique pixels of a window's stage frames and the ones in any frame: frames (N, n)
+    bool over the window's ones, pix_inverse (n,) the window pixel of each one, upix (U,) the
+    window pixels (linear y * W + x), plane (n,) each one's b * C + c. Returns (xs, ys (M,) the
+    pixels of frame 0, then frame 1, ..., each frame's in order of first appearance, starts
+    (N + 1,) where each frame's begin, then for the ones in any frame, in order: their window
+    pixel ev_u, x, y and OFPD channel 2 b + c (E,))."""
     n_frames, n = frames.shape
-    stamp = np.full(ux.shape[0], -1, np.int64)
+    n_u = upix.shape[0]
+    ux = np.empty(n_u, np.int64)
+    uy = np.empty(n_u, np.int64)
+    inv_w = 1.0 / width
+    for u in range(n_u):                       # y = p // W by a float estimate corrected by one
+        p = upix[u]
+        y = int(p * inv_w)
+        if y * width > p:
+            y -= 1
+        elif (y + 1) * width <= p:
+            y += 1
+        uy[u] = y
+        ux[u] = p - y * width
+    stamp = np.full(n_u, -1, np.int64)
     xs = np.empty(n_frames * n, np.int64)
     ys = np.empty(n_frames * n, np.int64)
     starts = np.zeros(n_frames + 1, np.int64)
@@ -1237,7 +1250,24 @@ def frame_pixels(frames, pix_inverse, ux, uy):
                     ys[m] = uy[u]
                     m += 1
         starts[k + 1] = m
-    return xs[:m], ys[:m], starts, np.flatnonzero(in_any)
+    n_ev = 0
+    for i in range(n):
+        n_ev += in_any[i]
+    ev_u = np.empty(n_ev, np.int64)
+    fx = np.empty(n_ev, np.int64)
+    fy = np.empty(n_ev, np.int64)
+    ch = np.empty(n_ev, np.int64)
+    e = 0
+    for i in range(n):
+        if in_any[i]:
+            u = pix_inverse[i]
+            ev_u[e] = u
+            fx[e] = ux[u]
+            fy[e] = uy[u]
+            pl = plane[i]
+            ch[e] = pl if n_channels == 2 else (pl // n_channels) * 2 + pl % n_channels
+            e += 1
+    return xs[:m], ys[:m], starts, ev_u, fx, fy, ch
 
 
 @njit(cache=True, nogil=True)
@@ -1738,7 +1768,7 @@ def warm_up() -> None:
     in_rects(i64, i64, np.zeros((1, 4), np.int64))
     claimed_by(i64, i64, i64, 1, scratch)
     crop_pool(1, 1, 1, 1)
-    frame_pixels(np.ones((1, 1), np.bool_), i64, i64, i64)
+    frame_pixels(np.ones((1, 1), np.bool_), i64, i64, 1, i64, 2)
     object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2)
     object_input(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2, 5, 1, 1000.0)
     crop_origin(i64, i64, 1, 2, 2)

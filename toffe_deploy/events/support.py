@@ -132,6 +132,19 @@ def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluste
     return (kept, pixels) if return_pixels else kept
 
 
+_NONE = np.zeros(0, np.int64)
+
+
+@njit(cache=True, nogil=True)
+def _shift_counts(counts, add, sub):
+    """counts[sub] -= 1, counts[add] += 1 (unique indices each): numpy's two fancy-index
+    updates in one compiled pass, ~10x cheaper on a window's ~1,000 pixels."""
+    for i in range(sub.shape[0]):
+        counts[sub[i]] -= 1
+    for i in range(add.shape[0]):
+        counts[add[i]] += 1
+
+
 class SupportHistory:
     """The event pixels of the last K windows (a ring of their linear pixel indices) and their
     (H * W,) uint8 count image ``counts`` with sum ``total``: what ``front_end`` reads as the
@@ -161,7 +174,7 @@ class SupportHistory:
             self.reset()
             return
         for _ in range(min(gap // self.dt_us - 1, self.k)):
-            self._push(np.zeros(0, np.int64))
+            self._push(_NONE)
 
     def push(self, t0: int, pixels: np.ndarray) -> None:
         """Add the window at t0 (``advance`` to it first): ``pixels`` its unique linear pixel
@@ -171,12 +184,9 @@ class SupportHistory:
         self.last_t0 = int(t0)
 
     def _push(self, pixels: np.ndarray) -> None:
-        if len(self._ring) == self.k:
-            old = self._ring.pop(0)
-            self.counts[old] -= 1
-            self.total -= old.size
-        self.counts[pixels] += 1
-        self.total += pixels.size
+        old = self._ring.pop(0) if len(self._ring) == self.k else _NONE
+        _shift_counts(self.counts, pixels, old)
+        self.total += pixels.size - old.size
         self._ring.append(pixels)
 
     @classmethod
@@ -259,6 +269,7 @@ def sampled_index(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) the support kernel before the first window is timed."""
-    support_index(np.zeros(1, np.int64), (1, 2, 1, 1), "first", 2, np.zeros(1, np.uint8), 1, 1, 1, 0,
-                  return_pixels=True)
+    """Compile (or load from numba's cache) the support kernels before the first window is timed."""
+    _idx, pixels = support_index(np.zeros(1, np.int64), (1, 2, 1, 1), "first", 2, np.zeros(1, np.uint8), 1, 1, 1, 0,
+                                 return_pixels=True)
+    _shift_counts(np.zeros(1, np.uint8), pixels, pixels)

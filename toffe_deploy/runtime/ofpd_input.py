@@ -77,19 +77,13 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     """
     _b, nc, h, w = volume.shape
     upix, pinv = volume.pixel_index(scratch)
-    uy = upix // w                    # np.divmod's, for ids >= 0, at half its cost (libdivide's //)
-    ux = upix - uy * w
     stacked = (frames if isinstance(frames, np.ndarray) else       # the cpu cascade's (N, n) array as it is
                np.stack(frames) if len(frames) else np.zeros((0, len(pinv)), bool))
-    sx, sy, starts, every = frame_pixels(stacked,
-                                         pinv, ux, uy)
+    sx, sy, starts, ev_u, fx, fy, ch = frame_pixels(stacked, pinv, upix, w, volume.bc, nc)
     objs, claims = group_objects_flat(sx, sy, starts, (w, h), config)
     if not objs:
         c, g, _ = input_shape(config)
         return np.zeros(0, dtype=np.int64), np.zeros((0, c, g, g), np.float32), np.zeros(0, dtype=np.int64)
-    ev_u = pinv[every]
-    fx, fy = ux[ev_u], uy[ev_u]
-    ch = volume.bc[every] if nc == 2 else volume.b[every] * 2 + volume.c[every]
     s = ofpd_settings(config)
     c, g, _ = input_shape(config)
     x, n_ev = object_input(claims.matrix(fx, fy, len(objs), scratch), fx, fy, ch, ev_u, upix.shape[0],
