@@ -79,18 +79,23 @@ def support_keep(idx, n_channels, n_pixels, width, height, first, min_size, slot
     pixel's cluster has >= min_size pixels or S >= T (module doc). While the pass's slots are
     set, slot_of[q] >= 0 marks the window's event pixels, so S = box sum of counts + marks;
     S is read once per dropped pixel. Returns (keep, the window's event pixels, first seen
-    first: what SupportHistory.push takes); leaves slot_of all -1."""
+    first: what SupportHistory.push takes, and the kept ones' SpikeVolume.pixel_index: their
+    unique pixels, first seen first, and inverse, as compiled.dedupe gives them); leaves
+    slot_of all -1."""
     keep, slot, parent, pix, u = front_end_pass(idx, n_channels, n_pixels, width, first, min_size > 1, slot_of)
-    if min_size > 1:
-        t = m + (noise_factor * (2 * radius + 1) ** 2 * (counts_total + u)) // n_pixels
-        size = cluster_sizes(parent, u)
-        passed = np.zeros(u, np.int8)           # per slot: 0 not read yet, 1 S >= T, -1 S < T
-        for i in range(idx.shape[0]):
-            if not keep[i]:
-                continue
-            q = slot[i]
-            if size[_root(parent, q)] >= min_size:
-                continue
+    t = m + (noise_factor * (2 * radius + 1) ** 2 * (counts_total + u)) // n_pixels
+    size = cluster_sizes(parent, u) if min_size > 1 else np.zeros(0, np.int64)
+    passed = np.zeros(u, np.int8)               # per slot: 0 not read yet, 1 S >= T, -1 S < T
+    new_of = np.full(u, -1, np.int64)           # slot -> index among the kept ones' pixels
+    upix = np.empty(u, np.int64)
+    inverse = np.empty(idx.shape[0], np.int64)
+    nu = 0
+    e = 0
+    for i in range(idx.shape[0]):
+        if not keep[i]:
+            continue
+        q = slot[i]
+        if min_size > 1 and size[_root(parent, q)] < min_size:
             if passed[q] == 0:
                 p = pix[q]
                 y = p // width
@@ -101,10 +106,18 @@ def support_keep(idx, n_channels, n_pixels, width, height, first, min_size, slot
                     for xx in range(max(0, x - radius), min(width, x + radius + 1)):
                         s += np.int64(counts[row + xx]) + (slot_of[row + xx] >= 0)
                 passed[q] = 1 if s >= t else -1
-            keep[i] = passed[q] > 0
+            if passed[q] < 0:
+                keep[i] = False
+                continue
+        if new_of[q] < 0:
+            new_of[q] = nu
+            upix[nu] = pix[q]
+            nu += 1
+        inverse[e] = new_of[q]
+        e += 1
     for q in range(u):
         slot_of[pix[q]] = -1
-    return keep, pix[:u]
+    return keep, pix[:u], upix[:nu], inverse[:e]
 
 
 def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluster: int, counts: np.ndarray,
@@ -115,9 +128,17 @@ def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluste
     None: summed here, only when noise_factor > 0). One compiled pass (support_keep).
     Returns a sorted index; with ``return_pixels`` also the window's event pixels (unique linear
     y * W + x, unsorted: what SupportHistory.push takes)."""
+    kept, pixels, _pixel_index = _support_run(idx, shape, norm, min_cluster, counts, radius, m, noise_factor,
+                                              counts_total)
+    return (kept, pixels) if return_pixels else kept
+
+
+def _support_run(idx, shape, norm, min_cluster, counts, radius, m, noise_factor=0, counts_total=None):
+    """support_index's (kept index, the window's event pixels, (unique pixels, inverse) of the
+    kept ones or None when there are none)."""
     idx = np.asarray(idx, dtype=np.int64)
     if idx.size == 0:
-        return (idx, idx) if return_pixels else idx
+        return idx, idx, None
     c, h, w = int(shape[1]), int(shape[2]), int(shape[3])
     n_pixels = h * w
     first = check_norm(norm) == "first"
@@ -126,10 +147,9 @@ def support_index(idx: np.ndarray, shape: tuple[int, ...], norm: str, min_cluste
         slots = _SLOTS[n_pixels] = new_scratch(n_pixels)
     cnt = np.ascontiguousarray(counts, np.uint8).reshape(-1)
     total = int(cnt.sum(dtype=np.int64)) if counts_total is None and noise_factor else int(counts_total or 0)
-    keep, pixels = support_keep(idx, c, n_pixels, w, h, first, check_min_cluster(min_cluster), slots, cnt, int(radius),
-                                int(m), int(noise_factor), total)
-    kept = idx.compress(keep)
-    return (kept, pixels) if return_pixels else kept
+    keep, pixels, upix, inverse = support_keep(idx, c, n_pixels, w, h, first, check_min_cluster(min_cluster), slots,
+                                               cnt, int(radius), int(m), int(noise_factor), total)
+    return idx.compress(keep), pixels, (upix, inverse)
 
 
 _NONE = np.zeros(0, np.int64)
@@ -231,10 +251,13 @@ def front_end(volume, config, history: "SupportHistory | None" = None, t0: int |
         out = support_dense(volume, norm, min_cluster, history.counts.reshape(pix.shape), r, m, c)
         history.push(t0, np.flatnonzero(pix))
         return out
-    idx, pixels = support_index(volume.idx, volume.shape, norm, min_cluster, history.counts, r, m, c, history.total,
-                                return_pixels=True)
+    idx, pixels, pixel_index = _support_run(volume.idx, volume.shape, norm, min_cluster, history.counts, r, m, c,
+                                            history.total)
     history.push(t0, pixels)
-    return type(volume)(idx, volume.shape)
+    out = type(volume)(idx, volume.shape)
+    if pixel_index is not None:
+        out.__dict__["_pixel_index"] = pixel_index      # = out.pixel_index(scratch), made in the same pass
+    return out
 
 
 def sampled_window(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int]) -> np.ndarray:
