@@ -5,7 +5,10 @@ import numpy as np
 import pytest
 
 from toffe_deploy.events.frontend import apply_dense
-from toffe_deploy.events.support import event_pixels, history_counts, support_dense, support_index
+from toffe_deploy.compiled import dedupe, new_scratch
+from toffe_deploy.config import ToffeConfig
+from toffe_deploy.events.support import SupportHistory, event_pixels, front_end, history_counts, support_dense, support_index
+from toffe_deploy.runtime.spikes import SpikeVolume
 
 
 def _window(pixels, shape=(5, 2, 12, 16)):
@@ -73,3 +76,26 @@ def test_noise_factor_raises_the_threshold_with_the_event_density():
     noisy[:, 10:] += 4                                                          # far from the edge: E up, S the same
     assert not support_dense(vol, "first", 4, noisy, 1, 6, 2).any()
     assert support_dense(vol, "first", 4, noisy, 1, 6, 0).sum() == len(edge)
+
+
+def test_streamed_front_end_gives_the_kept_pixel_index_and_the_history_counts(rng):
+    """front_end on a SpikeVolume: the same ones as the dense form, the pixel_index it leaves on
+    the volume is compiled.dedupe's of the kept ones, and the history's counts (compiled
+    update) are the sum of the last K windows' event pixels."""
+    shape = (5, 2, 18, 22)
+    cfg = ToffeConfig(sensor_size=(22, 18), input_min_cluster=3, input_support=(3, 1, 3, 1))
+    hist = SupportHistory(3, (22, 18), cfg.dt_us)
+    dense_hist = SupportHistory(3, (22, 18), cfg.dt_us)
+    seen = []
+    for i in range(8):
+        t0 = i * cfg.dt_us
+        vol = rng.random(shape) < 0.05
+        want = front_end(vol, cfg, dense_hist, t0)
+        got = front_end(SpikeVolume.from_dense(vol), cfg, hist, t0)
+        assert np.array_equal(got.to_dense(), want)
+        upix, inv = got.__dict__["_pixel_index"]
+        ref_u, ref_inv = dedupe(got.idx % (18 * 22), new_scratch(18 * 22))
+        assert np.array_equal(upix, ref_u) and np.array_equal(inv, ref_inv)
+        seen.append(event_pixels(vol))
+        assert np.array_equal(hist.counts, history_counts(seen[-3:]).reshape(-1))
+        assert hist.total == int(history_counts(seen[-3:]).sum())

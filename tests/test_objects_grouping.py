@@ -325,3 +325,24 @@ def test_stage_is_the_fastest_holding_min_events():
     objs, claims = ofpd_io.group_objects_xy(stages(e & ~s4 & ~s3, None, s3, s4), SENSOR, CFG)
     assert [o[0] for o in objs] == [2]
     assert ofpd_io.object_masks_xy(xs, ys, objs, claims)[0].all()
+
+
+def test_row_major_and_link_components_on_shuffled_pixels_with_repeats(rng):
+    """compiled.row_major (two counting sorts) gives the stable (y, x) order of any input order,
+    repeated pixels included, and link_components' labels do not depend on the input order."""
+    from toffe_deploy.compiled import link_components, row_major
+
+    for t in range(40):
+        n = int(rng.integers(1, 200))
+        xs = rng.integers(3, 3 + int(rng.integers(1, 60)), n).astype(np.int64)
+        ys = rng.integers(5, 5 + int(rng.integers(1, 40)), n).astype(np.int64)
+        order, row_start, y0 = row_major(xs, ys)
+        assert np.array_equal(order, np.lexsort((xs, ys)))                 # stable: repeats in input order
+        assert y0 == ys.min() and np.array_equal(np.diff(row_start), np.bincount(ys - y0))
+        u = np.unique(ys * 64 + xs)
+        ux, uy = u % 64, u // 64
+        perm = rng.permutation(u.size)
+        link = int(rng.integers(1, 4))
+        labels, k = link_components(ux, uy, link, 64)
+        labels_p, k_p = link_components(ux[perm], uy[perm], link, 64)
+        assert k == k_p and np.array_equal(labels_p, labels[perm])
