@@ -239,8 +239,15 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
     frames = np.zeros((n_st, n), np.bool_)
     alive = np.ones(n, np.bool_)
     # ofs_stage's scatter without its branch: an off-sensor tap (target -1) adds into the dummy
-    # last column m of a_in, where index -1 lands (numba wraps negative indices as numpy does)
-    a_in = np.empty((n_bins, m + 1), np.int64)
+    # last column m of a_in; flat, with unsigned targets (no test for a negative index per add)
+    mm = m + 1
+    a_flat = np.empty(n_bins * mm, np.int64)
+    a_in = a_flat.reshape(n_bins, mm)
+    n_in = tap_target.shape[0]
+    target = np.empty((n_in, kk), np.uint64)
+    for q in range(n_in):
+        for j in range(kk):
+            target[q, j] = m if tap_target[q, j] < 0 else tap_target[q, j]
     # rows and columns of the active and input pixels, once per window (closed_at)
     inv_w = 1.0 / width
     act_r = np.empty(m, np.int64)
@@ -256,14 +263,15 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
         in_c[q] = input_pixels[q] - in_r[q] * width
     for k in range(n_st - 1, -1, -1):
         inputs[k] = alive
-        a_in[:] = 0
+        a_flat[:] = 0
+        w_k = weights[k]
         for i in range(n):
             if alive[i]:
                 q = pix_inverse[i]
-                t = b[i]
+                row = np.uint64(b[i] * mm)
                 ch = c[i]
                 for j in range(kk):
-                    a_in[t, tap_target[q, j]] += weights[k, ch, j]
+                    a_flat[row + target[q, j]] += w_k[ch, j]
         sp = lif_window(a_in, dv[k], vth_mant[k], reset_zero[k])
         n_fired = 0
         for t in range(n_bins):
