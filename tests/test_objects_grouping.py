@@ -346,3 +346,35 @@ def test_row_major_and_link_components_on_shuffled_pixels_with_repeats(rng):
         labels, k = link_components(ux, uy, link, 64)
         labels_p, k_p = link_components(ux[perm], uy[perm], link, 64)
         assert k == k_p and np.array_equal(labels_p, labels[perm])
+
+
+def test_union_objects_claims_are_the_stage_order_claims_sorted_stably(rng):
+    """compiled.union_objects' claims (keys sorted, owner) are the claimed stage pixels taken
+    fastest stage first and sorted stably by key, whether the stages' pixels are disjoint (the
+    row-major walk) or repeat across stages (the sort)."""
+    from toffe_deploy.compiled import union_objects
+
+    n_checked = 0
+    for t in range(60):
+        xs, ys, starts, seen = [], [], [0], np.zeros(0, np.int64)
+        for i in range(int(rng.integers(1, 5))):
+            cx, cy = rng.integers(0, 60, 2)
+            k = int(rng.integers(0, 120))
+            key = np.unique(np.clip(cy + rng.integers(-8, 9, k), 0, 47) * 64 + np.clip(cx + rng.integers(-8, 9, k), 0, 63))
+            if t % 2:                                            # disjoint stages, as the cascade gives them
+                key = np.setdiff1d(key, seen)
+                seen = np.union1d(seen, key)
+            key = rng.permutation(key)
+            xs.append(key % 64)
+            ys.append(key // 64)
+            starts.append(starts[-1] + key.size)
+        xs, ys = np.concatenate(xs).astype(np.int64), np.concatenate(ys).astype(np.int64)
+        starts = np.array(starts, np.int64)
+        _stage, _cx, _cy, owner, keys, own = union_objects(xs, ys, starts, 64, 2, 0.2, 1.5, 6, 2)
+        order = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in range(len(starts) - 2, -1, -1)])
+        order = order[owner[order] >= 0]
+        ref_keys = ys[order] * 64 + xs[order]
+        srt = np.argsort(ref_keys, kind="stable")
+        assert np.array_equal(keys, ref_keys[srt]) and np.array_equal(own, owner[order][srt])
+        n_checked += keys.size
+    assert n_checked > 500

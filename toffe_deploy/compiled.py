@@ -620,9 +620,16 @@ def row_major(xs, ys):
 
 @njit(cache=True, nogil=True)
 def link_components(xs, ys, link, width):
+    """Connected components of unique pixels (xs, ys) (link_components_ordered's labels, C)."""
+    labels, c, _order = link_components_ordered(xs, ys, link, width)
+    return labels, c
+
+
+@njit(cache=True, nogil=True)
+def link_components_ordered(xs, ys, link, width):
     """Connected components of unique pixels (xs, ys) where two pixels are linked when
     max(|dx|, |dy|) <= link: (labels (n,) 0..C-1 numbered by each component's first pixel in
-    row-major order, C).
+    row-major order, C, the pixels in row-major order (row_major's order)).
 
     On runs, not pixels: the pixels of a row (row_major) split into runs where consecutive
     pixels are <= link apart (each run is connected). Two runs [a0, a1], [b0, b1] of rows
@@ -633,7 +640,7 @@ def link_components(xs, ys, link, width):
     n = xs.shape[0]
     labels = np.empty(n, np.int64)
     if n == 0:
-        return labels, 0
+        return labels, 0, np.empty(0, np.int64)
     order, row_start, y0 = row_major(xs, ys)
     n_rows = row_start.shape[0] - 1
     run_x0 = np.empty(n, np.int64)
@@ -676,7 +683,7 @@ def link_components(xs, ys, link, width):
             c += 1
     for a in range(n):
         labels[order[a]] = label_of_root[_root(parent, run_of[a])]
-    return labels, c
+    return labels, c, order
 
 
 @njit(cache=True, nogil=True)
@@ -1093,7 +1100,7 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
     stage_of = np.empty(n, np.int64)
     for i in range(n_stages):
         stage_of[starts[i]:starts[i + 1]] = i
-    labels, n_comp = link_components(xs, ys, link, width)
+    labels, n_comp, order = link_components_ordered(xs, ys, link, width)
     count, _sx, _sy, bbox = component_stats(labels, n_comp, xs, ys)
     first, count1, box1, _closed1 = merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count)
     inside = np.flatnonzero(first[labels] >= 0)                # the same rule once more, on the groups
@@ -1140,6 +1147,24 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
                 g += 1
     claim_key = np.empty(n, np.int64)
     claim_own = np.empty(n, np.int64)
+    # the claims sorted by key: the claimed pixels in row-major order, when no pixel repeats
+    # (the stages' pixels are disjoint); a repeat takes the stable sort of the stage-order claims
+    m = 0
+    repeats = False
+    for a in range(n):
+        p = order[a]
+        q = comp_group[labels[p]]
+        if q >= 0 and obj_of[q] >= 0:
+            owner[p] = obj_of[q]
+            key = ys[p] * width + xs[p]
+            if m > 0 and key == claim_key[m - 1]:
+                repeats = True
+                break
+            claim_key[m] = key
+            claim_own[m] = obj_of[q]
+            m += 1
+    if not repeats:
+        return o_stage[:g].copy(), o_cx[:g].copy(), o_cy[:g].copy(), owner, claim_key[:m].copy(), claim_own[:m].copy()
     m = 0
     for i in range(n_stages - 1, -1, -1):                      # claims stage by stage, fastest first
         for p in range(starts[i], starts[i + 1]):
