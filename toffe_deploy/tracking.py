@@ -186,9 +186,25 @@ class Detections:
     @classmethod
     def of(cls, objects) -> "Detections":
         """From objects with x, y, direction_rad, speed_px_s and speed_bin (pipeline.ObjectFlow)."""
-        rows = [(o.x, o.y, o.speed_px_s * math.cos(o.direction_rad), o.speed_px_s * math.sin(o.direction_rad),
-                 o.speed_px_s, o.speed_bin) for o in objects]
-        return cls(np.array(rows, dtype=_F).reshape(-1, 6))
+        return cls(_detections(raw_detections(objects)))
+
+
+def raw_detections(objects) -> np.ndarray:
+    """x, y, direction_rad, speed_px_s, speed_bin of each object, flat (n * 5,) float64: the one
+    pass over the objects' attributes a window needs (one flat list: numpy converts it faster
+    than a list of rows)."""
+    return np.array([v for o in objects for v in (o.x, o.y, o.direction_rad, o.speed_px_s, o.speed_bin)], _F)
+
+
+@njit(cache=True, nogil=True)
+def _detections(zr):
+    """Detections.a (n, 6) of raw_detections' flat (n * 5,) array (velocity from direction and speed)."""
+    zr = zr.reshape(-1, 5)
+    z = np.empty((zr.shape[0], 6))
+    for k in range(zr.shape[0]):
+        z[k, 0], z[k, 1], z[k, 4], z[k, 5] = zr[k, 0], zr[k, 1], zr[k, 3], zr[k, 4]
+        z[k, 2], z[k, 3] = zr[k, 3] * math.cos(zr[k, 2]), zr[k, 3] * math.sin(zr[k, 2])
+    return z
 
 
 @dataclass(frozen=True)
@@ -208,7 +224,8 @@ class BinEdges:
 
 #: entries of the settings vector the compiled loops take (``params``)
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
- P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE) = range(19)
+ P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
+ P_REPORT) = range(20)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -217,7 +234,7 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
                      cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
                      cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion), cfg.turn_beta,
-                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px],
+                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses],
                     dtype=_F)
 
 
@@ -398,6 +415,43 @@ def _step_simple(t, z, p, lo, hi, inner, next_id):
     return out, assigned, next_id, True
 
 
+@njit(cache=True, nogil=True)
+def _listing(out, assigned, p):
+    """What Tracker.update hands out, as one int64 array (one result to box, one ``tolist``):
+    each detection's row in ``out`` (-1: none), each detection's track id (-1: none), then the
+    rows of the confirmed tracks listed as coasting (missed, for their first report_misses
+    misses or while occluded)."""
+    n_d = assigned.shape[0]
+    n_c = 0
+    for i in range(out.shape[0]):
+        n_c += out[i, CONF] > 0 and out[i, MISS] > 0 and (out[i, MISS] <= p[P_REPORT] or out[i, OCC] > 0)
+    info = np.empty(2 * n_d + n_c, np.int64)
+    for k in range(n_d):
+        info[k] = assigned[k]
+        info[n_d + k] = int(out[assigned[k], ID]) if assigned[k] >= 0 else -1
+    m = 2 * n_d
+    for i in range(out.shape[0]):
+        if out[i, CONF] > 0 and out[i, MISS] > 0 and (out[i, MISS] <= p[P_REPORT] or out[i, OCC] > 0):
+            info[m] = i
+            m += 1
+    return info
+
+
+N_P = P_REPORT + 1
+
+
+@njit(cache=True, nogil=True)
+def _window(t, zr, pe, next_id):
+    """Tracker.update's window in one compiled call when the gates pair tracks and detections
+    unambiguously (``_step_simple`` on raw_detections' array): -> (tracks, _listing, next id,
+    done); ``done`` False: the caller runs ``_step_matched`` (the Hungarian method). pe: params
+    then the bin edges lo, hi, inner (one argument: numba's dispatch cost grows with their number)."""
+    n = (pe.shape[0] - N_P + 1) // 3
+    p, lo, hi, inner = pe[:N_P], pe[N_P:N_P + n], pe[N_P + n:N_P + 2 * n], pe[N_P + 2 * n:]
+    out, assigned, nid, done = _step_simple(t, _detections(zr), p, lo, hi, inner, next_id)
+    return out, _listing(out, assigned, p) if done else assigned, nid, done
+
+
 def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edges: BinEdges,
          next_id: int, p: np.ndarray | None = None) -> tuple[Tracks, np.ndarray, int]:
     """One window of tracking (module doc): -> (live tracks, assigned track row of each detection
@@ -408,23 +462,29 @@ def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edge
     t, z = tracks.a, dets.a
     p = params(cfg, dt_s) if p is None else p
     out, assigned, nid, done = _step_simple(t, z, p, edges.lo, edges.hi, edges.inner, int(next_id))
-    if not done:                                             # confirmed tracks first, then tentative ones
-        a, d, ok, _simple = _predict(t, z, p)
-        conf = t[:, CONF] > 0
-        pairs = match_within(d, ok & conf[:, None])
-        taken = np.zeros(z.shape[0], bool)
-        taken[[c for _r, c in pairs]] = True
-        pairs += match_within(d, ok & ~conf[:, None] & ~taken[None, :])
-        r, j = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
-        out, assigned, nid = _update(a, t, z, np.ascontiguousarray(r), np.ascontiguousarray(j), d, p, edges.lo,
-                                     edges.hi, edges.inner, int(next_id))
+    if not done:
+        out, assigned, nid = _step_matched(t, z, p, edges, nid)
     return Tracks(out), assigned, int(nid)
+
+
+def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, next_id: int):
+    """``step`` where a gate holds two candidates: the Hungarian method on the gated distances,
+    confirmed tracks first, then tentative ones -> (tracks array, assigned, next id)."""
+    a, d, ok, _simple = _predict(t, z, p)
+    conf = t[:, CONF] > 0
+    pairs = match_within(d, ok & conf[:, None])
+    taken = np.zeros(z.shape[0], bool)
+    taken[[c for _r, c in pairs]] = True
+    pairs += match_within(d, ok & ~conf[:, None] & ~taken[None, :])
+    r, j = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
+    return _update(a, t, z, np.ascontiguousarray(r), np.ascontiguousarray(j), d, p, edges.lo, edges.hi, edges.inner,
+                   int(next_id))
 
 
 class Tracker:
     """Stateful wrapper of ``step`` for a stream of windows: ``update(objects, t0_us)`` assigns
-    every object of the window a ``track_id`` and its track's smoothed ``track`` state (dict,
-    ``track_state``), in place. Windows may be skipped (a gap counts as missed windows)."""
+    every object of the window a ``track_id`` and its track's smoothed ``track`` state (a
+    read-only mapping, ``TrackState``), in place. Windows may be skipped (a gap counts as missed windows)."""
 
     def __init__(self, config, dt_us: int, settings: TrackerConfig | None = None, px_ms_per_mps: float | None = None):
         """config: the bundle's ToffeConfig (its speed bins); dt_us: the window length;
@@ -433,6 +493,7 @@ class Tracker:
         self.dt_us = int(dt_us)
         self.edges = BinEdges.of(config)
         self._p = params(self.settings, self.dt_us * 1e-6)
+        self._pe = np.concatenate([self._p, self.edges.lo, self.edges.hi, self.edges.inner])   # _window's
         self.k_mps = None if px_ms_per_mps is None else 1.0 / (1000.0 * px_ms_per_mps)
         self.tracks = Tracks()
         self.next_id = 0
@@ -441,6 +502,8 @@ class Tracker:
         # compile (first run on a machine) or load the cached kernels now, not in the first window
         one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
         step(step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0], one, 1e-3, self.settings, self.edges, 1)
+        zr = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
+        _window(_window(Tracks().a, zr, self._pe, 0)[0], zr, self._pe, 1)
 
     def update(self, objects: list, t0_us: int) -> Tracks:
         """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin;
@@ -457,24 +520,26 @@ class Tracker:
             a[:, STREAK] = 0
             s = self.settings
             tr = Tracks(a[a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)])
-        self.tracks, assigned, self.next_id = step(tr, Detections.of(objects), self.dt_us * 1e-6, self.settings,
-                                                   self.edges, self.next_id, self._p)
-        rows = self.tracks.a.tolist()
-        for o, r in zip(objects, assigned.tolist()):
-            o.track_id, o.track = (int(rows[r][ID]), self.track_state(rows[r])) if r >= 0 else (None, None)
-        self._coasting = [row for row in rows if row[CONF] > 0 and row[MISS] > 0
-                          and (row[MISS] <= self.settings.report_misses or row[OCC] > 0)]
+        # the usual window in one compiled call; the few objects' attributes read once, the results
+        # handed out from one int array (Python-level work, not the tracking, was most of the cost)
+        zr = raw_detections(objects)
+        out, info, self.next_id, done = _window(tr.a, zr, self._pe, self.next_id)
+        if not done:
+            out, assigned, self.next_id = _step_matched(tr.a, _detections(zr), self._p, self.edges, self.next_id)
+            info = _listing(out, assigned, self._p)
+        self.tracks = Tracks(out)
+        n, k, info = len(objects), self.k_mps, info.tolist()
+        for o, r, tid in zip(objects, info, info[n:]):
+            o.track_id, o.track = (tid, TrackState(out, r, k)) if r >= 0 else (None, None)
+        self._coasting = info[2 * n:]
         return self.tracks
 
     def coasting(self) -> list[dict]:
         """The confirmed tracks no detection of the last window was assigned to, for their first
         report_misses misses or while occluded (they coast on their prediction):
         [{"track_id", "track"}], the window line's ``coasting`` list."""
-        return [{"track_id": int(row[ID]), "track": self.track_state(row)} for row in self._coasting]
-
-    def track_state(self, row: list) -> "TrackState":
-        """The ``track`` object of one row of the live tracks (README, JSON lines)."""
-        return TrackState(row, self.k_mps)
+        a = self.tracks.a
+        return [{"track_id": int(a[r, ID]), "track": TrackState(a, r, self.k_mps)} for r in self._coasting]
 
 
 class TrackState(Mapping):
@@ -482,17 +547,18 @@ class TrackState(Mapping):
     direction_deg, speed_px_s, speed_mps (with a speed scale), speed_bin, age, hits, confirmed,
     misses (windows in a row without a detection: 0 when detected in this window, > 0 when
     coasting on its prediction) and occluded (coasting under a detection another track took).
-    A read-only mapping built from the track's row when first read (a robot loop that reads a
-    few tracks does not pay for formatting every one; ``dict(state)`` for JSON)."""
+    A read-only mapping built from row i of the window's tracks array ``a`` (Tracks.a, never
+    modified once returned) when first read (a robot loop that reads a few tracks does not pay
+    for formatting every one; ``dict(state)`` for JSON)."""
 
-    __slots__ = ("_row", "_k_mps", "_d")
+    __slots__ = ("_a", "_i", "_k_mps", "_d")
 
-    def __init__(self, row: list, k_mps: float | None):
-        self._row, self._k_mps, self._d = row, k_mps, None
+    def __init__(self, a: np.ndarray, i: int, k_mps: float | None):
+        self._a, self._i, self._k_mps, self._d = a, i, k_mps, None
 
     def _dict(self) -> dict:
         if self._d is None:
-            row = self._row
+            row = self._a[self._i].tolist()
             vx, vy, sp = row[HX], row[HY], row[S]
             d = {"x": round(row[X], 4), "y": round(row[Y], 4),
                  "direction_deg": round(math.degrees(math.atan2(vy, vx)), 4), "speed_px_s": round(sp, 4)}
@@ -505,7 +571,7 @@ class TrackState(Mapping):
 
     @property
     def confirmed(self) -> bool:
-        return self._row[CONF] > 0
+        return bool(self._a[self._i, CONF] > 0)
 
     def __getitem__(self, key):
         return self._dict()[key]
