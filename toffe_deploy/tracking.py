@@ -113,6 +113,7 @@ class TrackerConfig:
     max_turn_rad: float = 0.1
     merge_px: float = 40.0
     merge_move_px: float = 1.0
+    reid_px: float = 0.0
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -225,7 +226,7 @@ class BinEdges:
 #: entries of the settings vector the compiled loops take (``params``)
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
- P_REPORT) = range(20)
+ P_REPORT, P_REID) = range(21)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -234,7 +235,7 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
                      cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
                      cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion), cfg.turn_beta,
-                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses],
+                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px],
                     dtype=_F)
 
 
@@ -310,11 +311,37 @@ def _merges(a, t, z, r, j, d, p):
 
 
 @njit(cache=True, nogil=True)
+def _hit(a, i, z, k, p, lo, hi, inner, shared):
+    """Update of predicted track i (row of ``a``) with detection k (module doc); shared: k lies
+    in the gates of two or more confirmed tracks."""
+    if shared and p[P_SHARED_KEEPS] > 0:                   # one blob of two objects: its motion is neither's
+        a[i, X] += p[P_ALPHA] * (z[k, 0] - a[i, X])
+        a[i, Y] += p[P_ALPHA] * (z[k, 1] - a[i, Y])
+        return
+    if p[P_TURN_BETA] > 0:                                  # turn rate from the direction's innovation
+        q = min(1.0, z[k, S - X] * p[P_DT] / p[P_HEADING_PX])
+        e = math.atan2(z[k, 3], z[k, 2]) - math.atan2(a[i, VY], a[i, VX])
+        e = (e + math.pi) % (2.0 * math.pi) - math.pi
+        wmax = p[P_MAX_TURN] / p[P_DT]
+        a[i, W] = min(wmax, max(-wmax, a[i, W] + p[P_TURN_BETA] * q * e / p[P_DT]))
+    for c in range(X, S + 1):
+        g = p[P_ALPHA] if c <= Y else p[P_BETA]
+        a[i, c] += g * (z[k, c - X] - a[i, c])
+    # heading: a detection's direction is as good as the distance it moved in the window
+    g_h = min(1.0, max(p[P_HEADING_BETA], z[k, S - X] * p[P_DT] / p[P_HEADING_PX]))
+    a[i, HX] += g_h * (z[k, 2] - a[i, HX])
+    a[i, HY] += g_h * (z[k, 3] - a[i, HY])
+    h = p[P_H]
+    b = int(a[i, BIN]) - 1
+    if not (lo[b] * (1.0 - h) <= a[i, S] <= hi[b] * (1.0 + h)):
+        a[i, BIN] = np.searchsorted(inner, a[i, S], side="right") + 1
+
+
+@njit(cache=True, nogil=True)
 def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
     """Update, confirmation, deaths, births and bin hysteresis of ``step`` (module doc) on the
     predicted tracks ``a`` (t: the tracks before the window) and the pairs (r, j)."""
     n_t, n_d = a.shape[0], z.shape[0]
-    h = p[P_H]
     hit = np.zeros(n_t, np.bool_)
     free = np.ones(n_d, np.bool_)
     det_of = np.full(n_t, -1, np.int64)
@@ -335,26 +362,20 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
         if blob_of[k] >= 0:                                  # a blob of two tracks: moved in _merges
             continue
         hit[i], free[k], det_of[i] = True, False, k
-        if shared[k] > 1 and p[P_SHARED_KEEPS] > 0:         # one blob of two objects: its motion is neither's
-            a[i, X] += p[P_ALPHA] * (z[k, 0] - a[i, X])
-            a[i, Y] += p[P_ALPHA] * (z[k, 1] - a[i, Y])
-            continue
-        if p[P_TURN_BETA] > 0:                              # turn rate from the direction's innovation
-            q = min(1.0, z[k, S - X] * p[P_DT] / p[P_HEADING_PX])
-            e = math.atan2(z[k, 3], z[k, 2]) - math.atan2(a[i, VY], a[i, VX])
-            e = (e + math.pi) % (2.0 * math.pi) - math.pi
-            wmax = p[P_MAX_TURN] / p[P_DT]
-            a[i, W] = min(wmax, max(-wmax, a[i, W] + p[P_TURN_BETA] * q * e / p[P_DT]))
-        for c in range(X, S + 1):
-            g = p[P_ALPHA] if c <= Y else p[P_BETA]
-            a[i, c] += g * (z[k, c - X] - a[i, c])
-        # heading: a detection's direction is as good as the distance it moved in the window
-        g_h = min(1.0, max(p[P_HEADING_BETA], z[k, S - X] * p[P_DT] / p[P_HEADING_PX]))
-        a[i, HX] += g_h * (z[k, 2] - a[i, HX])
-        a[i, HY] += g_h * (z[k, 3] - a[i, HY])
-        b = int(a[i, BIN]) - 1
-        if not (lo[b] * (1.0 - h) <= a[i, S] <= hi[b] * (1.0 + h)):
-            a[i, BIN] = np.searchsorted(inner, a[i, S], side="right") + 1
+        _hit(a, i, z, k, p, lo, hi, inner, shared[k] > 1)
+    if p[P_REID] > 0:                                        # second association: missed tracks claim leftovers
+        while True:
+            best, bi, bk = p[P_REID], -1, -1
+            for i in range(n_t):
+                if hit[i] or t[i, CONF] <= 0 or t[i, S] * p[P_DT] < p[P_MERGE_MOVE]:
+                    continue
+                for k in range(n_d):
+                    if free[k] and d[i, k] <= best and (bi < 0 or d[i, k] < best):
+                        best, bi, bk = d[i, k], i, k
+            if bi < 0:
+                break
+            hit[bi], free[bk], det_of[bi] = True, False, bk
+            _hit(a, bi, z, bk, p, lo, hi, inner, shared[bk] > 1)
     keep = np.zeros(n_t, np.bool_)
     taken = ~free                                            # detections assigned to a track
     dt_s = p[P_DT]
@@ -437,7 +458,7 @@ def _listing(out, assigned, p):
     return info
 
 
-N_P = P_REPORT + 1
+N_P = P_REID + 1
 
 
 @njit(cache=True, nogil=True)
