@@ -114,6 +114,7 @@ class TrackerConfig:
     merge_px: float = 40.0
     merge_move_px: float = 1.0
     reid_px: float = 0.0
+    shared_grown: bool = True
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -226,7 +227,7 @@ class BinEdges:
 #: entries of the settings vector the compiled loops take (``params``)
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
- P_REPORT, P_REID) = range(21)
+ P_REPORT, P_REID, P_SHARED_GROWN) = range(22)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -235,7 +236,7 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
                      cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
                      cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion), cfg.turn_beta,
-                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px],
+                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px, float(cfg.shared_grown)],
                     dtype=_F)
 
 
@@ -348,7 +349,7 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
     shared = np.zeros(n_d, np.int64)                         # confirmed tracks whose gate holds detection k
     for i in range(n_t):
         if t[i, CONF] > 0:
-            gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * p[P_DT]
+            gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS] * p[P_SHARED_GROWN]) * t[i, S] * p[P_DT]
             for k in range(n_d):
                 if d[i, k] <= gate:
                     shared[k] += 1
@@ -458,7 +459,7 @@ def _listing(out, assigned, p):
     return info
 
 
-N_P = P_REID + 1
+N_P = P_SHARED_GROWN + 1
 
 
 @njit(cache=True, nogil=True)
