@@ -115,6 +115,7 @@ class TrackerConfig:
     merge_move_px: float = 1.0
     reid_px: float = 0.0
     shared_grown: bool = True
+    reid_ratio: float = 1e9
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -227,7 +228,7 @@ class BinEdges:
 #: entries of the settings vector the compiled loops take (``params``)
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
- P_REPORT, P_REID, P_SHARED_GROWN) = range(22)
+ P_REPORT, P_REID, P_SHARED_GROWN, P_REID_RATIO) = range(23)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -236,7 +237,7 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
                      cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
                      cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion), cfg.turn_beta,
-                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px, float(cfg.shared_grown)],
+                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px, float(cfg.shared_grown), cfg.reid_ratio],
                     dtype=_F)
 
 
@@ -372,7 +373,12 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
                     continue
                 for k in range(n_d):
                     if free[k] and d[i, k] <= best and (bi < 0 or d[i, k] < best):
-                        best, bi, bk = d[i, k], i, k
+                        clear = True                         # not as near another confirmed track: no blob of two
+                        for m in range(n_t):
+                            if m != i and t[m, CONF] > 0 and d[i, k] > p[P_REID_RATIO] * d[m, k]:
+                                clear = False
+                        if clear:
+                            best, bi, bk = d[i, k], i, k
             if bi < 0:
                 break
             hit[bi], free[bk], det_of[bi] = True, False, bk
@@ -459,7 +465,7 @@ def _listing(out, assigned, p):
     return info
 
 
-N_P = P_SHARED_GROWN + 1
+N_P = P_REID_RATIO + 1
 
 
 @njit(cache=True, nogil=True)
