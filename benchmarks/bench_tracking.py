@@ -5,7 +5,8 @@
         [--max-windows 200] [--limit N] [--score-gate 20] [--gate 15] [--alpha A] [--beta B] [--confirm K] [--max-misses M] [--tentative-misses T]
         [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--gate-speed K] [--report-misses R]
         [--max-occluded O] [--turn-beta B] [--max-turn RAD] [--merge PX] [--merge-move PX]
-        [--no-shared-keeps-motion] [--truth-blobs] [--save-detections DIR | --detections DIR] [--json FILE]
+        [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R]
+        [--truth-blobs] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
 ``Pipeline(bundle, "cpu", track=TrackerConfig(...))``; its detections are scored like `run`
@@ -304,6 +305,12 @@ def main(argv=None) -> int:
                     help="merge_move_px: tracks slower than this (px per window) share no blob")
     ap.add_argument("--no-shared-keeps-motion", dest="shared_keeps_motion", action="store_false",
                     help="a blob inside two tracks' gates updates the assigned track's motion too")
+    ap.add_argument("--shared-gate-grows", action="store_true",
+                    help="a coasting track's grown gate also makes a detection shared (default: its base gate)")
+    ap.add_argument("--reid", type=float, default=d.reid_px,
+                    help="reid_px: a missed track takes a leftover detection this near (second association; 0: off)")
+    ap.add_argument("--reid-ratio", type=float, default=d.reid_ratio,
+                    help="reid_ratio: ... only if that many times nearer to it than to any other confirmed track")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--save-detections", type=Path, metavar="DIR",
@@ -320,7 +327,8 @@ def main(argv=None) -> int:
                              birth_gap_px=a.birth_gap, tentative_misses=a.tentative_misses, gate_speed=a.gate_speed,
                              report_misses=a.report_misses, max_occluded=a.max_occluded,
                              shared_keeps_motion=a.shared_keeps_motion, turn_beta=a.turn_beta,
-                             max_turn_rad=a.max_turn, merge_px=a.merge, merge_move_px=a.merge_move)
+                             max_turn_rad=a.max_turn, merge_px=a.merge, merge_move_px=a.merge_move,
+                             shared_gate_grows=a.shared_gate_grows, reid_px=a.reid, reid_ratio=a.reid_ratio)
     bundle = load_bundle(a.bundle)
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)

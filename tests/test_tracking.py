@@ -249,9 +249,10 @@ def test_a_merged_detection_leaves_the_other_track_occluded_not_dead():
 
 def test_gate_grows_with_speed():
     """A fast track (12 px per window) whose detection lands 14 px off its prediction: outside a
-    10 px gate (a new track is born), inside 10 px + gate_speed x one window's travel."""
+    10 px gate (a new track is born), inside 10 px + gate_speed x one window's travel (no
+    re-identification: it would take the detection back at 14 px)."""
     for gate_speed, same in ((0.0, False), (1.0, True)):
-        tr = Tracker(CFG, DT_US, TrackerConfig(gate_px=10, gate_speed=gate_speed, birth_gap_px=5))
+        tr = Tracker(CFG, DT_US, TrackerConfig(gate_px=10, gate_speed=gate_speed, birth_gap_px=5, reid_px=0))
         for w in range(6):
             o = mover(50, 200, 0, 24000, w)
             if w == 5:

@@ -13,7 +13,8 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                the track has coasted (a turning object leaves its straight-line prediction)
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
                (a detection within the gates of 2+ confirmed tracks, a blob of two objects, moves
-               p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay)
+               p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay; the gates
+               here without the coasting growth unless ``shared_gate_grows``)
     merges     a detection z nearer the midpoint c of two confirmed tracks' predictions than to
                either, within gate_px of c, the two at most merge_px apart and each moving at
                least merge_move_px per window, is one blob of both: both move by alpha (z - c)
@@ -26,6 +27,12 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                                           (heading: the reported direction_deg is that of h_i)
                w_i = w_i + turn_beta q_j angle(u_j, v_i') / dt,  q_j = min(1, s_j dt / heading_px),
                |w_i dt| <= max_turn_rad (turn rate: a direction error of a slow object is no turn)
+    reid       second association (as ByteTrack's of the leftovers): a confirmed track moving at
+               least merge_move_px per window and missed so far takes the nearest detection left
+               over within reid_px of its prediction, if d_ik <= reid_ratio d_mk for every other
+               confirmed track m (a track that coasted through a merge picks its object up again
+               where it reappears a little outside its gate; a blob between two tracks stays
+               unclaimed); updated as a hit; repeated while pairs remain
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
@@ -91,8 +98,13 @@ class TrackerConfig:
     them during merges that last tens of windows), max_turn_rad: its bound per window; merge_px:
     the farthest apart two tracks' predictions may be for a detection between them to be their
     blob (0: no merges; objects up to ~50 px across touch at that distance), merge_move_px: the
-    slowest track (px per window) that can be in a merge (a slow object's two edge fragments
-    would otherwise hold two tracks on it)."""
+    slowest track (px per window) that can be in a merge or re-identify (a slow object's two
+    edge fragments would otherwise hold two tracks on it); shared_gate_grows: whether a coasting
+    track's grown gate also makes a detection shared (False: only its base gate, so that the
+    one object still seen keeps learning its motion while the other is hidden); reid_px,
+    reid_ratio: the second association (re-identification: a missed confirmed track takes a
+    detection left over within reid_px of its prediction that is reid_ratio times nearer to it
+    than to any other confirmed track, not one between two tracks; 0: off)."""
 
     gate_px: float = 15.0
     gate_growth: float = 0.5
@@ -111,11 +123,11 @@ class TrackerConfig:
     shared_keeps_motion: bool = True
     turn_beta: float = 0.2
     max_turn_rad: float = 0.1
-    merge_px: float = 40.0
-    merge_move_px: float = 1.0
-    reid_px: float = 0.0
-    shared_grown: bool = True
-    reid_ratio: float = 1e9
+    merge_px: float = 50.0
+    merge_move_px: float = 1.5
+    shared_gate_grows: bool = False
+    reid_px: float = 30.0
+    reid_ratio: float = 0.6
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -134,6 +146,8 @@ class TrackerConfig:
             raise ValueError("turn_beta must be in [0, 1] and max_turn_rad >= 0")
         if not min(self.merge_px, self.merge_move_px) >= 0:
             raise ValueError("merge_px and merge_move_px must be >= 0")
+        if not (self.reid_px >= 0 and self.reid_ratio > 0):
+            raise ValueError(f"reid_px must be >= 0 and reid_ratio > 0, got {self.reid_px}, {self.reid_ratio}")
 
 
 _F = np.float64
@@ -228,7 +242,7 @@ class BinEdges:
 #: entries of the settings vector the compiled loops take (``params``)
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
- P_REPORT, P_REID, P_SHARED_GROWN, P_REID_RATIO) = range(23)
+ P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO) = range(23)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -237,7 +251,7 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
                      cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
                      cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion), cfg.turn_beta,
-                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px, float(cfg.shared_grown), cfg.reid_ratio],
+                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px, float(cfg.shared_gate_grows), cfg.reid_ratio],
                     dtype=_F)
 
 
@@ -350,7 +364,7 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
     shared = np.zeros(n_d, np.int64)                         # confirmed tracks whose gate holds detection k
     for i in range(n_t):
         if t[i, CONF] > 0:
-            gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS] * p[P_SHARED_GROWN]) * t[i, S] * p[P_DT]
+            gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS] * p[P_SHARED_GROWS]) * t[i, S] * p[P_DT]
             for k in range(n_d):
                 if d[i, k] <= gate:
                     shared[k] += 1
