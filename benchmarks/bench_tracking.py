@@ -33,7 +33,8 @@ through crossings apart from the detector's misses and false positives.
 
 ``--cost``: instead, the CPU time per window of the cpu pipeline with and without tracking on
 the shipped sample (or --events; time.process_time, one pinned core, best of --repeats
-passes), i.e. what tracking adds to `run --target cpu`.
+passes, the two interleaved), i.e. what tracking adds to `run --target cpu`; wall time and the
+load average beside it.
 """
 from __future__ import annotations
 
@@ -232,8 +233,9 @@ def run_split_truth_blobs(config, files, settings, max_windows, gate) -> dict:
 
 def tracker_cost(bundle, events, settings, repeats: int) -> dict:
     """CPU time per window (time.process_time, one pinned core, each window's best of ``repeats``
-    passes, the passes of the two pipelines interleaved) of Pipeline(track=settings) and
-    Pipeline(track=False) over the recording's windows."""
+    passes, the passes of the two pipelines interleaved, which one goes first alternating) of
+    Pipeline(track=settings) and Pipeline(track=False) over the recording's windows; wall time
+    (time.perf_counter) the same way beside it."""
     import os
 
     import numpy as np
@@ -251,24 +253,30 @@ def tracker_cost(bundle, events, settings, repeats: int) -> dict:
     pipes = {"track": Pipeline(bundle, "cpu", sensor_size=sensor, track=settings),
              "no_track": Pipeline(bundle, "cpu", sensor_size=sensor, track=False)}
     best = {k: np.full(len(wins), np.inf) for k in pipes}
+    wall = {k: np.full(len(wins), np.inf) for k in pipes}
     n_obj = 0
     for p in pipes.values():
         p.__enter__()
     try:
-        for _r in range(repeats):
-            for k, p in pipes.items():
+        for r in range(repeats):
+            for k in (list(pipes) if r % 2 == 0 else list(pipes)[::-1]):
+                p = pipes[k]
                 p.reset_tracks()
                 for i, w in enumerate(wins):
-                    a = time.process_time()
+                    a, aw = time.process_time(), time.perf_counter()
                     (res,) = p.process_stream([w])
                     best[k][i] = min(best[k][i], time.process_time() - a)
+                    wall[k][i] = min(wall[k][i], time.perf_counter() - aw)
                     n_obj += len(res.objects) if k == "track" else 0
     finally:
         for p in pipes.values():
             p.close()
     t, n = float(best["track"].mean()), float(best["no_track"].mean())
+    tw, nw = float(wall["track"].mean()), float(wall["no_track"].mean())
     return {"windows": len(wins), "objects_per_window": n_obj / repeats / len(wins),
-            "cpu_ms_per_window_track": t * 1e3, "cpu_ms_per_window_no_track": n * 1e3, "tracker_share": t / n - 1.0}
+            "cpu_ms_per_window_track": t * 1e3, "cpu_ms_per_window_no_track": n * 1e3, "tracker_share": t / n - 1.0,
+            "wall_ms_per_window_track": tw * 1e3, "wall_ms_per_window_no_track": nw * 1e3,
+            "tracker_share_wall": tw / nw - 1.0, "load_average": os.getloadavg()}
 
 
 def main(argv=None) -> int:
@@ -334,7 +342,9 @@ def main(argv=None) -> int:
         c = tracker_cost(bundle, a.events, settings, a.repeats)
         print(f"{c['windows']} windows, {c['objects_per_window']:.2f} objects per window: CPU per window "
               f"{c['cpu_ms_per_window_track']:.3f} ms with tracking, {c['cpu_ms_per_window_no_track']:.3f} ms without "
-              f"(+{100 * c['tracker_share']:.1f} %)")
+              f"(+{100 * c['tracker_share']:.1f} %); wall {c['wall_ms_per_window_track']:.3f} / "
+              f"{c['wall_ms_per_window_no_track']:.3f} ms (+{100 * c['tracker_share_wall']:.1f} %); load average "
+              + " ".join(f"{v:.2f}" for v in c["load_average"]))
         if a.json:
             a.json.write_text(json.dumps({"settings": dataclasses.asdict(settings), **c}, indent=1) + "\n")
         return 0
