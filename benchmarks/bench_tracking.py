@@ -5,7 +5,7 @@
         [--max-windows 200] [--limit N] [--score-gate 20] [--gate 15] [--alpha A] [--beta B] [--confirm K] [--max-misses M] [--tentative-misses T]
         [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--gate-speed K] [--report-misses R]
         [--max-occluded O] [--turn-beta B] [--max-turn RAD] [--merge PX] [--merge-move PX]
-        [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R]
+        [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R] [--coast-px PX] [--max-coast N]
         [--truth-blobs] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
@@ -319,6 +319,9 @@ def main(argv=None) -> int:
                     help="reid_px: a missed track takes a leftover detection this near (second association; 0: off)")
     ap.add_argument("--reid-ratio", type=float, default=d.reid_ratio,
                     help="reid_ratio: ... only if that many times nearer to it than to any other confirmed track")
+    ap.add_argument("--coast-px", type=float, default=d.coast_px,
+                    help="coast_px: a confirmed track lives past --max-misses while it has coasted at most this far")
+    ap.add_argument("--max-coast", type=int, default=d.max_coast, help="max_coast: ... up to this many misses")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--save-detections", type=Path, metavar="DIR",
@@ -336,7 +339,8 @@ def main(argv=None) -> int:
                              report_misses=a.report_misses, max_occluded=a.max_occluded,
                              shared_keeps_motion=a.shared_keeps_motion, turn_beta=a.turn_beta,
                              max_turn_rad=a.max_turn, merge_px=a.merge, merge_move_px=a.merge_move,
-                             shared_gate_grows=a.shared_gate_grows, reid_px=a.reid, reid_ratio=a.reid_ratio)
+                             shared_gate_grows=a.shared_gate_grows, reid_px=a.reid, reid_ratio=a.reid_ratio,
+                             coast_px=a.coast_px, max_coast=a.max_coast)
     bundle = load_bundle(a.bundle)
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)

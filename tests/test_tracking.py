@@ -93,7 +93,7 @@ def test_occlusion_for_a_few_windows_keeps_the_id_and_coasts():
 
 
 def test_births_need_confirmation_and_tracks_die_after_max_misses():
-    s = TrackerConfig(confirm_hits=3, max_misses=4)
+    s = TrackerConfig(confirm_hits=3, max_misses=4, coast_px=0.0)
     tr = Tracker(CFG, DT_US, s)
     ghost = Obj(300, 50, 0.0, 3000, 2)
     wins = [[mover(50, 100, 0, 4000, w)] + ([ghost] if w == 5 else []) for w in range(10)]
@@ -460,3 +460,17 @@ def test_one_call_window_matches_step_on_ambiguous_windows(rng):
             if o.track is not None:
                 assert dict(o.track)["x"] == round(float(a[list(a[:, ID]).index(o.track_id), 1]), 4)
     assert ambiguous >= 3                               # the Hungarian fallback ran
+
+
+def test_a_slow_track_outlives_max_misses_while_its_prediction_stays_near():
+    """A slow object (1 px per window) hidden for 25 windows (behind a passing object) comes
+    back where its track coasted: the track lives while it has coasted at most coast_px (25 px
+    < 30), so the object keeps its id; a fast one (8 px per window) dies after max_misses as
+    before, and max_coast bounds the slow one's life."""
+    for speed, coast_px, max_coast, same in ((2000, 30.0, 40, True), (2000, 0.0, 40, False),
+                                             (2000, 30.0, 20, False), (16000, 30.0, 40, False)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(coast_px=coast_px, max_coast=max_coast))
+        for w in range(45):
+            o = mover(50, 200, 0, speed, w)
+            tr.update([] if 10 <= w < 35 else [o], w * DT_US)
+        assert (o.track_id == 0) == same

@@ -40,7 +40,8 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     deaths     a tentative track dies after more than ``tentative_misses`` misses in a row (0: at
                its first miss); a confirmed one coasts (predicted; listed as coasting, with
                its misses m_i, for the first ``report_misses``) through up to ``max_misses``
-               windows in a row, then dies; one that is occluded (its prediction within R_i of
+               windows in a row, or while m_i s_i dt <= coast_px (up to max_coast), then dies;
+               one that is occluded (its prediction within R_i of
                a detection another track took: a merged blob) lives, and is listed, up to
                ``max_occluded`` misses in a row
     bin        hysteresis on the smoothed speed: a track keeps bin b while
@@ -104,7 +105,10 @@ class TrackerConfig:
     one object still seen keeps learning its motion while the other is hidden); reid_px,
     reid_ratio: the second association (re-identification: a missed confirmed track takes a
     detection left over within reid_px of its prediction that is reid_ratio times nearer to it
-    than to any other confirmed track, not one between two tracks; 0: off)."""
+    than to any other confirmed track, not one between two tracks; 0: off); coast_px,
+    max_coast: a confirmed track also lives on after max_misses while its prediction has moved
+    at most coast_px since its last detection (m_i s_i dt <= coast_px: a slow object hidden
+    behind a passing one is still near its prediction), up to max_coast misses."""
 
     gate_px: float = 15.0
     gate_growth: float = 0.5
@@ -113,7 +117,7 @@ class TrackerConfig:
     beta: float = 0.4
     confirm_hits: int = 2
     tentative_misses: int = 0
-    max_misses: int = 10
+    max_misses: int = 20
     hysteresis: float = 0.1
     gate_speed: float = 0.0
     report_misses: int = 5
@@ -128,6 +132,8 @@ class TrackerConfig:
     shared_gate_grows: bool = False
     reid_px: float = 30.0
     reid_ratio: float = 0.6
+    coast_px: float = 30.0
+    max_coast: int = 40
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -146,6 +152,8 @@ class TrackerConfig:
             raise ValueError("turn_beta must be in [0, 1] and max_turn_rad >= 0")
         if not min(self.merge_px, self.merge_move_px) >= 0:
             raise ValueError("merge_px and merge_move_px must be >= 0")
+        if not (self.coast_px >= 0 and self.max_coast >= 0):
+            raise ValueError(f"coast_px and max_coast must be >= 0, got {self.coast_px}, {self.max_coast}")
         if not (self.reid_px >= 0 and self.reid_ratio > 0):
             raise ValueError(f"reid_px must be >= 0 and reid_ratio > 0, got {self.reid_px}, {self.reid_ratio}")
 
@@ -242,7 +250,7 @@ class BinEdges:
 #: entries of the settings vector the compiled loops take (``params``)
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
- P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO) = range(23)
+ P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO, P_COAST_PX, P_MAX_COAST) = range(25)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -251,7 +259,7 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
                      cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
                      cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion), cfg.turn_beta,
-                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px, float(cfg.shared_gate_grows), cfg.reid_ratio],
+                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px, float(cfg.shared_gate_grows), cfg.reid_ratio, cfg.coast_px, cfg.max_coast],
                     dtype=_F)
 
 
@@ -415,6 +423,8 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
             a[i, CONF] = 1.0
         lim = max(p[P_MAX_MISSES], p[P_MAX_OCCLUDED] * a[i, OCC])
         keep[i] = a[i, MISS] <= (lim if a[i, CONF] > 0 else p[P_TENTATIVE])
+        if a[i, CONF] > 0 and a[i, MISS] * a[i, S] * dt_s <= p[P_COAST_PX] and a[i, MISS] <= p[P_MAX_COAST]:
+            keep[i] = True                                   # a slow track's prediction is still near its object
         if a[i, CONF] > 0:                                   # no births next to a confirmed track
             for k in range(n_d):
                 if d[i, k] <= p[P_BIRTH_GAP]:
@@ -479,7 +489,7 @@ def _listing(out, assigned, p):
     return info
 
 
-N_P = P_REID_RATIO + 1
+N_P = P_MAX_COAST + 1
 
 
 @njit(cache=True, nogil=True)
