@@ -259,7 +259,8 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
                      cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
                      cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion), cfg.turn_beta,
-                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px, float(cfg.shared_gate_grows), cfg.reid_ratio, cfg.coast_px, cfg.max_coast],
+                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px,
+                     float(cfg.shared_gate_grows), cfg.reid_ratio, cfg.coast_px, cfg.max_coast],
                     dtype=_F)
 
 
