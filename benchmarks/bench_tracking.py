@@ -5,7 +5,8 @@
         [--max-windows 200] [--limit N] [--score-gate 20] [--gate 15] [--alpha A] [--beta B] [--confirm K] [--max-misses M] [--tentative-misses T]
         [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--gate-speed K] [--report-misses R]
         [--max-occluded O] [--turn-beta B] [--max-turn RAD] [--merge PX] [--merge-move PX]
-        [--no-shared-keeps-motion] [--truth-blobs] [--save-detections DIR | --detections DIR] [--json FILE]
+        [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R] [--coast-px PX] [--max-coast N]
+        [--truth-blobs] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
 ``Pipeline(bundle, "cpu", track=TrackerConfig(...))``; its detections are scored like `run`
@@ -32,7 +33,8 @@ through crossings apart from the detector's misses and false positives.
 
 ``--cost``: instead, the CPU time per window of the cpu pipeline with and without tracking on
 the shipped sample (or --events; time.process_time, one pinned core, best of --repeats
-passes), i.e. what tracking adds to `run --target cpu`.
+passes, the two interleaved), i.e. what tracking adds to `run --target cpu`; wall time and the
+load average beside it.
 """
 from __future__ import annotations
 
@@ -231,8 +233,9 @@ def run_split_truth_blobs(config, files, settings, max_windows, gate) -> dict:
 
 def tracker_cost(bundle, events, settings, repeats: int) -> dict:
     """CPU time per window (time.process_time, one pinned core, each window's best of ``repeats``
-    passes, the passes of the two pipelines interleaved) of Pipeline(track=settings) and
-    Pipeline(track=False) over the recording's windows."""
+    passes, the passes of the two pipelines interleaved, which one goes first alternating) of
+    Pipeline(track=settings) and Pipeline(track=False) over the recording's windows; wall time
+    (time.perf_counter) the same way beside it."""
     import os
 
     import numpy as np
@@ -250,24 +253,30 @@ def tracker_cost(bundle, events, settings, repeats: int) -> dict:
     pipes = {"track": Pipeline(bundle, "cpu", sensor_size=sensor, track=settings),
              "no_track": Pipeline(bundle, "cpu", sensor_size=sensor, track=False)}
     best = {k: np.full(len(wins), np.inf) for k in pipes}
+    wall = {k: np.full(len(wins), np.inf) for k in pipes}
     n_obj = 0
     for p in pipes.values():
         p.__enter__()
     try:
-        for _r in range(repeats):
-            for k, p in pipes.items():
+        for r in range(repeats):
+            for k in (list(pipes) if r % 2 == 0 else list(pipes)[::-1]):
+                p = pipes[k]
                 p.reset_tracks()
                 for i, w in enumerate(wins):
-                    a = time.process_time()
+                    a, aw = time.process_time(), time.perf_counter()
                     (res,) = p.process_stream([w])
                     best[k][i] = min(best[k][i], time.process_time() - a)
+                    wall[k][i] = min(wall[k][i], time.perf_counter() - aw)
                     n_obj += len(res.objects) if k == "track" else 0
     finally:
         for p in pipes.values():
             p.close()
     t, n = float(best["track"].mean()), float(best["no_track"].mean())
+    tw, nw = float(wall["track"].mean()), float(wall["no_track"].mean())
     return {"windows": len(wins), "objects_per_window": n_obj / repeats / len(wins),
-            "cpu_ms_per_window_track": t * 1e3, "cpu_ms_per_window_no_track": n * 1e3, "tracker_share": t / n - 1.0}
+            "cpu_ms_per_window_track": t * 1e3, "cpu_ms_per_window_no_track": n * 1e3, "tracker_share": t / n - 1.0,
+            "wall_ms_per_window_track": tw * 1e3, "wall_ms_per_window_no_track": nw * 1e3,
+            "tracker_share_wall": tw / nw - 1.0, "load_average": os.getloadavg()}
 
 
 def main(argv=None) -> int:
@@ -304,6 +313,15 @@ def main(argv=None) -> int:
                     help="merge_move_px: tracks slower than this (px per window) share no blob")
     ap.add_argument("--no-shared-keeps-motion", dest="shared_keeps_motion", action="store_false",
                     help="a blob inside two tracks' gates updates the assigned track's motion too")
+    ap.add_argument("--shared-gate-grows", action="store_true",
+                    help="a coasting track's grown gate also makes a detection shared (default: its base gate)")
+    ap.add_argument("--reid", type=float, default=d.reid_px,
+                    help="reid_px: a missed track takes a leftover detection this near (second association; 0: off)")
+    ap.add_argument("--reid-ratio", type=float, default=d.reid_ratio,
+                    help="reid_ratio: ... only if that many times nearer to it than to any other confirmed track")
+    ap.add_argument("--coast-px", type=float, default=d.coast_px,
+                    help="coast_px: a confirmed track lives past --max-misses while it has coasted at most this far")
+    ap.add_argument("--max-coast", type=int, default=d.max_coast, help="max_coast: ... up to this many misses")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--save-detections", type=Path, metavar="DIR",
@@ -320,13 +338,17 @@ def main(argv=None) -> int:
                              birth_gap_px=a.birth_gap, tentative_misses=a.tentative_misses, gate_speed=a.gate_speed,
                              report_misses=a.report_misses, max_occluded=a.max_occluded,
                              shared_keeps_motion=a.shared_keeps_motion, turn_beta=a.turn_beta,
-                             max_turn_rad=a.max_turn, merge_px=a.merge, merge_move_px=a.merge_move)
+                             max_turn_rad=a.max_turn, merge_px=a.merge, merge_move_px=a.merge_move,
+                             shared_gate_grows=a.shared_gate_grows, reid_px=a.reid, reid_ratio=a.reid_ratio,
+                             coast_px=a.coast_px, max_coast=a.max_coast)
     bundle = load_bundle(a.bundle)
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)
         print(f"{c['windows']} windows, {c['objects_per_window']:.2f} objects per window: CPU per window "
               f"{c['cpu_ms_per_window_track']:.3f} ms with tracking, {c['cpu_ms_per_window_no_track']:.3f} ms without "
-              f"(+{100 * c['tracker_share']:.1f} %)")
+              f"(+{100 * c['tracker_share']:.1f} %); wall {c['wall_ms_per_window_track']:.3f} / "
+              f"{c['wall_ms_per_window_no_track']:.3f} ms (+{100 * c['tracker_share_wall']:.1f} %); load average "
+              + " ".join(f"{v:.2f}" for v in c["load_average"]))
         if a.json:
             a.json.write_text(json.dumps({"settings": dataclasses.asdict(settings), **c}, indent=1) + "\n")
         return 0

@@ -1,5 +1,6 @@
 """The tracker (toffe_deploy/tracking.py) on scripted detections: crossing, occlusion, births and
-deaths, bin hysteresis; and the tracking metrics (motmetrics) on known outcomes."""
+deaths, bin hysteresis, re-identification; the compiled one-call window against the pure ``step``;
+and the tracking metrics (motmetrics) on known outcomes."""
 import math
 from dataclasses import dataclass
 
@@ -7,7 +8,8 @@ import numpy as np
 import pytest
 
 from toffe_deploy.config import ToffeConfig
-from toffe_deploy.tracking import BinEdges, Detections, Tracker, TrackerConfig, Tracks, step
+from toffe_deploy.tracking import (CONF, ID, MISS, OCC, BinEdges, Detections, Tracker, TrackerConfig, Tracks, _predict,
+                                   params, step)
 from toffe_deploy.tracking_metrics import TrackingErrors
 
 DT_US = 500
@@ -91,7 +93,7 @@ def test_occlusion_for_a_few_windows_keeps_the_id_and_coasts():
 
 
 def test_births_need_confirmation_and_tracks_die_after_max_misses():
-    s = TrackerConfig(confirm_hits=3, max_misses=4)
+    s = TrackerConfig(confirm_hits=3, max_misses=4, coast_px=0.0)
     tr = Tracker(CFG, DT_US, s)
     ghost = Obj(300, 50, 0.0, 3000, 2)
     wins = [[mover(50, 100, 0, 4000, w)] + ([ghost] if w == 5 else []) for w in range(10)]
@@ -249,9 +251,10 @@ def test_a_merged_detection_leaves_the_other_track_occluded_not_dead():
 
 def test_gate_grows_with_speed():
     """A fast track (12 px per window) whose detection lands 14 px off its prediction: outside a
-    10 px gate (a new track is born), inside 10 px + gate_speed x one window's travel."""
+    10 px gate (a new track is born), inside 10 px + gate_speed x one window's travel (no
+    re-identification: it would take the detection back at 14 px)."""
     for gate_speed, same in ((0.0, False), (1.0, True)):
-        tr = Tracker(CFG, DT_US, TrackerConfig(gate_px=10, gate_speed=gate_speed, birth_gap_px=5))
+        tr = Tracker(CFG, DT_US, TrackerConfig(gate_px=10, gate_speed=gate_speed, birth_gap_px=5, reid_px=0))
         for w in range(6):
             o = mover(50, 200, 0, 24000, w)
             if w == 5:
@@ -381,3 +384,93 @@ def test_new_settings_reject_nonsense():
                 dict(merge_move_px=-1)):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
+
+def test_a_track_that_coasted_takes_its_object_back_a_little_outside_its_gate():
+    """An object (12 px per window) hidden for 3 windows reappears 20 px beside its predicted
+    path: outside the 15 px gate (growth off), so without re-identification it is a fragment
+    next to the confirmed track (no id); with it, the track takes it back."""
+    for reid_px, want in ((0.0, None), (30.0, 0)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(gate_growth=0.0, reid_px=reid_px))
+        for w in range(14):
+            o = mover(50, 200, 0, 24000, w)
+            if w >= 13:
+                o.y += 20
+            tr.update([] if 10 <= w < 13 else [o], w * DT_US)
+        assert o.track_id == want
+        assert tr.next_id == 1                          # no new identity either way
+
+
+def test_a_detection_between_two_missed_tracks_is_claimed_by_neither():
+    """Two objects moving side by side 60 px apart (too far apart for a merge), both missed in a
+    window that has one detection at their midpoint (30 px from each: a blob of both): the
+    ratio test leaves it unclaimed, so both tracks coast on their own motion; without it
+    (reid_ratio huge) one track is pulled onto the blob."""
+    for ratio, claimed in ((0.6, False), (1e9, True)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(reid_px=40.0, reid_ratio=ratio))
+        for w in range(10):
+            a, b = mover(50, 170, 0, 16000, w), mover(50, 230, 0, 16000, w)
+            tr.update([a, b], w * DT_US)
+        blob = Obj((a.x + b.x) / 2 + 8.0, 200.0, 0.0, 16000)
+        tr.update([blob], 10 * DT_US)
+        assert (blob.track_id is not None) == claimed
+        if not claimed:
+            coasting = sorted(c["track"]["y"] for c in tr.coasting())
+            assert len(coasting) == 2 and abs(coasting[0] - 170) < 2 and abs(coasting[1] - 230) < 2
+
+
+def test_the_object_still_seen_keeps_learning_its_motion_beside_a_hidden_one():
+    """Object A is hidden (its track coasts, its gate grows with the misses); object B, 25 px
+    beside it, is seen and turns by 40 deg. B's detection lies in A's grown gate but not in its
+    base gate: by default it is B's alone and B's track turns with it; with shared_gate_grows it
+    counts as a blob of two and B's track keeps its old motion."""
+    for grows, turned in ((False, True), (True, False)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(shared_gate_grows=grows, reid_px=0.0, merge_px=0.0))
+        for w in range(12):
+            a, b = mover(50, 200, 0, 24000, w), mover(50, 225, 0, 24000, w)
+            if w >= 9:
+                b.direction_rad = np.radians(40.0)
+            tr.update([a, b] if w < 6 else [b], w * DT_US)
+        assert (b.track["direction_deg"] > 20.0) == turned
+
+
+def test_one_call_window_matches_step_on_ambiguous_windows(rng):
+    """Tracker.update (one compiled call per window, Hungarian fallback) gives the tracks, ids
+    and coasting list that the pure ``step`` and the rules of the module doc give, on windows
+    where gates overlap (objects crossing, misses, false detections)."""
+    s = TrackerConfig()
+    tr = Tracker(CFG, DT_US, s)
+    edges = BinEdges.of(CFG)
+    tracks, next_id = Tracks(), 0
+    ambiguous = 0
+    for w in range(80):
+        objs = [mover(100, 100 + 12 * k, 10 * k, 8000 + 2000 * k, w, 1.5, rng) for k in range(3)]
+        objs = [o for o in objs if rng.random() > 0.15]
+        if rng.random() < 0.3:
+            objs.append(Obj(*rng.uniform(80, 300, 2), rng.uniform(-3, 3), 5000.0, 3))
+        dets = Detections.of(objs)
+        ambiguous += not _predict(tracks.a, dets.a, params(s, DT_US * 1e-6))[3]
+        tracks, assigned, next_id = step(tracks, dets, DT_US * 1e-6, s, edges, next_id)
+        a = tracks.a
+        tr.update(objs, w * DT_US)
+        np.testing.assert_array_equal(tr.tracks.a, a)
+        assert [o.track_id for o in objs] == [int(a[r, ID]) if r >= 0 else None for r in assigned]
+        want = [int(r[ID]) for r in a if r[CONF] > 0 and r[MISS] > 0 and (r[MISS] <= s.report_misses or r[OCC] > 0)]
+        assert [c["track_id"] for c in tr.coasting()] == want
+        for o in objs:
+            if o.track is not None:
+                assert dict(o.track)["x"] == round(float(a[list(a[:, ID]).index(o.track_id), 1]), 4)
+    assert ambiguous >= 3                               # the Hungarian fallback ran
+
+
+def test_a_slow_track_outlives_max_misses_while_its_prediction_stays_near():
+    """A slow object (1 px per window) hidden for 25 windows (behind a passing object) comes
+    back where its track coasted: the track lives while it has coasted at most coast_px (25 px
+    < 30), so the object keeps its id; a fast one (8 px per window) dies after max_misses as
+    before, and max_coast bounds the slow one's life."""
+    for speed, coast_px, max_coast, same in ((2000, 30.0, 40, True), (2000, 0.0, 40, False),
+                                             (2000, 30.0, 20, False), (16000, 30.0, 40, False)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(coast_px=coast_px, max_coast=max_coast))
+        for w in range(45):
+            o = mover(50, 200, 0, speed, w)
+            tr.update([] if 10 <= w < 35 else [o], w * DT_US)
+        assert (o.track_id == 0) == same

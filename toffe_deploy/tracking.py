@@ -13,7 +13,8 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                the track has coasted (a turning object leaves its straight-line prediction)
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
                (a detection within the gates of 2+ confirmed tracks, a blob of two objects, moves
-               p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay)
+               p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay; the gates
+               here without the coasting growth unless ``shared_gate_grows``)
     merges     a detection z nearer the midpoint c of two confirmed tracks' predictions than to
                either, within gate_px of c, the two at most merge_px apart and each moving at
                least merge_move_px per window, is one blob of both: both move by alpha (z - c)
@@ -26,6 +27,12 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                                           (heading: the reported direction_deg is that of h_i)
                w_i = w_i + turn_beta q_j angle(u_j, v_i') / dt,  q_j = min(1, s_j dt / heading_px),
                |w_i dt| <= max_turn_rad (turn rate: a direction error of a slow object is no turn)
+    reid       second association (as ByteTrack's of the leftovers): a confirmed track moving at
+               least merge_move_px per window and missed so far takes the nearest detection left
+               over within reid_px of its prediction, if d_ik <= reid_ratio d_mk for every other
+               confirmed track m (a track that coasted through a merge picks its object up again
+               where it reappears a little outside its gate; a blob between two tracks stays
+               unclaimed); updated as a hit; repeated while pairs remain
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
@@ -33,7 +40,8 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     deaths     a tentative track dies after more than ``tentative_misses`` misses in a row (0: at
                its first miss); a confirmed one coasts (predicted; listed as coasting, with
                its misses m_i, for the first ``report_misses``) through up to ``max_misses``
-               windows in a row, then dies; one that is occluded (its prediction within R_i of
+               windows in a row, or while m_i s_i dt <= coast_px (up to max_coast), then dies;
+               one that is occluded (its prediction within R_i of
                a detection another track took: a merged blob) lives, and is listed, up to
                ``max_occluded`` misses in a row
     bin        hysteresis on the smoothed speed: a track keeps bin b while
@@ -91,8 +99,16 @@ class TrackerConfig:
     them during merges that last tens of windows), max_turn_rad: its bound per window; merge_px:
     the farthest apart two tracks' predictions may be for a detection between them to be their
     blob (0: no merges; objects up to ~50 px across touch at that distance), merge_move_px: the
-    slowest track (px per window) that can be in a merge (a slow object's two edge fragments
-    would otherwise hold two tracks on it)."""
+    slowest track (px per window) that can be in a merge or re-identify (a slow object's two
+    edge fragments would otherwise hold two tracks on it); shared_gate_grows: whether a coasting
+    track's grown gate also makes a detection shared (False: only its base gate, so that the
+    one object still seen keeps learning its motion while the other is hidden); reid_px,
+    reid_ratio: the second association (re-identification: a missed confirmed track takes a
+    detection left over within reid_px of its prediction that is reid_ratio times nearer to it
+    than to any other confirmed track, not one between two tracks; 0: off); coast_px,
+    max_coast: a confirmed track also lives on after max_misses while its prediction has moved
+    at most coast_px since its last detection (m_i s_i dt <= coast_px: a slow object hidden
+    behind a passing one is still near its prediction), up to max_coast misses."""
 
     gate_px: float = 15.0
     gate_growth: float = 0.5
@@ -101,7 +117,7 @@ class TrackerConfig:
     beta: float = 0.4
     confirm_hits: int = 2
     tentative_misses: int = 0
-    max_misses: int = 10
+    max_misses: int = 20
     hysteresis: float = 0.1
     gate_speed: float = 0.0
     report_misses: int = 5
@@ -111,8 +127,13 @@ class TrackerConfig:
     shared_keeps_motion: bool = True
     turn_beta: float = 0.2
     max_turn_rad: float = 0.1
-    merge_px: float = 40.0
-    merge_move_px: float = 1.0
+    merge_px: float = 50.0
+    merge_move_px: float = 1.5
+    shared_gate_grows: bool = False
+    reid_px: float = 30.0
+    reid_ratio: float = 0.6
+    coast_px: float = 30.0
+    max_coast: int = 40
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -131,6 +152,10 @@ class TrackerConfig:
             raise ValueError("turn_beta must be in [0, 1] and max_turn_rad >= 0")
         if not min(self.merge_px, self.merge_move_px) >= 0:
             raise ValueError("merge_px and merge_move_px must be >= 0")
+        if not (self.coast_px >= 0 and self.max_coast >= 0):
+            raise ValueError(f"coast_px and max_coast must be >= 0, got {self.coast_px}, {self.max_coast}")
+        if not (self.reid_px >= 0 and self.reid_ratio > 0):
+            raise ValueError(f"reid_px must be >= 0 and reid_ratio > 0, got {self.reid_px}, {self.reid_ratio}")
 
 
 _F = np.float64
@@ -186,9 +211,25 @@ class Detections:
     @classmethod
     def of(cls, objects) -> "Detections":
         """From objects with x, y, direction_rad, speed_px_s and speed_bin (pipeline.ObjectFlow)."""
-        rows = [(o.x, o.y, o.speed_px_s * math.cos(o.direction_rad), o.speed_px_s * math.sin(o.direction_rad),
-                 o.speed_px_s, o.speed_bin) for o in objects]
-        return cls(np.array(rows, dtype=_F).reshape(-1, 6))
+        return cls(_detections(raw_detections(objects)))
+
+
+def raw_detections(objects) -> np.ndarray:
+    """x, y, direction_rad, speed_px_s, speed_bin of each object, flat (n * 5,) float64: the one
+    pass over the objects' attributes a window needs (one flat list: numpy converts it faster
+    than a list of rows)."""
+    return np.array([v for o in objects for v in (o.x, o.y, o.direction_rad, o.speed_px_s, o.speed_bin)], _F)
+
+
+@njit(cache=True, nogil=True)
+def _detections(zr):
+    """Detections.a (n, 6) of raw_detections' flat (n * 5,) array (velocity from direction and speed)."""
+    zr = zr.reshape(-1, 5)
+    z = np.empty((zr.shape[0], 6))
+    for k in range(zr.shape[0]):
+        z[k, 0], z[k, 1], z[k, 4], z[k, 5] = zr[k, 0], zr[k, 1], zr[k, 3], zr[k, 4]
+        z[k, 2], z[k, 3] = zr[k, 3] * math.cos(zr[k, 2]), zr[k, 3] * math.sin(zr[k, 2])
+    return z
 
 
 @dataclass(frozen=True)
@@ -208,7 +249,8 @@ class BinEdges:
 
 #: entries of the settings vector the compiled loops take (``params``)
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
- P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE) = range(19)
+ P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
+ P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO, P_COAST_PX, P_MAX_COAST) = range(25)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -217,7 +259,8 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
     return np.array([dt_s, cfg.gate_px, cfg.gate_growth, cfg.alpha, cfg.beta, cfg.hysteresis, cfg.confirm_hits,
                      cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
                      cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion), cfg.turn_beta,
-                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px],
+                     cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px,
+                     float(cfg.shared_gate_grows), cfg.reid_ratio, cfg.coast_px, cfg.max_coast],
                     dtype=_F)
 
 
@@ -293,18 +336,44 @@ def _merges(a, t, z, r, j, d, p):
 
 
 @njit(cache=True, nogil=True)
+def _hit(a, i, z, k, p, lo, hi, inner, shared):
+    """Update of predicted track i (row of ``a``) with detection k (module doc); shared: k lies
+    in the gates of two or more confirmed tracks."""
+    if shared and p[P_SHARED_KEEPS] > 0:                   # one blob of two objects: its motion is neither's
+        a[i, X] += p[P_ALPHA] * (z[k, 0] - a[i, X])
+        a[i, Y] += p[P_ALPHA] * (z[k, 1] - a[i, Y])
+        return
+    if p[P_TURN_BETA] > 0:                                  # turn rate from the direction's innovation
+        q = min(1.0, z[k, S - X] * p[P_DT] / p[P_HEADING_PX])
+        e = math.atan2(z[k, 3], z[k, 2]) - math.atan2(a[i, VY], a[i, VX])
+        e = (e + math.pi) % (2.0 * math.pi) - math.pi
+        wmax = p[P_MAX_TURN] / p[P_DT]
+        a[i, W] = min(wmax, max(-wmax, a[i, W] + p[P_TURN_BETA] * q * e / p[P_DT]))
+    for c in range(X, S + 1):
+        g = p[P_ALPHA] if c <= Y else p[P_BETA]
+        a[i, c] += g * (z[k, c - X] - a[i, c])
+    # heading: a detection's direction is as good as the distance it moved in the window
+    g_h = min(1.0, max(p[P_HEADING_BETA], z[k, S - X] * p[P_DT] / p[P_HEADING_PX]))
+    a[i, HX] += g_h * (z[k, 2] - a[i, HX])
+    a[i, HY] += g_h * (z[k, 3] - a[i, HY])
+    h = p[P_H]
+    b = int(a[i, BIN]) - 1
+    if not (lo[b] * (1.0 - h) <= a[i, S] <= hi[b] * (1.0 + h)):
+        a[i, BIN] = np.searchsorted(inner, a[i, S], side="right") + 1
+
+
+@njit(cache=True, nogil=True)
 def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
     """Update, confirmation, deaths, births and bin hysteresis of ``step`` (module doc) on the
     predicted tracks ``a`` (t: the tracks before the window) and the pairs (r, j)."""
     n_t, n_d = a.shape[0], z.shape[0]
-    h = p[P_H]
     hit = np.zeros(n_t, np.bool_)
     free = np.ones(n_d, np.bool_)
     det_of = np.full(n_t, -1, np.int64)
     shared = np.zeros(n_d, np.int64)                         # confirmed tracks whose gate holds detection k
     for i in range(n_t):
         if t[i, CONF] > 0:
-            gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * p[P_DT]
+            gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS] * p[P_SHARED_GROWS]) * t[i, S] * p[P_DT]
             for k in range(n_d):
                 if d[i, k] <= gate:
                     shared[k] += 1
@@ -318,26 +387,25 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
         if blob_of[k] >= 0:                                  # a blob of two tracks: moved in _merges
             continue
         hit[i], free[k], det_of[i] = True, False, k
-        if shared[k] > 1 and p[P_SHARED_KEEPS] > 0:         # one blob of two objects: its motion is neither's
-            a[i, X] += p[P_ALPHA] * (z[k, 0] - a[i, X])
-            a[i, Y] += p[P_ALPHA] * (z[k, 1] - a[i, Y])
-            continue
-        if p[P_TURN_BETA] > 0:                              # turn rate from the direction's innovation
-            q = min(1.0, z[k, S - X] * p[P_DT] / p[P_HEADING_PX])
-            e = math.atan2(z[k, 3], z[k, 2]) - math.atan2(a[i, VY], a[i, VX])
-            e = (e + math.pi) % (2.0 * math.pi) - math.pi
-            wmax = p[P_MAX_TURN] / p[P_DT]
-            a[i, W] = min(wmax, max(-wmax, a[i, W] + p[P_TURN_BETA] * q * e / p[P_DT]))
-        for c in range(X, S + 1):
-            g = p[P_ALPHA] if c <= Y else p[P_BETA]
-            a[i, c] += g * (z[k, c - X] - a[i, c])
-        # heading: a detection's direction is as good as the distance it moved in the window
-        g_h = min(1.0, max(p[P_HEADING_BETA], z[k, S - X] * p[P_DT] / p[P_HEADING_PX]))
-        a[i, HX] += g_h * (z[k, 2] - a[i, HX])
-        a[i, HY] += g_h * (z[k, 3] - a[i, HY])
-        b = int(a[i, BIN]) - 1
-        if not (lo[b] * (1.0 - h) <= a[i, S] <= hi[b] * (1.0 + h)):
-            a[i, BIN] = np.searchsorted(inner, a[i, S], side="right") + 1
+        _hit(a, i, z, k, p, lo, hi, inner, shared[k] > 1)
+    if p[P_REID] > 0:                                        # second association: missed tracks claim leftovers
+        while True:
+            best, bi, bk = p[P_REID], -1, -1
+            for i in range(n_t):
+                if hit[i] or t[i, CONF] <= 0 or t[i, S] * p[P_DT] < p[P_MERGE_MOVE]:
+                    continue
+                for k in range(n_d):
+                    if free[k] and d[i, k] <= best and (bi < 0 or d[i, k] < best):
+                        clear = True                         # not as near another confirmed track: no blob of two
+                        for m in range(n_t):
+                            if m != i and t[m, CONF] > 0 and d[i, k] > p[P_REID_RATIO] * d[m, k]:
+                                clear = False
+                        if clear:
+                            best, bi, bk = d[i, k], i, k
+            if bi < 0:
+                break
+            hit[bi], free[bk], det_of[bi] = True, False, bk
+            _hit(a, bi, z, bk, p, lo, hi, inner, shared[bk] > 1)
     keep = np.zeros(n_t, np.bool_)
     taken = ~free                                            # detections assigned to a track
     dt_s = p[P_DT]
@@ -356,6 +424,8 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
             a[i, CONF] = 1.0
         lim = max(p[P_MAX_MISSES], p[P_MAX_OCCLUDED] * a[i, OCC])
         keep[i] = a[i, MISS] <= (lim if a[i, CONF] > 0 else p[P_TENTATIVE])
+        if a[i, CONF] > 0 and a[i, MISS] * a[i, S] * dt_s <= p[P_COAST_PX] and a[i, MISS] <= p[P_MAX_COAST]:
+            keep[i] = True                                   # a slow track's prediction is still near its object
         if a[i, CONF] > 0:                                   # no births next to a confirmed track
             for k in range(n_d):
                 if d[i, k] <= p[P_BIRTH_GAP]:
@@ -398,6 +468,43 @@ def _step_simple(t, z, p, lo, hi, inner, next_id):
     return out, assigned, next_id, True
 
 
+@njit(cache=True, nogil=True)
+def _listing(out, assigned, p):
+    """What Tracker.update hands out, as one int64 array (one result to box, one ``tolist``):
+    each detection's row in ``out`` (-1: none), each detection's track id (-1: none), then the
+    rows of the confirmed tracks listed as coasting (missed, for their first report_misses
+    misses or while occluded)."""
+    n_d = assigned.shape[0]
+    n_c = 0
+    for i in range(out.shape[0]):
+        n_c += out[i, CONF] > 0 and out[i, MISS] > 0 and (out[i, MISS] <= p[P_REPORT] or out[i, OCC] > 0)
+    info = np.empty(2 * n_d + n_c, np.int64)
+    for k in range(n_d):
+        info[k] = assigned[k]
+        info[n_d + k] = int(out[assigned[k], ID]) if assigned[k] >= 0 else -1
+    m = 2 * n_d
+    for i in range(out.shape[0]):
+        if out[i, CONF] > 0 and out[i, MISS] > 0 and (out[i, MISS] <= p[P_REPORT] or out[i, OCC] > 0):
+            info[m] = i
+            m += 1
+    return info
+
+
+N_P = P_MAX_COAST + 1
+
+
+@njit(cache=True, nogil=True)
+def _window(t, zr, pe, next_id):
+    """Tracker.update's window in one compiled call when the gates pair tracks and detections
+    unambiguously (``_step_simple`` on raw_detections' array): -> (tracks, _listing, next id,
+    done); ``done`` False: the caller runs ``_step_matched`` (the Hungarian method). pe: params
+    then the bin edges lo, hi, inner (one argument: numba's dispatch cost grows with their number)."""
+    n = (pe.shape[0] - N_P + 1) // 3
+    p, lo, hi, inner = pe[:N_P], pe[N_P:N_P + n], pe[N_P + n:N_P + 2 * n], pe[N_P + 2 * n:]
+    out, assigned, nid, done = _step_simple(t, _detections(zr), p, lo, hi, inner, next_id)
+    return out, _listing(out, assigned, p) if done else assigned, nid, done
+
+
 def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edges: BinEdges,
          next_id: int, p: np.ndarray | None = None) -> tuple[Tracks, np.ndarray, int]:
     """One window of tracking (module doc): -> (live tracks, assigned track row of each detection
@@ -408,23 +515,29 @@ def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edge
     t, z = tracks.a, dets.a
     p = params(cfg, dt_s) if p is None else p
     out, assigned, nid, done = _step_simple(t, z, p, edges.lo, edges.hi, edges.inner, int(next_id))
-    if not done:                                             # confirmed tracks first, then tentative ones
-        a, d, ok, _simple = _predict(t, z, p)
-        conf = t[:, CONF] > 0
-        pairs = match_within(d, ok & conf[:, None])
-        taken = np.zeros(z.shape[0], bool)
-        taken[[c for _r, c in pairs]] = True
-        pairs += match_within(d, ok & ~conf[:, None] & ~taken[None, :])
-        r, j = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
-        out, assigned, nid = _update(a, t, z, np.ascontiguousarray(r), np.ascontiguousarray(j), d, p, edges.lo,
-                                     edges.hi, edges.inner, int(next_id))
+    if not done:
+        out, assigned, nid = _step_matched(t, z, p, edges, nid)
     return Tracks(out), assigned, int(nid)
+
+
+def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, next_id: int):
+    """``step`` where a gate holds two candidates: the Hungarian method on the gated distances,
+    confirmed tracks first, then tentative ones -> (tracks array, assigned, next id)."""
+    a, d, ok, _simple = _predict(t, z, p)
+    conf = t[:, CONF] > 0
+    pairs = match_within(d, ok & conf[:, None])
+    taken = np.zeros(z.shape[0], bool)
+    taken[[c for _r, c in pairs]] = True
+    pairs += match_within(d, ok & ~conf[:, None] & ~taken[None, :])
+    r, j = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
+    return _update(a, t, z, np.ascontiguousarray(r), np.ascontiguousarray(j), d, p, edges.lo, edges.hi, edges.inner,
+                   int(next_id))
 
 
 class Tracker:
     """Stateful wrapper of ``step`` for a stream of windows: ``update(objects, t0_us)`` assigns
-    every object of the window a ``track_id`` and its track's smoothed ``track`` state (dict,
-    ``track_state``), in place. Windows may be skipped (a gap counts as missed windows)."""
+    every object of the window a ``track_id`` and its track's smoothed ``track`` state (a
+    read-only mapping, ``TrackState``), in place. Windows may be skipped (a gap counts as missed windows)."""
 
     def __init__(self, config, dt_us: int, settings: TrackerConfig | None = None, px_ms_per_mps: float | None = None):
         """config: the bundle's ToffeConfig (its speed bins); dt_us: the window length;
@@ -433,6 +546,7 @@ class Tracker:
         self.dt_us = int(dt_us)
         self.edges = BinEdges.of(config)
         self._p = params(self.settings, self.dt_us * 1e-6)
+        self._pe = np.concatenate([self._p, self.edges.lo, self.edges.hi, self.edges.inner])   # _window's
         self.k_mps = None if px_ms_per_mps is None else 1.0 / (1000.0 * px_ms_per_mps)
         self.tracks = Tracks()
         self.next_id = 0
@@ -441,6 +555,8 @@ class Tracker:
         # compile (first run on a machine) or load the cached kernels now, not in the first window
         one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
         step(step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0], one, 1e-3, self.settings, self.edges, 1)
+        zr = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
+        _window(_window(Tracks().a, zr, self._pe, 0)[0], zr, self._pe, 1)
 
     def update(self, objects: list, t0_us: int) -> Tracks:
         """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin;
@@ -457,24 +573,26 @@ class Tracker:
             a[:, STREAK] = 0
             s = self.settings
             tr = Tracks(a[a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)])
-        self.tracks, assigned, self.next_id = step(tr, Detections.of(objects), self.dt_us * 1e-6, self.settings,
-                                                   self.edges, self.next_id, self._p)
-        rows = self.tracks.a.tolist()
-        for o, r in zip(objects, assigned.tolist()):
-            o.track_id, o.track = (int(rows[r][ID]), self.track_state(rows[r])) if r >= 0 else (None, None)
-        self._coasting = [row for row in rows if row[CONF] > 0 and row[MISS] > 0
-                          and (row[MISS] <= self.settings.report_misses or row[OCC] > 0)]
+        # the usual window in one compiled call; the few objects' attributes read once, the results
+        # handed out from one int array (Python-level work, not the tracking, was most of the cost)
+        zr = raw_detections(objects)
+        out, info, self.next_id, done = _window(tr.a, zr, self._pe, self.next_id)
+        if not done:
+            out, assigned, self.next_id = _step_matched(tr.a, _detections(zr), self._p, self.edges, self.next_id)
+            info = _listing(out, assigned, self._p)
+        self.tracks = Tracks(out)
+        n, k, info = len(objects), self.k_mps, info.tolist()
+        for o, r, tid in zip(objects, info, info[n:]):
+            o.track_id, o.track = (tid, TrackState(out, r, k)) if r >= 0 else (None, None)
+        self._coasting = info[2 * n:]
         return self.tracks
 
     def coasting(self) -> list[dict]:
         """The confirmed tracks no detection of the last window was assigned to, for their first
         report_misses misses or while occluded (they coast on their prediction):
         [{"track_id", "track"}], the window line's ``coasting`` list."""
-        return [{"track_id": int(row[ID]), "track": self.track_state(row)} for row in self._coasting]
-
-    def track_state(self, row: list) -> "TrackState":
-        """The ``track`` object of one row of the live tracks (README, JSON lines)."""
-        return TrackState(row, self.k_mps)
+        a = self.tracks.a
+        return [{"track_id": int(a[r, ID]), "track": TrackState(a, r, self.k_mps)} for r in self._coasting]
 
 
 class TrackState(Mapping):
@@ -482,17 +600,18 @@ class TrackState(Mapping):
     direction_deg, speed_px_s, speed_mps (with a speed scale), speed_bin, age, hits, confirmed,
     misses (windows in a row without a detection: 0 when detected in this window, > 0 when
     coasting on its prediction) and occluded (coasting under a detection another track took).
-    A read-only mapping built from the track's row when first read (a robot loop that reads a
-    few tracks does not pay for formatting every one; ``dict(state)`` for JSON)."""
+    A read-only mapping built from row i of the window's tracks array ``a`` (Tracks.a, never
+    modified once returned) when first read (a robot loop that reads a few tracks does not pay
+    for formatting every one; ``dict(state)`` for JSON)."""
 
-    __slots__ = ("_row", "_k_mps", "_d")
+    __slots__ = ("_a", "_i", "_k_mps", "_d")
 
-    def __init__(self, row: list, k_mps: float | None):
-        self._row, self._k_mps, self._d = row, k_mps, None
+    def __init__(self, a: np.ndarray, i: int, k_mps: float | None):
+        self._a, self._i, self._k_mps, self._d = a, i, k_mps, None
 
     def _dict(self) -> dict:
         if self._d is None:
-            row = self._row
+            row = self._a[self._i].tolist()
             vx, vy, sp = row[HX], row[HY], row[S]
             d = {"x": round(row[X], 4), "y": round(row[Y], 4),
                  "direction_deg": round(math.degrees(math.atan2(vy, vx)), 4), "speed_px_s": round(sp, 4)}
@@ -505,7 +624,7 @@ class TrackState(Mapping):
 
     @property
     def confirmed(self) -> bool:
-        return self._row[CONF] > 0
+        return bool(self._a[self._i, CONF] > 0)
 
     def __getitem__(self, key):
         return self._dict()[key]
