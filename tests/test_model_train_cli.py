@@ -93,6 +93,24 @@ def test_ofpd_pool_retrains_only_the_ofpd(data, tmp_path, capsys):
     assert "two odd sizes" in capsys.readouterr().err
 
 
+def test_speed_loss_options_train_and_are_logged(data, tmp_path):
+    """--speed-balance / --speed-edge-weight reach the OFPD training (their loss: test_train_speed_loss)
+    and are logged; without them the log says nothing (the plain L1)."""
+    from toffe_deploy.checkpoint import init_checkpoint
+    from toffe_deploy.config import ToffeConfig
+
+    states = []
+    for extra in ([], ["--speed-balance", "--speed-edge-weight", "2"]):
+        ck = tmp_path / ("ck" + str(len(states)))
+        init_checkpoint(ck, ToffeConfig(), seed=1)
+        assert main(["train", "--data", str(data), "--out", str(ck), "--stage", "ofpd", "--epochs", "1",
+                     "--windows-per-seq", "3", "--no-progress", "--seed", "2"] + extra) == 0
+        log = json.loads((ck / "train_log.json").read_text())
+        assert log.get("ofpd_speed_loss") == ({"balance": True, "edge_weight": 2.0} if extra else None)
+        assert log["ofpd_samples"] > 0 and len(log["ofpd_loss"]) == 1
+        states.append(ck)
+
+
 def test_resume_goes_on_with_the_interrupted_ofpd_settings():
     from toffe_deploy.config import ToffeConfig
     from toffe_deploy.model.train import resolve_ofpd_settings

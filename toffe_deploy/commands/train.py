@@ -57,6 +57,12 @@ def register(sub) -> None:
     p.add_argument("--init-from", type=Path, default=None, metavar="CKPT",
                    help="start from this checkpoint's config and OFS stages (fine-tune them, e.g. with --reset zero; "
                         "--stage all then retrains the OFPD on the new stages' outputs)")
+    p.add_argument("--speed-balance", action="store_true",
+                   help="OFPD speed loss: weigh each sample by the inverse frequency of its true speed bin "
+                        "(model/train.py SpeedLoss; default off: plain L1 on ln speed)")
+    p.add_argument("--speed-edge-weight", type=float, default=0.0, metavar="W",
+                   help="OFPD speed loss: add W times the distance (ln speed) by which the regressed speed lies "
+                        "outside its true bin, whose edges give the reported bin (default 0)")
     p.add_argument("--resume", action="store_true", help="continue from the training state saved in --out")
     p.add_argument("--device", default="auto", help="torch device: auto (CUDA when present, else CPU), cpu, cuda")
     add_progress_flag(p)
@@ -90,6 +96,8 @@ def run(args) -> int:
         raise ToffeError(f"--mask-kernel must be >= 1, got {args.mask_kernel}")
     if args.ofs_kernel < 1 or args.ofs_kernel % 2 == 0:
         raise ToffeError(f"--ofs-kernel must be an odd positive size, got {args.ofs_kernel}")
+    if not args.speed_edge_weight >= 0:
+        raise ToffeError(f"--speed-edge-weight must be >= 0, got {args.speed_edge_weight}")
     for name in ("dt", "ofs_epochs", "epochs", "windows_per_seq"):
         if getattr(args, name) < (0 if "epochs" in name else 1):
             raise ToffeError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
@@ -99,7 +107,7 @@ def run(args) -> int:
         raise ToffeError(f"--device must be auto, cpu or cuda[:N], got {args.device}")
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         raise ToffeError("--device cuda: no CUDA device available")
-    from ..model.train import TrainOptions, train
+    from ..model.train import SpeedLoss, TrainOptions, train
 
     torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
     out = train(TrainOptions(data=args.data, out=args.out, stage=args.stage, ofs_epochs=args.ofs_epochs,
@@ -108,6 +116,7 @@ def run(args) -> int:
                              ofpd_kernels=kernels, progress=show_progress(args), input_norm=args.input_norm,
                              ofs_kernel=args.ofs_kernel, min_cluster=args.min_cluster, reset=args.reset,
                              init_from=args.init_from, ofs_pool=args.ofs_pool, mask_kernel=args.mask_kernel,
-                             input_support=support))
+                             input_support=support,
+                             speed_loss=SpeedLoss(args.speed_balance, float(args.speed_edge_weight))))
     print(f"checkpoint written to {out}")
     return 0

@@ -23,7 +23,15 @@ Targets: sensor (x, y), (cos, sin) of the direction, ln(speed) (ofpd_io.speed_ta
 the image-plane speed, the ground truth's speed_px_ms or its m/s through config.speed_scale;
 ln m/s for a legacy-layout OFPD). A fresh OFPD trains on ofpd_io.CURRENT_LAYOUT. Augmentation: the 8 flips and
 transposes of the crop (pose mirrored about the crop centre, direction and motion planes mirrored likewise).
-Loss: SmoothL1(pose px / 4) + |d_pred - d_gt|^2 + |ln v_pred - ln v_gt|.
+Loss: SmoothL1(pose px / 4) + |d_pred - d_gt|^2 + L_v, by default L_v = mean_i |ln v_i - ln v_i*|.
+With the speed loss options (SpeedLoss; `train --speed-balance --speed-edge-weight W`), over the
+samples i of a batch with true bin b_i, [lo_b, hi_b] its ln speed range (ofpd_io.speed_bounds_px_ms):
+
+    L_v = mean_i w_i (|ln v_i - ln v_i*| + W (max(0, lo_b_i - ln v_i) + max(0, ln v_i - hi_b_i))),
+    w_i = N / (N_bins n_b_i) with --speed-balance (n_b: the training samples of bin b), else 1:
+
+each bin weighs the same, and a speed that leaves its true bin (a wrong reported bin, since
+ofpd.bin_from "ofpd" reads the bin from this speed) costs W more per unit of ln speed.
 """
 from __future__ import annotations
 
@@ -255,6 +263,7 @@ class OFPDSet:
     direction: np.ndarray
     speed: np.ndarray
     stage: np.ndarray
+    truth_bin: np.ndarray | None = None   # (N,) the ground truth's 1-based speed bin (SpeedLoss)
 
 
 def build_ofpd_set(windows: WindowSet, stages, config: ToffeConfig, progress: bool = True) -> OFPDSet:
@@ -263,7 +272,7 @@ def build_ofpd_set(windows: WindowSet, stages, config: ToffeConfig, progress: bo
     truth's px/ms where the data set has it, else its m/s through config.speed_scale)."""
     c, g, _ = ofpd_io.input_shape(config)
     run = fixed_stage_fn(stages)
-    planes, motion, origin, tx, ty, td, tv, tk = [], [], [], [], [], [], [], []
+    planes, motion, origin, tx, ty, td, tv, tk, tb = [], [], [], [], [], [], [], [], []
     nb = 2 * config.n_bins
     for i in tqdm(range(len(windows)), desc="OFPD samples (fixed-point cascade)", leave=False, disable=not progress):
         vol = windows.dense([i])[0]
@@ -284,10 +293,12 @@ def build_ofpd_set(windows: WindowSet, stages, config: ToffeConfig, progress: bo
             origin.append(org[j])
             tx.append(windows.x[i]); ty.append(windows.y[i]); td.append(windows.direction[i])
             tv.append(float(ofpd_io.speed_target(v_px, config, windows.speed[i]))); tk.append(k)
+            tb.append(windows.speed_bin[i])
     return OFPDSet(np.asarray(planes, dtype=np.uint16).reshape(-1, nb, g, g),
                    np.asarray(motion, dtype=np.float32).reshape(-1, c - 2 - nb, g, g),
                    np.asarray(origin, dtype=np.float64).reshape(-1, 3),
-                   np.asarray(tx), np.asarray(ty), np.asarray(td), np.asarray(tv), np.asarray(tk, dtype=np.int64))
+                   np.asarray(tx), np.asarray(ty), np.asarray(td), np.asarray(tv), np.asarray(tk, dtype=np.int64),
+                   np.asarray(tb, dtype=np.int64))
 
 
 def ofpd_batch(ds: OFPDSet, idx: np.ndarray, rng: np.random.Generator | None):
@@ -325,12 +336,48 @@ def ofpd_batch(ds: OFPDSet, idx: np.ndarray, rng: np.random.Generator | None):
             torch.from_numpy(ds.speed[idx].astype(np.float32)))
 
 
-def ofpd_loss(model, batch, device):
+@dataclass(frozen=True)
+class SpeedLoss:
+    """The OFPD speed loss L_v of the module docstring: ``balance`` weighs each sample by the
+    inverse frequency of its true bin, ``edge_weight`` (W) adds W times the distance (ln speed)
+    by which the regressed speed lies outside its true bin. The default (False, 0) is plain L1."""
+
+    balance: bool = False
+    edge_weight: float = 0.0
+
+    @property
+    def plain(self) -> bool:
+        return not self.balance and self.edge_weight == 0.0
+
+    def sample_terms(self, ds: OFPDSet, config: ToffeConfig) -> tuple[np.ndarray, np.ndarray]:
+        """Per sample of ds: (weight w_i (N,), [lo, hi] of its true bin in the speed target's
+        units (N, 2))."""
+        if ds.truth_bin is None:
+            raise ValueError("SpeedLoss needs OFPDSet.truth_bin")
+        nb = config.n_speed_bins
+        counts = np.bincount(ds.truth_bin, minlength=nb + 1)[1:nb + 1].astype(np.float64)
+        w = np.ones(ds.truth_bin.size)
+        if self.balance:
+            w = ds.truth_bin.size / (np.count_nonzero(counts) * counts[ds.truth_bin - 1])
+        px_ms = ofpd_io.ofpd_settings(config)["speed_unit"] == "px_ms"
+        bounds = np.log(ofpd_io.speed_bounds_px_ms(config) if px_ms else ofpd_io.speed_bounds(config))
+        return w, bounds[ds.truth_bin - 1]
+
+
+def ofpd_loss(model, batch, device, speed_terms=None, edge_weight: float = 0.0):
+    """The OFPD loss of the module docstring; ``speed_terms`` = (w (n,), bounds (n, 2)) of the
+    batch's samples (SpeedLoss.sample_terms) for the weighted / edge speed loss, None: plain L1."""
     x, pose_t, dir_t, lnv_t = (t.to(device) for t in batch)
     pose, direction, speed = model(x)
     lp = F.smooth_l1_loss(pose / 4.0, pose_t / 4.0)     # px / 4: about cells at the old fixed crop
     ld = ((direction - dir_t) ** 2).sum(dim=1).mean()
-    lv = (speed[:, 0] - lnv_t).abs().mean()
+    if speed_terms is None:
+        lv = (speed[:, 0] - lnv_t).abs().mean()
+    else:
+        w, bounds = (torch.as_tensor(a, dtype=torch.float32, device=device) for a in speed_terms)
+        v = speed[:, 0]
+        out = torch.relu(bounds[:, 0] - v) + torch.relu(v - bounds[:, 1])
+        lv = (w * ((v - lnv_t).abs() + float(edge_weight) * out)).mean()
     return lp + ld + lv, (float(lp), float(ld), float(lv))
 
 
@@ -358,6 +405,7 @@ class TrainOptions:
     ofs_pool: int | None = None       # OFS grid pooling (config.ofs_pool); None: the checkpoint's, NEW_OFS_POOL for a new one
     mask_kernel: int | None = None    # cascade closing kernel in grid cells; None: the checkpoint's, else ToffeConfig's
     input_support: tuple[int, int, int, int] | None = None   # front end's temporal support of a new checkpoint (off)
+    speed_loss: SpeedLoss = SpeedLoss()   # OFPD speed loss (plain L1 by default)
 
 
 def _state_path(out: Path) -> Path:
@@ -544,6 +592,9 @@ def train(opts: TrainOptions) -> Path:
         rng = np.random.default_rng(opts.seed + ep0)
         state["ofpd_settings"] = ofpd_io.ofpd_settings(config)      # what a --resume must go on with
         n = ds.planes.shape[0]
+        terms = None if opts.speed_loss.plain else opts.speed_loss.sample_terms(ds, config)
+        if terms is not None:
+            log["ofpd_speed_loss"] = dataclasses.asdict(opts.speed_loss)
         for ep in range(ep0, opts.ofpd_epochs):
             for gp in opt.param_groups:      # cosine decay, a function of the epoch so resume agrees
                 gp["lr"] = 2e-3 * 0.5 * (1 + math.cos(math.pi * ep / sched_total))
@@ -552,7 +603,10 @@ def train(opts: TrainOptions) -> Path:
             agg = np.zeros(3)
             bar = tqdm(range(0, n, 64), desc=f"OFPD epoch {ep + 1}/{opts.ofpd_epochs}", leave=False, disable=not opts.progress)
             for s in bar:
-                loss, parts = ofpd_loss(model, ofpd_batch(ds, order[s:s + 64], rng), device)
+                bi = order[s:s + 64]
+                loss, parts = ofpd_loss(model, ofpd_batch(ds, bi, rng), device,
+                                        None if terms is None else (terms[0][bi], terms[1][bi]),
+                                        opts.speed_loss.edge_weight)
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
