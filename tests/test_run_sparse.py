@@ -179,3 +179,39 @@ def test_sorted_unique_equals_np_unique(rng):
         v = rng.integers(0, top, n).astype(np.int64)
         got = sorted_unique(v)
         assert got.dtype == np.int64 and np.array_equal(got, np.unique(v))
+
+
+def test_closed_bits_equals_opencv_closing_on_random_images(rng):
+    """compiled.closed_bits (the cascade's closing, read at pixels) against cv2.morphologyEx:
+    odd and even kernels, rows of one to four 64-bit words, empty edges and full images."""
+    from toffe_deploy.compiled import closed_bits
+
+    for _ in range(300):
+        k = int(rng.integers(1, 8))
+        h, w = int(rng.integers(1, 30)), int(rng.integers(1, 200))
+        img = (rng.random((h, w)) < rng.choice([0.02, 0.1, 0.4, 0.8, 1.0])).astype(np.uint8)
+        img[0, 0] = 1
+        fr, fc = np.nonzero(img)
+        ref = cv2.morphologyEx(img, cv2.MORPH_CLOSE, np.ones((k, k), np.uint8))
+        ys, xs = np.divmod(np.arange(h * w), w)
+        got = closed_bits(fr.astype(np.int64), fc.astype(np.int64), ys, xs, h, w, k)
+        assert np.array_equal(got, ref.ravel() > 0), (k, h, w)
+
+
+def test_cascade_int32_scatter_equals_int64(rng):
+    """cascade_window's int32 scatter buffer (small weights) gives the int64 buffer's results."""
+    from toffe_deploy import compiled
+
+    params = _stage_params(rng, n=4, k=5)
+    cas = CpuCascade(params, 5, 5, (32, 24))
+    win_vol = SpikeVolume.from_dense(_blobby(rng, n_blobs=5))
+    from toffe_deploy.runtime.ofs_sparse import SparseOFSWindow
+
+    win = SparseOFSWindow(win_vol, 5)
+    args = (win.b, win.c, win.pix_inverse, win.input_pixels, win.tap_target, win.active)
+    rest = (cas._dv, cas._vth, cas._reset_zero, 5, 24, 32, 5)
+    small = compiled.cascade_window(*args, cas._weights, *rest)
+    wide = compiled._cascade(*args, cas._weights.astype(np.int64), *rest)
+    assert small[2][0].sum() < small[2][-1].sum()           # a faster stage masked some ones
+    for a, b in zip(small, wide):
+        assert np.array_equal(a, b)
