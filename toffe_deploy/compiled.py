@@ -156,26 +156,29 @@ def lif_into(a_in, spikes, dv, vth_mant, reset_zero):
     """lif_window written into ``spikes`` (B, M) bool, from the first M columns of a_in (B, >= M),
     int64 or narrower (cascade_window's int32 buffer, with its dummy last column).
 
-    Branch free and time-step outer, so the M neurons of a step are independent iterations the
-    compiler vectorizes: trunc0(x / 4096) = (x + (4095 if x < 0 else 0)) >> 12 (arithmetic
-    shift), the reset subtracts vth * o (or zeroes v where o), and the clip is a min and a max.
-    """
+    In float64, exactly: every value is an integer below 2**53 (|v| < 2**23, v * (4096 - dv)
+    < 2**35), the scaling by 1 / 4096 is exact, so trunc0(v * keep / 4096) is np.trunc of the
+    product, and the sums, the clip and the compare are exact too. Branch free and time-step
+    outer: the M neurons of a step are independent iterations the compiler vectorizes (float64
+    multiplies and truncations vectorize where int64 ones did not: ~25% faster, measured); the
+    reset subtracts vth * o (or zeroes v where o)."""
     n_bins, m = spikes.shape
-    v = np.zeros(m, np.int64)
-    o = np.zeros(m, np.int64)
-    vth = np.int64(vth_mant) << STATE_SHIFT
-    keep = np.int64(DECAY_UNITY - dv)
-    bias = np.int64(DECAY_UNITY - 1)
-    zero = np.int64(1 if reset_zero else 0)
+    v = np.zeros(m, np.float64)
+    o = np.zeros(m, np.float64)
+    vth = float(np.int64(vth_mant) << STATE_SHIFT)
+    keep = float(DECAY_UNITY - dv) / DECAY_UNITY
+    scale = float(1 << STATE_SHIFT)
+    zero = 1.0 if reset_zero else 0.0
+    hi = float(STATE_MAX)
     for t in range(n_bins):
         for s in range(m):
-            x = v[s] * (1 - zero * o[s]) * keep
-            x = (x + ((x >> 63) & bias)) >> DECAY_BITS            # trunc0(x / 4096)
-            x += (np.int64(a_in[t, s]) << STATE_SHIFT) - (1 - zero) * vth * o[s]
-            x = min(max(x, -STATE_MAX), STATE_MAX)
+            x = np.trunc(v[s] * (1.0 - zero * o[s]) * keep)
+            x += a_in[t, s] * scale - (1.0 - zero) * vth * o[s]
+            x = min(max(x, -hi), hi)
             v[s] = x
-            o[s] = x > vth
-            spikes[t, s] = x > vth
+            f = x > vth
+            o[s] = 1.0 if f else 0.0
+            spikes[t, s] = f
 
 
 @njit(cache=True, nogil=True)
