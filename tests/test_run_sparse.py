@@ -103,12 +103,13 @@ def test_cpu_cascade_rejects_wrong_window_shape(rng):
         next(cas.cascade_stream([np.zeros((5, 2, 24, 30), np.uint8)]))
 
 
+@pytest.mark.parametrize("reset", ["subtract", "zero"])
 @pytest.mark.parametrize("dv", [0, 1, 1094, 2048, 4095])
-def test_lif_window_equals_lif_step_including_saturation(rng, dv):
+def test_lif_window_equals_lif_step_including_saturation(rng, dv, reset):
     from toffe_deploy.fixed_point import LoihiOFSParams, lif_step
 
     p = LoihiOFSParams(weight=np.ones((1, 1, 1, 1), np.int32), vth_mant=int(rng.integers(1, 3000)), dv=dv,
-                       weight_scale=1.0)
+                       weight_scale=1.0, reset=reset)
     a = rng.integers(-3000, 3000, (7, 4000))
     a[:, :50] = 200_000                   # drives v into the +24-bit clip
     a[:, 50:100] = -200_000               # and the - clip
@@ -117,7 +118,7 @@ def test_lif_window_equals_lif_step_including_saturation(rng, dv):
     for t in range(7):
         v, o = lif_step(v, o, a[t], p)
         ref.append(o)
-    assert np.array_equal(lif_window(a.astype(np.int64), p.dv, p.vth_mant), np.stack(ref))
+    assert np.array_equal(lif_window(a.astype(np.int64), p.dv, p.vth_mant, reset == "zero"), np.stack(ref))
 
 
 def test_warm_up_compiles_every_kernel_the_cascade_uses(rng):
