@@ -216,3 +216,25 @@ def test_cascade_int32_scatter_equals_int64(rng):
     assert small[2][0].sum() < small[2][-1].sum()           # a faster stage masked some ones
     for a, b in zip(small, wide):
         assert np.array_equal(a, b)
+
+
+def test_div_small_is_floor_division(rng):
+    """compiled._div_small (the kernels' v // d without an integer division) against //, at
+    the quotient's edges (multiples of d and one below) and up to 2**49."""
+    from numba import njit
+
+    from toffe_deploy.compiled import _div_small
+
+    @njit
+    def div_all(v, d):
+        out = np.empty(v.shape[0], np.int64)
+        inv = 1.0 / d
+        for i in range(v.shape[0]):
+            out[i] = _div_small(v[i], d, inv)
+        return out
+
+    for d in (1, 2, 3, 5, 7, 320, 640, 641, 4095, 76_800, 307_200, 999_983, 2**31 - 1):
+        q = rng.integers(0, 2**49 // d, 2000)
+        v = np.concatenate([q * d, q * d - 1, q * d + d - 1, rng.integers(0, 2**49, 2000), np.arange(min(3 * d + 5, 10_000))])
+        v = v[(v >= 0) & (v < 2**49)].astype(np.int64)
+        assert np.array_equal(div_all(v, d), v // d), d

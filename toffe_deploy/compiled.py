@@ -47,15 +47,13 @@ def _slot(slot_of, key, keys, n):
 
 @njit(cache=True, nogil=True)
 def _div_small(v, d, inv_d):
-    """v // d for v >= 0 and d >= 1 (inv_d = 1.0 / d) from a float estimate corrected to the
-    exact quotient: an integer division per element costs more than the rest of a pass over a
-    window's ones (it is neither pipelined nor vectorized), a multiply and a compare do not."""
-    q = int(v * inv_d)
-    while q * d > v:
-        q -= 1
-    while (q + 1) * d <= v:
-        q += 1
-    return q
+    """v // d for 0 <= v < 2**50 and d >= 1 (inv_d = 1.0 / d, rounded), from one float product
+    and no correction: an integer division per element costs more than the rest of a pass over a
+    window's ones (it is neither pipelined nor vectorized), a multiply does not. Exact: with
+    v = q d + r, (v + 0.5) / d = q + (r + 0.5) / d lies at least 0.5 / d from an integer, and the
+    two roundings (of 1 / d and of the product) move it by at most (v + 0.5) / d * 2**-52, less
+    than 0.5 / d while v + 0.5 < 2**51 (tests/test_run_sparse.py checks it against //)."""
+    return int((v + 0.5) * inv_d)
 
 
 @njit(cache=True, nogil=True)
@@ -268,16 +266,14 @@ def _cascade(b, c, pix_inverse, input_pixels, tap_target, active, weights, dv, v
     inputs = np.empty((n_st, n), np.bool_)
     frames = np.zeros((n_st, n), np.bool_)
     alive = np.ones(n, np.bool_)
-    # ofs_stage's scatter without its branch: an off-sensor tap (target -1) adds into the dummy
-    # last column m of a_in; flat, with unsigned targets (no test for a negative index per add)
+    # ofs_stage's scatter without its branch: flat, one leading dummy, then bin t's slots s at
+    # 1 + t * mm + s (mm = m + 1, a dummy last column m per bin); tap_target read as unsigned,
+    # so an off-sensor tap's -1 wraps 1 + t * mm - 1 to bin t - 1's dummy (the leading one for
+    # t = 0): no test for a negative index per add, no converted copy of tap_target
     mm = m + 1
-    a_flat = np.empty(n_bins * mm, weights.dtype)
-    a_in = a_flat.reshape(n_bins, mm)
-    n_in = tap_target.shape[0]
-    target = np.empty((n_in, kk), np.uint64)
-    for q in range(n_in):
-        for j in range(kk):
-            target[q, j] = m if tap_target[q, j] < 0 else tap_target[q, j]
+    a_flat = np.empty(1 + n_bins * mm, weights.dtype)
+    a_in = a_flat[1:].reshape(n_bins, mm)
+    target = np.ascontiguousarray(tap_target).view(np.uint64)
     # rows and columns of the active and input pixels, once per window (closed_at)
     inv_w = 1.0 / width
     act_r = np.empty(m, np.int64)
@@ -298,7 +294,7 @@ def _cascade(b, c, pix_inverse, input_pixels, tap_target, active, weights, dv, v
         for i in range(n):
             if alive[i]:
                 q = pix_inverse[i]
-                row = np.uint64(b[i] * mm)
+                row = np.uint64(1 + b[i] * mm)
                 ch = c[i]
                 for j in range(kk):
                     a_flat[row + target[q, j]] += w_k[ch, j]
