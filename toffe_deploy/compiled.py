@@ -1,6 +1,6 @@
 """The per-window loops of the hot path, compiled (numba): the window's binning (bin_index,
 sorted_unique), the input front end (front_end_keep), the cpu cascade's indexing, OFS stage,
-closing (compaction and close_square) and mask split, and ofpd_io's box tests, box
+closing (compaction and close_square; closed_bits on 64-bit rows in the cascade) and mask split, and ofpd_io's box tests, box
 means, density-seed grouping, the event-blob grouping of a window's stages (blob_objects:
 components, their merging and the objects' claims in one pass), each object's crop and ones
 (object_crops) and the OFPD input (fill_input, fill_motion).
@@ -8,7 +8,8 @@ components, their merging and the objects' claims in one pass), each object's cr
 Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
 (~25 calls per stage on arrays of ~2,000 values, plus the window's de-duplication and scatter
 maps) spent most of its time in per-call overhead, not arithmetic. Each kernel here is one pass
-over the window's ones, its active pixels or an object's pixels. The OFS runs in int64: the
+over the window's ones, its active pixels or an object's pixels. The OFS runs on exact
+integers (its scatter in int32 or int64, its LIF in float64, all values below 2**53): the
 same integers as ``toffe_deploy.fixed_point.lif_step`` (tested bit exact, saturation included,
 in tests/test_run_sparse.py); the means are exact integer sums divided once, as numpy's.
 
@@ -239,12 +240,14 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
         frames[k-1], alive = split_closed(alive, closed)      (nothing fired: frame empty)
     weights (N, C, K*K), dv, vth_mant, reset_zero (N,) per stage. Returns (spikes (N, B, M),
     fired (N, M), inputs (N, n), frames (N, n)) bool. ofs_stage's scatter is inlined on one
-    buffer and the closing is closed_at (the same values; tests/test_run_sparse.py checks the
-    cascade against the dense reference).
+    buffer, the LIF is lif_into and the closing is closed_bits (closed_at for a mask kernel
+    over 32): the same values; tests/test_run_sparse.py checks the cascade against the dense
+    reference.
 
-    The scatter adds into int32 when no sum can leave its range (C * K*K * max |weight| < 2**31,
-    always for Loihi's 8-bit weights): the same integers in half the cache footprint (the
-    buffer of a 640x480 window then stays in L1; ~20% less scatter time, measured)."""
+    The scatter adds into int32 when no sum can leave its range: a slot gets at most one
+    weight per (channel, tap) and bin (the ones are unique), so |a_in| <= C * K*K * max |weight|
+    < 2**31, always for Loihi's 8-bit weights; only the never-read dummy column may wrap. The
+    same integers in half the cache footprint (~20% less scatter time, measured)."""
     n_ch, kk = weights.shape[1], weights.shape[2]
     if n_ch * kk * np.abs(weights).max() < 2 ** 31:
         return _cascade(b, c, pix_inverse, input_pixels, tap_target, active, weights.astype(np.int32), dv,
