@@ -103,12 +103,13 @@ def test_cpu_cascade_rejects_wrong_window_shape(rng):
         next(cas.cascade_stream([np.zeros((5, 2, 24, 30), np.uint8)]))
 
 
+@pytest.mark.parametrize("reset", ["subtract", "zero"])
 @pytest.mark.parametrize("dv", [0, 1, 1094, 2048, 4095])
-def test_lif_window_equals_lif_step_including_saturation(rng, dv):
+def test_lif_window_equals_lif_step_including_saturation(rng, dv, reset):
     from toffe_deploy.fixed_point import LoihiOFSParams, lif_step
 
     p = LoihiOFSParams(weight=np.ones((1, 1, 1, 1), np.int32), vth_mant=int(rng.integers(1, 3000)), dv=dv,
-                       weight_scale=1.0)
+                       weight_scale=1.0, reset=reset)
     a = rng.integers(-3000, 3000, (7, 4000))
     a[:, :50] = 200_000                   # drives v into the +24-bit clip
     a[:, 50:100] = -200_000               # and the - clip
@@ -117,7 +118,7 @@ def test_lif_window_equals_lif_step_including_saturation(rng, dv):
     for t in range(7):
         v, o = lif_step(v, o, a[t], p)
         ref.append(o)
-    assert np.array_equal(lif_window(a.astype(np.int64), p.dv, p.vth_mant), np.stack(ref))
+    assert np.array_equal(lif_window(a.astype(np.int64), p.dv, p.vth_mant, reset == "zero"), np.stack(ref))
 
 
 def test_warm_up_compiles_every_kernel_the_cascade_uses(rng):
@@ -179,3 +180,61 @@ def test_sorted_unique_equals_np_unique(rng):
         v = rng.integers(0, top, n).astype(np.int64)
         got = sorted_unique(v)
         assert got.dtype == np.int64 and np.array_equal(got, np.unique(v))
+
+
+def test_closed_bits_equals_opencv_closing_on_random_images(rng):
+    """compiled.closed_bits (the cascade's closing, read at pixels) against cv2.morphologyEx:
+    odd and even kernels, rows of one to four 64-bit words, empty edges and full images."""
+    from toffe_deploy.compiled import closed_bits
+
+    for _ in range(300):
+        k = int(rng.integers(1, 8))
+        h, w = int(rng.integers(1, 30)), int(rng.integers(1, 200))
+        img = (rng.random((h, w)) < rng.choice([0.02, 0.1, 0.4, 0.8, 1.0])).astype(np.uint8)
+        img[0, 0] = 1
+        fr, fc = np.nonzero(img)
+        ref = cv2.morphologyEx(img, cv2.MORPH_CLOSE, np.ones((k, k), np.uint8))
+        ys, xs = np.divmod(np.arange(h * w), w)
+        got = closed_bits(fr.astype(np.int64), fc.astype(np.int64), ys, xs, h, w, k)
+        assert np.array_equal(got, ref.ravel() > 0), (k, h, w)
+
+
+def test_cascade_int32_scatter_equals_int64(rng):
+    """cascade_window's int32 scatter buffer (small weights) gives the int64 buffer's results."""
+    from toffe_deploy import compiled
+
+    params = _stage_params(rng, n=4, k=5)
+    cas = CpuCascade(params, 5, 5, (32, 24))
+    win_vol = SpikeVolume.from_dense(_blobby(rng, n_blobs=5))
+    from toffe_deploy.runtime.ofs_sparse import SparseOFSWindow
+
+    win = SparseOFSWindow(win_vol, 5)
+    args = (win.b, win.c, win.pix_inverse, win.input_pixels, win.tap_target, win.active)
+    rest = (cas._dv, cas._vth, cas._reset_zero, 5, 24, 32, 5)
+    small = compiled.cascade_window(*args, cas._weights, *rest)
+    wide = compiled._cascade(*args, cas._weights.astype(np.int64), *rest)
+    assert small[2][0].sum() < small[2][-1].sum()           # a faster stage masked some ones
+    for a, b in zip(small, wide):
+        assert np.array_equal(a, b)
+
+
+def test_div_small_is_floor_division(rng):
+    """compiled._div_small (the kernels' v // d without an integer division) against //, at
+    the quotient's edges (multiples of d and one below) and up to 2**49."""
+    from numba import njit
+
+    from toffe_deploy.compiled import _div_small
+
+    @njit
+    def div_all(v, d):
+        out = np.empty(v.shape[0], np.int64)
+        inv = 1.0 / d
+        for i in range(v.shape[0]):
+            out[i] = _div_small(v[i], d, inv)
+        return out
+
+    for d in (1, 2, 3, 5, 7, 320, 640, 641, 4095, 76_800, 307_200, 999_983, 2**31 - 1):
+        q = rng.integers(0, 2**49 // d, 2000)
+        v = np.concatenate([q * d, q * d - 1, q * d + d - 1, rng.integers(0, 2**49, 2000), np.arange(min(3 * d + 5, 10_000))])
+        v = v[(v >= 0) & (v < 2**49)].astype(np.int64)
+        assert np.array_equal(div_all(v, d), v // d), d

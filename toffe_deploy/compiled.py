@@ -1,6 +1,6 @@
 """The per-window loops of the hot path, compiled (numba): the window's binning (bin_index,
 sorted_unique), the input front end (front_end_keep), the cpu cascade's indexing, OFS stage,
-closing (compaction and close_square) and mask split, and ofpd_io's box tests, box
+closing (compaction and close_square; closed_bits on 64-bit rows in the cascade) and mask split, and ofpd_io's box tests, box
 means, density-seed grouping, the event-blob grouping of a window's stages (blob_objects:
 components, their merging and the objects' claims in one pass), each object's crop and ones
 (object_crops) and the OFPD input (fill_input, fill_motion).
@@ -8,7 +8,8 @@ components, their merging and the objects' claims in one pass), each object's cr
 Why compiled: a 500 us window holds a few thousand events, so the numpy form of these steps
 (~25 calls per stage on arrays of ~2,000 values, plus the window's de-duplication and scatter
 maps) spent most of its time in per-call overhead, not arithmetic. Each kernel here is one pass
-over the window's ones, its active pixels or an object's pixels. The OFS runs in int64: the
+over the window's ones, its active pixels or an object's pixels. The OFS runs on exact
+integers (its scatter in int32 or int64, its LIF in float64, all values below 2**53): the
 same integers as ``toffe_deploy.fixed_point.lif_step`` (tested bit exact, saturation included,
 in tests/test_run_sparse.py); the means are exact integer sums divided once, as numpy's.
 
@@ -47,15 +48,13 @@ def _slot(slot_of, key, keys, n):
 
 @njit(cache=True, nogil=True)
 def _div_small(v, d, inv_d):
-    """v // d for v >= 0 and d >= 1 (inv_d = 1.0 / d) from a float estimate corrected to the
-    exact quotient: an integer division per element costs more than the rest of a pass over a
-    window's ones (it is neither pipelined nor vectorized), a multiply and a compare do not."""
-    q = int(v * inv_d)
-    while q * d > v:
-        q -= 1
-    while (q + 1) * d <= v:
-        q += 1
-    return q
+    """v // d for 0 <= v < 2**50 and d >= 1 (inv_d = 1.0 / d, rounded), from one float product
+    and no correction: an integer division per element costs more than the rest of a pass over a
+    window's ones (it is neither pipelined nor vectorized), a multiply does not. Exact: with
+    v = q d + r, (v + 0.5) / d = q + (r + 0.5) / d lies at least 0.5 / d from an integer, and the
+    two roundings (of 1 / d and of the product) move it by at most (v + 0.5) / d * 2**-52, less
+    than 0.5 / d while v + 0.5 < 2**51 (tests/test_run_sparse.py checks it against //)."""
+    return int((v + 0.5) * inv_d)
 
 
 @njit(cache=True, nogil=True)
@@ -145,30 +144,44 @@ def ofs_window(bc, pix, n_channels, width, height, kernel, slot_of):
 @njit(cache=True, nogil=True)
 def lif_window(a_in, dv, vth_mant, reset_zero=False):
     """Spikes (B, M) of fixed_point.lif_step iterated over a window of a_in (B, M) int64 from
-    v = 0, o = 0 (the neuron of ofs_stage); ``reset_zero``: the stock "zero" reset, else "subtract".
-
-    Branch free and time-step outer, so the M neurons of a step are independent iterations the
-    compiler vectorizes: trunc0(x / 4096) = (x + (4095 if x < 0 else 0)) >> 12 (arithmetic
-    shift), the reset subtracts vth * o (or zeroes v where o), and the clip is a min and a max.
-    """
-    n_bins, m = a_in.shape
-    spikes = np.empty((n_bins, m), np.bool_)
-    v = np.zeros(m, np.int64)
-    o = np.zeros(m, np.int64)
-    vth = np.int64(vth_mant) << STATE_SHIFT
-    keep = np.int64(DECAY_UNITY - dv)
-    bias = np.int64(DECAY_UNITY - 1)
-    zero = np.int64(1 if reset_zero else 0)
-    for t in range(n_bins):
-        for s in range(m):
-            x = v[s] * (1 - zero * o[s]) * keep
-            x = (x + ((x >> 63) & bias)) >> DECAY_BITS            # trunc0(x / 4096)
-            x += (a_in[t, s] << STATE_SHIFT) - (1 - zero) * vth * o[s]
-            x = min(max(x, -STATE_MAX), STATE_MAX)
-            v[s] = x
-            o[s] = x > vth
-            spikes[t, s] = x > vth
+    v = 0, o = 0 (the neuron of ofs_stage); ``reset_zero``: the stock "zero" reset, else "subtract"."""
+    spikes = np.empty(a_in.shape, np.bool_)
+    lif_into(a_in, spikes, dv, vth_mant, reset_zero)
     return spikes
+
+
+@njit(cache=True, nogil=True)
+def lif_into(a_in, spikes, dv, vth_mant, reset_zero):
+    """lif_window written into ``spikes`` (B, M) bool, from the first M columns of a_in (B, >= M),
+    int64 or narrower (cascade_window's int32 buffer, with its dummy last column).
+
+    In float64, exactly: every value is an integer below 2**53 (|v| < 2**23, v * (4096 - dv)
+    < 2**35), the scaling by 1 / 4096 is exact, so trunc0(v * keep / 4096) is np.trunc of the
+    product, and the sums, the clip and the compare are exact too. No o array: o[t-1] is
+    v[t-1] > vth, so "zero" keeps (o ? 0 : v) as the state and "subtract" reads o from v.
+    Branch free and time-step outer: the M neurons of a step are independent iterations the
+    compiler vectorizes (float64 multiplies and truncations vectorize where int64 ones did not)."""
+    n_bins, m = spikes.shape
+    v = np.zeros(m, np.float64)
+    vth = float(np.int64(vth_mant) << STATE_SHIFT)
+    keep = float(DECAY_UNITY - dv) / DECAY_UNITY
+    scale = float(1 << STATE_SHIFT)
+    hi = float(STATE_MAX)
+    if reset_zero:
+        for t in range(n_bins):
+            for s in range(m):
+                x = np.trunc(v[s] * keep) + a_in[t, s] * scale
+                x = min(max(x, -hi), hi)
+                f = x > vth
+                v[s] = 0.0 if f else x
+                spikes[t, s] = f
+    else:
+        for t in range(n_bins):
+            for s in range(m):
+                x = np.trunc(v[s] * keep) + a_in[t, s] * scale - (vth if v[s] > vth else 0.0)
+                x = min(max(x, -hi), hi)
+                v[s] = x
+                spikes[t, s] = x > vth
 
 
 @njit(cache=True, nogil=True)
@@ -227,8 +240,26 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
         frames[k-1], alive = split_closed(alive, closed)      (nothing fired: frame empty)
     weights (N, C, K*K), dv, vth_mant, reset_zero (N,) per stage. Returns (spikes (N, B, M),
     fired (N, M), inputs (N, n), frames (N, n)) bool. ofs_stage's scatter is inlined on one
-    buffer and the closing is closed_at (the same values; tests/test_run_sparse.py checks the
-    cascade against the dense reference)."""
+    buffer, the LIF is lif_into and the closing is closed_bits (closed_at for a mask kernel
+    over 32): the same values; tests/test_run_sparse.py checks the cascade against the dense
+    reference.
+
+    The scatter adds into int32 when no sum can leave its range: a slot gets at most one
+    weight per (channel, tap) and bin (the ones are unique), so |a_in| <= C * K*K * max |weight|
+    < 2**31, always for Loihi's 8-bit weights; only the never-read dummy column may wrap. The
+    same integers in half the cache footprint (~20% less scatter time, measured)."""
+    n_ch, kk = weights.shape[1], weights.shape[2]
+    if n_ch * kk * np.abs(weights).max() < 2 ** 31:
+        return _cascade(b, c, pix_inverse, input_pixels, tap_target, active, weights.astype(np.int32), dv,
+                        vth_mant, reset_zero, n_bins, height, width, mask_kernel)
+    return _cascade(b, c, pix_inverse, input_pixels, tap_target, active, weights, dv, vth_mant, reset_zero,
+                    n_bins, height, width, mask_kernel)
+
+
+@njit(cache=True, nogil=True)
+def _cascade(b, c, pix_inverse, input_pixels, tap_target, active, weights, dv, vth_mant, reset_zero,
+             n_bins, height, width, mask_kernel):
+    """cascade_window with its scatter buffer in the dtype of ``weights`` (int32 or int64)."""
     n = b.shape[0]
     m = active.shape[0]
     n_st = weights.shape[0]
@@ -238,16 +269,14 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
     inputs = np.empty((n_st, n), np.bool_)
     frames = np.zeros((n_st, n), np.bool_)
     alive = np.ones(n, np.bool_)
-    # ofs_stage's scatter without its branch: an off-sensor tap (target -1) adds into the dummy
-    # last column m of a_in; flat, with unsigned targets (no test for a negative index per add)
+    # ofs_stage's scatter without its branch: flat, one leading dummy, then bin t's slots s at
+    # 1 + t * mm + s (mm = m + 1, a dummy last column m per bin); tap_target read as unsigned,
+    # so an off-sensor tap's -1 wraps 1 + t * mm - 1 to bin t - 1's dummy (the leading one for
+    # t = 0): no test for a negative index per add, no converted copy of tap_target
     mm = m + 1
-    a_flat = np.empty(n_bins * mm, np.int64)
-    a_in = a_flat.reshape(n_bins, mm)
-    n_in = tap_target.shape[0]
-    target = np.empty((n_in, kk), np.uint64)
-    for q in range(n_in):
-        for j in range(kk):
-            target[q, j] = m if tap_target[q, j] < 0 else tap_target[q, j]
+    a_flat = np.empty(1 + n_bins * mm, weights.dtype)
+    a_in = a_flat[1:].reshape(n_bins, mm)
+    target = np.ascontiguousarray(tap_target).view(np.uint64)
     # rows and columns of the active and input pixels, once per window (closed_at)
     inv_w = 1.0 / width
     act_r = np.empty(m, np.int64)
@@ -268,29 +297,33 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
         for i in range(n):
             if alive[i]:
                 q = pix_inverse[i]
-                row = np.uint64(b[i] * mm)
+                row = np.uint64(1 + b[i] * mm)
                 ch = c[i]
                 for j in range(kk):
                     a_flat[row + target[q, j]] += w_k[ch, j]
-        sp = lif_window(a_in, dv[k], vth_mant[k], reset_zero[k])
-        n_fired = 0
+        sp = spikes[k]
+        lif_into(a_in, sp, dv[k], vth_mant[k], reset_zero[k])
+        f_k = fired[k]
         for t in range(n_bins):
             for s in range(m):
-                spikes[k, t, s] = sp[t, s]
-                if sp[t, s] and not fired[k, s]:
-                    fired[k, s] = True
-                    n_fired += 1
+                f_k[s] |= sp[t, s]
+        n_fired = 0
+        for s in range(m):
+            n_fired += f_k[s]
         if n_fired == 0:
             continue
         f_r = np.empty(n_fired, np.int64)
         f_c = np.empty(n_fired, np.int64)
         j = 0
         for s in range(m):
-            if fired[k, s]:
+            if f_k[s]:
                 f_r[j] = act_r[s]
                 f_c[j] = act_c[s]
                 j += 1
-        at = closed_at(f_r, f_c, in_r, in_c, height, width, mask_kernel)
+        if 1 <= mask_kernel <= 32:
+            at = closed_bits(f_r, f_c, in_r, in_c, height, width, mask_kernel)
+        else:
+            at = closed_at(f_r, f_c, in_r, in_c, height, width, mask_kernel)
         frame, alive = split_closed(alive, pix_inverse, at)
         frames[k] = frame
     return spikes, fired, inputs, frames
@@ -417,6 +450,84 @@ def closed_at(f_rows, f_cols, rows, cols, height, width, kernel):
         x = cols[i]
         if keep_r[y] and keep_c[x]:
             out[i] = closed[(map_r[y] + a) * pw + map_c[x] + a] != 0
+    return out
+
+
+@njit(cache=True, nogil=True)
+def closed_bits(f_rows, f_cols, rows, cols, height, width, kernel):
+    """closed_at (the same (n,) bool) on bit rows: the fired pixels set bits of (H, ceil(W / 64))
+    uint64 words, the dilation is a few word shifts and ORs per row that holds a fired pixel
+    (rows) and per row near one (columns), and the erosion is read only at the n pixels asked,
+    as K masked words, not over an image. cv2's closing with anchor a = kernel // 2 and border
+    "off-image positions left out": D(y, x) = OR F(y + i, x + j), closed(y, x) = AND D(y + i, x + j)
+    over i, j in -a..kernel-1-a and on the sensor. For 1 <= kernel <= 32 (a kernel's span then
+    lies in at most two words); tests/test_run_sparse.py checks it equal to closed_at."""
+    a = kernel // 2
+    lo_d = -a
+    hi_d = kernel - 1 - a
+    nw = (width + 63) >> 6
+    bits = np.zeros((height, nw), np.uint64)
+    has = np.zeros(height, np.bool_)
+    for i in range(f_rows.shape[0]):
+        x = f_cols[i]
+        bits[f_rows[i], x >> 6] |= np.uint64(1) << np.uint64(x & 63)
+        has[f_rows[i]] = True
+    dil_h = np.zeros((height, nw), np.uint64)      # OR over j of F(y, x + j)
+    for y in range(height):
+        if not has[y]:
+            continue
+        src = bits[y]
+        dst = dil_h[y]
+        for d in range(lo_d, hi_d + 1):           # bit x of the result is bit x + d of src
+            if d == 0:
+                for w in range(nw):
+                    dst[w] |= src[w]
+            elif d > 0:
+                sh = np.uint64(d)
+                back = np.uint64(64 - d)
+                for w in range(nw):
+                    v = src[w] >> sh
+                    if w + 1 < nw:
+                        v |= src[w + 1] << back
+                    dst[w] |= v
+            else:
+                sh = np.uint64(-d)
+                back = np.uint64(64 + d)
+                for w in range(nw):
+                    v = src[w] << sh
+                    if w > 0:
+                        v |= src[w - 1] >> back
+                    dst[w] |= v
+    dil = np.zeros((height, nw), np.uint64)        # OR over i of dil_h(y + i, x)
+    for y in range(height):
+        if not has[y]:
+            continue
+        for d in range(lo_d, hi_d + 1):           # row y feeds rows y - d
+            r = y - d
+            if 0 <= r < height:
+                for w in range(nw):
+                    dil[r, w] |= dil_h[y, w]
+    out = np.zeros(rows.shape[0], np.bool_)
+    for q in range(rows.shape[0]):
+        y = rows[q]
+        x0 = max(cols[q] + lo_d, 0)
+        x1 = min(cols[q] + hi_d, width - 1)
+        n_bits = x1 - x0 + 1
+        mask = (np.uint64(1) << np.uint64(n_bits)) - np.uint64(1) if n_bits < 64 else ~np.uint64(0)
+        w0 = x0 >> 6
+        off = np.uint64(x0 & 63)
+        ok = True
+        for i in range(lo_d, hi_d + 1):
+            r = y + i
+            if r < 0 or r >= height:
+                continue
+            v = dil[r, w0] >> off
+            if off != 0 and w0 + 1 < nw:
+                v |= dil[r, w0 + 1] << (np.uint64(64) - off)
+            if (v & mask) != mask:
+                ok = False
+                break
+        out[q] = ok
     return out
 
 
