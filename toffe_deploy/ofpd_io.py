@@ -434,14 +434,20 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
     return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config)
 
 
+def blob_settings(s: dict) -> tuple[bool, int, float, float, int, int]:
+    """(stages "union"?, then link, frac_closed, frac_open, need, min_count as compiled.union_objects /
+    blob_objects take them) from ofpd_settings ``s``."""
+    need = int(s["min_events"])
+    return (s["stages"] == "union", int(s["link_px"]), float(s["merge_frac"]), float(s["edge_merge_frac"]), need,
+            max(1, -(-need // 4)))
+
+
 def _blob_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, w: int, config: ToffeConfig
                        ) -> tuple[Objects, Claims]:
     """blob_objects_xy on flat stage pixels (group_objects_flat), in one compiled pass."""
-    s = ofpd_settings(config)
-    need = int(s["min_events"])
-    group = union_objects if s["stages"] == "union" else blob_objects
-    stage, cx, cy, _owner, keys, owner = group(xs, ys, starts, w, int(s["link_px"]), float(s["merge_frac"]),
-                                               float(s["edge_merge_frac"]), need, max(1, -(-need // 4)))
+    union, *args = blob_settings(ofpd_settings(config))
+    group = union_objects if union else blob_objects
+    stage, cx, cy, _owner, keys, owner = group(xs, ys, starts, w, *args)
     objs = list(zip(stage.tolist(), cx.tolist(), cy.tolist()))       # (int, float, float) rows
     return objs, Claims(width=w, keys=keys, owner=owner)
 

@@ -25,10 +25,10 @@ from typing import Sequence
 
 import numpy as np
 
-from ..compiled import dedupe, frame_pixels, object_input
+from ..compiled import dedupe, frame_pixels, object_input, window_objects
 from ..config import ToffeConfig
-from ..ofpd_io import (COORD_SCALE, crop_origin_xy, group_objects_flat, group_objects_xy, input_shape, object_masks_xy, ofpd_settings,
-                       prepare_xy)
+from ..ofpd_io import (COORD_SCALE, blob_settings, crop_origin_xy, group_objects_flat, group_objects_xy, input_shape,
+                       object_masks_xy, ofpd_settings, prepare_xy)
 from .spikes import SpikeVolume
 
 
@@ -74,18 +74,25 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     the window pixels of those ones it claims. The stage pixels go to the grouping as flat
     arrays (ofpd_io.group_objects_flat); each object's crop and ones, and the OFPD input, come
     from one compiled call (compiled.object_input: object_crops, then ofpd_io.prepare_flat's kernels).
+    For grouping "blobs" with a ``scratch`` (the pipeline) every step is one compiled call
+    (compiled.window_objects: the same kernels back to back, fewer crossings into compiled code).
     """
     _b, nc, h, w = volume.shape
     upix, pinv = volume.pixel_index(scratch)
     stacked = (frames if isinstance(frames, np.ndarray) else       # the cpu cascade's (N, n) array as it is
                np.stack(frames) if len(frames) else np.zeros((0, len(pinv)), bool))
+    s = ofpd_settings(config)
+    c, g, _ = input_shape(config)
+    if s["grouping"] == "blobs" and scratch is not None:     # the cpu pipeline: every step in one compiled call
+        stage, x, n_ev = window_objects(
+            stacked, pinv, upix, w, volume.bc, nc, *blob_settings(s), scratch,
+            int(s["crop_px"]) if s["crop"] == "fixed" else 0, g, int(s["pool_min"]), int(s["pool_max"]), h, c,
+            int(config.n_bins), COORD_SCALE)
+        return stage + 1, x, n_ev
     sx, sy, starts, ev_u, fx, fy, ch = frame_pixels(stacked, pinv, upix, w, volume.bc, nc)
     objs, claims = group_objects_flat(sx, sy, starts, (w, h), config)
     if not objs:
-        c, g, _ = input_shape(config)
         return np.zeros(0, dtype=np.int64), np.zeros((0, c, g, g), np.float32), np.zeros(0, dtype=np.int64)
-    s = ofpd_settings(config)
-    c, g, _ = input_shape(config)
     x, n_ev = object_input(claims.matrix(fx, fy, len(objs), scratch), fx, fy, ch, ev_u, upix.shape[0],
                            int(s["crop_px"]) if s["crop"] == "fixed" else 0, g, int(s["pool_min"]), int(s["pool_max"]),
                            w, h, c, int(config.n_bins), COORD_SCALE)
