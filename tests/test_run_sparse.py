@@ -97,6 +97,25 @@ def test_cpu_cascade_equals_run_cascade(seed):
                 assert a.shape == b.shape and np.array_equal(a, b), field
 
 
+
+@pytest.mark.parametrize("pool", [2, 3])
+def test_pooled_frames_equal_the_cascade_of_the_pooled_window(rng, pool):
+    """CpuCascade.pooled_frames (pool, cascade and Up_p in one compiled call) gives the frames
+    of cascade_sparse on volume.pool(p), brought back to the sensor ones, and the volume's planes
+    and pixels."""
+    params = _stage_params(rng, n=4)
+    for x in (_blobby(rng, shape=(5, 2, 47, 64), n_blobs=6), np.zeros((5, 2, 47, 64), bool)):
+        vol = SpikeVolume.from_dense(x)
+        grid, inverse = vol.pool(pool)
+        cas = CpuCascade(params, 5, 5, (grid.shape[3], grid.shape[2]))
+        want = cas.cascade_sparse(grid).frames[:, inverse] if len(vol) else np.zeros((4, 0), bool)
+        fresh = SpikeVolume(vol.idx, vol.shape)
+        got = cas.pooled_frames(fresh, pool)
+        assert got.shape == want.shape and np.array_equal(got, want)
+        assert np.array_equal(fresh.bc, vol.bc) and np.array_equal(fresh.pix, vol.pix)
+        if len(vol):
+            assert want.any() and not want.all()
+
 def test_cpu_cascade_rejects_wrong_window_shape(rng):
     cas = CpuCascade(_stage_params(rng, n=2), 5, 5, (32, 24))
     with pytest.raises(ValueError, match="window must be"):

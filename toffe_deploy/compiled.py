@@ -256,6 +256,27 @@ def cascade_window(b, c, pix_inverse, input_pixels, tap_target, active, weights,
                     n_bins, height, width, mask_kernel)
 
 
+
+@njit(cache=True, nogil=True)
+def pooled_cascade(idx, n_pixels, width, p, hp, wp, n_channels, kernel, slot_of, weights, dv, vth_mant, reset_zero,
+                   n_bins, mask_kernel):
+    """The cpu pipeline's cascade of one window given as its sensor ones ``idx`` (sorted unique
+    linear ids into (B, C, H, W)), pooled p x p (p > 1) to the (hp, wp) OFS grid: pool_index,
+    ofs_window and cascade_window back to back, the stage frames brought back to the sensor ones
+    (frames[:, inverse], Up_p), in one call instead of three. Returns (bc, pix (n,) of the sensor
+    ones, as pool_index gives them; frames (N, n) bool over the sensor ones)."""
+    _u, inverse, u_bc, u_pix, bc, pix = pool_index(idx, n_pixels, width, p, hp, wp)
+    b, c, in_pix, pix_inverse, active, tap_target = ofs_window(u_bc, u_pix, n_channels, wp, hp, kernel, slot_of)
+    _spikes, _fired, _inputs, frames = cascade_window(b, c, pix_inverse, in_pix, tap_target, active, weights, dv,
+                                                      vth_mant, reset_zero, n_bins, hp, wp, mask_kernel)
+    n_frames = frames.shape[0]
+    n = inverse.shape[0]
+    up = np.empty((n_frames, n), np.bool_)
+    for k in range(n_frames):
+        for i in range(n):
+            up[k, i] = frames[k, inverse[i]]
+    return bc, pix, up
+
 @njit(cache=True, nogil=True)
 def _cascade(b, c, pix_inverse, input_pixels, tap_target, active, weights, dv, vth_mant, reset_zero,
              n_bins, height, width, mask_kernel):
@@ -1894,7 +1915,7 @@ def unique_inverse(values):
 
 # the kernels called from Python (the others are compiled into their callers)
 KERNELS = (dedupe, active_set, ofs_window, ofs_stage, split_closed, compact_image, compact_lookup, compact_closed,
-           cascade_window,
+           cascade_window, pooled_cascade, window_objects,
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops, object_input,
            in_rects,
@@ -1920,6 +1941,7 @@ def warm_up() -> None:
     split_closed(alive, inverse, closed)
     cascade_window(i64, i64, inverse, uniq, tap_target, active, np.ones((1, 1, 1), np.int64), i64, i64,
                    np.zeros(1, np.bool_), 1, 2, 2, 1)
+    pooled_cascade(i64, 4, 2, 2, 1, 1, 2, 1, scratch, np.ones((1, 1, 1), np.int64), i64, i64, np.zeros(1, np.bool_), 1, 1)
     box_mean(i64, i64, 0.0, 0.0, 1.0)
     in_boxes(i64, i64, np.zeros((1, 2)), 1.0)
     density_groups(i64, i64, 1, 2)

@@ -24,7 +24,7 @@ from typing import Iterable, Iterator, Sequence
 import numpy as np
 
 from ..cascade import CascadeResult
-from ..compiled import cascade_window, new_scratch, warm_up
+from ..compiled import cascade_window, new_scratch, pooled_cascade, warm_up
 from ..fixed_point import LoihiOFSParams
 from .morph import CompactClosing
 from .ofs_sparse import SparseOFSWindow
@@ -140,6 +140,21 @@ class CpuCascade:
             self._vth, self._reset_zero, self.n_bins, h, w, self.mask_kernel)
         return SparseCascadeResult(volume, win, inputs, spikes, StageClosings(win.active, fired, h, w, self.mask_kernel),
                                    frames)
+
+    def pooled_frames(self, volume: SpikeVolume, pool: int) -> np.ndarray:
+        """The stage frames (N, n) bool over the sensor ones of ``volume``, for a cascade built
+        for its OFS grid pooled p x p (p = ``pool`` > 1): ``up_frames(cascade_sparse(grid).frames,
+        inverse)`` of ``volume.pool(pool)``, in one compiled call (compiled.pooled_cascade), for
+        the pipeline, which needs nothing else of the cascade. Sets the volume's bc and pix."""
+        b, c, h, w = volume.shape
+        wp, hp = self.sensor_size
+        self._check((b, c, hp, wp))
+        bc, pix, frames = pooled_cascade(volume.idx, h * w, w, int(pool), hp, wp, c, self.kernel_size, self._scratch,
+                                         self._weights, self._dv, self._vth, self._reset_zero, self.n_bins,
+                                         self.mask_kernel)
+        volume.__dict__.setdefault("bc", bc)
+        volume.__dict__.setdefault("pix", pix)
+        return frames
 
     def cascade_stream(self, windows: Iterable[np.ndarray]) -> Iterator[CascadeResult]:
         """Dense (B, 2, H, W) windows in, dense CascadeResult out (the LavaCascade interface)."""

@@ -288,11 +288,14 @@ class Pipeline:
                 self._check(x)
                 vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(np.asarray(x) > 0)
                 vol = front_end(vol, cfg, hist, int(t0))
-                grid, inverse = vol.pool(pool)               # the OFS grid (cascade.py)
-                res = self.cascade.cascade_sparse(grid)
-                frames = up_frames(res.frames, inverse)
-                yield self._tracked(WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, frames),
-                                                 stages=_stage_arrays(res.to_dense()) if self.keep_stages else None))
+                if pool > 1 and not self.keep_stages:       # pool, cascade and Up_p in one compiled call
+                    frames, stages = self.cascade.pooled_frames(vol, pool), None
+                else:
+                    grid, inverse = vol.pool(pool)           # the OFS grid (cascade.py)
+                    res = self.cascade.cascade_sparse(grid)
+                    frames = up_frames(res.frames, inverse)
+                    stages = _stage_arrays(res.to_dense()) if self.keep_stages else None
+                yield self._tracked(WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, frames), stages=stages))
             return
         # Lava backends take dense windows and may pipeline them: remember each window's t0.
         starts: collections.deque = collections.deque()
