@@ -12,8 +12,9 @@ Same results as ``run_cascade(x, lambda k, inp: run_ofs_fixed(inp, params[k-1]),
 
 ``cascade_stream`` offers the interface of the Lava adapter (``LavaCascade``): dense (B, 2, H, W)
 windows in, dense ``CascadeResult`` out, so the two backends are interchangeable and comparable.
-``cascade_sparse`` is the fast path the pipeline uses: one compiled call per window
-(compiled.cascade_window) runs every stage of these steps.
+``cascade_sparse`` is the fast path: one compiled call per window (compiled.cascade_window)
+runs every stage of these steps; ``pooled_frames`` (the pipeline's, on a pooled grid) runs the
+pooling and the frames' way back to the sensor in the same call.
 """
 from __future__ import annotations
 
