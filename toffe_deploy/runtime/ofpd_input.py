@@ -61,6 +61,12 @@ def merge_objects(volume: SpikeVolume, frames: Sequence[np.ndarray], config: Tof
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), merged
 
 
+def _crop_args(s: dict, g: int) -> tuple[int, int, int, int]:
+    """(fixed crop side or 0 for "scaled", grid g, pool_min, pool_max) as compiled.object_input and
+    window_objects take them, from ofpd_settings ``s``."""
+    return int(s["crop_px"]) if s["crop"] == "fixed" else 0, g, int(s["pool_min"]), int(s["pool_max"])
+
+
 def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig,
           scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``prepare(*merge_objects(...))`` in one pass: (stage_k (G,), OFPD input (G, C, g, g)
@@ -84,18 +90,15 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     s = ofpd_settings(config)
     c, g, _ = input_shape(config)
     if s["grouping"] == "blobs" and scratch is not None:     # the cpu pipeline: every step in one compiled call
-        stage, x, n_ev = window_objects(
-            stacked, pinv, upix, w, volume.bc, nc, *blob_settings(s), scratch,
-            int(s["crop_px"]) if s["crop"] == "fixed" else 0, g, int(s["pool_min"]), int(s["pool_max"]), h, c,
-            int(config.n_bins), COORD_SCALE)
+        stage, x, n_ev = window_objects(stacked, pinv, upix, w, volume.bc, nc, *blob_settings(s), scratch,
+                                        *_crop_args(s, g), h, c, int(config.n_bins), COORD_SCALE)
         return stage + 1, x, n_ev
     sx, sy, starts, ev_u, fx, fy, ch = frame_pixels(stacked, pinv, upix, w, volume.bc, nc)
     objs, claims = group_objects_flat(sx, sy, starts, (w, h), config)
     if not objs:
         return np.zeros(0, dtype=np.int64), np.zeros((0, c, g, g), np.float32), np.zeros(0, dtype=np.int64)
     x, n_ev = object_input(claims.matrix(fx, fy, len(objs), scratch), fx, fy, ch, ev_u, upix.shape[0],
-                           int(s["crop_px"]) if s["crop"] == "fixed" else 0, g, int(s["pool_min"]), int(s["pool_max"]),
-                           w, h, c, int(config.n_bins), COORD_SCALE)
+                           *_crop_args(s, g), w, h, c, int(config.n_bins), COORD_SCALE)
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, n_ev
 
 
