@@ -215,20 +215,20 @@ class Detections:
 
 
 def raw_detections(objects) -> np.ndarray:
-    """x, y, direction_rad, speed_px_s, speed_bin of each object, flat (n * 5,) float64: the one
-    pass over the objects' attributes a window needs (one flat list: numpy converts it faster
-    than a list of rows)."""
-    return np.array([v for o in objects for v in (o.x, o.y, o.direction_rad, o.speed_px_s, o.speed_bin)], _F)
+    """The window's detections as ``Tracker.columns`` takes them, a (5, n) float64 array whose
+    rows are the objects' x, y, direction_rad, speed_px_s and speed_bin: the one pass over the
+    objects' attributes a window needs (one flat list: numpy converts it faster than rows)."""
+    flat = [v for o in objects for v in (o.x, o.y, o.direction_rad, o.speed_px_s, o.speed_bin)]
+    return np.array(flat, _F).reshape(-1, 5).T.copy()
 
 
 @njit(cache=True, nogil=True)
 def _detections(zr):
-    """Detections.a (n, 6) of raw_detections' flat (n * 5,) array (velocity from direction and speed)."""
-    zr = zr.reshape(-1, 5)
-    z = np.empty((zr.shape[0], 6))
-    for k in range(zr.shape[0]):
-        z[k, 0], z[k, 1], z[k, 4], z[k, 5] = zr[k, 0], zr[k, 1], zr[k, 3], zr[k, 4]
-        z[k, 2], z[k, 3] = zr[k, 3] * math.cos(zr[k, 2]), zr[k, 3] * math.sin(zr[k, 2])
+    """Detections.a (n, 6) of raw_detections' (5, n) array (velocity from direction and speed)."""
+    z = np.empty((zr.shape[1], 6))
+    for k in range(zr.shape[1]):
+        z[k, 0], z[k, 1], z[k, 4], z[k, 5] = zr[0, k], zr[1, k], zr[3, k], zr[4, k]
+        z[k, 2], z[k, 3] = zr[3, k] * math.cos(zr[2, k]), zr[3, k] * math.sin(zr[2, k])
     return z
 
 
@@ -534,6 +534,9 @@ def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, 
                    int(next_id))
 
 
+_UNTRACKED = (None, None)       # (track_id, track) of an object without a track
+
+
 class Tracker:
     """Stateful wrapper of ``step`` for a stream of windows: ``update(objects, t0_us)`` assigns
     every object of the window a ``track_id`` and its track's smoothed ``track`` state (a
@@ -548,50 +551,62 @@ class Tracker:
         self._p = params(self.settings, self.dt_us * 1e-6)
         self._pe = np.concatenate([self._p, self.edges.lo, self.edges.hi, self.edges.inner])   # _window's
         self.k_mps = None if px_ms_per_mps is None else 1.0 / (1000.0 * px_ms_per_mps)
-        self.tracks = Tracks()
+        self._a = Tracks().a                 # the live tracks (``tracks``)
         self.next_id = 0
         self.t0_last: int | None = None
         self._coasting: list = []
         # compile (first run on a machine) or load the cached kernels now, not in the first window
         one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
         step(step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0], one, 1e-3, self.settings, self.edges, 1)
-        zr = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
+        zr = np.array([[0.0], [0.0], [0.0], [1.0], [1.0]])
         _window(_window(Tracks().a, zr, self._pe, 0)[0], zr, self._pe, 1)
 
     def update(self, objects: list, t0_us: int) -> Tracks:
         """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin;
         each gets ``track_id`` and ``track``); returns the live tracks."""
-        n_win = 1 if self.t0_last is None else max(1, round((int(t0_us) - self.t0_last) / self.dt_us))
-        self.t0_last = int(t0_us)
-        tr = self.tracks
-        if n_win > 1 and len(tr):       # windows never seen: coast the tracks through them
-            a, gap = tr.a.copy(), (n_win - 1) * self.dt_us * 1e-6
+        for o, (tid, state) in zip(objects, self.columns(raw_detections(objects), t0_us)):
+            o.track_id, o.track = tid, state
+        return self.tracks
+
+    @property
+    def tracks(self) -> Tracks:
+        """Every live track after the last window."""
+        return Tracks(self._a)
+
+    def columns(self, zr: np.ndarray, t0_us: int) -> list[tuple]:
+        """``update`` on the window's detections as raw_detections' (5, n) array (the pipeline
+        builds it from the decoder's columns, before the objects exist): -> each detection's
+        (track id, ``TrackState``), (None, None) for a fragment without a track, for the
+        objects' constructor."""
+        last, t0_us = self.t0_last, int(t0_us)
+        self.t0_last = t0_us
+        t = self._a
+        n_win = 1 if last is None or t0_us - last == self.dt_us else max(1, round((t0_us - last) / self.dt_us))
+        if n_win > 1 and len(t):        # windows never seen: coast the tracks through them
+            a, gap = t.copy(), (n_win - 1) * self.dt_us * 1e-6
             a[:, X] += a[:, VX] * gap
             a[:, Y] += a[:, VY] * gap
             a[:, AGE] += n_win - 1
             a[:, MISS] += n_win - 1
             a[:, STREAK] = 0
             s = self.settings
-            tr = Tracks(a[a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)])
-        # the usual window in one compiled call; the few objects' attributes read once, the results
-        # handed out from one int array (Python-level work, not the tracking, was most of the cost)
-        zr = raw_detections(objects)
-        out, info, self.next_id, done = _window(tr.a, zr, self._pe, self.next_id)
+            t = a[a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)]
+        # the usual window in one compiled call, the results handed out from one int array
+        # (Python-level work, not the tracking, was most of the cost)
+        out, info, self.next_id, done = _window(t, zr, self._pe, self.next_id)
         if not done:
-            out, assigned, self.next_id = _step_matched(tr.a, _detections(zr), self._p, self.edges, self.next_id)
+            out, assigned, self.next_id = _step_matched(t, _detections(zr), self._p, self.edges, self.next_id)
             info = _listing(out, assigned, self._p)
-        self.tracks = Tracks(out)
-        n, k, info = len(objects), self.k_mps, info.tolist()
-        for o, r, tid in zip(objects, info, info[n:]):
-            o.track_id, o.track = (tid, TrackState(out, r, k)) if r >= 0 else (None, None)
+        self._a = out
+        n, k, info = zr.shape[1], self.k_mps, info.tolist()
         self._coasting = info[2 * n:]
-        return self.tracks
+        return [(tid, TrackState(out, r, k)) if r >= 0 else _UNTRACKED for r, tid in zip(info[:n], info[n:])]
 
     def coasting(self) -> list[dict]:
         """The confirmed tracks no detection of the last window was assigned to, for their first
         report_misses misses or while occluded (they coast on their prediction):
         [{"track_id", "track"}], the window line's ``coasting`` list."""
-        a = self.tracks.a
+        a = self._a
         return [{"track_id": int(a[r, ID]), "track": TrackState(a, r, self.k_mps)} for r in self._coasting]
 
 
