@@ -215,20 +215,22 @@ class Detections:
 
 
 def raw_detections(objects) -> np.ndarray:
-    """The window's detections as ``Tracker.columns`` takes them, a (5, n) float64 array whose
-    rows are the objects' x, y, direction_rad, speed_px_s and speed_bin: the one pass over the
-    objects' attributes a window needs (one flat list: numpy converts it faster than rows)."""
+    """The window's detections as ``Tracker.columns`` takes them, one flat (5 n,) float64 array
+    of five columns: the objects' x, then y, direction_rad, speed_px_s and speed_bin (the one
+    pass over the objects' attributes a window needs; one flat list: numpy converts it faster
+    than nested ones)."""
     flat = [v for o in objects for v in (o.x, o.y, o.direction_rad, o.speed_px_s, o.speed_bin)]
-    return np.array(flat, _F).reshape(-1, 5).T.copy()
+    return np.array(flat, _F).reshape(-1, 5).T.ravel()
 
 
 @njit(cache=True, nogil=True)
 def _detections(zr):
-    """Detections.a (n, 6) of raw_detections' (5, n) array (velocity from direction and speed)."""
-    z = np.empty((zr.shape[1], 6))
-    for k in range(zr.shape[1]):
-        z[k, 0], z[k, 1], z[k, 4], z[k, 5] = zr[0, k], zr[1, k], zr[3, k], zr[4, k]
-        z[k, 2], z[k, 3] = zr[3, k] * math.cos(zr[2, k]), zr[3, k] * math.sin(zr[2, k])
+    """Detections.a (n, 6) of raw_detections' (5 n,) columns (velocity from direction and speed)."""
+    n = zr.shape[0] // 5
+    z = np.empty((n, 6))
+    for k in range(n):
+        z[k, 0], z[k, 1], z[k, 4], z[k, 5] = zr[k], zr[n + k], zr[3 * n + k], zr[4 * n + k]
+        z[k, 2], z[k, 3] = zr[3 * n + k] * math.cos(zr[2 * n + k]), zr[3 * n + k] * math.sin(zr[2 * n + k])
     return z
 
 
@@ -463,8 +465,14 @@ def _step_simple(t, z, p, lo, hi, inner, next_id):
     a, d, ok, simple = _predict(t, z, p)
     if not simple:
         return a, np.full(z.shape[0], -1, np.int64), next_id, False
-    r, j = np.nonzero(ok)
-    out, assigned, next_id = _update(a, t, z, r.astype(np.int64), j.astype(np.int64), d, p, lo, hi, inner, next_id)
+    r, j = np.empty(ok.shape[0], np.int64), np.empty(ok.shape[0], np.int64)
+    m = 0
+    for i in range(ok.shape[0]):                             # np.nonzero(ok): at most one pair per row
+        for k in range(ok.shape[1]):
+            if ok[i, k]:
+                r[m], j[m] = i, k
+                m += 1
+    out, assigned, next_id = _update(a, t, z, r[:m], j[:m], d, p, lo, hi, inner, next_id)
     return out, assigned, next_id, True
 
 
@@ -558,7 +566,7 @@ class Tracker:
         # compile (first run on a machine) or load the cached kernels now, not in the first window
         one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
         step(step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0], one, 1e-3, self.settings, self.edges, 1)
-        zr = np.array([[0.0], [0.0], [0.0], [1.0], [1.0]])
+        zr = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
         _window(_window(Tracks().a, zr, self._pe, 0)[0], zr, self._pe, 1)
 
     def update(self, objects: list, t0_us: int) -> Tracks:
@@ -574,7 +582,7 @@ class Tracker:
         return Tracks(self._a)
 
     def columns(self, zr: np.ndarray, t0_us: int) -> list[tuple]:
-        """``update`` on the window's detections as raw_detections' (5, n) array (the pipeline
+        """``update`` on the window's detections as raw_detections' (5 n,) columns (the pipeline
         builds it from the decoder's columns, before the objects exist): -> each detection's
         (track id, ``TrackState``), (None, None) for a fragment without a track, for the
         objects' constructor."""
@@ -598,7 +606,7 @@ class Tracker:
             out, assigned, self.next_id = _step_matched(t, _detections(zr), self._p, self.edges, self.next_id)
             info = _listing(out, assigned, self._p)
         self._a = out
-        n, k, info = zr.shape[1], self.k_mps, info.tolist()
+        n, k, info = zr.shape[0] // 5, self.k_mps, info.tolist()
         self._coasting = info[2 * n:]
         return [(tid, TrackState(out, r, k)) if r >= 0 else _UNTRACKED for r, tid in zip(info[:n], info[n:])]
 
@@ -606,6 +614,8 @@ class Tracker:
         """The confirmed tracks no detection of the last window was assigned to, for their first
         report_misses misses or while occluded (they coast on their prediction):
         [{"track_id", "track"}], the window line's ``coasting`` list."""
+        if not self._coasting:
+            return []
         a = self._a
         return [{"track_id": int(a[r, ID]), "track": TrackState(a, r, self.k_mps)} for r in self._coasting]
 

@@ -49,7 +49,7 @@ from .ofpd_runner import OFPDRunner
 from .spikes import SpikeVolume
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
-_NO_DETECTIONS = np.zeros((5, 0))       # a window without objects, for the tracker (tracking.raw_detections' rows)
+_NO_DETECTIONS = np.zeros(0)       # a window without objects, for the tracker (tracking.raw_detections' columns)
 TAGS = ("fixed_pt", "floating_pt")
 
 Window = Union[np.ndarray, SpikeVolume]
@@ -275,9 +275,9 @@ class Pipeline:
         dec = self._decode.columns(pose, direction, speed, ks)          # Python lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         px_s = [v * 1000.0 for v in px_ms]
-        # (track_id, track) per object; the tracker takes raw_detections' rows: x, y, direction_rad, speed_px_s, bin
+        # (track_id, track) per object; the tracker takes raw_detections' columns: x, y, direction_rad, speed_px_s, bin
         tracked = (repeat(_UNTRACKED) if t0_us is None else self.tracker.columns(
-            np.array((dec["x_px"], dec["y_px"], dec["direction_rad"], px_s, dec["speed_bin"]), np.float64), t0_us))
+            np.array([*dec["x_px"], *dec["y_px"], *dec["direction_rad"], *px_s, *dec["speed_bin"]], np.float64), t0_us))
         return [ObjectFlow(sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st)
                 for sb, k, v, vb, v_px, cx, cy, d, n, c, (tid, st) in zip(
             dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"], dec["y_px"], dec["direction_rad"],
