@@ -542,9 +542,6 @@ def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, 
                    int(next_id))
 
 
-_UNTRACKED = (None, None)       # (track_id, track) of an object without a track
-
-
 class Tracker:
     """Stateful wrapper of ``step`` for a stream of windows: ``update(objects, t0_us)`` assigns
     every object of the window a ``track_id`` and its track's smoothed ``track`` state (a
@@ -572,7 +569,7 @@ class Tracker:
     def update(self, objects: list, t0_us: int) -> Tracks:
         """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin;
         each gets ``track_id`` and ``track``); returns the live tracks."""
-        for o, (tid, state) in zip(objects, self.columns(raw_detections(objects), t0_us)):
+        for o, tid, state in zip(objects, *self.columns(raw_detections(objects), t0_us)):
             o.track_id, o.track = tid, state
         return self.tracks
 
@@ -581,11 +578,13 @@ class Tracker:
         """Every live track after the last window."""
         return Tracks(self._a)
 
-    def columns(self, zr: np.ndarray, t0_us: int) -> list[tuple]:
+    def columns(self, zr: np.ndarray, t0_us: int) -> tuple[list, list]:
         """``update`` on the window's detections as raw_detections' (5 n,) columns (the pipeline
         builds it from the decoder's columns, before the objects exist): -> each detection's
-        (track id, ``TrackState``), (None, None) for a fragment without a track, for the
-        objects' constructor."""
+        track id and ``TrackState`` (None and None: a fragment without a track), for the
+        objects' constructor (the ids a slice when every detection has a track, the usual
+        window: Python work costs microseconds on the cold cache the pipeline's other kernels
+        leave)."""
         last, t0_us = self.t0_last, int(t0_us)
         self.t0_last = t0_us
         t = self._a
@@ -608,7 +607,10 @@ class Tracker:
         self._a = out
         n, k, info = zr.shape[0] // 5, self.k_mps, info.tolist()
         self._coasting = info[2 * n:]
-        return [(tid, TrackState(out, r, k)) if r >= 0 else _UNTRACKED for r, tid in zip(info[:n], info[n:])]
+        rows, ids = info[:n], info[n:2 * n]
+        if min(rows, default=0) >= 0:
+            return ids, [TrackState(out, r, k) for r in rows]
+        return [i if i >= 0 else None for i in ids], [TrackState(out, r, k) if r >= 0 else None for r in rows]
 
     def coasting(self) -> list[dict]:
         """The confirmed tracks no detection of the last window was assigned to, for their first

@@ -41,7 +41,7 @@ from ..errors import InputError
 from ..events.support import SupportHistory, front_end
 from ..events.support import warm_up as support_warm_up
 from ..ofpd_io import Decoder
-from ..tracking import _UNTRACKED, Tracker, TrackerConfig
+from ..tracking import Tracker, TrackerConfig
 from . import ofpd_input
 from ..compiled import new_scratch, warm_up
 from .cpu import CpuCascade
@@ -275,13 +275,13 @@ class Pipeline:
         dec = self._decode.columns(pose, direction, speed, ks)          # Python lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         px_s = [v * 1000.0 for v in px_ms]
-        # (track_id, track) per object; the tracker takes raw_detections' columns: x, y, direction_rad, speed_px_s, bin
-        tracked = (repeat(_UNTRACKED) if t0_us is None else self.tracker.columns(
+        # track_id and track per object; the tracker takes raw_detections' columns: x, y, direction_rad, speed_px_s, bin
+        ids, states = ((repeat(None), repeat(None)) if t0_us is None else self.tracker.columns(
             np.array([*dec["x_px"], *dec["y_px"], *dec["direction_rad"], *px_s, *dec["speed_bin"]], np.float64), t0_us))
         return [ObjectFlow(sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st)
-                for sb, k, v, vb, v_px, cx, cy, d, n, c, (tid, st) in zip(
+                for sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st in zip(
             dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"], dec["y_px"], dec["direction_rad"],
-            n_events.tolist(), dec["speed_clipped"], tracked)]
+            n_events.tolist(), dec["speed_clipped"], ids, states)]
 
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
         """(t0_us, window) pairs in, WindowResult per window out, in order, streaming. Windows are
