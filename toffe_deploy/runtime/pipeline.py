@@ -29,8 +29,8 @@ from __future__ import annotations
 
 import collections
 import math
-from itertools import repeat
 from dataclasses import asdict, dataclass, field
+from itertools import repeat
 from typing import Any, Iterable, Iterator, Union
 
 import numpy as np
@@ -49,8 +49,8 @@ from .ofpd_runner import OFPDRunner
 from .spikes import SpikeVolume
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
-_NO_DETECTIONS = np.zeros(0)       # a window without objects, for the tracker (tracking.raw_detections' columns)
 TAGS = ("fixed_pt", "floating_pt")
+_NO_DETECTIONS = np.zeros(0)       # a window without objects, for the tracker (tracking.raw_detections' columns)
 
 Window = Union[np.ndarray, SpikeVolume]
 """A window as a dense binned (B, 2, H, W) array (nonzero = event) or as a SpikeVolume."""
