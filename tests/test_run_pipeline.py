@@ -375,3 +375,36 @@ def test_summary_reports_the_real_time_factor():
     s.skip(2000, 500)                          # a gap jumped over is sensor time too
     assert s.realtime_factor == pytest.approx(4.0)
     assert "real-time factor" not in RunSummary("cpu", windows=2, wall_s=0.1).lines()[1]   # no dt: not stated
+
+
+def test_pipeline_tracks_from_the_decoded_columns_as_tracker_update_does_from_objects(env):
+    """The pipeline feeds the tracker the decoder's columns (Tracker.columns) and hands ids and
+    states to the objects' constructor; Tracker.update on the same objects, read back field by
+    field (the path of objects from elsewhere), gives the same ids, states and coasting lists,
+    window by window, across a gap of skipped windows too."""
+    import dataclasses
+
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.runtime.pipeline import Pipeline
+    from toffe_deploy.tracking import Tracker
+
+    b = env["bundle"]
+    cfg = b.config
+    with open_events(env["rec"]) as src:
+        wins = [(t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size))
+                for t0, ev in src.iter_windows(cfg.dt_us)]
+    wins = wins[:10] + wins[13:]                              # three windows never seen: the tracks coast
+    with Pipeline(b, "cpu") as pipe:
+        got = list(pipe.process_stream(wins))
+    tr = Tracker(cfg, cfg.dt_us, None, pipe.speed_scale.px_ms_per_mps)
+
+    def tracked(objects, coasting):
+        return ([(o.track_id, None if o.track is None else dict(o.track)) for o in objects],
+                [(c["track_id"], dict(c["track"])) for c in coasting])
+
+    for res in got:
+        objs = [dataclasses.replace(o, track_id=None, track=None) for o in res.objects]
+        tr.update(objs, res.t0_us)
+        assert tracked(objs, tr.coasting()) == tracked(res.objects, res.coasting)
+    assert sum(o.track_id is not None for r in got for o in r.objects) >= 10
+    assert any(o.track is not None and o.track["confirmed"] for r in got for o in r.objects)

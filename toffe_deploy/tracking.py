@@ -215,20 +215,22 @@ class Detections:
 
 
 def raw_detections(objects) -> np.ndarray:
-    """x, y, direction_rad, speed_px_s, speed_bin of each object, flat (n * 5,) float64: the one
-    pass over the objects' attributes a window needs (one flat list: numpy converts it faster
-    than a list of rows)."""
-    return np.array([v for o in objects for v in (o.x, o.y, o.direction_rad, o.speed_px_s, o.speed_bin)], _F)
+    """The window's detections as ``Tracker.columns`` takes them, one flat (5 n,) float64 array
+    of five columns: the objects' x, then y, direction_rad, speed_px_s and speed_bin (the one
+    pass over the objects' attributes a window needs; one flat list: numpy converts it faster
+    than nested ones)."""
+    flat = [v for o in objects for v in (o.x, o.y, o.direction_rad, o.speed_px_s, o.speed_bin)]
+    return np.array(flat, _F).reshape(-1, 5).T.ravel()
 
 
 @njit(cache=True, nogil=True)
 def _detections(zr):
-    """Detections.a (n, 6) of raw_detections' flat (n * 5,) array (velocity from direction and speed)."""
-    zr = zr.reshape(-1, 5)
-    z = np.empty((zr.shape[0], 6))
-    for k in range(zr.shape[0]):
-        z[k, 0], z[k, 1], z[k, 4], z[k, 5] = zr[k, 0], zr[k, 1], zr[k, 3], zr[k, 4]
-        z[k, 2], z[k, 3] = zr[k, 3] * math.cos(zr[k, 2]), zr[k, 3] * math.sin(zr[k, 2])
+    """Detections.a (n, 6) of raw_detections' (5 n,) columns (velocity from direction and speed)."""
+    n = zr.shape[0] // 5
+    z = np.empty((n, 6))
+    for k in range(n):
+        z[k, 0], z[k, 1], z[k, 4], z[k, 5] = zr[k], zr[n + k], zr[3 * n + k], zr[4 * n + k]
+        z[k, 2], z[k, 3] = zr[3 * n + k] * math.cos(zr[2 * n + k]), zr[3 * n + k] * math.sin(zr[2 * n + k])
     return z
 
 
@@ -463,8 +465,14 @@ def _step_simple(t, z, p, lo, hi, inner, next_id):
     a, d, ok, simple = _predict(t, z, p)
     if not simple:
         return a, np.full(z.shape[0], -1, np.int64), next_id, False
-    r, j = np.nonzero(ok)
-    out, assigned, next_id = _update(a, t, z, r.astype(np.int64), j.astype(np.int64), d, p, lo, hi, inner, next_id)
+    r, j = np.empty(ok.shape[0], np.int64), np.empty(ok.shape[0], np.int64)
+    m = 0
+    for i in range(ok.shape[0]):                             # np.nonzero(ok): at most one pair per row
+        for k in range(ok.shape[1]):
+            if ok[i, k]:
+                r[m], j[m] = i, k
+                m += 1
+    out, assigned, next_id = _update(a, t, z, r[:m], j[:m], d, p, lo, hi, inner, next_id)
     return out, assigned, next_id, True
 
 
@@ -548,7 +556,7 @@ class Tracker:
         self._p = params(self.settings, self.dt_us * 1e-6)
         self._pe = np.concatenate([self._p, self.edges.lo, self.edges.hi, self.edges.inner])   # _window's
         self.k_mps = None if px_ms_per_mps is None else 1.0 / (1000.0 * px_ms_per_mps)
-        self.tracks = Tracks()
+        self._a = Tracks().a                 # the live tracks (``tracks``)
         self.next_id = 0
         self.t0_last: int | None = None
         self._coasting: list = []
@@ -561,37 +569,56 @@ class Tracker:
     def update(self, objects: list, t0_us: int) -> Tracks:
         """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin;
         each gets ``track_id`` and ``track``); returns the live tracks."""
-        n_win = 1 if self.t0_last is None else max(1, round((int(t0_us) - self.t0_last) / self.dt_us))
-        self.t0_last = int(t0_us)
-        tr = self.tracks
-        if n_win > 1 and len(tr):       # windows never seen: coast the tracks through them
-            a, gap = tr.a.copy(), (n_win - 1) * self.dt_us * 1e-6
+        for o, tid, state in zip(objects, *self.columns(raw_detections(objects), t0_us)):
+            o.track_id, o.track = tid, state
+        return self.tracks
+
+    @property
+    def tracks(self) -> Tracks:
+        """Every live track after the last window."""
+        return Tracks(self._a)
+
+    def columns(self, zr: np.ndarray, t0_us: int) -> tuple[list, list]:
+        """``update`` on the window's detections as raw_detections' (5 n,) columns (the pipeline
+        builds it from the decoder's columns, before the objects exist): -> each detection's
+        track id and ``TrackState`` (None and None: a fragment without a track), for the
+        objects' constructor (the ids a slice when every detection has a track, the usual
+        window: Python work costs microseconds on the cold cache the pipeline's other kernels
+        leave)."""
+        last, t0_us = self.t0_last, int(t0_us)
+        self.t0_last = t0_us
+        t = self._a
+        n_win = 1 if last is None or t0_us - last == self.dt_us else max(1, round((t0_us - last) / self.dt_us))
+        if n_win > 1 and len(t):        # windows never seen: coast the tracks through them
+            a, gap = t.copy(), (n_win - 1) * self.dt_us * 1e-6
             a[:, X] += a[:, VX] * gap
             a[:, Y] += a[:, VY] * gap
             a[:, AGE] += n_win - 1
             a[:, MISS] += n_win - 1
             a[:, STREAK] = 0
             s = self.settings
-            tr = Tracks(a[a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)])
-        # the usual window in one compiled call; the few objects' attributes read once, the results
-        # handed out from one int array (Python-level work, not the tracking, was most of the cost)
-        zr = raw_detections(objects)
-        out, info, self.next_id, done = _window(tr.a, zr, self._pe, self.next_id)
+            t = a[a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)]
+        # the usual window in one compiled call, the results handed out from one int array
+        # (Python-level work, not the tracking, was most of the cost)
+        out, info, self.next_id, done = _window(t, zr, self._pe, self.next_id)
         if not done:
-            out, assigned, self.next_id = _step_matched(tr.a, _detections(zr), self._p, self.edges, self.next_id)
+            out, assigned, self.next_id = _step_matched(t, _detections(zr), self._p, self.edges, self.next_id)
             info = _listing(out, assigned, self._p)
-        self.tracks = Tracks(out)
-        n, k, info = len(objects), self.k_mps, info.tolist()
-        for o, r, tid in zip(objects, info, info[n:]):
-            o.track_id, o.track = (tid, TrackState(out, r, k)) if r >= 0 else (None, None)
+        self._a = out
+        n, k, info = zr.shape[0] // 5, self.k_mps, info.tolist()
         self._coasting = info[2 * n:]
-        return self.tracks
+        rows, ids = info[:n], info[n:2 * n]
+        if min(rows, default=0) >= 0:
+            return ids, [TrackState(out, r, k) for r in rows]
+        return [i if i >= 0 else None for i in ids], [TrackState(out, r, k) if r >= 0 else None for r in rows]
 
     def coasting(self) -> list[dict]:
         """The confirmed tracks no detection of the last window was assigned to, for their first
         report_misses misses or while occluded (they coast on their prediction):
         [{"track_id", "track"}], the window line's ``coasting`` list."""
-        a = self.tracks.a
+        if not self._coasting:
+            return []
+        a = self._a
         return [{"track_id": int(a[r, ID]), "track": TrackState(a, r, self.k_mps)} for r in self._coasting]
 
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 import collections
 import math
 from dataclasses import asdict, dataclass, field
+from itertools import repeat
 from typing import Any, Iterable, Iterator, Union
 
 import numpy as np
@@ -49,6 +50,7 @@ from .spikes import SpikeVolume
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
 TAGS = ("fixed_pt", "floating_pt")
+_NO_DETECTIONS = np.zeros(0)       # a window without objects, for the tracker (tracking.raw_detections' columns)
 
 Window = Union[np.ndarray, SpikeVolume]
 """A window as a dense binned (B, 2, H, W) array (nonzero = event) or as a SpikeVolume."""
@@ -224,11 +226,12 @@ class Pipeline:
         self.tracker = (Tracker(self.config, self.config.dt_us, settings, self.speed_scale.px_ms_per_mps)
                         if self._track is not False and self._track is not None else None)
 
-    def _tracked(self, result: "WindowResult") -> "WindowResult":
-        if self.tracker is not None:
-            self.tracker.update(result.objects, result.t0_us)
-            result.coasting = self.tracker.coasting()
-        return result
+    def _result(self, t0: int, volume: SpikeVolume, frames, **kw) -> "WindowResult":
+        """The WindowResult of window t0 (its objects tracked, with the tracker's coasting list)."""
+        tracker = self.tracker
+        objects = self.objects_of(volume, frames, None if tracker is None else t0)
+        return WindowResult(t0, t0 + self.config.dt_us, objects,
+                            coasting=None if tracker is None else tracker.coasting(), **kw)
 
     def __enter__(self) -> "Pipeline":
         warm_up()                    # the compiled kernels (every target de-duplicates pixels with them)
@@ -257,20 +260,28 @@ class Pipeline:
         if tuple(x.shape) != want:
             raise ValueError(f"window must be {want} (B, 2, H, W), got {tuple(x.shape)}")
 
-    def objects_of(self, volume: SpikeVolume, frames: list[np.ndarray]) -> list[ObjectFlow]:
+    def objects_of(self, volume: SpikeVolume, frames: list[np.ndarray], t0_us: int | None = None) -> list[ObjectFlow]:
         """Object flow of one window from its ones and its stage frames (bool masks over
-        volume.idx, index k - 1): ofpd_io's object grouping, then one batched OFPD call."""
+        volume.idx, index k - 1): ofpd_io's object grouping, then one batched OFPD call. t0_us
+        (with a tracker): the window's start; the objects come back tracked (the tracker takes
+        the decoded columns, and ids and states go into the objects' constructor: reading the
+        fields back off the objects and setting them afterwards cost more than the tracking)."""
         ks, x, n_events = ofpd_input.batch(volume, frames, self.config, self._scratch)
         if not ks.size:
+            if t0_us is not None:
+                self.tracker.columns(_NO_DETECTIONS, t0_us)
             return []
         pose, direction, speed = self.ofpd.run(x)
         dec = self._decode.columns(pose, direction, speed, ks)          # Python lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
-        return [ObjectFlow(speed_bin=sb, ofs_bin=k, speed_mps=v, speed_bin_mps=vb, speed_px_s=v_px * 1000.0, x=cx, y=cy,
-                           direction_rad=d, n_events=n, speed_clipped=c)
-                for sb, k, v, vb, v_px, cx, cy, d, n, c in zip(
-            dec["speed_bin"], ks.tolist(), mps, bin_mps, px_ms, dec["x_px"], dec["y_px"], dec["direction_rad"],
-            n_events.tolist(), dec["speed_clipped"])]
+        px_s = [v * 1000.0 for v in px_ms]
+        # track_id and track per object; the tracker takes raw_detections' columns: x, y, direction_rad, speed_px_s, bin
+        ids, states = ((repeat(None), repeat(None)) if t0_us is None else self.tracker.columns(
+            np.array([*dec["x_px"], *dec["y_px"], *dec["direction_rad"], *px_s, *dec["speed_bin"]], np.float64), t0_us))
+        return [ObjectFlow(sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st)
+                for sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st in zip(
+            dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"], dec["y_px"], dec["direction_rad"],
+            n_events.tolist(), dec["speed_clipped"], ids, states)]
 
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
         """(t0_us, window) pairs in, WindowResult per window out, in order, streaming. Windows are
@@ -280,7 +291,6 @@ class Pipeline:
             with self:
                 yield from self.process_stream(windows)
             return
-        dt = self.config.dt_us
         cfg, hist = self.config, self.support
         pool = self.config.ofs_pool
         if self.sparse:
@@ -295,7 +305,7 @@ class Pipeline:
                     res = self.cascade.cascade_sparse(grid)
                     frames = up_frames(res.frames, inverse)
                     stages = _stage_arrays(res.to_dense()) if self.keep_stages else None
-                yield self._tracked(WindowResult(int(t0), int(t0) + dt, self.objects_of(vol, frames), stages=stages))
+                yield self._result(int(t0), vol, frames, stages=stages)
             return
         # Lava backends take dense windows and may pipeline them: remember each window's t0.
         starts: collections.deque = collections.deque()
@@ -312,8 +322,7 @@ class Pipeline:
         for res in self.cascade.cascade_stream(dense()):
             t0, vol, grid, inverse = starts.popleft()
             frames = up_frames([np.asarray(f).reshape(-1)[grid.idx] for f in res.frames], inverse)
-            yield self._tracked(WindowResult(t0, t0 + dt, self.objects_of(vol, frames), cascade=res,
-                                             stages=_stage_arrays(res) if self.keep_stages else None))
+            yield self._result(t0, vol, frames, cascade=res, stages=_stage_arrays(res) if self.keep_stages else None)
 
 
 def _stage_arrays(res) -> tuple[np.ndarray, np.ndarray]:
