@@ -76,3 +76,11 @@ def test_crossing_split_is_pinned_and_its_meta_is_json(crossing):
     digests = "".join(s.digest(sequence_seed(0, "dvs:" + s.name)) for s in crossing)
     assert hashlib.sha256(digests.encode()).hexdigest()[:16] == CROSSING_SEED0
     assert json.loads(json.dumps(crossing[0].to_dict()))["meta"]["crossings"][0]["objects"] == [0, 1]
+
+
+def test_a_scene_without_crossing_paths_is_redrawn_not_an_error():
+    """Seed 3 draws a scene (camera, sizes) where no two paths cut: `dataset synth --split crossing
+    --seed 3` used to exit 2 on it; the scene is redrawn instead, and every sequence still crosses."""
+    specs = split_specs("crossing", seed=3)
+    assert len(specs) == CROSSING_COUNT
+    assert all(s.meta["crossings"] for s in specs)

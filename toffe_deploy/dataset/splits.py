@@ -178,8 +178,10 @@ def _random_object(rng, cam: PinholeCamera, look: _Look, background: float, eps:
 def _random_scene(rng, ranges: AppearanceRanges, holdout: str | None, place, n_looks: int, size_cap_frac: float):
     """Draw camera, sensor and background, then ``n_looks`` object looks that all lie outside
     (holdout "exclude") or inside ("only") the held-out region, redrawing as needed; then
-    ``place(cam, dvs, background, looks)`` lays the objects out. Returns (cam, dvs, texture,
-    background, objects)."""
+    ``place(cam, dvs, background, looks)`` lays the objects out, or returns None when this
+    scene has no room for the layout (crossing: no two paths that cut), and the whole scene is
+    redrawn. Returns (cam, dvs, texture, background, objects)."""
+    unplaced = 0
     for _ in range(100):
         cam = _camera(rng, ranges)
         dvs, texture = _sensor(rng, ranges)
@@ -196,7 +198,12 @@ def _random_scene(rng, ranges: AppearanceRanges, holdout: str | None, place, n_l
             else:
                 break
         if len(looks) == n_looks:
-            return cam, dvs, texture, bg, place(cam, dvs, bg, looks)
+            objs = place(cam, dvs, bg, looks)
+            if objs is not None:
+                return cam, dvs, texture, bg, objs
+            unplaced += 1
+    if unplaced:
+        raise ValueError(f"no layout of the objects found in {unplaced} scenes drawn (e.g. no crossing paths)")
     where = "inside" if holdout == "only" else "outside"
     raise ValueError(f"the appearance ranges leave no room {where} the held-out region "
                      "(events per edge x size x noise; data/README.md)")
@@ -329,7 +336,7 @@ def _random_crossing(rng, ranges, n_obj: int, same_bin: bool, duration_s: float)
             if len(objs) == n_obj:
                 meta.update(same_bin=same_bin, bins=bins, crossings=crossings)
                 return objs
-        raise ValueError("no crossing paths found for this scene (crossing split)")
+        return None                                          # this scene has none: _random_scene redraws it
     # like pairs: objects up to 0.12 of the smaller side leave room for the curves
     scene = _random_scene(rng, ranges, None, place, n_obj, 0.12)
     return scene, meta
