@@ -1307,6 +1307,18 @@ def split_two(gx, gy, need, frac, waist):
         w[1] = max(w[1], hi[k])
     if best_span > waist * min(va[1] - va[0] + 1.0, vb[1] - vb[0] + 1.0):
         return none
+    # a set that surrounds its centroid has a pixel beyond extent / 4 in each 45 degree sector,
+    # so it spans more than 2 cos(45) / 4 = 0.354 of its extent along any direction, and its
+    # extent is >= its span across the axis / sqrt(2): a half whose bins along the axis span
+    # <= 0.25 of that (an edge of one object, the commonest case) cannot, nor can both
+    first = 0
+    while cnt[first] == 0:
+        first += 1
+    last = nb - 1
+    while cnt[last] == 0:
+        last -= 1
+    if best - first <= 0.25 * (va[1] - va[0]) or last - best + 1 <= 0.25 * (vb[1] - vb[0]):
+        return none
     nb_side = 0
     for i in range(n):
         side[i] = b[i] >= best
@@ -1455,22 +1467,20 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
         pg[p] = comp_group[labels[p]]
     if split_frac > 0.0:
         n_groups = split_groups(xs, ys, pg, n_groups, need, split_frac, split_waist)
-        gcount = np.zeros(n_groups, np.int64)
-        for p in range(n):
-            if pg[p] >= 0:
-                gcount[pg[p]] += 1
     per_stage = np.zeros((n_groups, n_stages), np.int64)
     gsx = np.zeros(n_groups, np.int64)
     gsy = np.zeros(n_groups, np.int64)
+    size = np.zeros(n_groups, np.int64)                         # gcount, also of the split groups
     for p in range(n):
         q = pg[p]
         if q >= 0:
             per_stage[q, stage_of[p]] += 1
             gsx[q] += xs[p]
             gsy[q] += ys[p]
+            size[q] += 1
     gstage = np.full(n_groups, -1, np.int64)
     for q in range(n_groups):
-        if gcount[q] < need:
+        if size[q] < need:
             continue
         best = n_stages - 1
         for i in range(n_stages - 1, -1, -1):
@@ -1490,8 +1500,8 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
             if gstage[q] == i:
                 obj_of[q] = g
                 o_stage[g] = i
-                o_cx[g] = gsx[q] / gcount[q]
-                o_cy[g] = gsy[q] / gcount[q]
+                o_cx[g] = gsx[q] / size[q]
+                o_cy[g] = gsy[q] / size[q]
                 g += 1
     claim_key = np.empty(n, np.int64)
     claim_own = np.empty(n, np.int64)
