@@ -53,6 +53,21 @@ def test_two_touching_outlines_are_two_objects_at_their_centres(d0, d1, angle):
         assert (masks[own] & ~near).sum() <= 0.05 * near.sum()
 
 
+@pytest.mark.parametrize("angle", [0.0, 90.0])
+def test_two_touching_moving_discs_edges_are_two_objects(angle):
+    """The events of two 40 px discs moving 4 px to the right (each its leading and trailing
+    crescent), side by side or one above the other, touching: two objects near their centres."""
+    a = np.radians(angle)
+    c0 = np.array([70.0, 60.0])
+    c1 = c0 + 40.0 * np.array([np.cos(a), np.sin(a)])
+    m = [disc(*(c + [dx, 0.0]), 40) for c in (c0, c1) for dx in (-2.0, 2.0)]
+    edges = (m[0] ^ m[1]) | (m[2] ^ m[3])
+    assert len(objects(edges, PLAIN)[0]) == 1
+    objs, _ = objects(edges)
+    assert len(objs) == 2
+    np.testing.assert_allclose(sorted((o[1], o[2]) for o in objs), sorted([tuple(c0), tuple(c1)]), atol=3.0)
+
+
 def test_one_object_stays_one():
     cx, cy = 120.0, 90.0
     ys, xs = np.ogrid[:SENSOR[1], :SENSOR[0]]
