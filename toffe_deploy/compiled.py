@@ -1429,7 +1429,7 @@ def split_groups(xs, ys, pg, n_groups, need, frac, waist):
 
 @njit(cache=True, nogil=True)
 def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_count, split_frac=0.0,
-                  split_waist=0.5):
+                  split_waist=0.65):
     """ofpd_io.blob_objects_xy with ofpd.stages "union": the window's stage pixels (stage i's
     are xs, ys[starts[i]:starts[i + 1]], disjoint: the cascade gives each pixel to one stage)
     form blobs together (link_components, component_stats, merge_blobs, as one frame's), and
@@ -1728,7 +1728,8 @@ def object_input(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_m
 
 @njit(cache=True, nogil=True)
 def window_objects(frames, pix_inverse, upix, width, plane, n_channels, union, link, frac_closed, frac_open, need,
-                   min_count, split_frac, split_waist, slot_of, fixed_size, g, pool_min, pool_max, height, n_input, n_bins, coord_scale):
+                   min_count, split_frac, split_waist, slot_of, fixed_size, g, pool_min, pool_max, height, n_input,
+                   n_bins, coord_scale):
     """The runtime's batch for grouping "blobs" in one call: frame_pixels, then union_objects
     (``union``) or blob_objects, claimed_by (scratch ``slot_of``) and object_input, the same
     kernels on the same arrays back to back, so that a window crosses from Python into compiled
@@ -2175,8 +2176,8 @@ def warm_up() -> None:
     count, sx, sy, bbox = component_stats(labels, n_comp, i64, i64)
     merge_blobs(labels, count, bbox, i64, i64, 0.2, 1.5, 1)
     blob_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1)
-    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.5)
-    split_groups(i64, i64, i64.copy(), 1, 1, 0.6, 0.5)
+    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65)
+    split_groups(i64, i64, i64.copy(), 1, 1, 0.6, 0.65)
     min_gap(i64, i64, i64, i64, 1.0)
     surrounds(i64, i64)
     in_rects(i64, i64, np.zeros((1, 4), np.int64))
@@ -2185,7 +2186,7 @@ def warm_up() -> None:
     frame_pixels(np.ones((1, 1), np.bool_), i64, i64, 1, i64, 2)
     object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2)
     object_input(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2, 5, 1, 1000.0)
-    window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.5, scratch, 0, 1, 1,
+    window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, scratch, 0, 1, 1,
                    1, 2, 5, 1, 1000.0)
     crop_origin(i64, i64, 1, 2, 2)
     two_pass_centroid(i64, i64, 1.0, 2, 2)

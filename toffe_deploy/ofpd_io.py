@@ -95,8 +95,8 @@ OFPD_DEFAULTS: dict[str, Any] = {
     "link_px": 4,           # grouping "blobs": pixels <= 4 px apart (Chebyshev) are one blob (what a 5x5 closing bridges)
     "merge_frac": 0.2,      # blobs within merge_frac * the larger extent of each other are one object ...
     "edge_merge_frac": 1.5,  # ... or within edge_merge_frac when both are open edges (not surrounding their centroid)
-    "split_frac": 0.0,      # stages "union": split a group whose 2-means halves are two outlines (compiled.split_two):
-    "split_waist": 0.5,     # centroids >= split_frac * extent apart, cut <= split_waist * width; 0 = never (older ckpts)
+    "split_frac": 0.0,      # stages "union": a group cut at its narrowest into two closed outlines is two objects when
+    "split_waist": 0.65,    # >= split_frac * extent apart, cut <= split_waist * width (compiled.split_two); 0 = never
     "pool_min": 2,          # crop "scaled": P = clip(2^ceil(log2(1.5 * extent / g)), pool_min, pool_max)
     "pool_max": 16,
 }
@@ -431,9 +431,10 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
     An object claims exactly its pixels, of every stage. Objects of radius r at centre distance
     >= 3r stay two when their events close around them (they are r apart, minus their motion,
     > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob, unless
-    ofpd.split_frac > 0 ("union" only): then a group whose two 2-means halves each surround
-    their own centroid, lie >= split_frac * the larger half's extent apart and meet in a narrow
-    waist (compiled.split_two) is two objects, each at its own centroid. Measured on the
+    ofpd.split_frac > 0 ("union" only): then a group cut across its principal axis where it is
+    narrowest into two halves that each surround their own centroid, lie >= split_frac * the
+    larger half's extent apart and meet in a waist <= split_waist * the narrower one's width
+    (compiled.split_two) is two objects, each at its own centroid. Measured on the
     crossing sequences (objects whose paths cross): touching outlines are split, while one
     object's separated leading and trailing edges (open halves), a ring's two halves (open) and
     a fast object's smear (as wide at the cut as elsewhere) stay one."""
