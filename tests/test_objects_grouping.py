@@ -92,8 +92,8 @@ def test_two_objects_three_and_four_radii_apart(d, radii, angle):
 
 
 def test_touching_objects_are_one_blob():
-    """Centre distance 2r (edge gap 0): one connected blob, reported once (not supported: no
-    grouping that follows the events can split it without a shape model)."""
+    """Centre distance 2r (edge gap 0): one connected blob, reported once (ofpd.split_frac 0, the
+    default; with it > 0 two touching closed outlines are split: tests/test_objects_split.py)."""
     m = moving_disc(200, 170, 40) | moving_disc(240, 170, 40)
     objs, _ = ofpd_io.group_objects_xy(stages(m), SENSOR, CFG)
     assert len(objs) == 1

@@ -1211,8 +1211,225 @@ def blob_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_
     return o_stage[:n_obj].copy(), o_cx[:n_obj].copy(), o_cy[:n_obj].copy(), owner, claim_key[srt], claim_own[srt]
 
 
+SPLIT_ELONGATION = 1.8     # split_two: the blob's principal variances differ by at least this factor
+SPLIT_MIDDLE = 0.15        # split_two: the cut leaves at least this share of the pixels on each side
+
+
 @njit(cache=True, nogil=True)
-def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_count):
+def _elongated(n, sx, sy, sxx, syy, sxy):
+    """Whether a pixel set (count and integer sums of x, y, x^2, y^2, xy) has principal
+    variances l1 >= SPLIT_ELONGATION * l2: two touching outlines of radii R and r side by side
+    give (w1 R^2 + w2 r^2) / 2 + w1 w2 (R + r)^2 over (w1 R^2 + w2 r^2) / 2 (w the perimeter
+    shares), 3 for R = r and 1.86 for R = 3r; one ring gives 1."""
+    cxx = sxx / n - (sx / n) ** 2
+    cyy = syy / n - (sy / n) ** 2
+    cxy = sxy / n - (sx / n) * (sy / n)
+    half = 0.5 * (cxx + cyy)
+    root = np.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
+    return half + root >= SPLIT_ELONGATION * (half - root)
+
+
+@njit(cache=True, nogil=True)
+def split_two(gx, gy, need, frac, waist):
+    """Whether the pixels (gx, gy) of one group are two objects, and if so which side each is
+    on (else an all-False array). The cut is the line across the principal axis (1 px steps,
+    leaving >= SPLIT_MIDDLE of the pixels and >= need on each side) where the pixels within
+    2 px of it span the least across the axis: where two touching outlines meet (a point),
+    a gap if they do not touch. The halves are two objects when that span is <= waist * the
+    narrower half's width across the axis (a fast object's smear, a filled disc, a ring are as
+    wide at any cut in their middle), each half surrounds its own centroid (``surrounds``: a
+    whole outline, not a leading or trailing edge of one object, not half of a ring) and their
+    centroids are >= frac * the larger half's extent apart. Blobs that are not elongated
+    (_elongated) are one object without trying: the test that keeps this cheap (most groups
+    stop there, after one pass over their pixels)."""
+    n = gx.shape[0]
+    none = np.zeros(n, np.bool_)
+    if n < 2 * need:
+        return none
+    sx = sy = sxx = syy = sxy = 0
+    for i in range(n):
+        sx += gx[i]
+        sy += gy[i]
+        sxx += gx[i] * gx[i]
+        syy += gy[i] * gy[i]
+        sxy += gx[i] * gy[i]
+    if not _elongated(n, sx, sy, sxx, syy, sxy):
+        return none
+    mx = sx / n
+    my = sy / n
+    th = 0.5 * np.arctan2(2.0 * (sxy / n - mx * my), (sxx / n - mx * mx) - (syy / n - my * my))
+    ux = np.cos(th)
+    uy = np.sin(th)
+    t = np.empty(n)
+    v = np.empty(n)
+    for i in range(n):
+        t[i] = (gx[i] - mx) * ux + (gy[i] - my) * uy
+        v[i] = (gy[i] - my) * ux - (gx[i] - mx) * uy
+    t0 = t.min()
+    nb = int(t.max() - t0) + 1
+    b = np.empty(n, np.int64)
+    cnt = np.zeros(nb, np.int64)
+    lo = np.full(nb, np.inf)
+    hi = np.full(nb, -np.inf)
+    for i in range(n):
+        k = int(t[i] - t0)
+        b[i] = k
+        cnt[k] += 1
+        lo[k] = min(lo[k], v[i])
+        hi[k] = max(hi[k], v[i])
+    lo_min = max(need, int(np.ceil(SPLIT_MIDDLE * n)))
+    best = -1
+    best_span = np.inf
+    best_below = 0
+    below = 0
+    for j in range(1, nb):                      # side b: bins >= j
+        below += cnt[j - 1]
+        if below < lo_min or n - below < lo_min:
+            continue
+        a = np.inf
+        z = -np.inf
+        for k in range(max(0, j - 2), min(nb, j + 2)):
+            a = min(a, lo[k])
+            z = max(z, hi[k])
+        span = z - a + 1.0 if z >= a else 0.0
+        if span < best_span or (span == best_span and abs(2 * below - n) < abs(2 * best_below - n)):
+            best_span = span               # the narrowest; of equals the most even
+            best = j
+            best_below = below
+    if best < 0:
+        return none
+    side = np.empty(n, np.bool_)
+    va = np.array([np.inf, -np.inf])
+    vb = np.array([np.inf, -np.inf])
+    for k in range(nb):
+        w = vb if k >= best else va
+        w[0] = min(w[0], lo[k])
+        w[1] = max(w[1], hi[k])
+    if best_span > waist * min(va[1] - va[0] + 1.0, vb[1] - vb[0] + 1.0):
+        return none
+    # a set that surrounds its centroid has a pixel beyond extent / 4 in each 45 degree sector,
+    # so it spans more than 2 cos(45) / 4 = 0.354 of its extent along any direction, and its
+    # extent is >= its span across the axis / sqrt(2): a half whose bins along the axis span
+    # <= 0.25 of that (an edge of one object, the commonest case) cannot, nor can both
+    first = 0
+    while cnt[first] == 0:
+        first += 1
+    last = nb - 1
+    while cnt[last] == 0:
+        last -= 1
+    if best - first <= 0.25 * (va[1] - va[0]) or last - best + 1 <= 0.25 * (vb[1] - vb[0]):
+        return none
+    nb_side = 0
+    for i in range(n):
+        side[i] = b[i] >= best
+        nb_side += side[i]
+    ax = np.empty(n - nb_side, np.int64)
+    ay = np.empty(n - nb_side, np.int64)
+    bx = np.empty(nb_side, np.int64)
+    by = np.empty(nb_side, np.int64)
+    ia = ib = 0
+    for i in range(n):
+        if side[i]:
+            bx[ib] = gx[i]
+            by[ib] = gy[i]
+            ib += 1
+        else:
+            ax[ia] = gx[i]
+            ay[ia] = gy[i]
+            ia += 1
+    dist = np.sqrt((bx.sum() / ib - ax.sum() / ia) ** 2 + (by.sum() / ib - ay.sum() / ia) ** 2)
+    ea = max(ax.max() - ax.min(), ay.max() - ay.min()) + 1
+    eb = max(bx.max() - bx.min(), by.max() - by.min()) + 1
+    if dist < frac * max(ea, eb):
+        return none
+    if not surrounds(ax, ay) or not surrounds(bx, by):
+        return none
+    return side
+
+
+@njit(cache=True, nogil=True)
+def split_groups(xs, ys, pg, n_groups, need, frac, waist):
+    """Splits every group of pixels (pg (n,) group per pixel, -1 for none; groups 0..n_groups-1)
+    that split_two finds to be two objects, in place: the second side becomes group n_groups,
+    n_groups + 1, ... and each part is tried again (three objects in one blob: two splits).
+    Only groups with >= 2 * need pixels that are elongated are looked at (their moments from one
+    pass over the pixels; the others cost nothing more). Returns the number of groups."""
+    n = xs.shape[0]
+    mom = np.zeros((n_groups, 6), np.int64)         # count and sums of x, y, x^2, y^2, xy per group
+    for p in range(n):
+        q = pg[p]
+        if q >= 0:
+            x = xs[p]
+            y = ys[p]
+            mom[q, 0] += 1
+            mom[q, 1] += x
+            mom[q, 2] += y
+            mom[q, 3] += x * x
+            mom[q, 4] += y * y
+            mom[q, 5] += x * y
+    todo = np.zeros(n_groups, np.bool_)
+    any_todo = False
+    for q in range(n_groups):
+        todo[q] = mom[q, 0] >= 2 * need and _elongated(mom[q, 0], mom[q, 1], mom[q, 2], mom[q, 3], mom[q, 4],
+                                                       mom[q, 5])
+        any_todo |= todo[q]
+    if not any_todo:
+        return n_groups
+    start = np.zeros(n_groups + 1, np.int64)        # the pixels by group (counting sort), pixel order within
+    for q in range(n_groups):
+        start[q + 1] = start[q] + mom[q, 0]
+    order = np.empty(start[n_groups], np.int64)
+    fill = start[:n_groups].copy()
+    for p in range(n):
+        q = pg[p]
+        if q >= 0:
+            order[fill[q]] = p
+            fill[q] += 1
+    stack = np.empty((n // max(need, 1) + n_groups + 1, 3), np.int64)    # (first, end, group) still to try
+    top = 0
+    for q in range(n_groups - 1, -1, -1):
+        if todo[q]:
+            stack[top, 0] = start[q]
+            stack[top, 1] = start[q + 1]
+            stack[top, 2] = q
+            top += 1
+    g = n_groups
+    while top > 0:
+        top -= 1
+        lo = stack[top, 0]
+        hi = stack[top, 1]
+        q = stack[top, 2]
+        idx = order[lo:hi].copy()
+        side = split_two(xs[idx], ys[idx], need, frac, waist)
+        na = 0
+        for i in range(hi - lo):
+            na += not side[i]
+        if na == hi - lo:
+            continue
+        a = lo
+        b = lo + na
+        for i in range(hi - lo):                  # stable partition: side a first, then side b
+            if side[i]:
+                order[b] = idx[i]
+                pg[idx[i]] = g
+                b += 1
+            else:
+                order[a] = idx[i]
+                a += 1
+        stack[top, 0] = lo + na                   # both parts are tried again, the first one first
+        stack[top, 1] = hi
+        stack[top, 2] = g
+        stack[top + 1, 0] = lo
+        stack[top + 1, 1] = lo + na
+        stack[top + 1, 2] = q
+        top += 2
+        g += 1
+    return g
+
+
+@njit(cache=True, nogil=True)
+def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_count, split_frac=0.0,
+                  split_waist=0.65):
     """ofpd_io.blob_objects_xy with ofpd.stages "union": the window's stage pixels (stage i's
     are xs, ys[starts[i]:starts[i + 1]], disjoint: the cascade gives each pixel to one stage)
     form blobs together (link_components, component_stats, merge_blobs, as one frame's), and
@@ -1223,7 +1440,9 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
     at the centroid of all its pixels (exact integer sums over the count). An object's edges
     that the cascade handed to several stages are one outline here, which surrounds its
     centroid, so a neighbour's edges join it only within frac_closed. Objects are numbered
-    fastest stage first, then by group. Returns what blob_objects returns."""
+    fastest stage first, then by group. With split_frac > 0, a group that split_groups finds to
+    hold two objects (two touching outlines, split_two with split_frac and split_waist) is two
+    groups. Returns what blob_objects returns."""
     n = xs.shape[0]
     n_stages = starts.shape[0] - 1
     owner = np.full(n, -1, np.int64)
@@ -1243,18 +1462,25 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
         if first[c] >= 0:
             comp_group[c] = second[first[c]]
     n_groups = gcount.shape[0]
+    pg = np.empty(n, np.int64)                                 # the group of each pixel
+    for p in range(n):
+        pg[p] = comp_group[labels[p]]
+    if split_frac > 0.0:
+        n_groups = split_groups(xs, ys, pg, n_groups, need, split_frac, split_waist)
     per_stage = np.zeros((n_groups, n_stages), np.int64)
     gsx = np.zeros(n_groups, np.int64)
     gsy = np.zeros(n_groups, np.int64)
+    size = np.zeros(n_groups, np.int64)                         # gcount, also of the split groups
     for p in range(n):
-        q = comp_group[labels[p]]
+        q = pg[p]
         if q >= 0:
             per_stage[q, stage_of[p]] += 1
             gsx[q] += xs[p]
             gsy[q] += ys[p]
+            size[q] += 1
     gstage = np.full(n_groups, -1, np.int64)
     for q in range(n_groups):
-        if gcount[q] < need:
+        if size[q] < need:
             continue
         best = n_stages - 1
         for i in range(n_stages - 1, -1, -1):
@@ -1274,8 +1500,8 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
             if gstage[q] == i:
                 obj_of[q] = g
                 o_stage[g] = i
-                o_cx[g] = gsx[q] / gcount[q]
-                o_cy[g] = gsy[q] / gcount[q]
+                o_cx[g] = gsx[q] / size[q]
+                o_cy[g] = gsy[q] / size[q]
                 g += 1
     claim_key = np.empty(n, np.int64)
     claim_own = np.empty(n, np.int64)
@@ -1285,7 +1511,7 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
     repeats = False
     for a in range(n):
         p = order[a]
-        q = comp_group[labels[p]]
+        q = pg[p]
         if q >= 0 and obj_of[q] >= 0:
             owner[p] = obj_of[q]
             key = ys[p] * width + xs[p]
@@ -1300,7 +1526,7 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
     m = 0
     for i in range(n_stages - 1, -1, -1):                      # claims stage by stage, fastest first
         for p in range(starts[i], starts[i + 1]):
-            q = comp_group[labels[p]]
+            q = pg[p]
             if q >= 0 and obj_of[q] >= 0:
                 owner[p] = obj_of[q]
                 claim_key[m] = ys[p] * width + xs[p]
@@ -1502,7 +1728,8 @@ def object_input(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_m
 
 @njit(cache=True, nogil=True)
 def window_objects(frames, pix_inverse, upix, width, plane, n_channels, union, link, frac_closed, frac_open, need,
-                   min_count, slot_of, fixed_size, g, pool_min, pool_max, height, n_input, n_bins, coord_scale):
+                   min_count, split_frac, split_waist, slot_of, fixed_size, g, pool_min, pool_max, height, n_input,
+                   n_bins, coord_scale):
     """The runtime's batch for grouping "blobs" in one call: frame_pixels, then union_objects
     (``union``) or blob_objects, claimed_by (scratch ``slot_of``) and object_input, the same
     kernels on the same arrays back to back, so that a window crosses from Python into compiled
@@ -1511,7 +1738,7 @@ def window_objects(frames, pix_inverse, upix, width, plane, n_channels, union, l
     sx, sy, starts, ev_u, fx, fy, ch = frame_pixels(frames, pix_inverse, upix, width, plane, n_channels)
     if union:
         stage, _cx, _cy, _own, keys, owner = union_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
-                                                           min_count)
+                                                           min_count, split_frac, split_waist)
     else:
         stage, _cx, _cy, _own, keys, owner = blob_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
                                                           min_count)
@@ -1949,7 +2176,8 @@ def warm_up() -> None:
     count, sx, sy, bbox = component_stats(labels, n_comp, i64, i64)
     merge_blobs(labels, count, bbox, i64, i64, 0.2, 1.5, 1)
     blob_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1)
-    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1)
+    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65)
+    split_groups(i64, i64, i64.copy(), 1, 1, 0.6, 0.65)
     min_gap(i64, i64, i64, i64, 1.0)
     surrounds(i64, i64)
     in_rects(i64, i64, np.zeros((1, 4), np.int64))
@@ -1958,8 +2186,8 @@ def warm_up() -> None:
     frame_pixels(np.ones((1, 1), np.bool_), i64, i64, 1, i64, 2)
     object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2)
     object_input(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2, 5, 1, 1000.0)
-    window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, scratch, 0, 1, 1, 1, 2,
-                   5, 1, 1000.0)
+    window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, scratch, 0, 1, 1,
+                   1, 2, 5, 1, 1000.0)
     crop_origin(i64, i64, 1, 2, 2)
     two_pass_centroid(i64, i64, 1.0, 2, 2)
     fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 1000.0)

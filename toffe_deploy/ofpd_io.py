@@ -95,6 +95,8 @@ OFPD_DEFAULTS: dict[str, Any] = {
     "link_px": 4,           # grouping "blobs": pixels <= 4 px apart (Chebyshev) are one blob (what a 5x5 closing bridges)
     "merge_frac": 0.2,      # blobs within merge_frac * the larger extent of each other are one object ...
     "edge_merge_frac": 1.5,  # ... or within edge_merge_frac when both are open edges (not surrounding their centroid)
+    "split_frac": 0.0,      # stages "union": a group cut at its narrowest into two closed outlines is two objects when
+    "split_waist": 0.65,    # >= split_frac * extent apart, cut <= split_waist * width (compiled.split_two); 0 = never
     "pool_min": 2,          # crop "scaled": P = clip(2^ceil(log2(1.5 * extent / g)), pool_min, pool_max)
     "pool_max": 16,
 }
@@ -131,6 +133,8 @@ def _ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
     for key, choices in LAYOUT_CHOICES.items():
         if s[key] not in choices:
             raise ValueError(f"ofpd.{key} must be one of {', '.join(choices)}, got {s[key]!r}")
+    if float(s["split_frac"]) > 0 and s["stages"] != "union":
+        raise ValueError('ofpd.split_frac > 0 needs ofpd.stages "union"')
     if s["bin_from"] == "ofpd" and s["speed_unit"] != "px_ms":
         raise ValueError('ofpd.bin_from "ofpd" needs ofpd.speed_unit "px_ms"')
     return s
@@ -426,7 +430,14 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
 
     An object claims exactly its pixels, of every stage. Objects of radius r at centre distance
     >= 3r stay two when their events close around them (they are r apart, minus their motion,
-    > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob."""
+    > 0.2 * 2r); closer than the closing bridges (<= 4 px) they are one blob, unless
+    ofpd.split_frac > 0 ("union" only): then a group cut across its principal axis where it is
+    narrowest into two halves that each surround their own centroid, lie >= split_frac * the
+    larger half's extent apart and meet in a waist <= split_waist * the narrower one's width
+    (compiled.split_two) is two objects, each at its own centroid. Measured on the
+    crossing sequences (objects whose paths cross): touching outlines are split, while one
+    object's separated leading and trailing edges (open halves), a ring's two halves (open) and
+    a fast object's smear (as wide at the cut as elsewhere) stay one."""
     pix = [tuple(_int64(a) for a in p) for p in stage_pixels]
     starts = np.cumsum([0] + [p[0].shape[0] for p in pix]).astype(np.int64)
     xs = np.concatenate([p[0] for p in pix]) if pix else np.zeros(0, np.int64)
@@ -434,20 +445,22 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
     return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config)
 
 
-def blob_settings(s: dict) -> tuple[bool, int, float, float, int, int]:
+def blob_settings(s: dict) -> tuple[bool, int, float, float, int, int, float, float]:
     """(stages "union"?, then link, frac_closed, frac_open, need, min_count as compiled.union_objects /
-    blob_objects take them) from ofpd_settings ``s``."""
+    blob_objects take them, then split_frac, split_waist, union_objects' only) from ofpd_settings ``s``."""
     need = int(s["min_events"])
     return (s["stages"] == "union", int(s["link_px"]), float(s["merge_frac"]), float(s["edge_merge_frac"]), need,
-            max(1, -(-need // 4)))
+            max(1, -(-need // 4)), float(s["split_frac"]), float(s["split_waist"]))
 
 
 def _blob_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, w: int, config: ToffeConfig
                        ) -> tuple[Objects, Claims]:
     """blob_objects_xy on flat stage pixels (group_objects_flat), in one compiled pass."""
     union, *args = blob_settings(ofpd_settings(config))
-    group = union_objects if union else blob_objects
-    stage, cx, cy, _owner, keys, owner = group(xs, ys, starts, w, *args)
+    if union:
+        stage, cx, cy, _owner, keys, owner = union_objects(xs, ys, starts, w, *args)
+    else:
+        stage, cx, cy, _owner, keys, owner = blob_objects(xs, ys, starts, w, *args[:5])
     objs = list(zip(stage.tolist(), cx.tolist(), cy.tolist()))       # (int, float, float) rows
     return objs, Claims(width=w, keys=keys, owner=owner)
 
