@@ -311,16 +311,13 @@ def _cascade(b, c, pix_inverse, input_pixels, tap_target, active, weights, dv, v
     for q in range(u):
         in_r[q] = _div_small(input_pixels[q], width, inv_w)
         in_c[q] = input_pixels[q] - in_r[q] * width
-    need = np.empty(u, np.bool_)          # the input pixels of the stage's alive ones
     for k in range(n_st - 1, -1, -1):
         inputs[k] = alive
         a_flat[:] = 0
-        need[:] = False
         w_k = weights[k]
         for i in range(n):
             if alive[i]:
                 q = pix_inverse[i]
-                need[q] = True
                 row = np.uint64(1 + b[i] * mm)
                 ch = c[i]
                 for j in range(kk):
@@ -345,7 +342,7 @@ def _cascade(b, c, pix_inverse, input_pixels, tap_target, active, weights, dv, v
                 f_c[j] = act_c[s]
                 j += 1
         if 1 <= mask_kernel <= 32:
-            at = closed_bits_at(f_r, f_c, in_r, in_c, need, height, width, mask_kernel)
+            at = closed_bits(f_r, f_c, in_r, in_c, height, width, mask_kernel)
         else:
             at = closed_at(f_r, f_c, in_r, in_c, height, width, mask_kernel)
         frame, alive = split_closed(alive, pix_inverse, at)
@@ -486,57 +483,53 @@ def closed_bits(f_rows, f_cols, rows, cols, height, width, kernel):
     "off-image positions left out": D(y, x) = OR F(y + i, x + j), closed(y, x) = AND D(y + i, x + j)
     over i, j in -a..kernel-1-a and on the sensor. For 1 <= kernel <= 32 (a kernel's span then
     lies in at most two words); tests/test_run_sparse.py checks it equal to closed_at."""
-    return closed_bits_at(f_rows, f_cols, rows, cols, np.ones(rows.shape[0], np.bool_), height, width, kernel)
-
-
-@njit(cache=True, nogil=True)
-def closed_bits_at(f_rows, f_cols, rows, cols, need, height, width, kernel):
-    """closed_bits read only where ``need`` (False elsewhere: the cascade asks at the pixels of
-    its alive ones). The dilation runs per row over the words next to that row's fired bits
-    only (a kernel of <= 32 moves a bit into the next word at most), each word's shifts from
-    its two neighbours loaded once."""
     a = kernel // 2
     lo_d = -a
     hi_d = kernel - 1 - a
     nw = (width + 63) >> 6
     bits = np.zeros((height, nw), np.uint64)
-    w_lo = np.full(height, nw, np.int64)            # per row: the words with a fired bit
-    w_hi = np.full(height, -1, np.int64)
+    has = np.zeros(height, np.bool_)
     for i in range(f_rows.shape[0]):
         x = f_cols[i]
-        y = f_rows[i]
-        w = x >> 6
-        bits[y, w] |= np.uint64(1) << np.uint64(x & 63)
-        w_lo[y] = min(w_lo[y], w)
-        w_hi[y] = max(w_hi[y], w)
-    zero = np.uint64(0)
-    dil = np.zeros((height, nw), np.uint64)        # OR over i of (OR over j of F(y + i, x + j))
+        bits[f_rows[i], x >> 6] |= np.uint64(1) << np.uint64(x & 63)
+        has[f_rows[i]] = True
+    dil_h = np.zeros((height, nw), np.uint64)      # OR over j of F(y, x + j)
     for y in range(height):
-        if w_hi[y] < 0:
+        if not has[y]:
             continue
         src = bits[y]
-        for w in range(max(w_lo[y] - 1, 0), min(w_hi[y] + 1, nw - 1) + 1):
-            s = src[w]
-            left = src[w - 1] if w > 0 else zero
-            right = src[w + 1] if w + 1 < nw else zero
-            acc = zero
-            for d in range(lo_d, hi_d + 1):           # bit x of the result is bit x + d of the row
-                if d == 0:
-                    acc |= s
-                elif d > 0:
-                    acc |= (s >> np.uint64(d)) | (right << np.uint64(64 - d))
-                else:
-                    acc |= (s << np.uint64(-d)) | (left >> np.uint64(64 + d))
-            if acc == zero:
-                continue
-            for d in range(lo_d, hi_d + 1):           # row y feeds rows y - d
-                r = y - d
-                if 0 <= r < height:
-                    dil[r, w] |= acc
+        dst = dil_h[y]
+        for d in range(lo_d, hi_d + 1):           # bit x of the result is bit x + d of src
+            if d == 0:
+                for w in range(nw):
+                    dst[w] |= src[w]
+            elif d > 0:
+                sh = np.uint64(d)
+                back = np.uint64(64 - d)
+                for w in range(nw):
+                    v = src[w] >> sh
+                    if w + 1 < nw:
+                        v |= src[w + 1] << back
+                    dst[w] |= v
+            else:
+                sh = np.uint64(-d)
+                back = np.uint64(64 + d)
+                for w in range(nw):
+                    v = src[w] << sh
+                    if w > 0:
+                        v |= src[w - 1] >> back
+                    dst[w] |= v
+    dil = np.zeros((height, nw), np.uint64)        # OR over i of dil_h(y + i, x)
+    for y in range(height):
+        if not has[y]:
+            continue
+        for d in range(lo_d, hi_d + 1):           # row y feeds rows y - d
+            r = y - d
+            if 0 <= r < height:
+                for w in range(nw):
+                    dil[r, w] |= dil_h[y, w]
     out = np.zeros(rows.shape[0], np.bool_)
     for q in range(rows.shape[0]):
-        if not need[q]:
-            continue
         y = rows[q]
         x0 = max(cols[q] + lo_d, 0)
         x1 = min(cols[q] + hi_d, width - 1)
