@@ -278,14 +278,13 @@ def sampled_window(read, t0: int, dt_us: int, config, sensor_size: tuple[int, in
 def sampled_index(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int]) -> np.ndarray:
     """``sampled_window``'s ones as a sorted linear index into the (B, 2, H, W) volume, by the
     compiled index forms (training reads many windows of the whole sensor)."""
-    from ..compiled import sorted_unique
-    from .binning import event_bin_index
+    from .binning import event_ones
     from .frontend import apply_index
 
     t0, dt_us = int(t0), int(dt_us)
     w, h = int(sensor_size[0]), int(sensor_size[1])
     shape = (int(config.n_bins), 2, h, w)
-    idx = sorted_unique(event_bin_index(read(t0, t0 + dt_us), t0, dt_us, config.n_bins, sensor_size))
+    idx = event_ones(read(t0, t0 + dt_us), t0, dt_us, config.n_bins, sensor_size)
     if config.input_support is None:
         return apply_index(idx, shape, config.input_norm, config.input_min_cluster)
     k, r, m, c = config.input_support
