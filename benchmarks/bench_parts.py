@@ -10,7 +10,8 @@ took from it, so parts compare across runs on a busy machine better than wall ti
 
     bin      SpikeVolume.from_events (event index, sorted unique ones)
     front    the input front end (first spike, cluster filter)
-    cascade  CpuCascade.cascade_sparse (the N OFS stages, closings, masks)
+    cascade  CpuCascade.pooled_frames (pool, the N OFS stages, closings, masks, Up_p; one compiled call)
+             or, unpooled, CpuCascade.cascade_sparse
     batch    runtime.ofpd_input.batch (object grouping, crops, OFPD input)
     ort      the onnxruntime call
     decode   ofpd_io.Decoder.columns and pipeline.speeds_of
@@ -67,7 +68,8 @@ def main(argv=None) -> int:
                 t.append(clock())
                 vol = front_end(vol, cfg, pipe.support, t0)       # the Pipeline's own windows before (input_support)
                 t.append(clock())
-                frames = sensor_frames(pipe.cascade, vol, cfg.ofs_pool)     # on the OFS grid, as Pipeline runs it
+                frames = (pipe.cascade.pooled_frames(vol, cfg.ofs_pool) if cfg.ofs_pool > 1   # as Pipeline runs it
+                          else sensor_frames(pipe.cascade, vol, cfg.ofs_pool))
                 t.append(clock())
                 ks, x, _n = ofpd_input.batch(vol, frames, cfg, pipe._scratch)
                 t.append(clock())

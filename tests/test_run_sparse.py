@@ -201,13 +201,28 @@ def test_sorted_unique_equals_np_unique(rng):
         assert got.dtype == np.int64 and np.array_equal(got, np.unique(v))
 
 
+
+def test_event_ones_equals_np_unique_of_the_bin_index(rng):
+    """events.binning.event_ones (compiled.binned_ones, the cpu path's binning in one call)
+    against np.unique of event_bin_index: events in and out of the window, repeats, none."""
+    from toffe_deploy.events.binning import event_bin_index, event_ones
+    from toffe_deploy.events.core import EVENT_DTYPE
+
+    for n, w, h, b in ((0, 8, 6, 5), (1, 8, 6, 1), (400, 32, 24, 5), (3000, 64, 48, 3)):
+        ev = np.zeros(n, EVENT_DTYPE)
+        ev["x"], ev["y"] = rng.integers(0, w, n), rng.integers(0, h, n)
+        ev["t"], ev["p"] = np.sort(rng.integers(-50, 560, n)), rng.integers(0, 2, n)
+        got = event_ones(ev, 0, 500, b, (w, h))
+        assert got.dtype == np.int64 and np.array_equal(got, np.unique(event_bin_index(ev, 0, 500, b, (w, h))))
+
 def test_closed_bits_equals_opencv_closing_on_random_images(rng):
     """compiled.closed_bits (the cascade's closing, read at pixels) against cv2.morphologyEx:
-    odd and even kernels, rows of one to four 64-bit words, empty edges and full images."""
+    odd and even kernels (up to the 32 it takes), rows of one to four 64-bit words, empty edges
+    and full images."""
     from toffe_deploy.compiled import closed_bits
 
-    for _ in range(300):
-        k = int(rng.integers(1, 8))
+    for i in range(300):
+        k = int(rng.integers(1, 8)) if i % 10 else int(rng.choice([9, 16, 31, 32]))
         h, w = int(rng.integers(1, 30)), int(rng.integers(1, 200))
         img = (rng.random((h, w)) < rng.choice([0.02, 0.1, 0.4, 0.8, 1.0])).astype(np.uint8)
         img[0, 0] = 1

@@ -2038,6 +2038,13 @@ def sorted_unique(values):
 
 
 @njit(cache=True, nogil=True)
+def binned_ones(t, x, y, p, t0, dt_us, n_bins, height, width):
+    """sorted_unique(bin_index(...)): a window's sorted unique linear ids in one call from Python
+    (SpikeVolume.from_events), the index array handed over while still in cache."""
+    return sorted_unique(bin_index(t, x, y, p, t0, dt_us, n_bins, height, width))
+
+
+@njit(cache=True, nogil=True)
 def pool_index(idx, n_pixels, width, p, hp, wp):
     """spikes.SpikeVolume.pool on a sorted unique linear index into a (B, C, H, W) volume, in
     O(n) without sorting: (u, inverse, u_bc, u_pix, bc, pix) with u = np.unique of the pooled
@@ -2146,7 +2153,7 @@ KERNELS = (dedupe, active_set, ofs_window, ofs_stage, split_closed, compact_imag
            in_boxes, box_mean, density_groups, link_components, component_stats, merge_blobs, min_gap, surrounds,
            blob_objects, claimed_by, crop_pool, crop_origin, two_pass_centroid, frame_pixels, object_crops, object_input,
            in_rects,
-           cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique, unique_inverse, pool_index)
+           cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique, binned_ones, unique_inverse, pool_index)
 
 
 def warm_up() -> None:
@@ -2198,5 +2205,6 @@ def warm_up() -> None:
 
     ev = np.zeros(1, EVENT_DTYPE)
     sorted_unique(bin_index(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1))
+    binned_ones(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1)
     unique_inverse(i64)
     pool_index(i64, 1, 1, 1, 1, 1)

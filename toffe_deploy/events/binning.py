@@ -30,6 +30,16 @@ def event_bin_index(events: np.ndarray, t0: int, dt_us: int, n_bins: int,
                      int(dt_us), int(n_bins), height, width)
 
 
+
+def event_ones(events: np.ndarray, t0: int, dt_us: int, n_bins: int, sensor_size: tuple[int, int]) -> np.ndarray:
+    """np.unique(event_bin_index(...)): the sorted linear indices of the window's ones, in one
+    compiled call (compiled.binned_ones; the cpu hot path: SpikeVolume.from_events)."""
+    from ..compiled import binned_ones
+
+    width, height = int(sensor_size[0]), int(sensor_size[1])
+    return binned_ones(np.asarray(events["t"], dtype=np.int64), events["x"], events["y"], events["p"], int(t0),
+                       int(dt_us), int(n_bins), height, width)
+
 def bin_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, sensor_size: tuple[int, int],
                dtype=np.uint16) -> np.ndarray:
     """Counts per (bin, polarity, y, x) for the events in [t0, t0 + dt_us).

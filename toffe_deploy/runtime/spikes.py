@@ -16,8 +16,8 @@ from functools import cached_property
 
 import numpy as np
 
-from ..compiled import dedupe, pool_index, sorted_unique     # at import: a call-time import costs ~1 us per window
-from ..events.binning import event_bin_index
+from ..compiled import dedupe, pool_index     # at import: a call-time import costs ~1 us per window
+from ..events.binning import event_ones
 from ..events.frontend import apply_index
 
 
@@ -93,11 +93,10 @@ class SpikeVolume:
         """The binary volume of ``bin_window(events, t0, dt_us, n_bins, sensor_size) > 0``.
 
         Events outside [t0, t0 + dt_us) are ignored. O(n): the indices' np.unique by a radix
-        sort (compiled.sorted_unique).
+        sort (compiled.sorted_unique), one compiled call (events.binning.event_ones).
         """
         width, height = int(sensor_size[0]), int(sensor_size[1])
-        idx = event_bin_index(events, t0, dt_us, n_bins, sensor_size)
-        return cls(sorted_unique(idx), (int(n_bins), 2, height, width))
+        return cls(event_ones(events, t0, dt_us, n_bins, sensor_size), (int(n_bins), 2, height, width))
 
     def front_end(self, norm: str, min_cluster: int = 1) -> "SpikeVolume":
         """The ones the network sees through the input front end (events/frontend.py); self
