@@ -99,3 +99,17 @@ def test_streamed_front_end_gives_the_kept_pixel_index_and_the_history_counts(rn
         seen.append(event_pixels(vol))
         assert np.array_equal(hist.counts, history_counts(seen[-3:]).reshape(-1))
         assert hist.total == int(history_counts(seen[-3:]).sum())
+
+
+@pytest.mark.parametrize("dense", [True, False])
+def test_a_skipped_window_is_shifted_in_once(dense):
+    """A stream that skips an empty window: the history holds the windows before as they were,
+    [w0, w1, (empty), w3] for K = 4, not the gap twice (front_end advances, then push does)."""
+    cfg = ToffeConfig(sensor_size=(8, 6), dt_us=10, input_support=(4, 1, 5, 0))
+    hist = SupportHistory(4, (8, 6), 10)
+    for t0, px in ((0, 1), (10, 2), (30, 3)):
+        vol = np.zeros((cfg.n_bins, 2, 6, 8), np.uint8)
+        vol[0, 0, px // 8, px % 8] = 1
+        front_end(vol if dense else SpikeVolume.from_dense(vol), cfg, hist, t0)
+    assert [r.tolist() for r in hist._ring] == [[1], [2], [], [3]]
+    assert hist.counts[[1, 2, 3]].tolist() == [1, 1, 1] and hist.total == 3

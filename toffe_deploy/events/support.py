@@ -173,7 +173,8 @@ class SupportHistory:
     windows before. ``advance(t0)`` moves it to the window starting at t0: the next window
     (t0 = last + dt) keeps it, a gap of whole windows shifts in empty ones (a skipped window had
     no events), anything else (a jump back, a gap that is no multiple of dt) forgets it
-    (``reset``); a fresh history is K empty windows, as before a recording's start."""
+    (``reset``); a fresh history is K empty windows, as before a recording's start. Advancing
+    twice to the same t0 (``front_end`` advances, then ``push`` does) shifts the gap in once."""
 
     def __init__(self, k: int, sensor_size: tuple[int, int], dt_us: int):
         self.k = int(k)
@@ -197,6 +198,7 @@ class SupportHistory:
             return
         for _ in range(min(gap // self.dt_us - 1, self.k)):
             self._push(_NONE)
+        self.last_t0 = int(t0) - self.dt_us      # the skipped windows are in: advancing again to t0 adds none
 
     def push(self, t0: int, pixels: np.ndarray) -> None:
         """Add the window at t0 (``advance`` to it first): ``pixels`` its unique linear pixel
