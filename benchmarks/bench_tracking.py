@@ -6,7 +6,7 @@
         [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--gate-speed K] [--report-misses R]
         [--max-occluded O] [--turn-beta B] [--max-turn RAD] [--merge PX] [--merge-move PX]
         [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R] [--coast-px PX] [--max-coast N]
-        [--truth-blobs] [--save-detections DIR | --detections DIR] [--json FILE]
+        [--truth-blobs [--truth-merge F]] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
 ``Pipeline(bundle, "cpu", track=TrackerConfig(...))``; its detections are scored like `run`
@@ -29,7 +29,9 @@ centre, direction and image-plane speed, every window), except that objects whos
 overlap (centre distance below their mean diameter, ``appearance.objects[].size_px`` of the
 generator's attrs) are reported as one blob at their mean centre with the first one's motion:
 what a perfect detector that cannot split touching objects would give. Scores identities
-through crossings apart from the detector's misses and false positives.
+through crossings apart from the detector's misses and false positives. ``--truth-merge F``
+merges below F times the mean diameter instead (0.5: a detector that splits objects whose
+centres are more than a radius apart; 0: one that splits every pair).
 
 ``--cost``: instead, the CPU time per window of the cpu pipeline with and without tracking on
 the shipped sample (or --events; time.process_time, one pinned core, best of --repeats
@@ -180,9 +182,10 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                                              "n": len(dir_det[k]), "n_tracked": len(dir_trk[k])} for k in dir_det}}
 
 
-def truth_blobs(truths, size_px, speed_bin_of) -> list:
+def truth_blobs(truths, size_px, speed_bin_of, merge: float = 1.0) -> list:
     """One window's detections from its ground truth: overlapping objects merged into one blob
-    (module doc). truths: ObjectTruth list; size_px: diameter per object id."""
+    (module doc). truths: ObjectTruth list; size_px: diameter per object id; merge: the centre
+    distance that merges two, in mean diameters."""
     import math
 
     from toffe_deploy.runtime.pipeline import ObjectFlow
@@ -192,7 +195,7 @@ def truth_blobs(truths, size_px, speed_bin_of) -> list:
         if i in used:
             continue
         grp = [i] + [j for j in range(i + 1, len(truths)) if j not in used and math.hypot(
-            t.x - truths[j].x, t.y - truths[j].y) < (size_px[t.object_id] + size_px[truths[j].object_id]) / 2.0]
+            t.x - truths[j].x, t.y - truths[j].y) < merge * (size_px[t.object_id] + size_px[truths[j].object_id]) / 2.0]
         used.update(grp)
         v = 1000.0 * t.speed_px_ms
         b = max(1, speed_bin_of(t.speed_px_ms))
@@ -202,7 +205,7 @@ def truth_blobs(truths, size_px, speed_bin_of) -> list:
     return out
 
 
-def run_split_truth_blobs(config, files, settings, max_windows, gate) -> dict:
+def run_split_truth_blobs(config, files, settings, max_windows, gate, merge: float = 1.0) -> dict:
     """CLEAR MOT / IDF1 of the tracker alone on truth_blobs detections (``--truth-blobs``)."""
     from toffe_deploy.events.io import open_events
     from toffe_deploy.runtime.pipeline import WindowResult
@@ -225,7 +228,7 @@ def run_split_truth_blobs(config, files, settings, max_windows, gate) -> dict:
         for w in range(n):
             t0 = t_start + w * dt
             gt = truth.window(t0, dt)
-            dets = truth_blobs(gt, size_px, config.speed_bin_of_px_ms)
+            dets = truth_blobs(gt, size_px, config.speed_bin_of_px_ms, merge)
             n_blob += len(dets) < len(gt)
             tracker.update(dets, t0)
             track.add_result(WindowResult(t0, t0 + dt, dets, coasting=tracker.coasting()), gt)
@@ -334,6 +337,8 @@ def main(argv=None) -> int:
     ap.add_argument("--max-coast", type=int, default=d.max_coast, help="max_coast: ... up to this many misses")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
+    ap.add_argument("--truth-merge", type=float, default=1.0, metavar="F",
+                    help="--truth-blobs: merge objects closer than F mean diameters (default 1: touching discs)")
     ap.add_argument("--save-detections", type=Path, metavar="DIR",
                     help="also write each split's per-window detections to DIR/SPLIT.jsonl")
     ap.add_argument("--detections", type=Path, metavar="DIR",
@@ -369,12 +374,13 @@ def main(argv=None) -> int:
            "score_gate_px": a.score_gate, "splits": {}}
     if a.truth_blobs:
         out["detections"] = "truth_blobs"
+        out["truth_merge"] = a.truth_merge
         print("| split | sequences | windows | windows with a blob | MOTA | IDF1 | ID switches | frag. | misses | FP |\n"
               "|---|---|---|---|---|---|---|---|---|---|")
         for split in a.split.split(","):
             files = split_files(Path(a.data), split)
             r = run_split_truth_blobs(bundle.config, files[:a.limit] if a.limit else files, settings,
-                                      a.max_windows, a.score_gate)
+                                      a.max_windows, a.score_gate, a.truth_merge)
             out["splits"][split] = r
             m = r["tracking"]
             print(f"| {split} | {r['sequences']} | {r['windows']} | {r['windows_with_a_blob']} | {m['mota']:.3f} "
