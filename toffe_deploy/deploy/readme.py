@@ -120,7 +120,9 @@ camera, and the reported speed bin: `config.ofpd.bin_from = "ofpd"`, the bin of 
 (the speed clipped only to the bins' overall range), or `"ofs"` (older checkpoints), the
 cascade's stage, the speed clipped into it. Which events form one object is
 `config.ofpd.grouping`: `"blobs"` (connected event blobs of any size, an object's edges joined
-until they surround it; keys `link_px`, `merge_frac`, `edge_merge_frac`, `min_events`) or
+until they surround it; keys `link_px`, `merge_frac`, `edge_merge_frac`, `min_events`; with
+`split_frac` > 0, `"union"` only, a blob whose two halves are each a closed outline meeting
+the other in a narrow waist, at most `split_waist` of the narrower one's width, is two objects) or
 `"boxes"` (a fixed +-`dedupe_px` box, older checkpoints); with blobs, `config.ofpd.stages`
 says how the stage frames meet: `"union"`, the blobs of all stages' pixels together (an
 object's edges that the cascade gave to several stages are one outline; its stage is the
