@@ -106,3 +106,19 @@ def test_index_front_end_equals_dense_for_any_channel_count_and_sensor(rng, shap
         for n in (1, 2, 4):
             got = apply_index(np.flatnonzero(vol), vol.shape, norm, n)
             assert np.array_equal(got, np.flatnonzero(apply_dense(vol, norm, n))), (norm, n)
+
+
+def test_front_end_scratch_is_one_per_thread():
+    """The front end's kernels release the GIL: two pipelines in two threads must not share the
+    all -1 scratch they write into (one per thread and sensor size, reused within a thread)."""
+    import threading
+
+    from toffe_deploy.events.frontend import slots_for
+
+    mine = slots_for(12 * 10)
+    assert slots_for(12 * 10) is mine and (mine == -1).all()
+    theirs = []
+    t = threading.Thread(target=lambda: theirs.append(slots_for(12 * 10)))
+    t.start()
+    t.join()
+    assert theirs[0] is not mine and theirs[0].shape == mine.shape and (theirs[0] == -1).all()

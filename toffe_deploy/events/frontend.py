@@ -29,10 +29,27 @@ Cluster sizes do not change when other clusters are dropped, so the filter is id
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 INPUT_NORMS = ("none", "first")
-_SLOTS: dict[int, np.ndarray] = {}    # front_end_index's scratch per H * W (compiled.new_scratch; reused: no page faults)
+_LOCAL = threading.local()            # .slots: the front end's scratch per H * W, one per thread
+
+
+def slots_for(n_pixels: int) -> np.ndarray:
+    """The front end's all -1 scratch for a sensor of n_pixels (compiled.new_scratch; the kernels
+    leave it all -1, so it is reused: no page faults per window). One per thread: the kernels
+    release the GIL, and two pipelines running in two threads must not share it."""
+    d = getattr(_LOCAL, "slots", None)
+    if d is None:
+        d = _LOCAL.slots = {}
+    slots = d.get(n_pixels)
+    if slots is None:
+        from ..compiled import new_scratch
+
+        slots = d[n_pixels] = new_scratch(n_pixels)
+    return slots
 
 
 def check_norm(norm: str) -> str:
@@ -62,16 +79,14 @@ def front_end_index(idx: np.ndarray, shape: tuple[int, ...], first: bool, min_cl
     """The ones of a sorted unique linear index into a (B, C, H, W) volume that ``first`` (if
     set) and the cluster filter of ``min_cluster`` keep, in one compiled pass
     (compiled.front_end_keep). Returns a sorted index."""
-    from ..compiled import front_end_keep, new_scratch
+    from ..compiled import front_end_keep
 
     idx = np.asarray(idx, dtype=np.int64)
     if idx.size == 0 or (not first and min_cluster <= 1):
         return idx
     w = int(shape[3])
     n_pixels = int(shape[2]) * w
-    slots = _SLOTS.get(n_pixels)
-    if slots is None:                  # one all -1 scratch per sensor size, left so by the kernel
-        slots = _SLOTS[n_pixels] = new_scratch(n_pixels)
+    slots = slots_for(n_pixels)
     # compress: idx[mask]'s result at two thirds of its cost
     return idx.compress(front_end_keep(idx, int(shape[1]), n_pixels, w, bool(first), int(min_cluster), slots))
 

@@ -31,8 +31,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..compiled import _root, cluster_sizes, front_end_pass, new_scratch
-from .frontend import _SLOTS, apply_dense, check_min_cluster, check_norm
+from ..compiled import _root, cluster_sizes, front_end_pass
+from .frontend import apply_dense, check_min_cluster, check_norm, slots_for
 
 
 def event_pixels(volume: np.ndarray) -> np.ndarray:
@@ -144,9 +144,7 @@ def _support_run(idx, shape, norm, min_cluster, counts, radius, m, noise_factor=
     c, h, w = int(shape[1]), int(shape[2]), int(shape[3])
     n_pixels = h * w
     first = check_norm(norm) == "first"
-    slots = _SLOTS.get(n_pixels)
-    if slots is None:
-        slots = _SLOTS[n_pixels] = new_scratch(n_pixels)
+    slots = slots_for(n_pixels)
     cnt = np.ascontiguousarray(counts, np.uint8).reshape(-1)
     total = int(cnt.sum(dtype=np.int64)) if counts_total is None and noise_factor else int(counts_total or 0)
     kept, pixels, upix, inverse = support_keep(idx, c, n_pixels, w, h, first, check_min_cluster(min_cluster), slots,
