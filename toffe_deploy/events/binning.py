@@ -15,6 +15,13 @@ def window_slice(events: np.ndarray, t0: int, dt_us: int) -> np.ndarray:
     return events[i0:i1]
 
 
+def _kernel_args(events: np.ndarray, t0: int, dt_us: int, n_bins: int, sensor_size: tuple[int, int]) -> tuple:
+    """The arguments compiled.bin_index and binned_ones take: the event fields, then the window."""
+    width, height = int(sensor_size[0]), int(sensor_size[1])
+    return (np.asarray(events["t"], dtype=np.int64), events["x"], events["y"], events["p"], int(t0), int(dt_us),
+            int(n_bins), height, width)
+
+
 def event_bin_index(events: np.ndarray, t0: int, dt_us: int, n_bins: int,
                     sensor_size: tuple[int, int]) -> np.ndarray:
     """Linear index ((b * 2 + p) * H + y) * W + x into the (n_bins, 2, H, W) volume of each event
@@ -25,10 +32,7 @@ def event_bin_index(events: np.ndarray, t0: int, dt_us: int, n_bins: int,
     """
     from ..compiled import bin_index        # one compiled pass over the fields (the cpu hot path)
 
-    width, height = int(sensor_size[0]), int(sensor_size[1])
-    return bin_index(np.asarray(events["t"], dtype=np.int64), events["x"], events["y"], events["p"], int(t0),
-                     int(dt_us), int(n_bins), height, width)
-
+    return bin_index(*_kernel_args(events, t0, dt_us, n_bins, sensor_size))
 
 
 def event_ones(events: np.ndarray, t0: int, dt_us: int, n_bins: int, sensor_size: tuple[int, int]) -> np.ndarray:
@@ -36,9 +40,8 @@ def event_ones(events: np.ndarray, t0: int, dt_us: int, n_bins: int, sensor_size
     compiled call (compiled.binned_ones; the cpu hot path: SpikeVolume.from_events)."""
     from ..compiled import binned_ones
 
-    width, height = int(sensor_size[0]), int(sensor_size[1])
-    return binned_ones(np.asarray(events["t"], dtype=np.int64), events["x"], events["y"], events["p"], int(t0),
-                       int(dt_us), int(n_bins), height, width)
+    return binned_ones(*_kernel_args(events, t0, dt_us, n_bins, sensor_size))
+
 
 def bin_window(events: np.ndarray, t0: int, dt_us: int, n_bins: int, sensor_size: tuple[int, int],
                dtype=np.uint16) -> np.ndarray:
