@@ -62,7 +62,7 @@ def dump(bundle_dir: str, events: str | None, limit: int | None) -> dict:
             spikes = np.zeros((len(res.spikes),) + res.volume.shape[:1] + (res.volume.n_pixels,), bool)
             for k, s in enumerate(res.spikes):
                 spikes[k][:, res.window.active] = s
-            ks, x, n_ev = ofpd_input.batch(fe, frames, cfg, pipe._scratch)
+            ks, x, n_ev, _ones = ofpd_input.batch(fe, frames, cfg, pipe._scratch)
             wr = next(pipe.process_stream([(t0, vol)]))
             objs = []
             for o in wr.objects:

@@ -14,7 +14,8 @@ took from it, so parts compare across runs on a busy machine better than wall ti
              or, unpooled, CpuCascade.cascade_sparse
     batch    runtime.ofpd_input.batch (object grouping, crops, OFPD input)
     ort      the onnxruntime call
-    decode   ofpd_io.Decoder.columns and pipeline.speeds_of
+    decode   the plane fit of the fast objects and its fusion (ofpd.plane_fit_weight > 0: plane_fit),
+             ofpd_io.Decoder.columns and pipeline.speeds_of
 
 Prints one JSON line: the median of each part over windows and repeats (us), the median and
 mean of their sum, the number of windows and the 1-minute load average when it ended.
@@ -49,6 +50,7 @@ def main(argv=None) -> int:
     from toffe_deploy.commands.run import SAMPLE
     from toffe_deploy.deploy.bundle import load_bundle
     from toffe_deploy.events.support import front_end
+    from toffe_deploy.plane_fit import object_planes_flow
     from toffe_deploy.runtime import ofpd_input
     from toffe_deploy.runtime.pipeline import Pipeline, sensor_frames, speeds_of
     from toffe_deploy.runtime.spikes import SpikeVolume
@@ -71,12 +73,15 @@ def main(argv=None) -> int:
                 frames = (pipe.cascade.pooled_frames(vol, cfg.ofs_pool) if cfg.ofs_pool > 1   # as Pipeline runs it
                           else sensor_frames(pipe.cascade, vol, cfg.ofs_pool))
                 t.append(clock())
-                ks, x, _n = ofpd_input.batch(vol, frames, cfg, pipe._scratch)
+                ks, x, _n, ones = ofpd_input.batch(vol, frames, cfg, pipe._scratch)
                 t.append(clock())
                 out = pipe.ofpd.run(x) if ks.size else None
                 t.append(clock())
                 if ks.size:
-                    speeds_of(pipe._decode.columns(*out, ks), cfg, pipe.speed_scale)   # as Pipeline.objects_of
+                    pose, direction, speed = out
+                    if pipe._fusion.on and pipe._fusion.wanted(speed).any():      # as Pipeline.objects_of
+                        speed = pipe._fusion(speed, object_planes_flow(*ones, ks.size, pipe._fusion.wanted(speed)))
+                    speeds_of(pipe._decode.columns(pose, direction, speed, ks), cfg, pipe.speed_scale)   # as Pipeline.objects_of
                 t.append(clock())
                 for name, a, b in zip(PARTS, t[:-1], t[1:]):
                     parts[name].append((b - a) / 1e3)

@@ -228,7 +228,7 @@ def test_compiled_grouping_and_batch_equal_reference_on_the_sample(sample_window
             u = np.unique(vol.pix[m])
             stage_pixels.append((u % 640, u // 640))
         assert_same_grouping(stage_pixels, (640, 480), cfg)
-        ks, x, n_ev = ofpd_input.batch(vol, frames, cfg, scratch)
+        ks, x, n_ev, _ones = ofpd_input.batch(vol, frames, cfg, scratch)
         rk, rx, rn = batch_reference(vol, frames, cfg)
         np.testing.assert_array_equal(ks, rk)
         np.testing.assert_array_equal(n_ev, rn)

@@ -15,6 +15,7 @@ from toffe_deploy import ofpd_io
 from toffe_deploy.cascade import run_cascade
 from toffe_deploy.cli import main
 from toffe_deploy.config import ToffeConfig
+from toffe_deploy.plane_fit import dense_flow, object_planes_flow
 from toffe_deploy.fixed_point import run_ofs_fixed
 from toffe_deploy.runtime import ofpd_input
 from toffe_deploy.compiled import new_scratch
@@ -64,12 +65,13 @@ def _random_window(rng, cfg, n_stages=4):
                                   {"crop_px": 24, "pool": 3, "min_events": 1, "dedupe_px": 6},
                                   {"crop_px": 16, "pool": 2, "min_events": 6, "dedupe_px": 5},
                                   {"crop_px": 32, "pool": 4, "min_events": 6, "pool_max": 4, **ofpd_io.CURRENT_LAYOUT},
-                                  {"crop_px": 16, "pool": 2, "min_events": 3, "link_px": 1, **ofpd_io.CURRENT_LAYOUT}])
+                                  {"crop_px": 16, "pool": 2, "min_events": 3, "link_px": 1, **ofpd_io.CURRENT_LAYOUT,
+                                   "plane_fit_weight": 0.7}])
 def test_sparse_ofpd_input_equals_ofpd_io(rng, ofpd):
     """The runtime's coordinate path == the dense ofpd_io API (training/export), bit for bit:
     stages, merged frames (hence n_events), has_object and the prepared OFPD input."""
     cfg = ToffeConfig(sensor_size=SENSOR, ofpd=ofpd)
-    n_obj, multi = 0, 0
+    n_obj, multi, n_flow = 0, 0, 0
     for t in range(16):
         vol, masks, dense = _random_window(rng, cfg)
         ks_ref, merged_ref = ofpd_io.merge_frames(dense, cfg)
@@ -82,12 +84,17 @@ def test_sparse_ofpd_input_equals_ofpd_io(rng, ofpd):
         assert np.array_equal(np.flatnonzero(ofpd_io.has_object(dense, cfg)), np.unique(ks_ref - 1))
         got, ref = ofpd_input.prepare(merged, cfg, lookup), ofpd_io.prepare(merged_ref, cfg)
         assert got.dtype == ref.dtype and got.shape == ref.shape and got.tobytes() == ref.tobytes()
-        ks_b, x_b, n_b = ofpd_input.batch(vol, masks, cfg, lookup)          # the pipeline's one-pass form
+        ks_b, x_b, n_b, ones_b = ofpd_input.batch(vol, masks, cfg, lookup)  # the pipeline's one-pass form
         assert ks_b.tolist() == ks_ref.tolist() and x_b.tobytes() == ref.tobytes()
+        if cfg.ofpd.get("plane_fit_weight", 0) > 0:                         # plane_fit: the same bits as eval's
+            flow_b = object_planes_flow(*ones_b, ks_b.size, np.ones(ks_b.size, bool))
+            assert flow_b.tobytes() == dense_flow(merged_ref).reshape(-1, 2).tobytes()
+            n_flow += int(np.isfinite(flow_b[:, 0]).sum())
         assert n_b.tolist() == [int(m.sum()) for m in merged_ref]
         n_obj += ks.size
         multi += int(np.any(np.bincount(ks) > 1))
     assert n_obj > 16 and multi >= 3            # covered windows with several objects in one stage
+    assert n_flow >= 3 or not ofpd.get("plane_fit_weight")
 
 
 @pytest.mark.parametrize("pool", [1, 2])

@@ -1715,15 +1715,16 @@ def object_input(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_m
                  n_channels, n_bins, coord_scale):
     """object_crops, then ofpd_io.prepare_flat's OFPD input (N, n_channels, g, g) float32 of the
     claimed ones (fill_input; fill_motion when n_channels - 2 > 2 n_bins) in one call: the
-    runtime's batch after the grouping. Returns (input, n_ones (G,))."""
+    runtime's batch after the grouping. Returns (input, n_ones (G,), and the claimed ones as flat
+    arrays object, x, y, channel: plane_fit.object_planes_flow's input, for the objects whose
+    OFPD speed asks for it)."""
     origins, n_ones, obj, ox, oy, och = object_crops(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g,
                                                      pool_min, pool_max, width, height)
     out = np.zeros((masks.shape[0], n_channels, g, g), np.float32)
     fill_input(out, obj, ox, oy, och, origins, n_channels - 2, coord_scale)
     if n_channels - 2 > 2 * n_bins:
         fill_motion(out, obj, ox, oy, och, origins, n_bins, 2 * n_bins)
-    return out, n_ones
-
+    return out, n_ones, obj, ox, oy, och
 
 
 @njit(cache=True, nogil=True)
@@ -1733,8 +1734,9 @@ def window_objects(frames, pix_inverse, upix, width, plane, n_channels, union, l
     """The runtime's batch for grouping "blobs" in one call: frame_pixels, then union_objects
     (``union``) or blob_objects, claimed_by (scratch ``slot_of``) and object_input, the same
     kernels on the same arrays back to back, so that a window crosses from Python into compiled
-    code once for all of them and gets back three arrays instead of sixteen. Returns (stage
-    (G,) 0-based, OFPD input (G, n_input, g, g) float32, n_ones (G,))."""
+    code once for all of them and gets back seven arrays instead of sixteen. Returns (stage
+    (G,) 0-based, OFPD input (G, n_input, g, g) float32, n_ones (G,), then object_input's
+    claimed ones: object, x, y, channel)."""
     sx, sy, starts, ev_u, fx, fy, ch = frame_pixels(frames, pix_inverse, upix, width, plane, n_channels)
     if union:
         stage, _cx, _cy, _own, keys, owner = union_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
@@ -1743,9 +1745,9 @@ def window_objects(frames, pix_inverse, upix, width, plane, n_channels, union, l
         stage, _cx, _cy, _own, keys, owner = blob_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
                                                           min_count)
     masks = claimed_by(keys, owner, fy * width + fx, stage.shape[0], slot_of)
-    x, n_ones = object_input(masks, fx, fy, ch, ev_u, upix.shape[0], fixed_size, g, pool_min, pool_max, width,
-                             height, n_input, n_bins, coord_scale)
-    return stage, x, n_ones
+    x, n_ones, obj, ox, oy, och = object_input(masks, fx, fy, ch, ev_u, upix.shape[0], fixed_size, g, pool_min,
+                                               pool_max, width, height, n_input, n_bins, coord_scale)
+    return stage, x, n_ones, obj, ox, oy, och
 
 @njit(cache=True, nogil=True)
 def in_rects(xs, ys, rects):

@@ -183,6 +183,15 @@ class ToffeConfig:
                 check_support(self.input_support)
             except ValueError as exc:
                 bad(str(exc))
+        if self.ofpd is not None and not isinstance(self.ofpd, dict):
+            bad(f"ofpd must be an object of settings, got {type(self.ofpd).__name__}")
+        from .ofpd_io import _ofpd_settings                 # imported here: ofpd_io imports this module
+        from .plane_fit import fit_settings
+        try:
+            _ofpd_settings(self)
+            fit_settings(self)
+        except (TypeError, ValueError) as exc:
+            bad(str(exc))
 
     def speed_bin_of(self, speed_mps: float) -> int:
         """1-based speed bin of a speed; 0 below the first bin, N above the last."""

@@ -48,6 +48,8 @@ grows with texture; the OFPD sees the whole object and the time order inside eac
 motion planes), a measurement of the speed rather than of its footprint. The cascade still
 finds and separates the objects; the stage each came from stays in the output as ``ofs_bin``.
 ``speed_bin_mps`` is the paper's bin-only estimate: the representative speed of stage k.
+Before decoding, ofpd.plane_fit_weight > 0 blends the speed of the fast objects with the
+velocity of planes fitted to their ones' time surface (toffe_deploy/plane_fit.py).
 """
 from __future__ import annotations
 

@@ -101,7 +101,7 @@ def runtime_ofpd_inputs(held: HeldOut, params: Sequence[LoihiOFSParams], config:
     xs = []
     for i in (range(len(held.windows)) if windows is None else windows):
         vol = SpikeVolume.from_dense(np.asarray(held.windows[i]) > 0).front_end(config.input_norm)
-        _ks, x, _n = ofpd_input.batch(vol, sensor_frames(casc, vol, config.ofs_pool), config, scratch)
+        _ks, x, _n, _ones = ofpd_input.batch(vol, sensor_frames(casc, vol, config.ofs_pool), config, scratch)
         xs.append(x)
     from ..ofpd_io import input_shape
 

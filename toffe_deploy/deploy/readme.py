@@ -118,7 +118,11 @@ regresses ln(cells/ms) and the graph adds ln P), or ln(m/s) for `"mps"` (older c
 decode with `toffe_deploy.ofpd_io.decode`. It gives both m/s and px/ms through the config's
 camera, and the reported speed bin: `config.ofpd.bin_from = "ofpd"`, the bin of this speed
 (the speed clipped only to the bins' overall range), or `"ofs"` (older checkpoints), the
-cascade's stage, the speed clipped into it. Which events form one object is
+cascade's stage, the speed clipped into it. With `config.ofpd.plane_fit_weight` w > 0 the
+speed of an object whose OFPD speed exceeds `plane_fit_min_px_ms` is blended, before that
+decoding, with the velocity of planes fitted to the time surface of its ones (ln s = w ln
+|v_plane| + (1 - w) ln s_OFPD; `toffe_deploy.plane_fit`, numpy/numba on the host, from the same
+ones the crop is cut from; absent or 0: the OFPD's speed alone). Which events form one object is
 `config.ofpd.grouping`: `"blobs"` (connected event blobs of any size, an object's edges joined
 until they surround it; keys `link_px`, `merge_frac`, `edge_merge_frac`, `min_events`; with
 `split_frac` > 0, `"union"` only, a blob whose two halves are each a closed outline meeting

@@ -20,6 +20,7 @@ from ..config import ToffeConfig
 from ..fixed_point import LoihiOFSParams, quantize_ofs, run_ofs_fixed
 from ..metrics import Prediction
 from .. import ofpd_io
+from ..plane_fit import dense_flow, fit_settings, fuse_speed
 
 
 def quantize_stages(ofs: list[dict], reset: str = "subtract") -> list[LoihiOFSParams]:
@@ -81,17 +82,30 @@ def ofpd_torch_fn(model):
     return run
 
 
+def window_outputs(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig):
+    """One window (B, 2, H, W) -> (stage_k (N,), merged frames (N, B, 2, H, W), OFPD pose,
+    direction, speed as the network gives them, CascadeResult): predict_window before the
+    plane-fit fusion and the decoding (benchmarks/fit_plane_fit.py fits the fusion on these)."""
+    res = run_cascade(binned, run_stage, config.n_speed_bins, config.mask_kernel, config.ofs_pool)
+    ks, merged = ofpd_io.merge_frames(np.stack(res.frames), config)
+    if ks.size == 0:
+        return ks, merged, None, None, None, res
+    pose, direction, speed = ofpd(ofpd_io.prepare(merged, config))
+    return ks, merged, pose, direction, speed, res
+
+
 def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig):
     """One window (B, 2, H, W) counts -> (list[Prediction], CascadeResult).
 
     Objects are the report groups of the stage frames (ofpd_io.merge_frames: speed bin = the
-    fastest stage that fires, input = the union of the group's frames); one batched OFPD call.
+    fastest stage that fires, input = the union of the group's frames); one batched OFPD call;
+    the plane fit blended into its speed when ofpd.plane_fit_weight > 0 (toffe_deploy/plane_fit.py).
     """
-    res = run_cascade(binned, run_stage, config.n_speed_bins, config.mask_kernel, config.ofs_pool)
-    ks, merged = ofpd_io.merge_frames(np.stack(res.frames), config)
+    ks, merged, pose, direction, speed, res = window_outputs(binned, run_stage, ofpd, config)
     if ks.size == 0:
         return [], res
-    pose, direction, speed = ofpd(ofpd_io.prepare(merged, config))
+    if fit_settings(config)[0] > 0:
+        speed = fuse_speed(speed, dense_flow(merged), config)
     d = ofpd_io.decode(pose, direction, speed, ks, config)
     preds = [Prediction(int(k), float(d["x_px"][i]), float(d["y_px"][i]), float(d["direction_rad"][i]),
                         float(d["speed_mps"][i]), float(d["speed_bin_mps"][i]), float(d["speed_px_ms"][i]))

@@ -68,9 +68,11 @@ def _crop_args(s: dict, g: int) -> tuple[int, int, int, int]:
 
 
 def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig,
-          scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple]:
     """``prepare(*merge_objects(...))`` in one pass: (stage_k (G,), OFPD input (G, C, g, g)
-    float32, n_events (G,) = the number of ones of each merged frame).
+    float32, n_events (G,) = the number of ones of each merged frame, ones = (object, x, y,
+    channel) flat arrays of every object's merged ones: plane_fit.object_planes_flow's input,
+    the same sets as plane_fit.dense_flow of the merged frames).
 
     The same core calls on the same coordinate sets, with the window's pixels de-duplicated
     once (``volume.pixel_index``, shared with the OFS window) instead of once per stage frame
@@ -90,16 +92,17 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     s = ofpd_settings(config)
     c, g, _ = input_shape(config)
     if s["grouping"] == "blobs" and scratch is not None:     # the cpu pipeline: every step in one compiled call
-        stage, x, n_ev = window_objects(stacked, pinv, upix, w, volume.bc, nc, *blob_settings(s), scratch,
-                                        *_crop_args(s, g), h, c, int(config.n_bins), COORD_SCALE)
-        return stage + 1, x, n_ev
+        stage, x, n_ev, *ones = window_objects(stacked, pinv, upix, w, volume.bc, nc, *blob_settings(s), scratch,
+                                               *_crop_args(s, g), h, c, int(config.n_bins), COORD_SCALE)
+        return stage + 1, x, n_ev, tuple(ones)
     sx, sy, starts, ev_u, fx, fy, ch = frame_pixels(stacked, pinv, upix, w, volume.bc, nc)
     objs, claims = group_objects_flat(sx, sy, starts, (w, h), config)
     if not objs:
-        return np.zeros(0, dtype=np.int64), np.zeros((0, c, g, g), np.float32), np.zeros(0, dtype=np.int64)
-    x, n_ev = object_input(claims.matrix(fx, fy, len(objs), scratch), fx, fy, ch, ev_u, upix.shape[0],
-                           *_crop_args(s, g), w, h, c, int(config.n_bins), COORD_SCALE)
-    return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, n_ev
+        none = np.zeros(0, dtype=np.int64)
+        return none, np.zeros((0, c, g, g), np.float32), none, (none, none, none, none)
+    x, n_ev, *ones = object_input(claims.matrix(fx, fy, len(objs), scratch), fx, fy, ch, ev_u, upix.shape[0],
+                                  *_crop_args(s, g), w, h, c, int(config.n_bins), COORD_SCALE)
+    return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, n_ev, tuple(ones)
 
 
 def prepare(frames: Sequence[SpikeVolume], config: ToffeConfig, scratch: np.ndarray | None = None) -> np.ndarray:

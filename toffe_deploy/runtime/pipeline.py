@@ -41,6 +41,7 @@ from ..errors import InputError
 from ..events.support import SupportHistory, front_end
 from ..events.support import warm_up as support_warm_up
 from ..ofpd_io import Decoder
+from ..plane_fit import SpeedFusion, object_planes_flow
 from ..tracking import Tracker, TrackerConfig
 from . import ofpd_input
 from ..compiled import new_scratch, warm_up
@@ -211,6 +212,7 @@ class Pipeline:
         self._scratch = new_scratch(self.sensor_size[0] * self.sensor_size[1])   # for ofpd_input's O(n) de-duplication
         self.keep_stages = bool(keep_stages)
         self._decode = Decoder(self.config)          # ofpd_io.decode, set up once
+        self._fusion = SpeedFusion(self.config)
         self._track = track
         self.support = (SupportHistory(self.config.input_support[0], self.sensor_size, self.config.dt_us)
                         if self.config.input_support is not None else None)   # the front end's windows before
@@ -266,12 +268,16 @@ class Pipeline:
         (with a tracker): the window's start; the objects come back tracked (the tracker takes
         the decoded columns, and ids and states go into the objects' constructor: reading the
         fields back off the objects and setting them afterwards cost more than the tracking)."""
-        ks, x, n_events = ofpd_input.batch(volume, frames, self.config, self._scratch)
+        ks, x, n_events, ones = ofpd_input.batch(volume, frames, self.config, self._scratch)
         if not ks.size:
             if t0_us is not None:
                 self.tracker.columns(_NO_DETECTIONS, t0_us)
             return []
         pose, direction, speed = self.ofpd.run(x)
+        if self._fusion.on:                  # plane_fit: the fast objects' speed, fitted for those only
+            want = self._fusion.wanted(speed)
+            if want.any():
+                speed = self._fusion(speed, object_planes_flow(*ones, ks.size, want))
         dec = self._decode.columns(pose, direction, speed, ks)          # Python lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         px_s = [v * 1000.0 for v in px_ms]

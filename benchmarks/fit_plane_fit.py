@@ -1,0 +1,142 @@
+#!/usr/bin/env python
+"""Fit the plane-fit speed fusion of a checkpoint (config.ofpd ``plane_fit_weight``,
+``plane_fit_min_px_ms``; toffe_deploy/plane_fit.py) on a training split, never on held-out data.
+
+    .venv/bin/python benchmarks/fit_plane_fit.py --ckpt ckpt --data data/synth --split train
+        [--max-windows 3] [--limit N] [--check appearance,test] [--write] [--json FILE]
+
+Runs the checkpoint as eval does (OFS in fixed point, OFPD in torch) on ``--max-windows``
+windows of each sequence of ``--split``, matches the objects to the ground truth (one to one,
+20 px), and keeps for each matched object the OFPD's regressed speed, its plane-fit velocity
+and the true image-plane speed (px/ms). Then a grid search: weight w in 0.1 .. 1.0 (step 0.1)
+and threshold 2 .. 8 px/ms (step 0.5), minimising the mean |fused - true| px/ms. Prints the
+OFPD's error, the fused error and bin accuracy for the fit split and each ``--check`` split
+(read-only: shown, never used to choose), and with ``--write`` sets the two keys in
+CKPT/config.json (atomically; every other key as it was).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+WEIGHTS = np.round(np.arange(0.1, 1.01, 0.1), 2)
+THRESHOLDS = np.arange(2.0, 8.01, 0.5)
+
+
+def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | None, progress: bool) -> dict:
+    """Matched objects of a split: OFPD ln px/ms, plane-fit flow (px per bin), true px/ms and bin."""
+    from tqdm import tqdm
+
+    from toffe_deploy.dataset.groundtruth import window_truth
+    from toffe_deploy.evaluate import _sample_starts, reference_models, split_files
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.events.support import sampled_window
+    from toffe_deploy.metrics import match_gated
+    from toffe_deploy.model.reference import window_outputs
+    from toffe_deploy.ofpd_io import decode
+    from toffe_deploy.plane_fit import dense_flow
+
+    cfg, run_stage, ofpd = reference_models(ckpt)
+    files = split_files(data, split)[:limit]
+    rows = {"speed_ln": [], "flow": [], "true": [], "bin": []}
+    for path in tqdm(files, desc=f"{split}", unit="seq", disable=not progress):
+        with open_events(path) as src:
+            gt = src.ground_truth
+            for t0 in _sample_starts(src.t_start_us, src.t_end_us, cfg.dt_us, max_windows):
+                truth = window_truth(gt, int(t0), cfg.dt_us)
+                binned = sampled_window(src.read, int(t0), cfg.dt_us, cfg, src.sensor_size)
+                ks, merged, pose, direction, speed, _res = window_outputs(binned, run_stage, ofpd, cfg)
+                if ks.size == 0 or not truth:
+                    continue
+                d = decode(pose, direction, speed, ks, cfg)
+                flow = dense_flow(merged)
+                for i, j in match_gated(np.stack([d["x_px"], d["y_px"]], 1), [(t.x, t.y) for t in truth], 20.0):
+                    t = truth[i]
+                    if t.speed_px_ms is None:
+                        continue
+                    rows["speed_ln"].append(float(np.asarray(speed).reshape(-1)[j]))
+                    rows["flow"].append(flow[j])
+                    rows["true"].append(float(t.speed_px_ms))
+                    rows["bin"].append(int(t.speed_bin))
+    return {k: np.asarray(v, dtype=np.float64) for k, v in rows.items()} | {"config": cfg}
+
+
+def score(rows: dict, weight: float, threshold: float) -> dict:
+    """Mean |error| px/ms and bin accuracy of the OFPD alone and fused with (weight, threshold)."""
+    from toffe_deploy.ofpd_io import Decoder
+    from toffe_deploy.plane_fit import fuse_speed
+
+    cfg = rows["config"]
+    n = rows["true"].size
+    if n == 0:
+        return {"n": 0}
+    fused = fuse_speed(rows["speed_ln"], rows["flow"].reshape(-1, 2), cfg, weight, threshold)
+    dec = Decoder(cfg)
+    out = {"n": int(n)}
+    for name, s in (("ofpd", rows["speed_ln"]), ("fused", fused)):
+        d = dec(np.zeros((n, 2)), np.tile([1.0, 0.0], (n, 1)), s, np.ones(n, np.int64))
+        out[f"{name}_err_px_ms"] = float(np.mean(np.abs(d["speed_px_ms"] - rows["true"])))
+        out[f"{name}_bin_acc"] = float(np.mean(d["speed_bin"] == rows["bin"]))
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--ckpt", default=str(ROOT / "ckpt"))
+    ap.add_argument("--data", default=str(ROOT / "data" / "synth"))
+    ap.add_argument("--split", default="train")
+    ap.add_argument("--max-windows", type=int, default=3)
+    ap.add_argument("--limit", type=int, default=None, help="first N sequences of each split only")
+    ap.add_argument("--check", default="", help="comma-separated splits to report (never used to fit)")
+    ap.add_argument("--write", action="store_true", help="set the fitted keys in CKPT/config.json")
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--no-progress", dest="progress", action="store_false")
+    a = ap.parse_args(argv)
+    from toffe_deploy.errors import ToffeError
+    from toffe_deploy.fileio import atomic_path
+
+    ckpt = Path(a.ckpt)
+    try:
+        fit = collect(ckpt, Path(a.data), a.split, a.max_windows, a.limit, a.progress and sys.stderr.isatty())
+    except ToffeError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    if fit["true"].size == 0:
+        print(f"error: no matched objects in {a.data}/{a.split}", file=sys.stderr)
+        return 2
+    grid = [(score(fit, w, t)["fused_err_px_ms"], float(w), float(t)) for w in WEIGHTS for t in THRESHOLDS]
+    _err, w, t = min(grid)
+    report = {"fit_split": a.split, "plane_fit_weight": w, "plane_fit_min_px_ms": t,
+              "splits": {a.split: score(fit, w, t)}}
+    for split in [s for s in a.check.split(",") if s]:
+        report["splits"][split] = score(collect(ckpt, Path(a.data), split, a.max_windows, a.limit,
+                                                a.progress and sys.stderr.isatty()), w, t)
+    print(f"fitted on {a.split}: plane_fit_weight {w}, plane_fit_min_px_ms {t}")
+    print("| split | objects | speed error px/ms: OFPD -> fused | bin accuracy: OFPD -> fused |")
+    print("|---|---|---|---|")
+    for split, r in report["splits"].items():
+        if r["n"]:
+            print(f"| {split} | {r['n']} | {r['ofpd_err_px_ms']:.3f} -> {r['fused_err_px_ms']:.3f} | "
+                  f"{r['ofpd_bin_acc']:.3f} -> {r['fused_bin_acc']:.3f} |")
+    if a.json:
+        with atomic_path(a.json) as tmp:
+            tmp.write_text(json.dumps(report, indent=2))
+    if a.write:
+        cfg_path = ckpt / "config.json"
+        cfg = json.loads(cfg_path.read_text())
+        cfg.setdefault("ofpd", {}).update({"plane_fit_weight": w, "plane_fit_min_px_ms": t})
+        with atomic_path(cfg_path) as tmp:
+            tmp.write_text(json.dumps(cfg, indent=2) + "\n")
+        print(f"wrote {cfg_path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

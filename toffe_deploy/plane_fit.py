@@ -1,0 +1,295 @@
+"""Each object's image-plane velocity from the time surface of its ones (local plane fits), and
+its fusion with the OFPD's regressed speed (``config.ofpd`` keys ``plane_fit_weight``,
+``plane_fit_min_px_ms``).
+
+Why: the OFPD reads speed off pooled cells (P = 2-16 px) and two motion planes that say which
+way time runs inside each cell, not how fast; a fast object (bins 3-4) moves 2-8 px per window
+and its speed head errs by 1.4 px/ms there (held-out appearance). The time at which an edge
+reaches each pixel measures it directly (Benosman et al., "Event-based visual flow", IEEE TNNLS
+2014: a plane fitted to the time surface has gradient 1 / normal speed).
+
+For each polarity p of an object's ones (channel ch = 2 b + p), its time surface is
+T_p(x, y) = the first time bin b at which pixel (x, y) fired. At every pixel i of it with at
+least 4 of its 3 x 3 neighbours (itself included) on the surface, a least-squares plane
+
+    T_p(x, y) = a_i (x - x_i) + b_i (y - y_i) + c_i           (a_i, b_i: bins per px)
+
+is kept when its neighbourhood is not a line (det of the position covariance > 0.05 px^4). A
+translating object with velocity v (px per bin) satisfies g_i . v = 1 at every edge pixel
+(g_i = (a_i, b_i); the aperture problem: each pixel sees the normal component only), so
+
+    v = argmin sum_i w_i (g_i . v - 1)^2,
+
+solved with 4 passes of iteratively reweighted least squares (w_i = 1 / max(1, |r_i| / s),
+r_i = g_i . v - 1, s = 1.5 median |r| + 1e-6, the median of every k-th residual, k = ceil(m /
+64): of all m it cost half the fit and changed the fused error by 0.002 px/ms on the training
+split), needs >= 3 planes (NaN otherwise). Velocity in px/ms = v * B * 1000 / dt_us.
+
+Every plane is exact integer arithmetic but one division per coefficient (the position moments
+of each of the 512 possible 3 x 3 neighbourhoods come from a table), and the pixels are visited
+in the order of the ones, which every path hands over sorted (bin, polarity, y, x): the result
+is the same bits on every target and in eval (cpu and loihi-sim share this code; a test
+checks the runtime's against eval's).
+
+Fusion (``fuse_speed``, on ln px/ms before ofpd_io.decode): where the OFPD's speed exceeds
+``plane_fit_min_px_ms`` and the plane fit has a velocity,
+ln s = w ln |v_plane| + (1 - w) ln s_OFPD, w = ``plane_fit_weight`` (0: off, the default, every
+checkpoint written before these keys). Below the threshold the OFPD alone: slow objects (bins
+1-2) move under 2 px per window, their time surface is a step or two of 100 us and the plane
+fit over-reads. The two constants are fitted on the training split
+(benchmarks/fit_plane_fit.py), never on held-out data.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .config import ToffeConfig
+
+MIN_DET = 0.05          # a plane needs a neighbourhood with det(position covariance) > 0.05 px^4
+MIN_NEIGHBOURS = 4      # of the 3 x 3 (itself included) on the surface
+MIN_PLANES = 3
+IRLS_PASSES = 4
+MEDIAN_OF = 64          # the IRLS scale: the median of every k-th residual, at most 64 of them
+
+
+def _neighbourhood_table() -> np.ndarray:
+    """(512, 7) int64: for each set of present 3 x 3 neighbours (bit k = (dy + 1) * 3 + dx + 1),
+    n, sum dx, sum dy, then n^2 times the position covariances cxx, cyy, cxy and their
+    determinant, or det 0 where the plane is not kept (n < MIN_NEIGHBOURS or a line)."""
+    out = np.zeros((512, 7), np.int64)
+    for mask in range(512):
+        d = [((k // 3) - 1, (k % 3) - 1) for k in range(9) if mask >> k & 1]
+        n = len(d)
+        sx, sy = sum(x for _y, x in d), sum(y for y, _x in d)
+        cxx = n * sum(x * x for _y, x in d) - sx * sx
+        cyy = n * sum(y * y for y, _x in d) - sy * sy
+        cxy = n * sum(x * y for y, x in d) - sx * sy
+        det = cxx * cyy - cxy * cxy
+        keep = n >= MIN_NEIGHBOURS and det > MIN_DET * n ** 4
+        out[mask] = (n, sx, sy, cxx, cyy, cxy, det if keep else 0)
+    return out
+
+
+NEIGHBOURHOODS = _neighbourhood_table()
+
+
+@njit(cache=True, nogil=True)
+def _object_planes(xs, ys, bs, ps, grid, planes, table):
+    """Fills planes[:m] = (a, b) of every accepted plane of one object's ones (xs, ys, time bin
+    bs, polarity ps; grid: (2, h + 2, w + 2) int16 scratch of -1 over the bounding box with a
+    one-pixel border, left all -1 again; table: NEIGHBOURHOODS); returns m. Visits the pixels in
+    the order of the ones (both paths hand them over sorted by bin, polarity, y, x)."""
+    x0 = xs.min() - 1
+    y0 = ys.min() - 1
+    for i in range(xs.shape[0]):
+        t = grid[ps[i], ys[i] - y0, xs[i] - x0]
+        if t < 0 or bs[i] < t:
+            grid[ps[i], ys[i] - y0, xs[i] - x0] = bs[i]
+    m = 0
+    for i in range(xs.shape[0]):
+        p, y, x = ps[i], ys[i] - y0, xs[i] - x0
+        if grid[p, y, x] != bs[i]:               # a later one of a pixel that fired before
+            continue
+        mask = k = st = sxt = syt = 0
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                t = grid[p, y + dy, x + dx]
+                if t >= 0:
+                    mask |= 1 << k
+                    st += t
+                    sxt += t * dx
+                    syt += t * dy
+                k += 1
+        det = table[mask, 6]
+        if det == 0:
+            continue
+        n, sx, sy, cxx, cyy, cxy = table[mask, 0], table[mask, 1], table[mask, 2], table[mask, 3], table[mask, 4], \
+            table[mask, 5]
+        cxt = n * sxt - sx * st                   # n^2 times the covariances: integers
+        cyt = n * syt - sy * st
+        planes[m, 0] = (cyy * cxt - cxy * cyt) / det
+        planes[m, 1] = (cxx * cyt - cxy * cxt) / det
+        m += 1
+    for i in range(xs.shape[0]):
+        grid[ps[i], ys[i] - y0, xs[i] - x0] = -1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _median(a, n):
+    """np.median of a[:n] (n >= 1) by selection; reorders a."""
+    k = n // 2
+    lo, hi = 0, n - 1
+    while lo < hi:                               # Hoare selection of the k-th smallest
+        pivot = a[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    kth = a[k]
+    if n % 2:
+        return kth
+    below = a[0]
+    for i in range(1, k):
+        below = max(below, a[i])
+    return (below + kth) / 2
+
+
+@njit(cache=True, nogil=True)
+def _solve(planes, m):
+    """IRLS velocity (px per bin) from planes[:m]; NaN when fewer than MIN_PLANES or singular."""
+    vx = vy = np.nan
+    if m < MIN_PLANES:
+        return vx, vy
+    wt = np.ones(m)
+    res = np.empty(m)
+    step = (m + MEDIAN_OF - 1) // MEDIAN_OF
+    work = np.empty((m + step - 1) // step)
+    for _ in range(IRLS_PASSES):
+        a11 = a12 = a22 = b1 = b2 = 0.0
+        for i in range(m):
+            ga, gb, wi = planes[i, 0], planes[i, 1], wt[i]
+            a11 += wi * ga * ga
+            a12 += wi * ga * gb
+            a22 += wi * gb * gb
+            b1 += wi * ga
+            b2 += wi * gb
+        a11 += 1e-9
+        a22 += 1e-9
+        det = a11 * a22 - a12 * a12
+        if not det > 0.0:
+            return np.nan, np.nan
+        vx = (a22 * b1 - a12 * b2) / det
+        vy = (a11 * b2 - a12 * b1) / det
+        for i in range(m):
+            res[i] = abs(planes[i, 0] * vx + planes[i, 1] * vy - 1.0)
+        k = 0
+        for i in range(0, m, step):              # the scale from at most MEDIAN_OF residuals
+            work[k] = res[i]
+            k += 1
+        s = 1.5 * _median(work, k) + 1e-6
+        for i in range(m):
+            wt[i] = 1.0 / max(1.0, res[i] / s)
+    return vx, vy
+
+
+@njit(cache=True, nogil=True)
+def object_planes_flow(obj, xs, ys, ch, n_obj, want):
+    """(n_obj, 2) float64 velocity (px per time bin, y down) of each object j with want[j] from
+    its ones given as flat arrays (object obj, pixel xs, ys, channel ch = 2 b + p; any order);
+    NaN where the plane fit has no answer (module doc) or was not wanted. Each object's result
+    depends on its own ones only (the runtime asks for the fast objects alone)."""
+    out = np.full((n_obj, 2), np.nan)
+    if xs.shape[0] == 0:
+        return out
+    count = np.zeros(n_obj + 1, np.int64)
+    for i in range(obj.shape[0]):
+        count[obj[i] + 1] += 1
+    for j in range(n_obj):
+        count[j + 1] += count[j]
+    fill = count[:-1].copy()
+    order = np.empty(obj.shape[0], np.int64)
+    for i in range(obj.shape[0]):
+        order[fill[obj[i]]] = i
+        fill[obj[i]] += 1
+    for j in range(n_obj):
+        lo, hi = count[j], count[j + 1]
+        if hi - lo < MIN_NEIGHBOURS or not want[j]:
+            continue
+        sel = order[lo:hi]
+        ox = xs[sel]
+        oy = ys[sel]
+        oc = ch[sel]
+        grid = np.full((2, oy.max() - oy.min() + 3, ox.max() - ox.min() + 3), -1, np.int16)
+        planes = np.empty((hi - lo, 2))
+        m = _object_planes(ox, oy, oc >> 1, oc & 1, grid, planes, NEIGHBOURHOODS)
+        out[j, 0], out[j, 1] = _solve(planes, m)
+    return out
+
+
+def fit_settings(config: ToffeConfig) -> tuple[float, float]:
+    """(plane_fit_weight, plane_fit_min_px_ms) of config.ofpd; weight 0 (off) when absent."""
+    s = config.ofpd or {}
+    try:
+        w = float(s.get("plane_fit_weight", 0.0))
+        lo = float(s.get("plane_fit_min_px_ms", 4.0))
+    except (TypeError, ValueError):
+        raise ValueError("ofpd.plane_fit_weight and ofpd.plane_fit_min_px_ms must be numbers") from None
+    if not 0.0 <= w <= 1.0:
+        raise ValueError(f"ofpd.plane_fit_weight must be in [0, 1], got {w}")
+    if not lo >= 0.0:
+        raise ValueError(f"ofpd.plane_fit_min_px_ms must be >= 0, got {lo}")
+    return w, lo
+
+
+def flow_px_ms(flow_px_bin: np.ndarray, config: ToffeConfig) -> np.ndarray:
+    """Plane-fit speeds |v| in px/ms of object_planes_flow's (N, 2) px per bin."""
+    f = np.asarray(flow_px_bin, dtype=np.float64).reshape(-1, 2)
+    return np.array([math.hypot(x, y) for x, y in f.tolist()]) * (config.n_bins * 1000.0 / config.dt_us)
+
+
+class SpeedFusion:
+    """``fuse_speed`` with the config's settings worked out once (the cpu runtime fuses every
+    window). ``wanted(speed_ln)``: which objects the fusion would change if their plane fit
+    has an answer (the runtime fits those only); ``__call__(speed_ln, flow)``: the fused ln px/ms
+    as a list. Per row in Python (math.hypot, math.log): a window holds a handful of objects, where
+    each numpy call costs more than the row's arithmetic; eval and every target call this same
+    code, so they agree to the bit."""
+
+    def __init__(self, config: ToffeConfig, weight: float | None = None, min_px_ms: float | None = None):
+        w, lo = fit_settings(config)
+        self.weight = w if weight is None else float(weight)
+        self.min_px_ms = lo if min_px_ms is None else float(min_px_ms)
+        self.log_min = math.log(self.min_px_ms) if self.min_px_ms > 0 else -math.inf
+        self.per_bin = config.n_bins * 1000.0 / config.dt_us      # px per bin -> px per ms
+
+    @property
+    def on(self) -> bool:
+        return self.weight > 0.0
+
+    def wanted(self, speed_ln) -> np.ndarray:
+        return np.asarray(speed_ln, dtype=np.float64).reshape(-1) > self.log_min
+
+    def __call__(self, speed_ln, flow_px_bin) -> list[float]:
+        s = np.asarray(speed_ln, dtype=np.float64).reshape(-1).tolist()
+        if not self.on:
+            return s
+        w, lo = self.weight, self.log_min
+        for i, (fx, fy) in enumerate(np.asarray(flow_px_bin, dtype=np.float64).reshape(-1, 2).tolist()):
+            v = math.hypot(fx, fy) * self.per_bin
+            if s[i] > lo and v > 0.0 and math.isfinite(v):
+                s[i] = w * math.log(v) + (1.0 - w) * s[i]
+        return s
+
+
+def fuse_speed(speed_ln: np.ndarray, flow_px_bin: np.ndarray, config: ToffeConfig, weight: float | None = None,
+               min_px_ms: float | None = None) -> np.ndarray:
+    """The OFPD's ln px/ms (N,) with the plane fit blended in (module doc; SpeedFusion), a new
+    float64 array. ``weight`` / ``min_px_ms`` override the config's (the fitting script)."""
+    return np.asarray(SpeedFusion(config, weight, min_px_ms)(speed_ln, flow_px_bin), dtype=np.float64)
+
+
+def dense_flow(frames: np.ndarray) -> np.ndarray:
+    """object_planes_flow of (N, B, 2, H, W) frames (eval, training's reference path)."""
+    frames = np.asarray(frames)
+    if frames.ndim == 4:
+        frames = frames[None]
+    n = frames.shape[0]
+    nz = np.nonzero(frames > 0)
+    obj, bb, cc, ys, xs = (a.astype(np.int64) for a in nz)
+    return object_planes_flow(obj, xs, ys, bb * 2 + cc, n, np.ones(n, np.bool_))
