@@ -34,7 +34,8 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                e_i = e_i + pos_beta ((z_j - l_i) / (n_i dt) - e_i),  l_i = z_j  (the velocity its own
                detections' positions give, l_i its last one n_i windows ago; not from blobs)
     lose       a confirmed track that loses its object (a miss or a blob after its own detection),
-               moving at least pos_min_px per window, coasts on e_i instead of v_i where the two
+               moving at least pos_min_px per window, coasts on e_i (turned by w_i over its mean
+               age, (1 - pos_beta) / pos_beta + 1.5 windows) instead of v_i where the two
                differ by at most pos_max_rad: positions are good to ~2 px, while a fast object's
                detected direction can be 20-30 deg off for many windows (the hidden object then
                comes back outside its gate)
@@ -516,8 +517,8 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
             out[row, ID] = next_id
             for c in range(X, S + 1):
                 out[row, c] = z[k, c - X]
-            out[row, HX], out[row, HY] = z[k, 2], z[k, 3]
-            out[row, LX], out[row, LY], out[row, LT], out[row, UX], out[row, UY] = z[k, 0], z[k, 1], 1.0, z[k, 2], z[k, 3]
+            out[row, HX], out[row, HY], out[row, UX], out[row, UY] = z[k, 2], z[k, 3], z[k, 2], z[k, 3]
+            out[row, LX], out[row, LY], out[row, LT] = z[k, 0], z[k, 1], 1.0
             out[row, BIN] = z[k, 5]
             out[row, AGE] = out[row, HITS] = out[row, STREAK] = 1.0
             out[row, CONF] = 1.0 if p[P_CONFIRM] <= 1 else 0.0
