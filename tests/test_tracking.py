@@ -381,7 +381,8 @@ def test_a_blob_between_two_tracks_moves_both_and_stays_with_one():
 
 def test_new_settings_reject_nonsense():
     for bad in (dict(turn_beta=-0.1), dict(turn_beta=1.5), dict(max_turn_rad=-1), dict(merge_px=-1),
-                dict(merge_move_px=-1)):
+                dict(merge_move_px=-1), dict(pos_beta=1.5), dict(pos_min_px=-1), dict(pos_max_rad=-0.1),
+                dict(blob_growth=-1), dict(heading_cost_px=-1), dict(reid_growth=-1)):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
 
