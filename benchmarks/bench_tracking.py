@@ -6,6 +6,8 @@
         [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--gate-speed K] [--report-misses R]
         [--max-occluded O] [--turn-beta B] [--max-turn RAD] [--merge PX] [--merge-move PX]
         [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R] [--coast-px PX] [--max-coast N]
+        [--pos-beta B] [--pos-min PX] [--pos-max-rad RAD] [--blob-growth G] [--heading-cost PX] [--reid-growth G]
+        [--no-reid-ratio-missed]
         [--truth-blobs [--truth-merge F]] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
@@ -335,6 +337,20 @@ def main(argv=None) -> int:
     ap.add_argument("--coast-px", type=float, default=d.coast_px,
                     help="coast_px: a confirmed track lives past --max-misses while it has coasted at most this far")
     ap.add_argument("--max-coast", type=int, default=d.max_coast, help="max_coast: ... up to this many misses")
+    ap.add_argument("--pos-beta", type=float, default=d.pos_beta,
+                    help="pos_beta: gain of the velocity the track's detection positions give (0: coast on v_i)")
+    ap.add_argument("--pos-min", type=float, default=d.pos_min_px,
+                    help="pos_min_px: slowest track (px per window) that coasts on that velocity")
+    ap.add_argument("--pos-max-rad", type=float, default=d.pos_max_rad,
+                    help="pos_max_rad: ... if it is within this angle of v_i's direction")
+    ap.add_argument("--blob-growth", type=float, default=d.blob_growth,
+                    help="blob_growth: gate growth per window in a row a track's detection was a blob")
+    ap.add_argument("--heading-cost", type=float, default=d.heading_cost_px,
+                    help="heading_cost_px: association cost (px) per radian of direction difference")
+    ap.add_argument("--reid-growth", type=float, default=d.reid_growth,
+                    help="reid_growth: reid_px grows by this much of a coasting track's travel per miss")
+    ap.add_argument("--no-reid-ratio-missed", dest="reid_ratio_missed", action="store_false",
+                    help="the re-identification ratio test against every other confirmed track, not only missed ones")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--truth-merge", type=float, default=1.0, metavar="F",
@@ -355,7 +371,9 @@ def main(argv=None) -> int:
                              shared_keeps_motion=a.shared_keeps_motion, turn_beta=a.turn_beta,
                              max_turn_rad=a.max_turn, merge_px=a.merge, merge_move_px=a.merge_move,
                              shared_gate_grows=a.shared_gate_grows, reid_px=a.reid, reid_ratio=a.reid_ratio,
-                             coast_px=a.coast_px, max_coast=a.max_coast)
+                             coast_px=a.coast_px, max_coast=a.max_coast, pos_beta=a.pos_beta, pos_min_px=a.pos_min,
+                             pos_max_rad=a.pos_max_rad, blob_growth=a.blob_growth, heading_cost_px=a.heading_cost,
+                             reid_growth=a.reid_growth, reid_ratio_missed=a.reid_ratio_missed)
     bundle = load_bundle(a.bundle)
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)

@@ -381,7 +381,8 @@ def test_a_blob_between_two_tracks_moves_both_and_stays_with_one():
 
 def test_new_settings_reject_nonsense():
     for bad in (dict(turn_beta=-0.1), dict(turn_beta=1.5), dict(max_turn_rad=-1), dict(merge_px=-1),
-                dict(merge_move_px=-1)):
+                dict(merge_move_px=-1), dict(pos_beta=1.5), dict(pos_min_px=-1), dict(pos_max_rad=-0.1),
+                dict(blob_growth=-1), dict(heading_cost_px=-1), dict(reid_growth=-1)):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
 
@@ -474,3 +475,61 @@ def test_a_slow_track_outlives_max_misses_while_its_prediction_stays_near():
             o = mover(50, 200, 0, speed, w)
             tr.update([] if 10 <= w < 35 else [o], w * DT_US)
         assert (o.track_id == 0) == same
+
+
+def test_a_hidden_track_coasts_on_its_positions_velocity_not_a_biased_direction():
+    """An object (7 px per window) whose detections are at its true centre but report its
+    direction 25 deg off (a fast object's detected direction can be biased for many windows)
+    is hidden for 8 windows: coasting on the velocity its detections' positions give, the
+    track's prediction stays within 4 px of it; on the detections' velocity (pos_beta 0) it
+    drifts more than 15 px off."""
+    for pos_beta, ok in ((0.2, lambda e: e < 4.0), (0.0, lambda e: e > 15.0)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(pos_beta=pos_beta))
+        for w in range(38):
+            o = mover(50, 200, 0, 14000, w)
+            o.direction_rad = math.radians(25.0)
+            tr.update([o] if w < 30 else [], w * DT_US)
+        assert len(tr.tracks) == 1 and tr.tracks.misses[0] == 8
+        assert ok(math.hypot(tr.tracks.x[0] - o.x, tr.tracks.y[0] - o.y))
+
+
+def test_objects_merged_into_one_detection_part_with_their_ids_and_a_real_death_still_dies():
+    """Two objects passing each other 20 px apart (6 px per window each, opposite ways) are one
+    detection, at their midpoint, for 6 windows: the track holding it is reported ``merged``,
+    the other coasts ``occluded``; when they part, each keeps its id (no new identity). Then
+    object B leaves for good: its track dies (max_misses), A's lives on."""
+    tr = Tracker(CFG, DT_US)
+    for w in range(70):
+        a, b = mover(100, 230, 0, 12000, w), mover(400, 250, 180, 12000, w)
+        blob = 22 <= w < 28
+        objs = [Obj((a.x + b.x) / 2, (a.y + b.y) / 2, 0.0, 12000)] if blob else [a, b] if w < 40 else [a]
+        tr.update(objs, w * DT_US)
+        if w == 21:
+            ids = (a.track_id, b.track_id)
+        if blob and w > 22:
+            (c,) = tr.coasting()
+            assert objs[0].track["merged"] and c["track"]["occluded"] and not c["track"]["merged"]
+            assert {c["track_id"], objs[0].track_id} == set(ids)
+        if w == 35:
+            assert (a.track_id, b.track_id) == ids and not a.track["merged"]
+    assert a.track_id == ids[0] and list(tr.tracks.id) == [ids[0]] and tr.next_id == 2
+
+
+def test_direction_breaks_the_tie_when_two_parting_objects_are_in_both_gates():
+    """Two objects on crossing courses (7 px per window, +30 and -30 deg) tracked until their
+    predictions are 6 px apart; then two detections between them, each 2 px from one track's
+    prediction and 4 px from the other's but moving the other track's way (objects that just
+    crossed): by distance alone each track takes the nearer one; with heading_cost_px each
+    takes the one moving its way."""
+    for cost, by_direction in ((0.0, False), (5.0, True)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(heading_cost_px=cost, merge_px=0.0))
+        for w in range(10):
+            a, b = mover(100, 160, 30, 14000, w), mover(100, 239.5, -30, 14000, w)
+            tr.update([a, b], w * DT_US)
+        ids = (a.track_id, b.track_id)
+        a, b = mover(100, 160, 30, 14000, 10), mover(100, 239.5, -30, 14000, 10)
+        assert abs(b.y - a.y - 6.0) < 1e-9
+        like_a = Obj(a.x, a.y + 4.0, math.radians(30.0), 14000)
+        like_b = Obj(a.x, a.y + 2.0, math.radians(-30.0), 14000)
+        tr.update([like_a, like_b], 10 * DT_US)
+        assert ((like_a.track_id, like_b.track_id) == ids) == by_direction

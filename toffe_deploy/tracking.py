@@ -9,8 +9,12 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     associate  d_ij = |p_i' - z_j|; pairs within the gate d_ij <= R_i, the most pairs then the
                least total distance (metrics.match_within: Hungarian on the gated matrix),
                confirmed tracks first, then tentative ones with the detections left over;
-               R_i = gate_px + (gate_speed + gate_growth m_i) s_i dt grows with the m_i windows
-               the track has coasted (a turning object leaves its straight-line prediction)
+               R_i = gate_px + (gate_speed + gate_growth m_i + blob_growth b_i) s_i dt grows with
+               the m_i windows the track has coasted (a turning object leaves its straight-line
+               prediction) and the b_i windows in a row its detection was a blob (merged: the
+               blob's centre is not its object's); where a gate holds two candidates the
+               Hungarian cost is d_ij + heading_cost_px q_j |angle(u_j, v_i')| (q_j below: a
+               fast detection's direction tells two parting objects apart)
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
                (a detection within the gates of 2+ confirmed tracks, a blob of two objects, moves
                p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay; the gates
@@ -27,12 +31,22 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                                           (heading: the reported direction_deg is that of h_i)
                w_i = w_i + turn_beta q_j angle(u_j, v_i') / dt,  q_j = min(1, s_j dt / heading_px),
                |w_i dt| <= max_turn_rad (turn rate: a direction error of a slow object is no turn)
+               e_i = e_i + pos_beta ((z_j - l_i) / (n_i dt) - e_i),  l_i = z_j  (the velocity its own
+               detections' positions give, l_i its last one n_i windows ago; not from blobs)
+    lose       a confirmed track that loses its object (a miss or a blob after its own detection),
+               moving at least pos_min_px per window, coasts on e_i (turned by w_i over its mean
+               age, (1 - pos_beta) / pos_beta + 1.5 windows) instead of v_i where the two
+               differ by at most pos_max_rad: positions are good to ~2 px, while a fast object's
+               detected direction can be 20-30 deg off for many windows (the hidden object then
+               comes back outside its gate)
     reid       second association (as ByteTrack's of the leftovers): a confirmed track moving at
                least merge_move_px per window and missed so far takes the nearest detection left
-               over within reid_px of its prediction, if d_ik <= reid_ratio d_mk for every other
-               confirmed track m (a track that coasted through a merge picks its object up again
-               where it reappears a little outside its gate; a blob between two tracks stays
-               unclaimed); updated as a hit; repeated while pairs remain
+               over within reid_px + reid_growth m_i s_i dt of its prediction, if
+               d_ik <= reid_ratio d_mk for every other confirmed track m (with
+               ``reid_ratio_missed``: every other one also missed in this window; one that has its
+               own detection claims no blob) (a track that coasted through a merge picks its
+               object up again where it reappears a little outside its gate; a blob between two
+               tracks stays unclaimed); updated as a hit; repeated while pairs remain
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
@@ -108,7 +122,16 @@ class TrackerConfig:
     than to any other confirmed track, not one between two tracks; 0: off); coast_px,
     max_coast: a confirmed track also lives on after max_misses while its prediction has moved
     at most coast_px since its last detection (m_i s_i dt <= coast_px: a slow object hidden
-    behind a passing one is still near its prediction), up to max_coast misses."""
+    behind a passing one is still near its prediction), up to max_coast misses. pos_beta: gain of
+    the velocity the track's own detections' positions give (0: off); pos_min_px, pos_max_rad: a
+    track moving at least pos_min_px per window that loses its object coasts on that velocity
+    if it is within pos_max_rad of v_i's direction (slower objects' positions are mostly noise;
+    a larger difference is a wrong detection taken); blob_growth: how much of a window's travel
+    each window in a row its detection was a blob (merged) widens its gate; heading_cost_px:
+    px added to the association cost per radian between a detection's direction and a track's
+    (ambiguous windows only); reid_growth: how much of the distance a coasting track's
+    prediction covers per missed window widens reid_px; reid_ratio_missed: the ratio test
+    against the other confirmed tracks missed in this window only."""
 
     gate_px: float = 15.0
     gate_growth: float = 0.5
@@ -134,6 +157,13 @@ class TrackerConfig:
     reid_ratio: float = 0.6
     coast_px: float = 30.0
     max_coast: int = 40
+    pos_beta: float = 0.2
+    pos_min_px: float = 5.0
+    pos_max_rad: float = 0.6
+    blob_growth: float = 0.5
+    heading_cost_px: float = 5.0
+    reid_growth: float = 0.5
+    reid_ratio_missed: bool = True
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -156,12 +186,16 @@ class TrackerConfig:
             raise ValueError(f"coast_px and max_coast must be >= 0, got {self.coast_px}, {self.max_coast}")
         if not (self.reid_px >= 0 and self.reid_ratio > 0):
             raise ValueError(f"reid_px must be >= 0 and reid_ratio > 0, got {self.reid_px}, {self.reid_ratio}")
+        if not (0 <= self.pos_beta <= 1 and self.pos_min_px >= 0 and self.pos_max_rad >= 0):
+            raise ValueError("pos_beta must be in [0, 1], pos_min_px and pos_max_rad >= 0")
+        if not min(self.blob_growth, self.heading_cost_px, self.reid_growth) >= 0:
+            raise ValueError("blob_growth, heading_cost_px and reid_growth must be >= 0")
 
 
 _F = np.float64
 #: columns of Tracks.a
-ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF, OCC, HX, HY, W = range(16)
-N_COLS = 16
+ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF, OCC, HX, HY, W, LX, LY, LT, UX, UY, BLB = range(22)
+N_COLS = 22
 
 
 @dataclass(frozen=True)
@@ -171,8 +205,10 @@ class Tracks:
     (px/s), speed (smoothed, px/s), bin (1-based, with hysteresis), age (windows since birth),
     hits (detections assigned), streak (hits in a row), misses (windows in a row without a
     detection), confirmed (0/1), occluded (0/1: missed under another track's detection), heading
-    hx, hy (px/s: the reported direction's vector), turn rate w (rad/s, + turns from x towards y);
-    the properties give the columns."""
+    hx, hy (px/s: the reported direction's vector), turn rate w (rad/s, + turns from x towards y),
+    its last own detection's position lx, ly (px) and window lt (its age then), the velocity
+    those positions give ux, uy (px/s), and blob b (windows in a row its detection was a blob
+    of two or more tracks' objects); the properties give the columns."""
 
     a: np.ndarray = field(default_factory=lambda: np.zeros((0, N_COLS), _F))
 
@@ -252,7 +288,8 @@ class BinEdges:
 #: entries of the settings vector the compiled loops take (``params``)
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
- P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO, P_COAST_PX, P_MAX_COAST) = range(25)
+ P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO, P_COAST_PX, P_MAX_COAST, P_POS_BETA, P_POS_MIN, P_POS_MAX_RAD,
+ P_BLOB_GROWTH, P_HEADING_COST, P_REID_GROWTH, P_REID_MISSED) = range(32)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -262,7 +299,9 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
                      cfg.tentative_misses, cfg.max_misses, cfg.birth_gap_px, cfg.gate_speed, cfg.max_occluded,
                      cfg.heading_px, cfg.heading_beta, float(cfg.shared_keeps_motion), cfg.turn_beta,
                      cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px,
-                     float(cfg.shared_gate_grows), cfg.reid_ratio, cfg.coast_px, cfg.max_coast],
+                     float(cfg.shared_gate_grows), cfg.reid_ratio, cfg.coast_px, cfg.max_coast,
+                     cfg.pos_beta, cfg.pos_min_px, cfg.pos_max_rad, cfg.blob_growth, cfg.heading_cost_px,
+                     cfg.reid_growth, float(cfg.reid_ratio_missed)],
                     dtype=_F)
 
 
@@ -283,7 +322,7 @@ def _predict(t, z, p):
         a[i, VX], a[i, VY] = c * t[i, VX] - s * t[i, VY], s * t[i, VX] + c * t[i, VY]
         a[i, X] += (ch * t[i, VX] - sh * t[i, VY]) * dt_s
         a[i, Y] += (sh * t[i, VX] + ch * t[i, VY]) * dt_s
-        gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * dt_s
+        gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS] + p[P_BLOB_GROWTH] * t[i, BLB]) * t[i, S] * dt_s
         n_row = 0
         for k in range(n_d):
             d[i, k] = math.hypot(a[i, X] - z[k, 0], a[i, Y] - z[k, 1])
@@ -338,6 +377,13 @@ def _merges(a, t, z, r, j, d, p):
 
 
 @njit(cache=True, nogil=True)
+def _agree(ux, uy, vx, vy, max_rad):
+    """Whether the directions of (ux, uy) and (vx, vy) differ by at most max_rad."""
+    e = math.atan2(uy, ux) - math.atan2(vy, vx)
+    return abs((e + math.pi) % (2.0 * math.pi) - math.pi) <= max_rad
+
+
+@njit(cache=True, nogil=True)
 def _hit(a, i, z, k, p, lo, hi, inner, shared):
     """Update of predicted track i (row of ``a``) with detection k (module doc); shared: k lies
     in the gates of two or more confirmed tracks."""
@@ -358,6 +404,13 @@ def _hit(a, i, z, k, p, lo, hi, inner, shared):
     g_h = min(1.0, max(p[P_HEADING_BETA], z[k, S - X] * p[P_DT] / p[P_HEADING_PX]))
     a[i, HX] += g_h * (z[k, 2] - a[i, HX])
     a[i, HY] += g_h * (z[k, 3] - a[i, HY])
+    if p[P_POS_BETA] > 0:                                   # the velocity its detections' positions give
+        n_w = a[i, AGE] + 1.0 - a[i, LT]                     # windows since its last own detection
+        if n_w > 0 and a[i, LT] > 0:
+            g = p[P_POS_BETA]
+            a[i, UX] += g * ((z[k, 0] - a[i, LX]) / (n_w * p[P_DT]) - a[i, UX])
+            a[i, UY] += g * ((z[k, 1] - a[i, LY]) / (n_w * p[P_DT]) - a[i, UY])
+        a[i, LX], a[i, LY], a[i, LT] = z[k, 0], z[k, 1], a[i, AGE] + 1.0
     h = p[P_H]
     b = int(a[i, BIN]) - 1
     if not (lo[b] * (1.0 - h) <= a[i, S] <= hi[b] * (1.0 + h)):
@@ -381,32 +434,37 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
                     shared[k] += 1
     blob_of, mate = _merges(a, t, z, r, j, d, p) if p[P_MERGE_PX] > 0 else (np.full(n_d, -1, np.int64),
                                                                            np.full(n_d, -1, np.int64))
+    blob = np.zeros(n_t, np.bool_)                           # hit by a blob of two or more objects
     for k in range(n_d):
         if blob_of[k] >= 0:
-            hit[blob_of[k]], free[k], det_of[blob_of[k]] = True, False, k
+            hit[blob_of[k]], free[k], det_of[blob_of[k]], blob[blob_of[k]] = True, False, k, True
     for m in range(r.shape[0]):
         i, k = r[m], j[m]
         if blob_of[k] >= 0:                                  # a blob of two tracks: moved in _merges
             continue
         hit[i], free[k], det_of[i] = True, False, k
+        blob[i] = shared[k] > 1 and p[P_SHARED_KEEPS] > 0
         _hit(a, i, z, k, p, lo, hi, inner, shared[k] > 1)
     if p[P_REID] > 0:                                        # second association: missed tracks claim leftovers
         while True:
-            best, bi, bk = p[P_REID], -1, -1
+            best, bi, bk = np.inf, -1, -1
             for i in range(n_t):
                 if hit[i] or t[i, CONF] <= 0 or t[i, S] * p[P_DT] < p[P_MERGE_MOVE]:
                     continue
+                lim = p[P_REID] + p[P_REID_GROWTH] * t[i, MISS] * t[i, S] * p[P_DT]
                 for k in range(n_d):
-                    if free[k] and d[i, k] <= best and (bi < 0 or d[i, k] < best):
+                    if free[k] and d[i, k] <= lim and d[i, k] < best:
                         clear = True                         # not as near another confirmed track: no blob of two
                         for m in range(n_t):
-                            if m != i and t[m, CONF] > 0 and d[i, k] > p[P_REID_RATIO] * d[m, k]:
+                            if m != i and t[m, CONF] > 0 and d[i, k] > p[P_REID_RATIO] * d[m, k] and \
+                                    not (hit[m] and p[P_REID_MISSED] > 0):
                                 clear = False
                         if clear:
                             best, bi, bk = d[i, k], i, k
             if bi < 0:
                 break
             hit[bi], free[bk], det_of[bi] = True, False, bk
+            blob[bi] = shared[bk] > 1 and p[P_SHARED_KEEPS] > 0
             _hit(a, bi, z, bk, p, lo, hi, inner, shared[bk] > 1)
     keep = np.zeros(n_t, np.bool_)
     taken = ~free                                            # detections assigned to a track
@@ -418,6 +476,17 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
             for k in range(n_d):
                 if (taken[k] and d[i, k] <= gate) or mate[k] == i:
                     a[i, OCC] = 1.0
+        if (not hit[i] or blob[i]) and t[i, MISS] == 0 and t[i, BLB] == 0 and t[i, CONF] > 0 and p[P_POS_BETA] > 0 \
+                and t[i, S] * dt_s >= p[P_POS_MIN]:
+            th = a[i, W] * dt_s * ((1.0 - p[P_POS_BETA]) / p[P_POS_BETA] + 1.5)    # e_i's mean age, turned
+            ux = math.cos(th) * a[i, UX] - math.sin(th) * a[i, UY]
+            uy = math.sin(th) * a[i, UX] + math.cos(th) * a[i, UY]
+            if _agree(ux, uy, a[i, VX], a[i, VY], p[P_POS_MAX_RAD]):
+                a[i, X] += (ux - a[i, VX]) * dt_s               # loses its object: coasts on the positions' velocity
+                a[i, Y] += (uy - a[i, VY]) * dt_s
+                a[i, VX], a[i, VY] = ux, uy
+        if hit[i]:
+            a[i, BLB] = t[i, BLB] + 1 if blob[i] else 0.0
         a[i, AGE] += 1
         a[i, HITS] += hit[i]
         a[i, STREAK] = t[i, STREAK] + 1 if hit[i] else 0.0
@@ -448,7 +517,8 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
             out[row, ID] = next_id
             for c in range(X, S + 1):
                 out[row, c] = z[k, c - X]
-            out[row, HX], out[row, HY] = z[k, 2], z[k, 3]
+            out[row, HX], out[row, HY], out[row, UX], out[row, UY] = z[k, 2], z[k, 3], z[k, 2], z[k, 3]
+            out[row, LX], out[row, LY], out[row, LT] = z[k, 0], z[k, 1], 1.0
             out[row, BIN] = z[k, 5]
             out[row, AGE] = out[row, HITS] = out[row, STREAK] = 1.0
             out[row, CONF] = 1.0 if p[P_CONFIRM] <= 1 else 0.0
@@ -498,7 +568,7 @@ def _listing(out, assigned, p):
     return info
 
 
-N_P = P_MAX_COAST + 1
+N_P = P_REID_MISSED + 1
 
 
 @njit(cache=True, nogil=True)
@@ -533,10 +603,15 @@ def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, 
     confirmed tracks first, then tentative ones -> (tracks array, assigned, next id)."""
     a, d, ok, _simple = _predict(t, z, p)
     conf = t[:, CONF] > 0
-    pairs = match_within(d, ok & conf[:, None])
+    cost = d                                 # the gates are on d; the choice among gated pairs weighs direction too
+    if p[P_HEADING_COST] > 0:
+        e = np.arctan2(z[:, 3], z[:, 2])[None, :] - np.arctan2(a[:, VY], a[:, VX])[:, None]
+        q = np.minimum(1.0, z[:, 4] * p[P_DT] / p[P_HEADING_PX])[None, :]
+        cost = d + p[P_HEADING_COST] * q * np.abs((e + np.pi) % (2 * np.pi) - np.pi)
+    pairs = match_within(cost, ok & conf[:, None])
     taken = np.zeros(z.shape[0], bool)
     taken[[c for _r, c in pairs]] = True
-    pairs += match_within(d, ok & ~conf[:, None] & ~taken[None, :])
+    pairs += match_within(cost, ok & ~conf[:, None] & ~taken[None, :])
     r, j = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
     return _update(a, t, z, np.ascontiguousarray(r), np.ascontiguousarray(j), d, p, edges.lo, edges.hi, edges.inner,
                    int(next_id))
@@ -626,7 +701,9 @@ class TrackState(Mapping):
     """A track's smoothed state after a window, the JSON ``track`` object: x, y (px),
     direction_deg, speed_px_s, speed_mps (with a speed scale), speed_bin, age, hits, confirmed,
     misses (windows in a row without a detection: 0 when detected in this window, > 0 when
-    coasting on its prediction) and occluded (coasting under a detection another track took).
+    coasting on its prediction), occluded (coasting under a detection another track took) and
+    merged (detected, but in a blob of its object and another confirmed track's: its motion is
+    kept, its gate grows).
     A read-only mapping built from row i of the window's tracks array ``a`` (Tracks.a, never
     modified once returned) when first read (a robot loop that reads a few tracks does not pay
     for formatting every one; ``dict(state)`` for JSON)."""
@@ -645,7 +722,7 @@ class TrackState(Mapping):
             if self._k_mps is not None:
                 d["speed_mps"] = round(sp * self._k_mps, 4)
             d.update(speed_bin=int(row[BIN]), age=int(row[AGE]), hits=int(row[HITS]), confirmed=row[CONF] > 0,
-                     misses=int(row[MISS]), occluded=row[OCC] > 0)
+                     misses=int(row[MISS]), occluded=row[OCC] > 0, merged=row[MISS] == 0 and row[BLB] > 0)
             self._d = d
         return self._d
 
