@@ -77,21 +77,22 @@ NEIGHBOURHOODS = _neighbourhood_table()
 
 
 @njit(cache=True, nogil=True)
-def _object_planes(xs, ys, bs, ps, grid, planes, table):
-    """Fills planes[:m] = (a, b) of every accepted plane of one object's ones (xs, ys, time bin
-    bs, polarity ps; grid: (2, h + 2, w + 2) int16 scratch of -1 over the bounding box with a
+def _object_planes(xs, ys, ch, grid, planes, table):
+    """Fills planes[:m] = (a, b) of every accepted plane of one object's ones (xs, ys, channel
+    ch = 2 b + p; grid: scratch of -1 at least (2, h + 2, w + 2) over the bounding box with a
     one-pixel border, left all -1 again; table: NEIGHBOURHOODS); returns m. Visits the pixels in
     the order of the ones (both paths hand them over sorted by bin, polarity, y, x)."""
     x0 = xs.min() - 1
     y0 = ys.min() - 1
     for i in range(xs.shape[0]):
-        t = grid[ps[i], ys[i] - y0, xs[i] - x0]
-        if t < 0 or bs[i] < t:
-            grid[ps[i], ys[i] - y0, xs[i] - x0] = bs[i]
+        p, b = ch[i] & 1, ch[i] >> 1
+        t = grid[p, ys[i] - y0, xs[i] - x0]
+        if t < 0 or b < t:
+            grid[p, ys[i] - y0, xs[i] - x0] = b
     m = 0
     for i in range(xs.shape[0]):
-        p, y, x = ps[i], ys[i] - y0, xs[i] - x0
-        if grid[p, y, x] != bs[i]:               # a later one of a pixel that fired before
+        p, y, x = ch[i] & 1, ys[i] - y0, xs[i] - x0
+        if grid[p, y, x] != ch[i] >> 1:          # a later one of a pixel that fired before
             continue
         mask = k = st = sxt = syt = 0
         for dy in range(-1, 2):
@@ -114,7 +115,7 @@ def _object_planes(xs, ys, bs, ps, grid, planes, table):
         planes[m, 1] = (cxx * cyt - cxy * cxt) / det
         m += 1
     for i in range(xs.shape[0]):
-        grid[ps[i], ys[i] - y0, xs[i] - x0] = -1
+        grid[ch[i] & 1, ys[i] - y0, xs[i] - x0] = -1
     return m
 
 
@@ -152,18 +153,20 @@ def _median(a, n):
 
 @njit(cache=True, nogil=True)
 def _solve(planes, m):
-    """IRLS velocity (px per bin) from planes[:m]; NaN when fewer than MIN_PLANES or singular."""
-    vx = vy = np.nan
+    """IRLS velocity (px per bin) from planes[:m]; NaN when fewer than MIN_PLANES or singular.
+    Pass 1 weighs every plane 1; each further pass weighs plane i by 1 / max(1, r_i / s) of the
+    pass before (its weights computed where they are summed)."""
     if m < MIN_PLANES:
-        return vx, vy
-    wt = np.ones(m)
+        return np.nan, np.nan
     res = np.empty(m)
     step = (m + MEDIAN_OF - 1) // MEDIAN_OF
     work = np.empty((m + step - 1) // step)
-    for _ in range(IRLS_PASSES):
+    vx = vy = s = 0.0
+    for it in range(IRLS_PASSES):
         a11 = a12 = a22 = b1 = b2 = 0.0
         for i in range(m):
-            ga, gb, wi = planes[i, 0], planes[i, 1], wt[i]
+            ga, gb = planes[i, 0], planes[i, 1]
+            wi = 1.0 if it == 0 else 1.0 / max(1.0, res[i] / s)
             a11 += wi * ga * ga
             a12 += wi * ga * gb
             a22 += wi * gb * gb
@@ -176,6 +179,8 @@ def _solve(planes, m):
             return np.nan, np.nan
         vx = (a22 * b1 - a12 * b2) / det
         vy = (a11 * b2 - a12 * b1) / det
+        if it == IRLS_PASSES - 1:
+            break
         for i in range(m):
             res[i] = abs(planes[i, 0] * vx + planes[i, 1] * vy - 1.0)
         k = 0
@@ -183,41 +188,51 @@ def _solve(planes, m):
             work[k] = res[i]
             k += 1
         s = 1.5 * _median(work, k) + 1e-6
-        for i in range(m):
-            wt[i] = 1.0 / max(1.0, res[i] / s)
     return vx, vy
 
 
 @njit(cache=True, nogil=True)
 def object_planes_flow(obj, xs, ys, ch, n_obj, want):
     """(n_obj, 2) float64 velocity (px per time bin, y down) of each object j with want[j] from
-    its ones given as flat arrays (object obj, pixel xs, ys, channel ch = 2 b + p; any order);
-    NaN where the plane fit has no answer (module doc) or was not wanted. Each object's result
-    depends on its own ones only (the runtime asks for the fast objects alone)."""
+    its ones given as flat arrays (object obj, pixel xs, ys, channel ch = 2 b + p); NaN where the
+    plane fit has no answer (module doc) or was not wanted. Each object's result depends on its
+    own ones and their order only (the runtime asks for the fast objects alone). Both paths hand
+    the ones over object by object (obj non-decreasing: each object's ones a slice); any other
+    order is grouped first (a counting sort, each object's ones kept in their order)."""
     out = np.full((n_obj, 2), np.nan)
-    if xs.shape[0] == 0:
-        return out
+    n = obj.shape[0]
     count = np.zeros(n_obj + 1, np.int64)
-    for i in range(obj.shape[0]):
+    grouped = True
+    for i in range(n):
         count[obj[i] + 1] += 1
+        if i and obj[i] < obj[i - 1]:
+            grouped = False
     for j in range(n_obj):
         count[j + 1] += count[j]
-    fill = count[:-1].copy()
-    order = np.empty(obj.shape[0], np.int64)
-    for i in range(obj.shape[0]):
-        order[fill[obj[i]]] = i
-        fill[obj[i]] += 1
+    if not grouped:
+        fill = count[:-1].copy()
+        order = np.empty(n, np.int64)
+        for i in range(n):
+            order[fill[obj[i]]] = i
+            fill[obj[i]] += 1
+        xs, ys, ch = xs[order], ys[order], ch[order]
+    size = 0
+    w = h = 0
+    for j in range(n_obj):
+        lo, hi = count[j], count[j + 1]
+        if hi - lo >= MIN_NEIGHBOURS and want[j]:
+            size = max(size, hi - lo)
+            w = max(w, xs[lo:hi].max() - xs[lo:hi].min() + 3)
+            h = max(h, ys[lo:hi].max() - ys[lo:hi].min() + 3)
+    if size == 0:
+        return out
+    grid = np.full((2, h, w), -1, np.int16)       # one scratch for all: each object leaves it all -1
+    planes = np.empty((size, 2))
     for j in range(n_obj):
         lo, hi = count[j], count[j + 1]
         if hi - lo < MIN_NEIGHBOURS or not want[j]:
             continue
-        sel = order[lo:hi]
-        ox = xs[sel]
-        oy = ys[sel]
-        oc = ch[sel]
-        grid = np.full((2, oy.max() - oy.min() + 3, ox.max() - ox.min() + 3), -1, np.int16)
-        planes = np.empty((hi - lo, 2))
-        m = _object_planes(ox, oy, oc >> 1, oc & 1, grid, planes, NEIGHBOURHOODS)
+        m = _object_planes(xs[lo:hi], ys[lo:hi], ch[lo:hi], grid, planes, NEIGHBOURHOODS)
         out[j, 0], out[j, 1] = _solve(planes, m)
     return out
 
