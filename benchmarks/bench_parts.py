@@ -79,8 +79,10 @@ def main(argv=None) -> int:
                 t.append(clock())
                 if ks.size:
                     pose, direction, speed = out
-                    if pipe._fusion.on and pipe._fusion.wanted(speed).any():      # as Pipeline.objects_of
-                        speed = pipe._fusion(speed, object_planes_flow(*ones, ks.size, pipe._fusion.wanted(speed)))
+                    want = pipe._fusion.wanted(speed)
+                    if pipe._fusion.on and want.any():                           # as Pipeline.objects_of
+                        flow = object_planes_flow(*ones, ks.size, want)
+                        speed, direction = pipe._fusion.speed(speed, flow), pipe._fusion.direction(direction, flow)
                     speeds_of(pipe._decode.columns(pose, direction, speed, ks), cfg, pipe.speed_scale)   # as Pipeline.objects_of
                 t.append(clock())
                 for name, a, b in zip(PARTS, t[:-1], t[1:]):

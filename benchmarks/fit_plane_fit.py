@@ -1,18 +1,20 @@
 #!/usr/bin/env python
-"""Fit the plane-fit speed fusion of a checkpoint (config.ofpd ``plane_fit_weight``,
-``plane_fit_min_px_ms``; toffe_deploy/plane_fit.py) on a training split, never on held-out data.
+"""Fit the plane-fit fusion of a checkpoint (config.ofpd ``plane_fit_weight``,
+``plane_fit_min_px_ms``, ``plane_fit_dir_weight``; toffe_deploy/plane_fit.py) on a training
+split, never on held-out data.
 
     .venv/bin/python benchmarks/fit_plane_fit.py --ckpt ckpt --data data/synth --split train
         [--max-windows 3] [--limit N] [--check appearance,test] [--write] [--json FILE]
 
 Runs the checkpoint as eval does (OFS in fixed point, OFPD in torch) on ``--max-windows``
 windows of each sequence of ``--split``, matches the objects to the ground truth (one to one,
-20 px), and keeps for each matched object the OFPD's regressed speed, its plane-fit velocity
-and the true image-plane speed (px/ms). Then a grid search: weight w in 0.1 .. 1.0 (step 0.1)
-and threshold 2 .. 8 px/ms (step 0.5), minimising the mean |fused - true| px/ms. Prints the
-OFPD's error, the fused error and bin accuracy for the fit split and each ``--check`` split
-(read-only: shown, never used to choose), and with ``--write`` sets the two keys in
-CKPT/config.json (atomically; every other key as it was).
+20 px), and keeps for each matched object the OFPD's regressed speed and direction, its
+plane-fit velocity and the true image-plane speed (px/ms) and direction. Then two grid
+searches: speed weight w in 0.1 .. 1.0 (step 0.1) and threshold 2 .. 8 px/ms (step 0.5),
+minimising the mean |fused - true| px/ms; direction weight 0 .. 1 (step 0.1), minimising the
+mean direction error. Prints the OFPD's errors, the fused ones and bin accuracy for the fit
+split and each ``--check`` split (read-only: shown, never used to choose), and with
+``--write`` sets the three keys in CKPT/config.json (atomically; every other key as it was).
 """
 from __future__ import annotations
 
@@ -28,10 +30,12 @@ sys.path.insert(0, str(ROOT))
 
 WEIGHTS = np.round(np.arange(0.1, 1.01, 0.1), 2)
 THRESHOLDS = np.arange(2.0, 8.01, 0.5)
+DIR_WEIGHTS = np.round(np.arange(0.0, 1.01, 0.1), 2)
 
 
 def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | None, progress: bool) -> dict:
-    """Matched objects of a split: OFPD ln px/ms, plane-fit flow (px per bin), true px/ms and bin."""
+    """Matched objects of a split: OFPD ln px/ms and (cos, sin), plane-fit flow (px per bin),
+    true px/ms, bin and direction."""
     from tqdm import tqdm
 
     from toffe_deploy.dataset.groundtruth import window_truth
@@ -45,7 +49,7 @@ def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | N
 
     cfg, run_stage, ofpd = reference_models(ckpt)
     files = split_files(data, split)[:limit]
-    rows = {"speed_ln": [], "flow": [], "true": [], "bin": []}
+    rows = {"speed_ln": [], "direction": [], "flow": [], "true": [], "bin": [], "true_dir": []}
     for path in tqdm(files, desc=f"{split}", unit="seq", disable=not progress):
         with open_events(path) as src:
             gt = src.ground_truth
@@ -62,28 +66,35 @@ def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | N
                     if t.speed_px_ms is None:
                         continue
                     rows["speed_ln"].append(float(np.asarray(speed).reshape(-1)[j]))
+                    rows["direction"].append(np.asarray(direction, dtype=np.float64).reshape(-1, 2)[j])
+                    rows["true_dir"].append(float(t.direction))
                     rows["flow"].append(flow[j])
                     rows["true"].append(float(t.speed_px_ms))
                     rows["bin"].append(int(t.speed_bin))
     return {k: np.asarray(v, dtype=np.float64) for k, v in rows.items()} | {"config": cfg}
 
 
-def score(rows: dict, weight: float, threshold: float) -> dict:
-    """Mean |error| px/ms and bin accuracy of the OFPD alone and fused with (weight, threshold)."""
+def score(rows: dict, weight: float, threshold: float, dir_weight: float = 0.0) -> dict:
+    """Mean |error| px/ms, bin accuracy and mean direction error (deg) of the OFPD alone and
+    fused with (weight, threshold, dir_weight)."""
+    from toffe_deploy.metrics import angle_error_deg
     from toffe_deploy.ofpd_io import Decoder
-    from toffe_deploy.plane_fit import fuse_speed
+    from toffe_deploy.plane_fit import fuse_direction, fuse_speed
 
     cfg = rows["config"]
     n = rows["true"].size
     if n == 0:
         return {"n": 0}
-    fused = fuse_speed(rows["speed_ln"], rows["flow"].reshape(-1, 2), cfg, weight, threshold)
+    flow = rows["flow"].reshape(-1, 2)
+    fused = fuse_speed(rows["speed_ln"], flow, cfg, weight, threshold)
+    fused_dir = fuse_direction(rows["direction"].reshape(-1, 2), flow, cfg, dir_weight)
     dec = Decoder(cfg)
     out = {"n": int(n)}
-    for name, s in (("ofpd", rows["speed_ln"]), ("fused", fused)):
-        d = dec(np.zeros((n, 2)), np.tile([1.0, 0.0], (n, 1)), s, np.ones(n, np.int64))
+    for name, s, u in (("ofpd", rows["speed_ln"], rows["direction"].reshape(-1, 2)), ("fused", fused, fused_dir)):
+        d = dec(np.zeros((n, 2)), u, s, np.ones(n, np.int64))
         out[f"{name}_err_px_ms"] = float(np.mean(np.abs(d["speed_px_ms"] - rows["true"])))
         out[f"{name}_bin_acc"] = float(np.mean(d["speed_bin"] == rows["bin"]))
+        out[f"{name}_dir_err_deg"] = float(np.mean(angle_error_deg(d["direction_rad"], rows["true_dir"])))
     return out
 
 
@@ -113,25 +124,27 @@ def main(argv=None) -> int:
         return 2
     grid = [(score(fit, w, t)["fused_err_px_ms"], float(w), float(t)) for w in WEIGHTS for t in THRESHOLDS]
     _err, w, t = min(grid)
-    report = {"fit_split": a.split, "plane_fit_weight": w, "plane_fit_min_px_ms": t,
-              "splits": {a.split: score(fit, w, t)}}
+    _err, wd = min((score(fit, w, t, d)["fused_dir_err_deg"], float(d)) for d in DIR_WEIGHTS)
+    report = {"fit_split": a.split, "plane_fit_weight": w, "plane_fit_min_px_ms": t, "plane_fit_dir_weight": wd,
+              "splits": {a.split: score(fit, w, t, wd)}}
     for split in [s for s in a.check.split(",") if s]:
         report["splits"][split] = score(collect(ckpt, Path(a.data), split, a.max_windows, a.limit,
-                                                a.progress and sys.stderr.isatty()), w, t)
-    print(f"fitted on {a.split}: plane_fit_weight {w}, plane_fit_min_px_ms {t}")
-    print("| split | objects | speed error px/ms: OFPD -> fused | bin accuracy: OFPD -> fused |")
-    print("|---|---|---|---|")
+                                                a.progress and sys.stderr.isatty()), w, t, wd)
+    print(f"fitted on {a.split}: plane_fit_weight {w}, plane_fit_min_px_ms {t}, plane_fit_dir_weight {wd}")
+    print("| split | objects | speed error px/ms: OFPD -> fused | bin accuracy: OFPD -> fused | direction error deg: OFPD -> fused |")
+    print("|---|---|---|---|---|")
     for split, r in report["splits"].items():
         if r["n"]:
             print(f"| {split} | {r['n']} | {r['ofpd_err_px_ms']:.3f} -> {r['fused_err_px_ms']:.3f} | "
-                  f"{r['ofpd_bin_acc']:.3f} -> {r['fused_bin_acc']:.3f} |")
+                  f"{r['ofpd_bin_acc']:.3f} -> {r['fused_bin_acc']:.3f} | "
+                  f"{r['ofpd_dir_err_deg']:.2f} -> {r['fused_dir_err_deg']:.2f} |")
     if a.json:
         with atomic_path(a.json) as tmp:
             tmp.write_text(json.dumps(report, indent=2))
     if a.write:
         cfg_path = ckpt / "config.json"
         cfg = json.loads(cfg_path.read_text())
-        cfg.setdefault("ofpd", {}).update({"plane_fit_weight": w, "plane_fit_min_px_ms": t})
+        cfg.setdefault("ofpd", {}).update({"plane_fit_weight": w, "plane_fit_min_px_ms": t, "plane_fit_dir_weight": wd})
         with atomic_path(cfg_path) as tmp:
             tmp.write_text(json.dumps(cfg, indent=2) + "\n")
         print(f"wrote {cfg_path}")

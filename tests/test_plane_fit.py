@@ -117,6 +117,7 @@ def test_selection_median_equals_numpy(rng):
 
 
 @pytest.mark.parametrize("bad", [{"plane_fit_weight": "x"}, {"plane_fit_weight": -0.1}, {"plane_fit_min_px_ms": -1},
+                                 {"plane_fit_dir_weight": 2},
                                  {"split_frac": "wide"}])
 def test_bad_plane_fit_settings_are_one_line_errors(tmp_path, bad):
     import dataclasses
@@ -131,3 +132,19 @@ def test_bad_plane_fit_settings_are_one_line_errors(tmp_path, bad):
     path.write_text(json.dumps(d))
     with pytest.raises(InputError, match="config.json"):
         load_config(path)
+
+
+def test_fuse_direction_blends_unit_vectors():
+    from toffe_deploy.plane_fit import PlaneFusion, fuse_direction
+
+    cfg = ToffeConfig(sensor_size=(64, 48), ofpd={"plane_fit_dir_weight": 0.5})
+    d = np.array([[2.0, 0.0], [0.0, 3.0], [1.0, 0.0]])            # the OFPD's (cos, sin), any length
+    flow = np.array([[0.0, 0.5], [0.0, 0.7], [np.nan, np.nan]])   # plane fit: straight down, down, none
+    out = fuse_direction(d, flow, cfg)
+    assert math.isclose(math.degrees(math.atan2(out[0, 1], out[0, 0])), 45.0)   # halfway, by unit vectors
+    assert math.isclose(math.degrees(math.atan2(out[1, 1], out[1, 0])), 90.0)
+    assert np.array_equal(out[2], d[2])                            # no plane fit: the OFPD's
+    fusion = PlaneFusion(cfg)
+    assert fusion.on and fusion.wanted(np.log([0.5, 9.0])).all()   # direction blending wants every object
+    off = PlaneFusion(ToffeConfig(sensor_size=(64, 48), ofpd={"plane_fit_weight": 0.7}))
+    assert off.wanted(np.log([0.5, 9.0])).tolist() == [False, True] and np.array_equal(off.direction(d, flow), d)

@@ -97,17 +97,20 @@ def test_sparse_ofpd_input_equals_ofpd_io(rng, ofpd):
     assert n_flow >= 3 or not ofpd.get("plane_fit_weight")
 
 
-@pytest.mark.parametrize("pool", [1, 2])
-def test_cpu_pipeline_equals_dense_reference(env, make_bundle, tmp_path, pool):
+@pytest.mark.parametrize("pool,plane_fit", [(1, False), (2, False), (2, True)])
+def test_cpu_pipeline_equals_dense_reference(env, make_bundle, tmp_path, pool, plane_fit):
     """Sparse cascade + sparse OFPD input == run_cascade(run_ofs_fixed) + ofpd_io on dense arrays,
-    with the OFS on the sensor grid and on the 2x2-pooled one (config.ofs_pool)."""
+    with the OFS on the sensor grid and on the 2x2-pooled one (config.ofs_pool), and with the
+    plane fit blended into speed and direction (eval's dense_flow against the runtime's)."""
+    from toffe_deploy.plane_fit import PlaneFusion
     import onnxruntime as ort
 
     from toffe_deploy.events.binning import bin_window
     from toffe_deploy.events.io import open_events
     from toffe_deploy.runtime.pipeline import Pipeline
 
-    b = env["bundle"] if pool == 1 else make_bundle(tmp_path, ofs_pool=pool)
+    fit = {"plane_fit_weight": 0.7, "plane_fit_min_px_ms": 0.5, "plane_fit_dir_weight": 0.5} if plane_fit else None
+    b = env["bundle"] if pool == 1 else make_bundle(tmp_path, ofs_pool=pool, **({"ofpd": fit} if fit else {}))
     cfg = b.config
     sess = ort.InferenceSession(str(b.ofpd_onnx), providers=["CPUExecutionProvider"])
     with open_events(env["rec"]) as src:
@@ -115,7 +118,7 @@ def test_cpu_pipeline_equals_dense_reference(env, make_bundle, tmp_path, pool):
     with Pipeline(b, "cpu") as pipe:
         got = list(pipe.process_stream(wins))
     assert [r.t0_us for r in got] == [t0 for t0, _ in wins]
-    n_obj = 0
+    n_obj = n_fit = 0
     for (t0, x), res in zip(wins, got):
         ref = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, b.ofs[k - 1]), cfg.n_speed_bins, cfg.mask_kernel,
                           cfg.ofs_pool)
@@ -124,12 +127,19 @@ def test_cpu_pipeline_equals_dense_reference(env, make_bundle, tmp_path, pool):
         assert [o.n_events for o in res.objects] == [int(m.sum()) for m in merged]
         if ks.size:
             pose, direction, speed = sess.run(None, {"events": ofpd_io.prepare(merged, cfg)})
+            fusion = PlaneFusion(cfg)
+            assert fusion.on == plane_fit
+            if plane_fit:
+                flow = dense_flow(merged)
+                n_fit += int(np.isfinite(flow[:, 0]).sum())
+                speed, direction = fusion.speed(speed, flow), fusion.direction(direction, flow)
             dec = ofpd_io.decode(pose, direction, speed, ks, cfg)
             np.testing.assert_allclose([o.x for o in res.objects], dec["x_px"], rtol=0, atol=1e-5)
             np.testing.assert_allclose([o.direction_rad for o in res.objects], dec["direction_rad"], atol=1e-5)
             np.testing.assert_allclose([o.speed_mps for o in res.objects], dec["speed_mps"], rtol=1e-5)
             n_obj += ks.size
     assert n_obj > 0                          # the comparison covered real objects
+    assert n_fit > 0 or not plane_fit
 
 
 def test_run_cli_writes_jsonl_and_summary_with_ground_truth(env, capsys, tmp_path):

@@ -1,6 +1,6 @@
 """Each object's image-plane velocity from the time surface of its ones (local plane fits), and
-its fusion with the OFPD's regressed speed (``config.ofpd`` keys ``plane_fit_weight``,
-``plane_fit_min_px_ms``).
+its fusion with the OFPD's regressed speed and direction (``config.ofpd`` keys
+``plane_fit_weight``, ``plane_fit_min_px_ms``, ``plane_fit_dir_weight``).
 
 Why: the OFPD reads speed off pooled cells (P = 2-16 px) and two motion planes that say which
 way time runs inside each cell, not how fast; a fast object (bins 3-4) moves 2-8 px per window
@@ -36,7 +36,10 @@ Fusion (``fuse_speed``, on ln px/ms before ofpd_io.decode): where the OFPD's spe
 ln s = w ln |v_plane| + (1 - w) ln s_OFPD, w = ``plane_fit_weight`` (0: off, the default, every
 checkpoint written before these keys). Below the threshold the OFPD alone: slow objects (bins
 1-2) move under 2 px per window, their time surface is a step or two of 100 us and the plane
-fit over-reads. The two constants are fitted on the training split
+fit over-reads. Direction (``PlaneFusion.direction``): the unit vectors of the plane fit's
+velocity and of the OFPD's (cos, sin) averaged with weight ``plane_fit_dir_weight`` (0: off),
+for every object the plane fit answers for; the OFPD is unsure where the time surface is
+clear (fast objects) and the other way round. The constants are fitted on the training split
 (benchmarks/fit_plane_fit.py), never on held-out data.
 """
 from __future__ import annotations
@@ -237,19 +240,22 @@ def object_planes_flow(obj, xs, ys, ch, n_obj, want):
     return out
 
 
-def fit_settings(config: ToffeConfig) -> tuple[float, float]:
-    """(plane_fit_weight, plane_fit_min_px_ms) of config.ofpd; weight 0 (off) when absent."""
+def fit_settings(config: ToffeConfig) -> tuple[float, float, float]:
+    """(plane_fit_weight, plane_fit_min_px_ms, plane_fit_dir_weight) of config.ofpd; the weights
+    0 (off) when absent."""
     s = config.ofpd or {}
     try:
         w = float(s.get("plane_fit_weight", 0.0))
         lo = float(s.get("plane_fit_min_px_ms", 4.0))
+        wd = float(s.get("plane_fit_dir_weight", 0.0))
     except (TypeError, ValueError):
-        raise ValueError("ofpd.plane_fit_weight and ofpd.plane_fit_min_px_ms must be numbers") from None
-    if not 0.0 <= w <= 1.0:
-        raise ValueError(f"ofpd.plane_fit_weight must be in [0, 1], got {w}")
+        raise ValueError("ofpd.plane_fit_weight, plane_fit_min_px_ms and plane_fit_dir_weight must be numbers") from None
+    for name, v in (("plane_fit_weight", w), ("plane_fit_dir_weight", wd)):
+        if not 0.0 <= v <= 1.0:
+            raise ValueError(f"ofpd.{name} must be in [0, 1], got {v}")
     if not lo >= 0.0:
         raise ValueError(f"ofpd.plane_fit_min_px_ms must be >= 0, got {lo}")
-    return w, lo
+    return w, lo, wd
 
 
 def flow_px_ms(flow_px_bin: np.ndarray, config: ToffeConfig) -> np.ndarray:
@@ -258,31 +264,46 @@ def flow_px_ms(flow_px_bin: np.ndarray, config: ToffeConfig) -> np.ndarray:
     return np.array([math.hypot(x, y) for x, y in f.tolist()]) * (config.n_bins * 1000.0 / config.dt_us)
 
 
-class SpeedFusion:
-    """``fuse_speed`` with the config's settings worked out once (the cpu runtime fuses every
-    window). ``wanted(speed_ln)``: which objects the fusion would change if their plane fit
-    has an answer (the runtime fits those only); ``__call__(speed_ln, flow)``: the fused ln px/ms
-    as a list. Per row in Python (math.hypot, math.log): a window holds a handful of objects, where
-    each numpy call costs more than the row's arithmetic; eval and every target call this same
-    code, so they agree to the bit."""
+class PlaneFusion:
+    """The plane fit blended into the OFPD's outputs, with the config's settings worked out once
+    (the cpu runtime fuses every window):
 
-    def __init__(self, config: ToffeConfig, weight: float | None = None, min_px_ms: float | None = None):
-        w, lo = fit_settings(config)
+    - ``speed(speed_ln, flow)``: ln s = w ln |v| + (1 - w) ln s_OFPD where s_OFPD >
+      plane_fit_min_px_ms (w = plane_fit_weight);
+    - ``direction(direction, flow)``: the unit vectors blended, u = wd v / |v| + (1 - wd)
+      d / |d| (wd = plane_fit_dir_weight, d the OFPD's (cos, sin)), for every object with a
+      plane fit; decode takes its angle;
+    - ``wanted(speed_ln)``: the objects whose plane fit either would use (the runtime fits those
+      only): every object when wd > 0, else those over the speed threshold.
+
+    Rows without a plane fit (NaN) keep the OFPD's values. Per row in Python (math.hypot,
+    math.log): a window holds a handful of objects, where each numpy call costs more than the
+    row's arithmetic; eval and every target call this same code, so they agree to the bit."""
+
+    def __init__(self, config: ToffeConfig, weight: float | None = None, min_px_ms: float | None = None,
+                 dir_weight: float | None = None):
+        w, lo, wd = fit_settings(config)
         self.weight = w if weight is None else float(weight)
         self.min_px_ms = lo if min_px_ms is None else float(min_px_ms)
+        self.dir_weight = wd if dir_weight is None else float(dir_weight)
         self.log_min = math.log(self.min_px_ms) if self.min_px_ms > 0 else -math.inf
         self.per_bin = config.n_bins * 1000.0 / config.dt_us      # px per bin -> px per ms
 
     @property
     def on(self) -> bool:
-        return self.weight > 0.0
+        return self.weight > 0.0 or self.dir_weight > 0.0
 
     def wanted(self, speed_ln) -> np.ndarray:
-        return np.asarray(speed_ln, dtype=np.float64).reshape(-1) > self.log_min
+        s = np.asarray(speed_ln, dtype=np.float64).reshape(-1)
+        if self.dir_weight > 0.0:
+            return np.ones(s.shape[0], np.bool_)
+        if self.weight > 0.0:
+            return s > self.log_min
+        return np.zeros(s.shape[0], np.bool_)
 
-    def __call__(self, speed_ln, flow_px_bin) -> list[float]:
+    def speed(self, speed_ln, flow_px_bin) -> list[float]:
         s = np.asarray(speed_ln, dtype=np.float64).reshape(-1).tolist()
-        if not self.on:
+        if self.weight <= 0.0:
             return s
         w, lo = self.weight, self.log_min
         for i, (fx, fy) in enumerate(np.asarray(flow_px_bin, dtype=np.float64).reshape(-1, 2).tolist()):
@@ -291,12 +312,34 @@ class SpeedFusion:
                 s[i] = w * math.log(v) + (1.0 - w) * s[i]
         return s
 
+    def direction(self, direction, flow_px_bin) -> np.ndarray:
+        d = np.array(direction, dtype=np.float64).reshape(-1, 2)
+        if self.dir_weight <= 0.0:
+            return d
+        wd = self.dir_weight
+        rows = d.tolist()
+        for i, (fx, fy) in enumerate(np.asarray(flow_px_bin, dtype=np.float64).reshape(-1, 2).tolist()):
+            v = math.hypot(fx, fy)
+            c, s = rows[i]
+            n = math.hypot(c, s)
+            if v > 0.0 and math.isfinite(v) and n > 0.0:
+                d[i, 0] = wd * (fx / v) + (1.0 - wd) * (c / n)
+                d[i, 1] = wd * (fy / v) + (1.0 - wd) * (s / n)
+        return d
+
 
 def fuse_speed(speed_ln: np.ndarray, flow_px_bin: np.ndarray, config: ToffeConfig, weight: float | None = None,
                min_px_ms: float | None = None) -> np.ndarray:
-    """The OFPD's ln px/ms (N,) with the plane fit blended in (module doc; SpeedFusion), a new
-    float64 array. ``weight`` / ``min_px_ms`` override the config's (the fitting script)."""
-    return np.asarray(SpeedFusion(config, weight, min_px_ms)(speed_ln, flow_px_bin), dtype=np.float64)
+    """The OFPD's ln px/ms (N,) with the plane fit blended in (PlaneFusion.speed), a new float64
+    array. ``weight`` / ``min_px_ms`` override the config's (the fitting script)."""
+    return np.asarray(PlaneFusion(config, weight, min_px_ms).speed(speed_ln, flow_px_bin), dtype=np.float64)
+
+
+def fuse_direction(direction: np.ndarray, flow_px_bin: np.ndarray, config: ToffeConfig,
+                   dir_weight: float | None = None) -> np.ndarray:
+    """The OFPD's (N, 2) (cos, sin) with the plane fit's direction blended in
+    (PlaneFusion.direction), a new float64 array; ``dir_weight`` overrides the config's."""
+    return PlaneFusion(config, dir_weight=dir_weight).direction(direction, flow_px_bin)
 
 
 def dense_flow(frames: np.ndarray) -> np.ndarray:

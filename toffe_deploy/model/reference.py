@@ -20,7 +20,7 @@ from ..config import ToffeConfig
 from ..fixed_point import LoihiOFSParams, quantize_ofs, run_ofs_fixed
 from ..metrics import Prediction
 from .. import ofpd_io
-from ..plane_fit import dense_flow, fit_settings, fuse_speed
+from ..plane_fit import PlaneFusion, dense_flow
 
 
 def quantize_stages(ofs: list[dict], reset: str = "subtract") -> list[LoihiOFSParams]:
@@ -99,13 +99,16 @@ def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig):
 
     Objects are the report groups of the stage frames (ofpd_io.merge_frames: speed bin = the
     fastest stage that fires, input = the union of the group's frames); one batched OFPD call;
-    the plane fit blended into its speed when ofpd.plane_fit_weight > 0 (toffe_deploy/plane_fit.py).
+    the plane fit blended into its speed and direction when config.ofpd says so
+    (toffe_deploy/plane_fit.py).
     """
     ks, merged, pose, direction, speed, res = window_outputs(binned, run_stage, ofpd, config)
     if ks.size == 0:
         return [], res
-    if fit_settings(config)[0] > 0:
-        speed = fuse_speed(speed, dense_flow(merged), config)
+    fusion = PlaneFusion(config)
+    if fusion.on:
+        flow = dense_flow(merged)
+        speed, direction = fusion.speed(speed, flow), fusion.direction(direction, flow)
     d = ofpd_io.decode(pose, direction, speed, ks, config)
     preds = [Prediction(int(k), float(d["x_px"][i]), float(d["y_px"][i]), float(d["direction_rad"][i]),
                         float(d["speed_mps"][i]), float(d["speed_bin_mps"][i]), float(d["speed_px_ms"][i]))

@@ -41,7 +41,7 @@ from ..errors import InputError
 from ..events.support import SupportHistory, front_end
 from ..events.support import warm_up as support_warm_up
 from ..ofpd_io import Decoder
-from ..plane_fit import SpeedFusion, object_planes_flow
+from ..plane_fit import PlaneFusion, object_planes_flow
 from ..tracking import Tracker, TrackerConfig
 from . import ofpd_input
 from ..compiled import new_scratch, warm_up
@@ -212,7 +212,7 @@ class Pipeline:
         self._scratch = new_scratch(self.sensor_size[0] * self.sensor_size[1])   # for ofpd_input's O(n) de-duplication
         self.keep_stages = bool(keep_stages)
         self._decode = Decoder(self.config)          # ofpd_io.decode, set up once
-        self._fusion = SpeedFusion(self.config)
+        self._fusion = PlaneFusion(self.config)
         self._track = track
         self.support = (SupportHistory(self.config.input_support[0], self.sensor_size, self.config.dt_us)
                         if self.config.input_support is not None else None)   # the front end's windows before
@@ -274,10 +274,11 @@ class Pipeline:
                 self.tracker.columns(_NO_DETECTIONS, t0_us)
             return []
         pose, direction, speed = self.ofpd.run(x)
-        if self._fusion.on:                  # plane_fit: the fast objects' speed, fitted for those only
+        if self._fusion.on:                  # plane_fit: fitted for the objects that use it only
             want = self._fusion.wanted(speed)
             if want.any():
-                speed = self._fusion(speed, object_planes_flow(*ones, ks.size, want))
+                flow = object_planes_flow(*ones, ks.size, want)
+                speed, direction = self._fusion.speed(speed, flow), self._fusion.direction(direction, flow)
         dec = self._decode.columns(pose, direction, speed, ks)          # Python lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         px_s = [v * 1000.0 for v in px_ms]
