@@ -110,7 +110,7 @@ def bench_dense(bundle, windows) -> dict:
         a = time.perf_counter()
         x = front_end(bin_window(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size), cfg, hist, t0)
         res = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, bundle.ofs[k - 1]), cfg.n_speed_bins, cfg.mask_kernel)
-        ks, merged = ofpd_io.merge_frames(np.stack(res.frames), cfg)
+        ks, merged = ofpd_io.merge_frames(np.stack(res.frames), cfg, hist)
         for k, m in zip(ks, merged):                   # one OFPD call per object
             out = ofpd.run(ofpd_io.prepare(m[None], cfg))
             ofpd_io.decode(*out, np.array([k]), cfg)

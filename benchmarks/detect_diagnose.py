@@ -111,17 +111,18 @@ def object_size_px(attrs: dict, oid: int, depth, focal) -> tuple[float, float, f
     return size, float(a.get("log_contrast", math.nan)), float(a.get("events_per_edge", math.nan))
 
 
-def diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, dt):
-    """(miss rows, fp rows, number of predictions) of one window (module doc)."""
+def diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, dt, recent=None):
+    """(miss rows, fp rows, number of predictions) of one window (module doc); recent: the front
+    end's SupportHistory after it (ofpd.recent_events)."""
     from toffe_deploy.model.reference import predict_window
 
-    preds, res = predict_window(binned, run_stage, ofpd, cfg)
+    preds, res = predict_window(binned, run_stage, ofpd, cfg, recent)
     need = int(ofpd_io.ofpd_settings(cfg)["min_events"])
     h, w = binned.shape[-2:]
     pool = int(cfg.ofs_pool)
     pixels = ofpd_io.event_pixels(np.stack(res.frames))                 # (N, H, W)
     stage_px = [np.nonzero(p)[::-1] for p in pixels]
-    objs, claims = ofpd_io.group_objects_xy(stage_px, (w, h), cfg)
+    objs, claims = ofpd_io.group_objects_xy(stage_px, (w, h), cfg, recent)
     assert len(objs) == len(preds)
     # every stage pixel: stage, candidate group of its stage, owner object
     sx = np.concatenate([p[0] for p in stage_px]).astype(np.int64)
@@ -272,7 +273,7 @@ def main(argv=None) -> int:
     from toffe_deploy.dataset.groundtruth import window_truth
     from toffe_deploy.evaluate import _sample_starts, reference_models, split_files
     from toffe_deploy.events.io import open_events
-    from toffe_deploy.events.support import sampled_window
+    from toffe_deploy.events.support import sampled_window_recent
     from toffe_deploy.runtime.truth import sequence_focal_px
 
     cfg, run_stage, ofpd = reference_models(Path(a.ckpt), "fixed")
@@ -294,8 +295,8 @@ def main(argv=None) -> int:
             for t0 in _sample_starts(src.t_start_us, src.t_end_us, a.dt, a.max_windows):
                 truth = window_truth(gt, int(t0), a.dt)
                 raw = src.read(int(t0), int(t0) + a.dt)
-                binned = sampled_window(src.read, int(t0), a.dt, cfg, src.sensor_size)
-                ms, fs, n = diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, a.dt)
+                binned, recent = sampled_window_recent(src.read, int(t0), a.dt, cfg, src.sensor_size)
+                ms, fs, n = diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, a.dt, recent)
                 for r in ms + fs:
                     r["sequence"], r["t0"] = Path(path).stem, int(t0)
                 misses += ms

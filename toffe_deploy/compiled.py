@@ -1429,7 +1429,7 @@ def split_groups(xs, ys, pg, n_groups, need, frac, waist):
 
 @njit(cache=True, nogil=True)
 def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_count, split_frac=0.0,
-                  split_waist=0.65):
+                  split_waist=0.65, recent=None, recent_rule=None):
     """ofpd_io.blob_objects_xy with ofpd.stages "union": the window's stage pixels (stage i's
     are xs, ys[starts[i]:starts[i + 1]], disjoint: the cascade gives each pixel to one stage)
     form blobs together (link_components, component_stats, merge_blobs, as one frame's), and
@@ -1442,7 +1442,10 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
     centroid, so a neighbour's edges join it only within frac_closed. Objects are numbered
     fastest stage first, then by group. With split_frac > 0, a group that split_groups finds to
     hold two objects (two touching outlines, split_two with split_frac and split_waist) is two
-    groups. Returns what blob_objects returns."""
+    groups. With ``recent`` (the (H * W,) uint8 event-pixel counts of the latest windows,
+    ofpd.recent_events) a group short of need is an object too when recent_reaches holds for it
+    (recent_rule = [r, m, c, E]; its stage is then the one holding most of its pixels).
+    Returns what blob_objects returns."""
     n = xs.shape[0]
     n_stages = starts.shape[0] - 1
     owner = np.full(n, -1, np.int64)
@@ -1478,9 +1481,12 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
             gsx[q] += xs[p]
             gsy[q] += ys[p]
             size[q] += 1
+    short = size < need                                         # groups that are no object
+    if recent is not None:
+        short = recent_short(xs, ys, pg, n_groups, short, width, frac_open, recent, recent_rule)
     gstage = np.full(n_groups, -1, np.int64)
     for q in range(n_groups):
-        if size[q] < need:
+        if short[q]:
             continue
         best = n_stages - 1
         for i in range(n_stages - 1, -1, -1):
@@ -1534,6 +1540,65 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
                 m += 1
     srt = _stable_order(claim_key[:m])
     return o_stage[:g].copy(), o_cx[:g].copy(), o_cy[:g].copy(), owner, claim_key[srt], claim_own[srt]
+
+
+@njit(cache=True, nogil=True)
+def recent_reaches(recent, width, x0, y0, x1, y1, radius, m, noise_factor, total):
+    """ofpd.recent_events' rule for a group with bounding box (x0, y0, x1, y1) inclusive: with
+    e_j(q) = 1 when pixel q had an event in the j-th latest window (j = 0: this one; the K of
+    input_support, ``recent`` = sum_j e_j as events.support.SupportHistory holds it after the
+    window's front end, ``total`` = E its sum) and the box grown by ``radius`` px (clipped to
+    the sensor) holding A pixels,
+        sum over q in the box of recent[q]  >=  m + floor(noise_factor * A * E / (H * W))
+    (the second term: noise_factor times what the sensor's event-pixel density alone puts there)."""
+    height = recent.shape[0] // width
+    xa, xb = max(0, x0 - radius), min(width - 1, x1 + radius)
+    ya, yb = max(0, y0 - radius), min(height - 1, y1 + radius)
+    s = 0
+    for y in range(ya, yb + 1):
+        row = y * width
+        for x in range(xa, xb + 1):
+            s += np.int64(recent[row + x])
+    area = np.int64(xb - xa + 1) * np.int64(yb - ya + 1)
+    return s >= m + (noise_factor * area * total) // recent.shape[0]
+
+
+@njit(cache=True, nogil=True)
+def recent_short(xs, ys, pg, n_groups, short, width, frac_open, recent, recent_rule):
+    """``short`` (groups with fewer than need pixels) less those that recent_reaches lets through
+    (recent_rule = [radius, m, noise_factor, E]) and that lie apart from every object: a group
+    whose box comes within frac_open (edge_merge_frac) * an object's extent of that object's
+    box is its leftover edge, not an object of its own (measured: pieces of large or fast
+    objects, whose trail fills the latest windows). Why: a slow object fires a few pixels of its
+    edge per window, at the same place window after window."""
+    big = np.iinfo(np.int64).max
+    x0 = np.full(n_groups, big)
+    y0 = np.full(n_groups, big)
+    x1 = np.full(n_groups, -1)
+    y1 = np.full(n_groups, -1)
+    for p in range(xs.shape[0]):
+        q = pg[p]
+        if q >= 0:
+            x0[q] = min(x0[q], xs[p])
+            y0[q] = min(y0[q], ys[p])
+            x1[q] = max(x1[q], xs[p])
+            y1[q] = max(y1[q], ys[p])
+    out = short.copy()
+    for q in range(n_groups):
+        if not short[q] or x1[q] < 0:
+            continue
+        apart = True
+        for o in range(n_groups):
+            if short[o] or x1[o] < 0:
+                continue
+            gap = max(x0[o] - x1[q], x0[q] - x1[o], y0[o] - y1[q], y0[q] - y1[o])
+            if gap <= frac_open * (max(x1[o] - x0[o], y1[o] - y0[o]) + 1):
+                apart = False
+                break
+        if apart:
+            out[q] = not recent_reaches(recent, width, x0[q], y0[q], x1[q], y1[q], recent_rule[0], recent_rule[1],
+                                        recent_rule[2], recent_rule[3])
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -1730,17 +1795,17 @@ def object_input(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_m
 @njit(cache=True, nogil=True)
 def window_objects(frames, pix_inverse, upix, width, plane, n_channels, union, link, frac_closed, frac_open, need,
                    min_count, split_frac, split_waist, slot_of, fixed_size, g, pool_min, pool_max, height, n_input,
-                   n_bins, coord_scale):
+                   n_bins, coord_scale, recent=None, recent_rule=None):
     """The runtime's batch for grouping "blobs" in one call: frame_pixels, then union_objects
     (``union``) or blob_objects, claimed_by (scratch ``slot_of``) and object_input, the same
     kernels on the same arrays back to back, so that a window crosses from Python into compiled
     code once for all of them and gets back seven arrays instead of sixteen. Returns (stage
     (G,) 0-based, OFPD input (G, n_input, g, g) float32, n_ones (G,), then object_input's
-    claimed ones: object, x, y, channel)."""
+    claimed ones: object, x, y, channel); ``recent``, ``recent_rule``: union_objects'."""
     sx, sy, starts, ev_u, fx, fy, ch = frame_pixels(frames, pix_inverse, upix, width, plane, n_channels)
     if union:
         stage, _cx, _cy, _own, keys, owner = union_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
-                                                           min_count, split_frac, split_waist)
+                                                           min_count, split_frac, split_waist, recent, recent_rule)
     else:
         stage, _cx, _cy, _own, keys, owner = blob_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
                                                           min_count)
@@ -2186,6 +2251,8 @@ def warm_up() -> None:
     merge_blobs(labels, count, bbox, i64, i64, 0.2, 1.5, 1)
     blob_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1)
     union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65)
+    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, np.zeros(2, np.uint8),
+                  np.zeros(4, np.int64))
     split_groups(i64, i64, i64.copy(), 1, 1, 0.6, 0.65)
     min_gap(i64, i64, i64, i64, 1.0)
     surrounds(i64, i64)

@@ -27,7 +27,7 @@ from .breakdown import Breakdown, attr_value, bucket_labels, bucket_order
 from .cascade import stage_frame
 from .checkpoint import load_checkpoint
 from .errors import InputError
-from .events.support import sampled_window
+from .events.support import sampled_window_recent
 from .metrics import GATE_PX, FlowErrors, SeparationCounts
 from .tracking_metrics import TrackingErrors
 from . import ofpd_io
@@ -167,8 +167,8 @@ def evaluate(opts: EvalOptions) -> dict:
                 focal = sequence_focal_px(attrs[fi])
                 for t0 in _sample_starts(src.t_start_us, src.t_end_us, dt, opts.max_windows):
                     truth = window_truth(gt, int(t0), dt)
-                    binned = sampled_window(src.read, int(t0), dt, cfg, sensor)
-                    preds, res = predict_window(binned, run_stage, ofpd, cfg)
+                    binned, recent = sampled_window_recent(src.read, int(t0), dt, cfg, sensor)
+                    preds, res = predict_window(binned, run_stage, ofpd, cfg, recent)
                     errs.add_window(preds, truth, focal)
                     for g, (_paths, labels, _order) in enumerate(groups):
                         by_errs[g][labels[fi]].add_window(preds, truth, focal)
@@ -177,11 +177,11 @@ def evaluate(opts: EvalOptions) -> dict:
                         for k in range(1, cfg.n_speed_bins + 1):
                             spikes = res.spikes[k - 1] if k == cfg.n_speed_bins else run_stage(k, inp)
                             frame = stage_frame(binned, spikes, cfg.mask_kernel, cfg.ofs_pool)
-                            sep[k - 1].add(ofpd_io.has_object(frame[None], cfg), truth[0].speed_bin >= k)
+                            sep[k - 1].add(ofpd_io.has_object(frame[None], cfg, recent), truth[0].speed_bin >= k)
                 if track_errs is not None:
                     def predict(t0, src=src, sensor=sensor):
-                        binned = sampled_window(src.read, t0, dt, cfg, sensor)
-                        return predict_window(binned, run_stage, ofpd, cfg)[0]
+                        binned, recent = sampled_window_recent(src.read, t0, dt, cfg, sensor)
+                        return predict_window(binned, run_stage, ofpd, cfg, recent)[0]
 
                     track_sequence(src, gt, dt, opts.track_windows, predict, cfg, track_errs)
         row = {"dt_us": dt, "same_dt_as_training": dt == cfg.dt_us, "all": errs.summary(),

@@ -99,6 +99,9 @@ OFPD_DEFAULTS: dict[str, Any] = {
     "edge_merge_frac": 1.5,  # ... or within edge_merge_frac when both are open edges (not surrounding their centroid)
     "split_frac": 0.0,      # stages "union": a group cut at its narrowest into two closed outlines is two objects when
     "split_waist": 0.65,    # >= split_frac * extent apart, cut <= split_waist * width (compiled.split_two); 0 = never
+    "recent_events": None,  # stages "union": [r, m, c], a group short of min_events is an object when the event pixels
+                            # of the latest K windows (input_support's) in its box grown by r px reach
+                            # m + floor(c * box area * their density) (compiled.recent_reaches); None = never
     "pool_min": 2,          # crop "scaled": P = clip(2^ceil(log2(1.5 * extent / g)), pool_min, pool_max)
     "pool_max": 16,
 }
@@ -137,9 +140,36 @@ def _ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
             raise ValueError(f"ofpd.{key} must be one of {', '.join(choices)}, got {s[key]!r}")
     if float(s["split_frac"]) > 0 and s["stages"] != "union":
         raise ValueError('ofpd.split_frac > 0 needs ofpd.stages "union"')
+    if s["recent_events"] is not None:
+        check_recent_events(s, config)
     if s["bin_from"] == "ofpd" and s["speed_unit"] != "px_ms":
         raise ValueError('ofpd.bin_from "ofpd" needs ofpd.speed_unit "px_ms"')
     return s
+
+
+def check_recent_events(s: dict, config: ToffeConfig) -> None:
+    """ofpd.recent_events must be three integers r, m, c >= 0 on a "union" grouping whose front
+    end keeps the windows before (input_support)."""
+    v = s["recent_events"]
+    if (not isinstance(v, (list, tuple)) or len(v) != 3
+            or not all(isinstance(a, int) and not isinstance(a, bool) and a >= 0 for a in v)):
+        raise ValueError(f"ofpd.recent_events must be [r, m, c], three integers >= 0, got {v!r}")
+    if s["grouping"] != "blobs" or s["stages"] != "union":
+        raise ValueError('ofpd.recent_events needs ofpd.grouping "blobs" and ofpd.stages "union"')
+    if getattr(config, "input_support", None) is None:
+        raise ValueError("ofpd.recent_events needs input_support (the front end's windows before)")
+
+
+def recent_args(s: dict, recent) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(counts, rule) as compiled.union_objects takes them for ofpd settings ``s`` and ``recent``
+    (an events.support.SupportHistory after this window's front end, or anything with its
+    ``counts`` (H * W,) uint8 and ``total``): (None, None) when ofpd.recent_events is off or no
+    windows are given (then min_events alone decides, as for a single frame)."""
+    rule = s["recent_events"]
+    if rule is None or recent is None:
+        return None, None
+    counts = np.ascontiguousarray(recent.counts, np.uint8).reshape(-1)
+    return counts, np.array([*rule, int(recent.total)], np.int64)
 
 
 def input_shape(config: ToffeConfig) -> tuple[int, int, int]:
@@ -277,14 +307,14 @@ Objects = list[tuple[int, float, float]]
 
 
 def report_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
-                      config: ToffeConfig) -> Objects:
+                      config: ToffeConfig, recent=None) -> Objects:
     """The objects one window reports: [(stage index k-1, cx, cy)], fastest stage first
     (group_objects_xy without the claims)."""
-    return group_objects_xy(stage_pixels, sensor_size, config)[0]
+    return group_objects_xy(stage_pixels, sensor_size, config, recent)[0]
 
 
 def group_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
-                     config: ToffeConfig) -> tuple[Objects, "Claims"]:
+                     config: ToffeConfig, recent=None) -> tuple[Objects, "Claims"]:
     """(objects [(stage index k-1, cx, cy)], claims): the objects one window reports, fastest
     stage first, and which pixels each one claims (its OFPD frame is the events of every stage
     at them: object_masks_xy).
@@ -299,19 +329,22 @@ def group_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sens
     ofpd.grouping "blobs" (blob_objects_xy): objects follow the event blobs, any size, any
     spacing above what the closing bridges. "boxes" (box_objects_xy, checkpoints before it):
     a fixed +-dedupe_px box per object.
+
+    recent: the front end's SupportHistory after this window (ofpd.recent_events: a group short
+    of min_events counts the event pixels of the latest windows around it; recent_args).
     """
     w = int(sensor_size[0])
     if ofpd_settings(config)["grouping"] == "blobs":
-        return blob_objects_xy(stage_pixels, sensor_size, config)
+        return blob_objects_xy(stage_pixels, sensor_size, config, recent)
     return _with_regions(box_objects_xy(stage_pixels, sensor_size, config), w, config)
 
 
 def group_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, sensor_size: tuple[int, int],
-                       config: ToffeConfig) -> tuple[Objects, "Claims"]:
+                       config: ToffeConfig, recent=None) -> tuple[Objects, "Claims"]:
     """group_objects_xy of stage pixels given as flat int64 arrays: stage i's are
     xs, ys[starts[i]:starts[i + 1]] (the cpu runtime's form: no per-stage arrays to join)."""
     if ofpd_settings(config)["grouping"] == "blobs":
-        return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config)
+        return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config, recent)
     stage_pixels = [(xs[a:b], ys[a:b]) for a, b in zip(starts[:-1].tolist(), starts[1:].tolist())]
     return _with_regions(box_objects_xy(stage_pixels, sensor_size, config), int(sensor_size[0]), config)
 
@@ -407,7 +440,7 @@ def blobs_xy(xs: np.ndarray, ys: np.ndarray, width: int, config: ToffeConfig
 
 
 def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sensor_size: tuple[int, int],
-                    config: ToffeConfig) -> tuple[Objects, Claims]:
+                    config: ToffeConfig, recent=None) -> tuple[Objects, Claims]:
     """Grouping "blobs" (see group_objects_xy), two ways (ofpd.stages):
 
     "union" (compiled.union_objects): the pixels of all stage frames form blobs together
@@ -444,7 +477,7 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
     starts = np.cumsum([0] + [p[0].shape[0] for p in pix]).astype(np.int64)
     xs = np.concatenate([p[0] for p in pix]) if pix else np.zeros(0, np.int64)
     ys = np.concatenate([p[1] for p in pix]) if pix else np.zeros(0, np.int64)
-    return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config)
+    return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config, recent)
 
 
 def blob_settings(s: dict) -> tuple[bool, int, float, float, int, int, float, float]:
@@ -455,12 +488,13 @@ def blob_settings(s: dict) -> tuple[bool, int, float, float, int, int, float, fl
             max(1, -(-need // 4)), float(s["split_frac"]), float(s["split_waist"]))
 
 
-def _blob_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, w: int, config: ToffeConfig
-                       ) -> tuple[Objects, Claims]:
+def _blob_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, w: int, config: ToffeConfig,
+                       recent=None) -> tuple[Objects, Claims]:
     """blob_objects_xy on flat stage pixels (group_objects_flat), in one compiled pass."""
-    union, *args = blob_settings(ofpd_settings(config))
+    s = ofpd_settings(config)
+    union, *args = blob_settings(s)
     if union:
-        stage, cx, cy, _owner, keys, owner = union_objects(xs, ys, starts, w, *args)
+        stage, cx, cy, _owner, keys, owner = union_objects(xs, ys, starts, w, *args, *recent_args(s, recent))
     else:
         stage, cx, cy, _owner, keys, owner = blob_objects(xs, ys, starts, w, *args[:5])
     objs = list(zip(stage.tolist(), cx.tolist(), cy.tolist()))       # (int, float, float) rows
@@ -550,14 +584,14 @@ def mode_centroid(mask: np.ndarray, r: int, half: int) -> tuple[float, float]:
     return mode_centroid_xy(xs, ys, r, half, mask.shape[1], mask.shape[0])
 
 
-def report_objects(pixels: np.ndarray, config: ToffeConfig) -> list[tuple[int, float, float]]:
+def report_objects(pixels: np.ndarray, config: ToffeConfig, recent=None) -> list[tuple[int, float, float]]:
     """report_objects_xy of pixels (N, H, W) bool, the event pixels of the N stage frames of one
     window (index k-1 = stage k): [(stage index k-1, cx, cy)], fastest stage first."""
     n, h, w = pixels.shape
-    return report_objects_xy([np.nonzero(p)[::-1] for p in pixels], (w, h), config)
+    return report_objects_xy([np.nonzero(p)[::-1] for p in pixels], (w, h), config, recent)
 
 
-def has_object(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
+def has_object(frames: np.ndarray, config: ToffeConfig, recent=None) -> np.ndarray:
     """(N,) bool for the N stage frames of ONE window (N, B, 2, H, W), frames[k-1] = stage k as
     in CascadeResult.frames: True for the stages that report an object (report_objects).
     Pass all stages of a window in one call (a single frame is judged on min_events alone)."""
@@ -565,22 +599,22 @@ def has_object(frames: np.ndarray, config: ToffeConfig) -> np.ndarray:
     if frames.ndim == 4:
         frames = frames[None]
     keep = np.zeros(frames.shape[0], dtype=bool)
-    for i, _cx, _cy in report_objects(event_pixels(frames), config):
+    for i, _cx, _cy in report_objects(event_pixels(frames), config, recent):
         keep[i] = True
     return keep
 
 
-def merge_frames(frames: np.ndarray, config: ToffeConfig) -> tuple[np.ndarray, np.ndarray]:
+def merge_frames(frames: np.ndarray, config: ToffeConfig, recent=None) -> tuple[np.ndarray, np.ndarray]:
     """The objects of ONE window: (stage_k (G,) 1-based, OFPD frames (G, B, 2, H, W)).
 
     Object j's frame is the events of every stage inside its box (report_objects,
     object_masks_xy): all of the object's events, whichever stage the cascade's mask gave them
-    to, and none of another object's. Feed these to prepare / decode.
+    to, and none of another object's. Feed these to prepare / decode. recent: group_objects_xy's.
     """
     frames = np.asarray(frames) > 0
     pixels = event_pixels(frames)
     h, w = frames.shape[-2:]
-    objs, claims = group_objects_xy([np.nonzero(p)[::-1] for p in pixels], (w, h), config)
+    objs, claims = group_objects_xy([np.nonzero(p)[::-1] for p in pixels], (w, h), config, recent)
     every = np.flatnonzero(frames.any(axis=0))             # the window's ones, (b, c, y, x) linear
     ys, xs = np.divmod(every % (h * w), w)
     merged = np.zeros((len(objs), int(np.prod(frames.shape[1:]))), dtype=bool)

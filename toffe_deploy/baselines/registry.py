@@ -141,8 +141,9 @@ def toffe_models(ctx: BenchContext) -> list[BenchModel]:
         return copy.deepcopy(ctx.supports[i]) if ctx.supports else None
 
     def run_ref(i):
-        binned = front_end(bin_window(ev[i], t0s[i], dt, nb, size, dtype=np.uint8), cfg, history(i), t0s[i])
-        return predict_window(binned, stage, pipe.ofpd.run, cfg)[0]
+        hist = history(i)
+        binned = front_end(bin_window(ev[i], t0s[i], dt, nb, size, dtype=np.uint8), cfg, hist, t0s[i])
+        return predict_window(binned, stage, pipe.ofpd.run, cfg, hist)[0]
 
     def run_opt(i):
         if ctx.supports:

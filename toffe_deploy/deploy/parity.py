@@ -101,7 +101,8 @@ def runtime_ofpd_inputs(held: HeldOut, params: Sequence[LoihiOFSParams], config:
     xs = []
     for i in (range(len(held.windows)) if windows is None else windows):
         vol = SpikeVolume.from_dense(np.asarray(held.windows[i]) > 0).front_end(config.input_norm)
-        _ks, x, _n, _ones = ofpd_input.batch(vol, sensor_frames(casc, vol, config.ofs_pool), config, scratch)
+        _ks, x, _n, _ones = ofpd_input.batch(vol, sensor_frames(casc, vol, config.ofs_pool), config, scratch,
+                                             held.recent(i, config))
         xs.append(x)
     from ..ofpd_io import input_shape
 
@@ -406,7 +407,7 @@ def _predictions_float(held: HeldOut, models, model, config: ToffeConfig) -> lis
     from ..model.reference import float_stage_fn, ofpd_torch_fn, predict_window
 
     run, ofpd = float_stage_fn(models), ofpd_torch_fn(model)
-    return [predict_window(w, run, ofpd, config)[0] for w in held.windows]
+    return [predict_window(w, run, ofpd, config, held.recent(i, config))[0] for i, w in enumerate(held.windows)]
 
 
 def _predictions_fixed_reference(bundle: Bundle, held: HeldOut) -> list[list]:
@@ -417,7 +418,8 @@ def _predictions_fixed_reference(bundle: Bundle, held: HeldOut) -> list[list]:
 
     sess = ort_session(bundle.ofpd_onnx)
     run = fixed_stage_fn(bundle.ofs)
-    return [predict_window(w, run, lambda x: run_onnx(sess, x), bundle.config)[0] for w in held.windows]
+    return [predict_window(w, run, lambda x: run_onnx(sess, x), bundle.config, held.recent(i, bundle.config))[0]
+            for i, w in enumerate(held.windows)]
 
 
 def _predictions_runtime(bundle: Bundle, held: HeldOut, variant: str = "fp32") -> list[list] | None:

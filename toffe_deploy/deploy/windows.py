@@ -44,6 +44,18 @@ class HeldOut:
     def __len__(self) -> int:
         return len(self.windows)
 
+    def recent(self, i: int, config: ToffeConfig):
+        """The front end's SupportHistory after window i (what ofpd.recent_events reads): its
+        history before with the window's event pixels pushed; None when no grouping reads it."""
+        from ..ofpd_io import ofpd_settings
+
+        if not self.support or ofpd_settings(config)["recent_events"] is None:
+            return None
+        raw, before = self.support[i]
+        hist = copy.deepcopy(before)
+        front_end(raw, config, hist, self.t0[i])
+        return hist
+
     def add(self, t0: int, window: np.ndarray, truths, support) -> None:
         self.windows.append(window)
         self.t0.append(t0)

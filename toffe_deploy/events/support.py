@@ -28,6 +28,8 @@ for bit.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numba import njit
 
@@ -165,6 +167,15 @@ def _shift_counts(counts, add, sub):
         counts[add[i]] += 1
 
 
+@dataclass(frozen=True)
+class Latest:
+    """SupportHistory.latest: counts (H * W,) uint8 = sum over the latest K windows of their
+    event-pixel images, total = their sum."""
+
+    counts: np.ndarray
+    total: int
+
+
 class SupportHistory:
     """The event pixels of the last K windows (a ring of their linear pixel indices) and their
     (H * W,) uint8 count image ``counts`` with sum ``total``: what ``front_end`` reads as the
@@ -197,6 +208,11 @@ class SupportHistory:
         for _ in range(min(gap // self.dt_us - 1, self.k)):
             self._push(_NONE)
         self.last_t0 = int(t0) - self.dt_us      # the skipped windows are in: advancing again to t0 adds none
+
+    def latest(self) -> "Latest":
+        """A copy of what it holds now (counts, total): what ofpd.recent_events reads for this
+        window, kept while later windows move the history on (the Lava targets' pipelining)."""
+        return Latest(self.counts.copy(), self.total)
 
     def push(self, t0: int, pixels: np.ndarray) -> None:
         """Add the window at t0 (``advance`` to it first): ``pixels`` its unique linear pixel
@@ -266,13 +282,21 @@ def sampled_window(read, t0: int, dt_us: int, config, sensor_size: tuple[int, in
     """The front end's (B, 2, H, W) bool volume of the window [t0, t0 + dt_us) of a recording read
     at chosen starts (eval, held-out and training windows): ``read(t_lo, t_hi)`` gives events
     (a superset is fine); with input_support the K windows before are read too (SupportHistory.before)."""
+    return sampled_window_recent(read, t0, dt_us, config, sensor_size)[0]
+
+
+def sampled_window_recent(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int]
+                          ) -> tuple[np.ndarray, "SupportHistory | None"]:
+    """(sampled_window, its SupportHistory after the window: the latest K windows' event pixels,
+    this one included, what a streaming Pipeline holds there and ofpd.recent_events reads;
+    None without input_support)."""
     from .binning import bin_window
 
     t0, dt_us = int(t0), int(dt_us)
     binned = bin_window(read(t0, t0 + dt_us), t0, dt_us, config.n_bins, sensor_size, dtype=np.uint8)
     hist = (SupportHistory.before(read, t0, dt_us, config.input_support[0], sensor_size)
             if config.input_support is not None else None)
-    return front_end(binned, config, hist, t0)
+    return front_end(binned, config, hist, t0), hist
 
 
 def sampled_index(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int]) -> np.ndarray:

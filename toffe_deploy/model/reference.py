@@ -82,27 +82,29 @@ def ofpd_torch_fn(model):
     return run
 
 
-def window_outputs(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig):
+def window_outputs(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, recent=None):
     """One window (B, 2, H, W) -> (stage_k (N,), merged frames (N, B, 2, H, W), OFPD pose,
     direction, speed as the network gives them, CascadeResult): predict_window before the
-    plane-fit fusion and the decoding (benchmarks/fit_plane_fit.py fits the fusion on these)."""
+    plane-fit fusion and the decoding (benchmarks/fit_plane_fit.py fits the fusion on these).
+    recent: the front end's SupportHistory after this window (ofpd.recent_events;
+    events.support.sampled_window_recent gives it)."""
     res = run_cascade(binned, run_stage, config.n_speed_bins, config.mask_kernel, config.ofs_pool)
-    ks, merged = ofpd_io.merge_frames(np.stack(res.frames), config)
+    ks, merged = ofpd_io.merge_frames(np.stack(res.frames), config, recent)
     if ks.size == 0:
         return ks, merged, None, None, None, res
     pose, direction, speed = ofpd(ofpd_io.prepare(merged, config))
     return ks, merged, pose, direction, speed, res
 
 
-def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig):
+def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, recent=None):
     """One window (B, 2, H, W) counts -> (list[Prediction], CascadeResult).
 
     Objects are the report groups of the stage frames (ofpd_io.merge_frames: speed bin = the
     fastest stage that fires, input = the union of the group's frames); one batched OFPD call;
     the plane fit blended into its speed and direction when config.ofpd says so
-    (toffe_deploy/plane_fit.py).
+    (toffe_deploy/plane_fit.py). recent: window_outputs'.
     """
-    ks, merged, pose, direction, speed, res = window_outputs(binned, run_stage, ofpd, config)
+    ks, merged, pose, direction, speed, res = window_outputs(binned, run_stage, ofpd, config, recent)
     if ks.size == 0:
         return [], res
     fusion = PlaneFusion(config)

@@ -28,7 +28,7 @@ import numpy as np
 from ..compiled import dedupe, frame_pixels, object_input, window_objects
 from ..config import ToffeConfig
 from ..ofpd_io import (COORD_SCALE, blob_settings, crop_origin_xy, group_objects_flat, group_objects_xy, input_shape,
-                       object_masks_xy, ofpd_settings, prepare_xy)
+                       object_masks_xy, ofpd_settings, prepare_xy, recent_args)
 from .spikes import SpikeVolume
 
 
@@ -44,15 +44,16 @@ def unique_xy(pix: np.ndarray, width: int, scratch: np.ndarray | None = None) ->
 
 
 def merge_objects(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig,
-                  scratch: np.ndarray | None = None) -> tuple[np.ndarray, list[SpikeVolume]]:
+                  scratch: np.ndarray | None = None, recent=None) -> tuple[np.ndarray, list[SpikeVolume]]:
     """``ofpd_io.merge_frames`` on coordinates: (stage_k (G,) 1-based, merged frames), fastest first.
 
     volume: the window's ones; frames[k-1]: bool mask over volume.idx of stage k's frame.
     scratch: optional all -1 array (>= H * W entries, ``compiled.new_scratch``) that makes the pixel sets O(n).
+    recent: the front end's SupportHistory after this window (ofpd.recent_events; group_objects_xy).
     """
     _b, _c, h, w = volume.shape
     pix = volume.pix
-    objs, claims = group_objects_xy([unique_xy(pix[m], w, scratch) for m in frames], (w, h), config)
+    objs, claims = group_objects_xy([unique_xy(pix[m], w, scratch) for m in frames], (w, h), config, recent)
     if not objs:
         return np.zeros(0, dtype=np.int64), []
     every = np.flatnonzero(np.logical_or.reduce(list(frames)))     # the ones of every frame
@@ -68,7 +69,7 @@ def _crop_args(s: dict, g: int) -> tuple[int, int, int, int]:
 
 
 def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig,
-          scratch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple]:
+          scratch: np.ndarray | None = None, recent=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple]:
     """``prepare(*merge_objects(...))`` in one pass: (stage_k (G,), OFPD input (G, C, g, g)
     float32, n_events (G,) = the number of ones of each merged frame, ones = (object, x, y,
     channel) flat arrays of every object's merged ones: plane_fit.object_planes_flow's input,
@@ -84,6 +85,7 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     from one compiled call (compiled.object_input: object_crops, then ofpd_io.prepare_flat's kernels).
     For grouping "blobs" with a ``scratch`` (the pipeline) every step is one compiled call
     (compiled.window_objects: the same kernels back to back, fewer crossings into compiled code).
+    recent: merge_objects'.
     """
     _b, nc, h, w = volume.shape
     upix, pinv = volume.pixel_index(scratch)
@@ -93,10 +95,11 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     c, g, _ = input_shape(config)
     if s["grouping"] == "blobs" and scratch is not None:     # the cpu pipeline: every step in one compiled call
         stage, x, n_ev, *ones = window_objects(stacked, pinv, upix, w, volume.bc, nc, *blob_settings(s), scratch,
-                                               *_crop_args(s, g), h, c, int(config.n_bins), COORD_SCALE)
+                                               *_crop_args(s, g), h, c, int(config.n_bins), COORD_SCALE,
+                                               *recent_args(s, recent))
         return stage + 1, x, n_ev, tuple(ones)
     sx, sy, starts, ev_u, fx, fy, ch = frame_pixels(stacked, pinv, upix, w, volume.bc, nc)
-    objs, claims = group_objects_flat(sx, sy, starts, (w, h), config)
+    objs, claims = group_objects_flat(sx, sy, starts, (w, h), config, recent)
     if not objs:
         none = np.zeros(0, dtype=np.int64)
         return none, np.zeros((0, c, g, g), np.float32), none, (none, none, none, none)

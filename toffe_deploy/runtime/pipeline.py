@@ -40,7 +40,7 @@ from ..config import ToffeConfig
 from ..errors import InputError
 from ..events.support import SupportHistory, front_end
 from ..events.support import warm_up as support_warm_up
-from ..ofpd_io import Decoder
+from ..ofpd_io import Decoder, ofpd_settings
 from ..plane_fit import PlaneFusion, object_planes_flow
 from ..tracking import Tracker, TrackerConfig
 from . import ofpd_input
@@ -228,10 +228,11 @@ class Pipeline:
         self.tracker = (Tracker(self.config, self.config.dt_us, settings, self.speed_scale.px_ms_per_mps)
                         if self._track is not False and self._track is not None else None)
 
-    def _result(self, t0: int, volume: SpikeVolume, frames, **kw) -> "WindowResult":
-        """The WindowResult of window t0 (its objects tracked, with the tracker's coasting list)."""
+    def _result(self, t0: int, volume: SpikeVolume, frames, recent=None, **kw) -> "WindowResult":
+        """The WindowResult of window t0 (its objects tracked, with the tracker's coasting list);
+        recent: the front end's history after it (objects_of)."""
         tracker = self.tracker
-        objects = self.objects_of(volume, frames, None if tracker is None else t0)
+        objects = self.objects_of(volume, frames, None if tracker is None else t0, recent)
         return WindowResult(t0, t0 + self.config.dt_us, objects,
                             coasting=None if tracker is None else tracker.coasting(), **kw)
 
@@ -262,13 +263,15 @@ class Pipeline:
         if tuple(x.shape) != want:
             raise ValueError(f"window must be {want} (B, 2, H, W), got {tuple(x.shape)}")
 
-    def objects_of(self, volume: SpikeVolume, frames: list[np.ndarray], t0_us: int | None = None) -> list[ObjectFlow]:
+    def objects_of(self, volume: SpikeVolume, frames: list[np.ndarray], t0_us: int | None = None,
+                   recent=None) -> list[ObjectFlow]:
         """Object flow of one window from its ones and its stage frames (bool masks over
         volume.idx, index k - 1): ofpd_io's object grouping, then one batched OFPD call. t0_us
         (with a tracker): the window's start; the objects come back tracked (the tracker takes
         the decoded columns, and ids and states go into the objects' constructor: reading the
-        fields back off the objects and setting them afterwards cost more than the tracking)."""
-        ks, x, n_events, ones = ofpd_input.batch(volume, frames, self.config, self._scratch)
+        fields back off the objects and setting them afterwards cost more than the tracking).
+        recent: the front end's SupportHistory after this window (ofpd.recent_events)."""
+        ks, x, n_events, ones = ofpd_input.batch(volume, frames, self.config, self._scratch, recent)
         if not ks.size:
             if t0_us is not None:
                 self.tracker.columns(_NO_DETECTIONS, t0_us)
@@ -312,10 +315,12 @@ class Pipeline:
                     res = self.cascade.cascade_sparse(grid)
                     frames = up_frames(res.frames, inverse)
                     stages = _stage_arrays(res.to_dense()) if self.keep_stages else None
-                yield self._result(int(t0), vol, frames, stages=stages)
+                yield self._result(int(t0), vol, frames, hist, stages=stages)
             return
-        # Lava backends take dense windows and may pipeline them: remember each window's t0.
+        # Lava backends take dense windows and may pipeline them: remember each window's t0 (and,
+        # for ofpd.recent_events, a copy of the front end's history after it: the next windows move it on).
         starts: collections.deque = collections.deque()
+        keep_recent = hist is not None and ofpd_settings(cfg).get("recent_events") is not None
 
         def dense():
             for t0, x in windows:
@@ -323,13 +328,14 @@ class Pipeline:
                 vol = (front_end(x, cfg, hist, int(t0)) if isinstance(x, SpikeVolume)
                        else SpikeVolume.from_dense(front_end(np.asarray(x), cfg, hist, int(t0))))
                 grid, inverse = vol.pool(pool)               # the OFS grid (cascade.py)
-                starts.append((int(t0), vol, grid, inverse))
+                starts.append((int(t0), vol, grid, inverse, hist.latest() if keep_recent else None))
                 yield grid.to_dense(np.uint8)
 
         for res in self.cascade.cascade_stream(dense()):
-            t0, vol, grid, inverse = starts.popleft()
+            t0, vol, grid, inverse, recent = starts.popleft()
             frames = up_frames([np.asarray(f).reshape(-1)[grid.idx] for f in res.frames], inverse)
-            yield self._result(t0, vol, frames, cascade=res, stages=_stage_arrays(res) if self.keep_stages else None)
+            yield self._result(t0, vol, frames, recent, cascade=res,
+                               stages=_stage_arrays(res) if self.keep_stages else None)
 
 
 def _stage_arrays(res) -> tuple[np.ndarray, np.ndarray]:
