@@ -126,7 +126,10 @@ ones the crop is cut from; absent or 0: the OFPD's speed alone). Which events fo
 `config.ofpd.grouping`: `"blobs"` (connected event blobs of any size, an object's edges joined
 until they surround it; keys `link_px`, `merge_frac`, `edge_merge_frac`, `min_events`; with
 `split_frac` > 0, `"union"` only, a blob whose two halves are each a closed outline meeting
-the other in a narrow waist, at most `split_waist` of the narrower one's width, is two objects) or
+the other in a narrow waist, at most `split_waist` of the narrower one's width, is two objects;
+with `recent_events` [r, m, c], `"union"` and `input_support` only, a blob short of `min_events`
+is an object when the latest K windows' event pixels in its box grown by r px reach
+m + floor(c A E / (H W)) and it lies apart from every object) or
 `"boxes"` (a fixed +-`dedupe_px` box, older checkpoints); with blobs, `config.ofpd.stages`
 says how the stage frames meet: `"union"`, the blobs of all stages' pixels together (an
 object's edges that the cascade gave to several stages are one outline; its stage is the
