@@ -149,3 +149,18 @@ def test_cpu_equals_loihi_sim_with_recent_events(env):
             out[target] = [json.dumps(r.to_json(), sort_keys=True) for r in pipe.process_stream(wins)]
     assert out["cpu"] == out["loihi-sim"]
     assert any(json.loads(s)["objects"] for s in out["cpu"])
+
+
+def test_parity_runtime_equals_reference_with_recent_events(env):
+    """The export's end-to-end parity: the reference reads each held-out window's history after
+    it (HeldOut.recent), as the runtime's Pipeline holds it."""
+    from toffe_deploy.deploy.parity import _predictions_fixed_reference, _predictions_runtime
+    from toffe_deploy.deploy.windows import heldout_windows
+
+    b = env["on"]
+    held = heldout_windows(b.config, None, seed=0, n_windows=6)
+    assert held.recent(0, b.config) is not None
+    run, ref = _predictions_runtime(b, held), _predictions_fixed_reference(b, held)
+    rows = [[[(p.stage, round(p.x, 3), round(p.y, 3)) for p in r] for r in preds] for preds in (run, ref)]
+    assert rows[0] == rows[1]
+    assert any(rows[0])
