@@ -79,3 +79,21 @@ def make_recording():
     """Factory: make_recording(path, sensor=(64, 48), duration=0.012, index=0, seed=0) -> path of a
     generated multi-object recording with ground truth."""
     return _make_recording
+
+
+@pytest.fixture(scope="session")
+def lines_per_target():
+    """Factory: lines_per_target(bundle, windows, targets=("cpu", "loihi-sim")) -> {target: the
+    JSON line of each window (sorted keys), tracker off}: the real Lava runtime for loihi-sim."""
+    import json
+
+    def run(bundle, windows, targets=("cpu", "loihi-sim")):
+        from toffe_deploy.runtime.pipeline import Pipeline
+
+        out = {}
+        for target in targets:
+            with Pipeline(bundle, target, track=False) as pipe:
+                out[target] = [json.dumps(r.to_json(), sort_keys=True) for r in pipe.process_stream(windows)]
+        return out
+
+    return run

@@ -123,15 +123,9 @@ def test_cpu_pipeline_with_support_equals_dense_reference(env):
     assert sum(len(a) for a, _ in rows) > 0
 
 
-def test_cpu_equals_loihi_sim_with_support(env):
+def test_cpu_equals_loihi_sim_with_support(env, lines_per_target):
     pytest.importorskip("lava")
-    from toffe_deploy.runtime.pipeline import Pipeline
-
-    wins = _windows(env["rec"], env["on"].config)[:6]
-    out = {}
-    for target in ("cpu", "loihi-sim"):
-        with Pipeline(env["on"], target, track=False) as pipe:
-            out[target] = [json.dumps(r.to_json(), sort_keys=True) for r in pipe.process_stream(wins)]
+    out = lines_per_target(env["on"], _windows(env["rec"], env["on"].config)[:6])
     assert out["cpu"] == out["loihi-sim"]
     assert any(json.loads(s)["objects"] for s in out["cpu"])
 

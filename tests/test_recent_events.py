@@ -137,16 +137,10 @@ def test_cpu_pipeline_equals_reference_and_rescues_objects(env):
     assert sum(len(a) for a, _ in rows) > n_off
 
 
-def test_cpu_equals_loihi_sim_with_recent_events(env):
+def test_cpu_equals_loihi_sim_with_recent_events(env, lines_per_target):
     """The Lava target pipelines windows: each keeps a copy of the history after it."""
     pytest.importorskip("lava")
-    from toffe_deploy.runtime.pipeline import Pipeline
-
-    wins = _windows(env["rec"], env["on"].config)[:8]
-    out = {}
-    for target in ("cpu", "loihi-sim"):
-        with Pipeline(env["on"], target, track=False) as pipe:
-            out[target] = [json.dumps(r.to_json(), sort_keys=True) for r in pipe.process_stream(wins)]
+    out = lines_per_target(env["on"], _windows(env["rec"], env["on"].config)[:8])
     assert out["cpu"] == out["loihi-sim"]
     assert any(json.loads(s)["objects"] for s in out["cpu"])
 
