@@ -133,12 +133,12 @@ class TrackerConfig:
     prediction covers per missed window widens reid_px; reid_ratio_missed: the ratio test
     against the other confirmed tracks missed in this window only."""
 
-    gate_px: float = 15.0
+    gate_px: float = 17.0
     gate_growth: float = 0.5
     birth_gap_px: float = 30.0
     alpha: float = 0.7
     beta: float = 0.4
-    confirm_hits: int = 2
+    confirm_hits: int = 3
     tentative_misses: int = 0
     max_misses: int = 20
     hysteresis: float = 0.1
