@@ -78,11 +78,9 @@ def main(argv=None) -> int:
                 out = pipe.ofpd.run(x) if ks.size else None
                 t.append(clock())
                 if ks.size:
-                    pose, direction, speed = out
-                    want = pipe._fusion.wanted(speed)
-                    if pipe._fusion.on and want.any():                           # as Pipeline.objects_of
-                        flow = object_planes_flow(*ones, ks.size, want)
-                        speed, direction = pipe._fusion.speed(speed, flow), pipe._fusion.direction(direction, flow)
+                    pose, direction, speed = out                                 # as Pipeline.objects_of
+                    speed, direction = pipe._fusion.apply(speed, direction,
+                                                          lambda want: object_planes_flow(*ones, ks.size, want))
                     speeds_of(pipe._decode.columns(pose, direction, speed, ks), cfg, pipe.speed_scale)   # as Pipeline.objects_of
                 t.append(clock())
                 for name, a, b in zip(PARTS, t[:-1], t[1:]):

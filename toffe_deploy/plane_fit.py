@@ -258,10 +258,15 @@ def fit_settings(config: ToffeConfig) -> tuple[float, float, float]:
     return w, lo, wd
 
 
+def px_ms_per_px_bin(config: ToffeConfig) -> float:
+    """px per time bin -> px/ms: B bins in dt_us."""
+    return config.n_bins * 1000.0 / config.dt_us
+
+
 def flow_px_ms(flow_px_bin: np.ndarray, config: ToffeConfig) -> np.ndarray:
     """Plane-fit speeds |v| in px/ms of object_planes_flow's (N, 2) px per bin."""
     f = np.asarray(flow_px_bin, dtype=np.float64).reshape(-1, 2)
-    return np.array([math.hypot(x, y) for x, y in f.tolist()]) * (config.n_bins * 1000.0 / config.dt_us)
+    return np.array([math.hypot(x, y) for x, y in f.tolist()]) * px_ms_per_px_bin(config)
 
 
 class PlaneFusion:
@@ -287,7 +292,7 @@ class PlaneFusion:
         self.min_px_ms = lo if min_px_ms is None else float(min_px_ms)
         self.dir_weight = wd if dir_weight is None else float(dir_weight)
         self.log_min = math.log(self.min_px_ms) if self.min_px_ms > 0 else -math.inf
-        self.per_bin = config.n_bins * 1000.0 / config.dt_us      # px per bin -> px per ms
+        self.per_bin = px_ms_per_px_bin(config)
 
     @property
     def on(self) -> bool:
@@ -300,6 +305,18 @@ class PlaneFusion:
         if self.weight > 0.0:
             return s > self.log_min
         return np.zeros(s.shape[0], np.bool_)
+
+    def apply(self, speed_ln, direction, flow_of):
+        """(speed, direction) with the plane fit blended in, or as given when it is off or no
+        object wants it; ``flow_of(want)`` gives the (N, 2) plane-fit flow of the objects ``want``
+        marks (the runtime fits those only, eval every object: the unwanted rows are not read)."""
+        if not self.on:
+            return speed_ln, direction
+        want = self.wanted(speed_ln)
+        if not want.any():
+            return speed_ln, direction
+        flow = flow_of(want)
+        return self.speed(speed_ln, flow), self.direction(direction, flow)
 
     def speed(self, speed_ln, flow_px_bin) -> list[float]:
         s = np.asarray(speed_ln, dtype=np.float64).reshape(-1).tolist()

@@ -107,10 +107,7 @@ def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, rec
     ks, merged, pose, direction, speed, res = window_outputs(binned, run_stage, ofpd, config, recent)
     if ks.size == 0:
         return [], res
-    fusion = PlaneFusion(config)
-    if fusion.on:
-        flow = dense_flow(merged)
-        speed, direction = fusion.speed(speed, flow), fusion.direction(direction, flow)
+    speed, direction = PlaneFusion(config).apply(speed, direction, lambda _want: dense_flow(merged))
     d = ofpd_io.decode(pose, direction, speed, ks, config)
     preds = [Prediction(int(k), float(d["x_px"][i]), float(d["y_px"][i]), float(d["direction_rad"][i]),
                         float(d["speed_mps"][i]), float(d["speed_bin_mps"][i]), float(d["speed_px_ms"][i]))

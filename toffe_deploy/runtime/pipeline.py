@@ -277,11 +277,8 @@ class Pipeline:
                 self.tracker.columns(_NO_DETECTIONS, t0_us)
             return []
         pose, direction, speed = self.ofpd.run(x)
-        if self._fusion.on:                  # plane_fit: fitted for the objects that use it only
-            want = self._fusion.wanted(speed)
-            if want.any():
-                flow = object_planes_flow(*ones, ks.size, want)
-                speed, direction = self._fusion.speed(speed, flow), self._fusion.direction(direction, flow)
+        speed, direction = self._fusion.apply(speed, direction,                 # plane_fit
+                                              lambda want: object_planes_flow(*ones, ks.size, want))
         dec = self._decode.columns(pose, direction, speed, ks)          # Python lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         px_s = [v * 1000.0 for v in px_ms]
