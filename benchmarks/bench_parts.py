@@ -50,7 +50,6 @@ def main(argv=None) -> int:
     from toffe_deploy.commands.run import SAMPLE
     from toffe_deploy.deploy.bundle import load_bundle
     from toffe_deploy.events.support import front_end
-    from toffe_deploy.plane_fit import object_planes_flow
     from toffe_deploy.runtime import ofpd_input
     from toffe_deploy.runtime.pipeline import Pipeline, sensor_frames, speeds_of
     from toffe_deploy.runtime.spikes import SpikeVolume
@@ -69,6 +68,8 @@ def main(argv=None) -> int:
                 vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size)
                 t.append(clock())
                 vol = front_end(vol, cfg, pipe.support, t0)       # the Pipeline's own windows before (input_support)
+                if pipe.ones_history is not None:
+                    pipe.ones_history.push(t0, vol.idx)            # the plane fit's windows (plane_fit_history)
                 t.append(clock())
                 frames = (pipe.cascade.pooled_frames(vol, cfg.ofs_pool) if cfg.ofs_pool > 1   # as Pipeline runs it
                           else sensor_frames(pipe.cascade, vol, cfg.ofs_pool))
@@ -79,8 +80,9 @@ def main(argv=None) -> int:
                 t.append(clock())
                 if ks.size:
                     pose, direction, speed = out                                 # as Pipeline.objects_of
-                    speed, direction = pipe._fusion.apply(speed, direction,
-                                                          lambda want: object_planes_flow(*ones, ks.size, want))
+                    speed, direction = pipe._fusion.apply(
+                        speed, direction, lambda want, k: pipe.plane_flow(ones, ks.size, want, k),
+                        None if pipe.ones_history is None else pipe.ones_history.available)
                     speeds_of(pipe._decode.columns(pose, direction, speed, ks), cfg, pipe.speed_scale)   # as Pipeline.objects_of
                 t.append(clock())
                 for name, a, b in zip(PARTS, t[:-1], t[1:]):

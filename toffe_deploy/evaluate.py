@@ -27,7 +27,7 @@ from .breakdown import Breakdown, attr_value, bucket_labels, bucket_order
 from .cascade import stage_frame
 from .checkpoint import load_checkpoint
 from .errors import InputError
-from .events.support import sampled_window_recent
+from .events.support import sampled_window_history
 from .metrics import GATE_PX, FlowErrors, SeparationCounts
 from .tracking_metrics import TrackingErrors
 from . import ofpd_io
@@ -167,8 +167,8 @@ def evaluate(opts: EvalOptions) -> dict:
                 focal = sequence_focal_px(attrs[fi])
                 for t0 in _sample_starts(src.t_start_us, src.t_end_us, dt, opts.max_windows):
                     truth = window_truth(gt, int(t0), dt)
-                    binned, recent = sampled_window_recent(src.read, int(t0), dt, cfg, sensor)
-                    preds, res = predict_window(binned, run_stage, ofpd, cfg, recent)
+                    binned, recent, history = sampled_window_history(src.read, int(t0), dt, cfg, sensor, src.t_start_us)
+                    preds, res = predict_window(binned, run_stage, ofpd, cfg, recent, history)
                     errs.add_window(preds, truth, focal)
                     for g, (_paths, labels, _order) in enumerate(groups):
                         by_errs[g][labels[fi]].add_window(preds, truth, focal)
@@ -180,8 +180,8 @@ def evaluate(opts: EvalOptions) -> dict:
                             sep[k - 1].add(ofpd_io.has_object(frame[None], cfg, recent), truth[0].speed_bin >= k)
                 if track_errs is not None:
                     def predict(t0, src=src, sensor=sensor):
-                        binned, recent = sampled_window_recent(src.read, t0, dt, cfg, sensor)
-                        return predict_window(binned, run_stage, ofpd, cfg, recent)[0]
+                        binned, recent, history = sampled_window_history(src.read, t0, dt, cfg, sensor, src.t_start_us)
+                        return predict_window(binned, run_stage, ofpd, cfg, recent, history)[0]
 
                     track_sequence(src, gt, dt, opts.track_windows, predict, cfg, track_errs)
         row = {"dt_us": dt, "same_dt_as_training": dt == cfg.dt_us, "all": errs.summary(),

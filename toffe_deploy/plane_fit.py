@@ -92,11 +92,27 @@ def _object_planes(xs, ys, ch, grid, planes, table):
         t = grid[p, ys[i] - y0, xs[i] - x0]
         if t < 0 or b < t:
             grid[p, ys[i] - y0, xs[i] - x0] = b
-    m = 0
+    vx, vy, vp = np.empty(xs.shape[0], np.int64), np.empty(xs.shape[0], np.int64), np.empty(xs.shape[0], np.int64)
+    n = 0
     for i in range(xs.shape[0]):
         p, y, x = ch[i] & 1, ys[i] - y0, xs[i] - x0
-        if grid[p, y, x] != ch[i] >> 1:          # a later one of a pixel that fired before
-            continue
+        if grid[p, y, x] == ch[i] >> 1:           # not a later one of a pixel that fired before
+            vx[n], vy[n], vp[n] = x, y, p
+            n += 1
+    m = _grid_planes(vx, vy, vp, n, 1, grid, planes, table)
+    for i in range(xs.shape[0]):
+        grid[ch[i] & 1, ys[i] - y0, xs[i] - x0] = -1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _grid_planes(vx, vy, vp, n, step, grid, planes, table):
+    """The plane at every ``step``-th of the n pixels (vx, vy, polarity vp; grid coordinates,
+    one-pixel border) of the time surface ``grid`` (-1: none), in that order, into planes[:m];
+    returns m."""
+    m = 0
+    for i in range(0, n, step):
+        p, y, x = vp[i], vy[i], vx[i]
         mask = k = st = sxt = syt = 0
         for dy in range(-1, 2):
             for dx in range(-1, 2):
@@ -110,15 +126,13 @@ def _object_planes(xs, ys, ch, grid, planes, table):
         det = table[mask, 6]
         if det == 0:
             continue
-        n, sx, sy, cxx, cyy, cxy = table[mask, 0], table[mask, 1], table[mask, 2], table[mask, 3], table[mask, 4], \
-            table[mask, 5]
-        cxt = n * sxt - sx * st                   # n^2 times the covariances: integers
-        cyt = n * syt - sy * st
+        n_, sx, sy, cxx, cyy, cxy = table[mask, 0], table[mask, 1], table[mask, 2], table[mask, 3], \
+            table[mask, 4], table[mask, 5]
+        cxt = n_ * sxt - sx * st                  # n^2 times the covariances: integers
+        cyt = n_ * syt - sy * st
         planes[m, 0] = (cyy * cxt - cxy * cyt) / det
         planes[m, 1] = (cxx * cyt - cxy * cxt) / det
         m += 1
-    for i in range(xs.shape[0]):
-        grid[ch[i] & 1, ys[i] - y0, xs[i] - x0] = -1
     return m
 
 
@@ -242,7 +256,7 @@ def object_planes_flow(obj, xs, ys, ch, n_obj, want):
 
 def fit_settings(config: ToffeConfig) -> tuple[float, float, float]:
     """(plane_fit_weight, plane_fit_min_px_ms, plane_fit_dir_weight) of config.ofpd; the weights
-    0 (off) when absent."""
+    0 (off) when absent. Checks ``plane_fit_history`` too (history_settings)."""
     s = config.ofpd or {}
     try:
         w = float(s.get("plane_fit_weight", 0.0))
@@ -255,7 +269,27 @@ def fit_settings(config: ToffeConfig) -> tuple[float, float, float]:
             raise ValueError(f"ofpd.{name} must be in [0, 1], got {v}")
     if not lo >= 0.0:
         raise ValueError(f"ofpd.plane_fit_min_px_ms must be >= 0, got {lo}")
+    history_settings(config)
     return w, lo, wd
+
+
+def history_settings(config: ToffeConfig) -> tuple[float, int, int] | None:
+    """(D px, K_max windows, margin px) of config.ofpd.plane_fit_history, or None (absent: the
+    plane fit reads each object's ones of its window; toffe_deploy/time_surface.py)."""
+    v = (config.ofpd or {}).get("plane_fit_history")
+    if v is None:
+        return None
+    bad = ValueError(f"ofpd.plane_fit_history must be [distance px > 0, max windows 1-1000, margin px 0-64], got {v!r}")
+    if not isinstance(v, (list, tuple)) or len(v) != 3 or isinstance(v[1], bool) or isinstance(v[2], bool):
+        raise bad
+    try:
+        d, k, g = float(v[0]), v[1], v[2]
+    except (TypeError, ValueError):
+        raise bad from None
+    if not (isinstance(k, int) and isinstance(g, int) and math.isfinite(d) and d > 0 and 1 <= k <= 1000
+            and 0 <= g <= 64):
+        raise bad
+    return d, k, g
 
 
 def px_ms_per_px_bin(config: ToffeConfig) -> float:
@@ -293,6 +327,8 @@ class PlaneFusion:
         self.dir_weight = wd if dir_weight is None else float(dir_weight)
         self.log_min = math.log(self.min_px_ms) if self.min_px_ms > 0 else -math.inf
         self.per_bin = px_ms_per_px_bin(config)
+        self.history = history_settings(config)      # (D, K_max, margin) or None
+        self.dt_us = int(config.dt_us)
 
     @property
     def on(self) -> bool:
@@ -306,16 +342,35 @@ class PlaneFusion:
             return s > self.log_min
         return np.zeros(s.shape[0], np.bool_)
 
-    def apply(self, speed_ln, direction, flow_of):
+    def windows(self, speed_ln) -> list[int] | None:
+        """K of each object with plane_fit_history (time_surface.history_windows of the OFPD's
+        speed), else None."""
+        if self.history is None:
+            return None
+        from .time_surface import history_windows
+
+        s = np.asarray(speed_ln, dtype=np.float64).reshape(-1).tolist()
+        return history_windows([math.exp(v) for v in s], self.history[0], self.history[1], self.dt_us)
+
+    def apply(self, speed_ln, direction, flow_of, available: int | None = None):
         """(speed, direction) with the plane fit blended in, or as given when it is off or no
-        object wants it; ``flow_of(want)`` gives the (N, 2) plane-fit flow of the objects ``want``
-        marks (the runtime fits those only, eval every object: the unwanted rows are not read)."""
+        object wants it; ``flow_of(want, k_windows)`` gives the (N, 2) plane-fit flow of the
+        objects ``want`` marks (the runtime fits those only, eval every object: the unwanted rows
+        are not read), k_windows: ``windows(speed_ln)`` (None: each object's ones of this window).
+        available: the windows the history holds (plane_fit_history): an object that wants more
+        gets the fit's direction but keeps the OFPD's speed (its surface is too short in time:
+        a slow object's reads too fast), as at a stream's start."""
         if not self.on:
             return speed_ln, direction
         want = self.wanted(speed_ln)
         if not want.any():
             return speed_ln, direction
-        flow = flow_of(want)
+        k = self.windows(speed_ln)
+        flow = flow_of(want, k)
+        if k is not None and available is not None and any(v > available for v in k):
+            short = np.array([v > available for v in k])
+            speed_flow = np.where(short[:, None], np.nan, np.asarray(flow, dtype=np.float64).reshape(-1, 2))
+            return self.speed(speed_ln, speed_flow), self.direction(direction, flow)
         return self.speed(speed_ln, flow), self.direction(direction, flow)
 
     def speed(self, speed_ln, flow_px_bin) -> list[float]:

@@ -407,7 +407,8 @@ def _predictions_float(held: HeldOut, models, model, config: ToffeConfig) -> lis
     from ..model.reference import float_stage_fn, ofpd_torch_fn, predict_window
 
     run, ofpd = float_stage_fn(models), ofpd_torch_fn(model)
-    return [predict_window(w, run, ofpd, config, held.recent(i, config))[0] for i, w in enumerate(held.windows)]
+    return [predict_window(w, run, ofpd, config, held.recent(i, config), held.ones_after(i))[0]
+            for i, w in enumerate(held.windows)]
 
 
 def _predictions_fixed_reference(bundle: Bundle, held: HeldOut) -> list[list]:
@@ -418,8 +419,8 @@ def _predictions_fixed_reference(bundle: Bundle, held: HeldOut) -> list[list]:
 
     sess = ort_session(bundle.ofpd_onnx)
     run = fixed_stage_fn(bundle.ofs)
-    return [predict_window(w, run, lambda x: run_onnx(sess, x), bundle.config, held.recent(i, bundle.config))[0]
-            for i, w in enumerate(held.windows)]
+    return [predict_window(w, run, lambda x: run_onnx(sess, x), bundle.config, held.recent(i, bundle.config),
+                           held.ones_after(i))[0] for i, w in enumerate(held.windows)]
 
 
 def _predictions_runtime(bundle: Bundle, held: HeldOut, variant: str = "fp32") -> list[list] | None:
@@ -434,11 +435,14 @@ def _predictions_runtime(bundle: Bundle, held: HeldOut, variant: str = "fp32") -
     preds = []
     with Pipeline(bundle, "cpu", ofpd_variant=variant) as p:
         def results():
-            if not held.support:          # the front end's output again: it is idempotent
+            if not held.support and not held.ones:   # the front end's output again: it is idempotent
                 yield from p.process_stream((t0, w) for t0, w in zip(held.t0, held.windows))
                 return
-            for t0, (raw, hist) in zip(held.t0, held.support):   # temporal support: raw window, its history
+            for i, t0 in enumerate(held.t0):     # temporal support: raw window, its history; the plane fit's
+                raw, hist = held.support[i] if held.support else (held.windows[i], None)
                 p.support = copy.deepcopy(hist)
+                if held.ones:
+                    p.ones_history = copy.deepcopy(held.ones[i])
                 yield from p.process_stream([(t0, raw)])
 
         for r in results():

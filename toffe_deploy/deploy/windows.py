@@ -23,7 +23,8 @@ import numpy as np
 from ..config import ToffeConfig
 from ..errors import InputError
 from ..events.binning import bin_window
-from ..events.support import SupportHistory, front_end
+from ..events.support import SupportHistory, front_end, history_before
+from ..plane_fit import history_settings
 
 GEN_SEQUENCES = 2          # multi-object scenes generated when no data set is given
 
@@ -33,13 +34,16 @@ class HeldOut:
     """windows[i] (B, 2, H, W) bool, the front end's output for the window starting at t0[i];
     truths[i] the visible objects (or None). With config.input_support, support[i] is (the raw
     window, the SupportHistory of the K windows before it): what a Pipeline needs to redo the
-    front end (its temporal support is not idempotent); empty without."""
+    front end (its temporal support is not idempotent); empty without. With
+    ofpd.plane_fit_history, ones[i] is the plane fit's time_surface.OnesHistory before window i
+    (the front end's ones of the windows before it); empty without."""
 
     windows: list[np.ndarray]
     t0: list[int]
     truths: list[list] = field(default_factory=list)
     source: dict = field(default_factory=dict)
     support: list = field(default_factory=list)
+    ones: list = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.windows)
@@ -56,12 +60,22 @@ class HeldOut:
         front_end(raw, config, hist, self.t0[i])
         return hist
 
-    def add(self, t0: int, window: np.ndarray, truths, support) -> None:
+    def ones_after(self, i: int):
+        """The plane fit's history after window i (its ones pushed), or None without."""
+        if not self.ones:
+            return None
+        ring = copy.deepcopy(self.ones[i])
+        ring.push(self.t0[i], np.flatnonzero(self.windows[i]))
+        return ring
+
+    def add(self, t0: int, window: np.ndarray, truths, support, ones=None) -> None:
         self.windows.append(window)
         self.t0.append(t0)
         self.truths.append(truths)
         if support is not None:
             self.support.append(support)
+        if ones is not None:
+            self.ones.append(ones)
 
 
 def _pick(t_starts: np.ndarray, n: int) -> np.ndarray:
@@ -72,7 +86,8 @@ def _pick(t_starts: np.ndarray, n: int) -> np.ndarray:
 
 def _windows_of(events: np.ndarray, gt: dict | None, config: ToffeConfig, t_lo: int, t_hi: int, n: int):
     """Up to n non-empty windows of [t_lo, t_hi), evenly spread; yields (t0, front end's window,
-    truths, (raw window, SupportHistory before it) or None)."""
+    truths, (raw window, SupportHistory before it) or None, the plane fit's OnesHistory before it
+    or None), as a stream started at t_lo holds them."""
     from ..dataset.groundtruth import window_truth
 
     dt = config.dt_us
@@ -83,15 +98,20 @@ def _windows_of(events: np.ndarray, gt: dict | None, config: ToffeConfig, t_lo: 
     starts = starts[counts > 0]
     out = []
     t = events["t"]
+    def read(lo, hi):
+        return events[np.searchsorted(t, lo):np.searchsorted(t, hi)]
+
     for t0 in _pick(starts, n):
         raw = bin_window(events, int(t0), dt, config.n_bins, config.sensor_size)
-        hist = before = None
-        if config.input_support is not None:
-            hist = SupportHistory.before(lambda lo, hi: events[np.searchsorted(t, lo):np.searchsorted(t, hi)], int(t0),
-                                         dt, config.input_support[0], config.sensor_size)
+        hist = before = ones = None
+        if history_settings(config) is not None:
+            hist, ones = history_before(read, int(t0), dt, config, config.sensor_size, t_lo)
+        elif config.input_support is not None:
+            hist = SupportHistory.before(read, int(t0), dt, config.input_support[0], config.sensor_size)
+        if hist is not None:
             before = (raw > 0, copy.deepcopy(hist))
         b = front_end(raw, config, hist, int(t0))
-        out.append((int(t0), b, window_truth(gt, int(t0), dt) if gt is not None else None, before))
+        out.append((int(t0), b, window_truth(gt, int(t0), dt) if gt is not None else None, before, ones))
     return out
 
 
@@ -111,8 +131,8 @@ def _from_generator(config: ToffeConfig, seed: int, n_windows: int, progress: bo
                                            "'train' split only"})
     for i, spec in enumerate(specs):
         events, gt, _ = generate_sequence(dataclasses.replace(spec, camera=cam), seed + i)
-        for t0, b, tr, sup in _windows_of(events, gt, config, config.dt_us, int(duration_s * 1e6), per_seq):
-            held.add(t0, b, tr, sup)
+        for t0, b, tr, sup, ones in _windows_of(events, gt, config, config.dt_us, int(duration_s * 1e6), per_seq):
+            held.add(t0, b, tr, sup, ones)
     return held
 
 
@@ -133,8 +153,8 @@ def _from_data(config: ToffeConfig, data: str | os.PathLike, seed: int, n_window
                                            f"{list(config.sensor_size)}")
             events = src.read(src.t_start_us, src.t_end_us + 1)
             gt = src.ground_truth
-            for t0, b, tr, sup in _windows_of(events, gt, config, src.t_start_us, src.t_end_us + 1, per_file):
-                held.add(t0, b, tr, sup)
+            for t0, b, tr, sup, ones in _windows_of(events, gt, config, src.t_start_us, src.t_end_us + 1, per_file):
+                held.add(t0, b, tr, sup, ones)
     return held
 
 

@@ -299,6 +299,46 @@ def sampled_window_recent(read, t0: int, dt_us: int, config, sensor_size: tuple[
     return front_end(binned, config, hist, t0), hist
 
 
+def history_before(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int], t_start: int | None = None):
+    """(SupportHistory or None, time_surface.OnesHistory) a stream started at ``t_start`` (the
+    recording's first window; None: long before) holds just before window t0 with
+    ofpd.plane_fit_history: the front end's ones of the K_max - 1 windows before, each window's
+    front end run with its own windows before (the SupportHistory moved along)."""
+    from ..plane_fit import history_settings
+    from ..runtime.spikes import SpikeVolume
+    from ..time_surface import OnesHistory
+
+    t0, dt_us, k = int(t0), int(dt_us), int(history_settings(config)[1])
+    first = t0 - (k - 1) * dt_us
+    if t_start is not None and first < int(t_start):
+        first = t0 - ((t0 - int(t_start)) // dt_us) * dt_us       # the stream's first window on t0's grid
+    hist = (SupportHistory.before(read, first, dt_us, config.input_support[0], sensor_size)
+            if config.input_support is not None else None)
+    ring = OnesHistory(k, sensor_size, config.n_bins, dt_us)
+    for s in range(first, t0, dt_us):
+        vol = SpikeVolume.from_events(read(s, s + dt_us), s, dt_us, config.n_bins, sensor_size)
+        ring.push(s, front_end(vol, config, hist, s).idx)
+    return hist, ring
+
+
+def sampled_window_history(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int],
+                           t_start: int | None = None):
+    """(sampled_window, its SupportHistory or None, its plane-fit history or None): with
+    ofpd.plane_fit_history, ``history_before``'s with this window's ones pushed (what a stream
+    holds after it); else sampled_window_recent's and None."""
+    from ..plane_fit import history_settings
+    from .binning import bin_window
+
+    if history_settings(config) is None:
+        return (*sampled_window_recent(read, t0, dt_us, config, sensor_size), None)
+    hist, ring = history_before(read, t0, dt_us, config, sensor_size, t_start)
+    t0, dt_us = int(t0), int(dt_us)
+    binned = front_end(bin_window(read(t0, t0 + dt_us), t0, dt_us, config.n_bins, sensor_size, dtype=np.uint8),
+                       config, hist, t0)
+    ring.push(t0, np.flatnonzero(binned))
+    return binned, hist, ring
+
+
 def sampled_index(read, t0: int, dt_us: int, config, sensor_size: tuple[int, int]) -> np.ndarray:
     """``sampled_window``'s ones as a sorted linear index into the (B, 2, H, W) volume, by the
     compiled index forms (training reads many windows of the whole sensor)."""

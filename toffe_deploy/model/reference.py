@@ -21,6 +21,7 @@ from ..fixed_point import LoihiOFSParams, quantize_ofs, run_ofs_fixed
 from ..metrics import Prediction
 from .. import ofpd_io
 from ..plane_fit import PlaneFusion, dense_flow
+from ..time_surface import dense_history_flow
 
 
 def quantize_stages(ofs: list[dict], reset: str = "subtract") -> list[LoihiOFSParams]:
@@ -96,18 +97,22 @@ def window_outputs(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, rec
     return ks, merged, pose, direction, speed, res
 
 
-def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, recent=None):
+def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, recent=None, history=None):
     """One window (B, 2, H, W) counts -> (list[Prediction], CascadeResult).
 
     Objects are the report groups of the stage frames (ofpd_io.merge_frames: speed bin = the
     fastest stage that fires, input = the union of the group's frames); one batched OFPD call;
     the plane fit blended into its speed and direction when config.ofpd says so
-    (toffe_deploy/plane_fit.py). recent: window_outputs'.
+    (toffe_deploy/plane_fit.py). recent: window_outputs'. history: the plane fit's windows up
+    to this one (ofpd.plane_fit_history; events.support.sampled_window_history gives both).
     """
     ks, merged, pose, direction, speed, res = window_outputs(binned, run_stage, ofpd, config, recent)
     if ks.size == 0:
         return [], res
-    speed, direction = PlaneFusion(config).apply(speed, direction, lambda _want: dense_flow(merged))
+    fusion = PlaneFusion(config)
+    speed, direction = fusion.apply(speed, direction, lambda want, k: (
+        dense_flow(merged) if k is None else dense_history_flow(merged, history, want, k, fusion.history[2])),
+        None if history is None else history.available)
     d = ofpd_io.decode(pose, direction, speed, ks, config)
     preds = [Prediction(int(k), float(d["x_px"][i]), float(d["y_px"][i]), float(d["direction_rad"][i]),
                         float(d["speed_mps"][i]), float(d["speed_bin_mps"][i]), float(d["speed_px_ms"][i]))

@@ -42,6 +42,8 @@ from ..events.support import SupportHistory, front_end
 from ..events.support import warm_up as support_warm_up
 from ..ofpd_io import Decoder, ofpd_settings
 from ..plane_fit import PlaneFusion, object_planes_flow
+from ..time_surface import OnesHistory, history_flow
+from ..time_surface import warm_up as history_warm_up
 from ..tracking import Tracker, TrackerConfig
 from . import ofpd_input
 from ..compiled import new_scratch, warm_up
@@ -216,6 +218,9 @@ class Pipeline:
         self._track = track
         self.support = (SupportHistory(self.config.input_support[0], self.sensor_size, self.config.dt_us)
                         if self.config.input_support is not None else None)   # the front end's windows before
+        h = self._fusion.history
+        self.ones_history = (OnesHistory(h[1], self.sensor_size, self.config.n_bins, self.config.dt_us)
+                             if h is not None and self._fusion.on else None)   # the plane fit's windows (time_surface)
         self.reset_tracks()
         self._entered = False
 
@@ -224,13 +229,18 @@ class Pipeline:
         front end's windows before (``input_support``) are forgotten too."""
         if self.support is not None:
             self.support.reset()
+        if self.ones_history is not None:
+            self.ones_history.reset()
         settings = self._track if isinstance(self._track, TrackerConfig) else None
         self.tracker = (Tracker(self.config, self.config.dt_us, settings, self.speed_scale.px_ms_per_mps)
                         if self._track is not False and self._track is not None else None)
 
     def _result(self, t0: int, volume: SpikeVolume, frames, recent=None, **kw) -> "WindowResult":
         """The WindowResult of window t0 (its objects tracked, with the tracker's coasting list);
-        recent: the front end's history after it (objects_of)."""
+        recent: the front end's history after it (objects_of). Windows come here in time order on
+        every target, so the plane fit's history takes this window's ones here."""
+        if self.ones_history is not None:
+            self.ones_history.push(t0, volume.idx)
         tracker = self.tracker
         objects = self.objects_of(volume, frames, None if tracker is None else t0, recent)
         return WindowResult(t0, t0 + self.config.dt_us, objects,
@@ -240,6 +250,8 @@ class Pipeline:
         warm_up()                    # the compiled kernels (every target de-duplicates pixels with them)
         if self.support is not None:
             support_warm_up()
+        if self.ones_history is not None:
+            history_warm_up()
         self.cascade.__enter__()
         self._entered = True
         return self
@@ -277,8 +289,9 @@ class Pipeline:
                 self.tracker.columns(_NO_DETECTIONS, t0_us)
             return []
         pose, direction, speed = self.ofpd.run(x)
-        speed, direction = self._fusion.apply(speed, direction,                 # plane_fit
-                                              lambda want: object_planes_flow(*ones, ks.size, want))
+        speed, direction = self._fusion.apply(                                  # plane_fit
+            speed, direction, lambda want, k: self.plane_flow(ones, ks.size, want, k),
+            None if self.ones_history is None else self.ones_history.available)
         dec = self._decode.columns(pose, direction, speed, ks)          # Python lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         px_s = [v * 1000.0 for v in px_ms]
@@ -289,6 +302,13 @@ class Pipeline:
                 for sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st in zip(
             dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"], dec["y_px"], dec["direction_rad"],
             n_events.tolist(), dec["speed_clipped"], ids, states)]
+
+    def plane_flow(self, ones, n_obj: int, want, k_windows) -> np.ndarray:
+        """PlaneFusion.apply's flow_of: the plane fit over each wanted object's ones of this
+        window (k_windows None) or over its time surface of its K latest windows."""
+        if k_windows is None:
+            return object_planes_flow(*ones, n_obj, want)
+        return history_flow(self.ones_history, ones, n_obj, want, k_windows, self._fusion.history[2])
 
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
         """(t0_us, window) pairs in, WindowResult per window out, in order, streaming. Windows are
