@@ -1,10 +1,12 @@
 #!/usr/bin/env python
 """Fit the plane-fit fusion of a checkpoint (config.ofpd ``plane_fit_weight``,
-``plane_fit_min_px_ms``, ``plane_fit_dir_weight``; toffe_deploy/plane_fit.py) on a training
-split, never on held-out data.
+``plane_fit_min_px_ms``, ``plane_fit_dir_weight`` and, with ``--history``,
+``plane_fit_history``; toffe_deploy/plane_fit.py, time_surface.py) on a training split, never
+on held-out data.
 
     .venv/bin/python benchmarks/fit_plane_fit.py --ckpt ckpt --data data/synth --split train
         [--max-windows 3] [--limit N] [--check appearance,test] [--write] [--json FILE]
+        [--history 4,6,8,10,12,16 --history-windows 20 --history-margin 3]
 
 Runs the checkpoint as eval does (OFS in fixed point, OFPD in torch) on ``--max-windows``
 windows of each sequence of ``--split``, matches the objects to the ground truth (one to one,
@@ -14,11 +16,18 @@ searches: speed weight w in 0.1 .. 1.0 (step 0.1) and threshold 2 .. 8 px/ms (st
 minimising the mean |fused - true| px/ms; direction weight 0 .. 1 (step 0.1), minimising the
 mean direction error. Prints the OFPD's errors, the fused ones and bin accuracy for the fit
 split and each ``--check`` split (read-only: shown, never used to choose), and with
-``--write`` sets the three keys in CKPT/config.json (atomically; every other key as it was).
+``--write`` sets the keys in CKPT/config.json (atomically; every other key as it was).
+
+``--history D,D,..``: the plane fit reads each object's time surface of its last K windows,
+K = ceil(D / (s dt)) up to ``--history-windows`` (the windows before each sampled one come
+from a stream started at the recording's start, as eval reads them); each D gets the grid
+search above, and the D whose fused speed and direction errors, each relative to the OFPD's,
+sum least is kept.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -29,38 +38,58 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 WEIGHTS = np.round(np.arange(0.1, 1.01, 0.1), 2)
-THRESHOLDS = np.arange(2.0, 8.01, 0.5)
+THRESHOLDS = np.concatenate([[0.0], np.arange(2.0, 8.01, 0.5)])
 DIR_WEIGHTS = np.round(np.arange(0.0, 1.01, 0.1), 2)
 
 
-def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | None, progress: bool) -> dict:
+def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | None, progress: bool,
+            history: tuple = ()) -> dict:
     """Matched objects of a split: OFPD ln px/ms and (cos, sin), plane-fit flow (px per bin),
-    true px/ms, bin and direction."""
+    true px/ms, bin and direction. history = (distances, K_max, margin): the flow over the time
+    surface for each distance too (``flow_D``: (n, len(distances), 2)) and the windows each
+    object had (``short_D``: its K exceeded them)."""
     from tqdm import tqdm
 
     from toffe_deploy.dataset.groundtruth import window_truth
     from toffe_deploy.evaluate import _sample_starts, reference_models, split_files
     from toffe_deploy.events.io import open_events
-    from toffe_deploy.events.support import sampled_window
+    from toffe_deploy.events.support import sampled_window, sampled_window_history
     from toffe_deploy.metrics import match_gated
     from toffe_deploy.model.reference import window_outputs
     from toffe_deploy.ofpd_io import decode
     from toffe_deploy.plane_fit import dense_flow
+    from toffe_deploy.time_surface import dense_history_flow, history_windows
 
     cfg, run_stage, ofpd = reference_models(ckpt)
+    if history:
+        distances, k_max, margin = history
+        cfg = dataclasses.replace(cfg, ofpd={**(cfg.ofpd or {}), "plane_fit_history": [distances[0], k_max, margin]})
     files = split_files(data, split)[:limit]
-    rows = {"speed_ln": [], "direction": [], "flow": [], "true": [], "bin": [], "true_dir": []}
+    rows = {"speed_ln": [], "direction": [], "flow": [], "true": [], "bin": [], "true_dir": [], "flow_D": [],
+            "short_D": []}
     for path in tqdm(files, desc=f"{split}", unit="seq", disable=not progress):
         with open_events(path) as src:
             gt = src.ground_truth
             for t0 in _sample_starts(src.t_start_us, src.t_end_us, cfg.dt_us, max_windows):
                 truth = window_truth(gt, int(t0), cfg.dt_us)
-                binned = sampled_window(src.read, int(t0), cfg.dt_us, cfg, src.sensor_size)
-                ks, merged, pose, direction, speed, _res = window_outputs(binned, run_stage, ofpd, cfg)
+                if history:
+                    binned, recent, ring = sampled_window_history(src.read, int(t0), cfg.dt_us, cfg, src.sensor_size,
+                                                                  src.t_start_us)
+                else:
+                    binned = sampled_window(src.read, int(t0), cfg.dt_us, cfg, src.sensor_size)
+                    recent = ring = None
+                ks, merged, pose, direction, speed, _res = window_outputs(binned, run_stage, ofpd, cfg, recent)
                 if ks.size == 0 or not truth:
                     continue
                 d = decode(pose, direction, speed, ks, cfg)
                 flow = dense_flow(merged)
+                flow_d, short_d = [], []
+                if history:
+                    s_px_ms = np.exp(np.asarray(speed, dtype=np.float64).reshape(-1))
+                    for dist in distances:
+                        k = history_windows(s_px_ms, dist, k_max, cfg.dt_us)
+                        flow_d.append(dense_history_flow(merged, ring, np.ones(ks.size, np.bool_), k, margin))
+                        short_d.append(np.asarray(k) > ring.available)
                 for i, j in match_gated(np.stack([d["x_px"], d["y_px"]], 1), [(t.x, t.y) for t in truth], 20.0):
                     t = truth[i]
                     if t.speed_px_ms is None:
@@ -71,12 +100,16 @@ def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | N
                     rows["flow"].append(flow[j])
                     rows["true"].append(float(t.speed_px_ms))
                     rows["bin"].append(int(t.speed_bin))
+                    if history:
+                        rows["flow_D"].append([f[j] for f in flow_d])
+                        rows["short_D"].append([sh[j] for sh in short_d])
     return {k: np.asarray(v, dtype=np.float64) for k, v in rows.items()} | {"config": cfg}
 
 
-def score(rows: dict, weight: float, threshold: float, dir_weight: float = 0.0) -> dict:
+def score(rows: dict, weight: float, threshold: float, dir_weight: float = 0.0, d_index: int | None = None) -> dict:
     """Mean |error| px/ms, bin accuracy and mean direction error (deg) of the OFPD alone and
-    fused with (weight, threshold, dir_weight)."""
+    fused with (weight, threshold, dir_weight); d_index: with the time-surface flow of that
+    distance (an object short of its windows keeps the OFPD's speed, as PlaneFusion does)."""
     from toffe_deploy.metrics import angle_error_deg
     from toffe_deploy.ofpd_io import Decoder
     from toffe_deploy.plane_fit import fuse_direction, fuse_speed
@@ -86,7 +119,11 @@ def score(rows: dict, weight: float, threshold: float, dir_weight: float = 0.0) 
     if n == 0:
         return {"n": 0}
     flow = rows["flow"].reshape(-1, 2)
-    fused = fuse_speed(rows["speed_ln"], flow, cfg, weight, threshold)
+    speed_flow = flow
+    if d_index is not None:
+        flow = rows["flow_D"][:, d_index].reshape(-1, 2)
+        speed_flow = np.where(rows["short_D"][:, d_index].reshape(-1, 1) > 0, np.nan, flow)
+    fused = fuse_speed(rows["speed_ln"], speed_flow, cfg, weight, threshold)
     fused_dir = fuse_direction(rows["direction"].reshape(-1, 2), flow, cfg, dir_weight)
     dec = Decoder(cfg)
     out = {"n": int(n)}
@@ -108,29 +145,49 @@ def main(argv=None) -> int:
     ap.add_argument("--check", default="", help="comma-separated splits to report (never used to fit)")
     ap.add_argument("--write", action="store_true", help="set the fitted keys in CKPT/config.json")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--history", default="", help="comma-separated distances D (px) to try with plane_fit_history")
+    ap.add_argument("--history-windows", type=int, default=20, help="K_max of plane_fit_history")
+    ap.add_argument("--history-margin", type=int, default=3, help="box margin (px) of plane_fit_history")
     ap.add_argument("--no-progress", dest="progress", action="store_false")
     a = ap.parse_args(argv)
+    distances = [float(v) for v in a.history.split(",") if v]
+    history = (distances, a.history_windows, a.history_margin) if distances else ()
     from toffe_deploy.errors import ToffeError
     from toffe_deploy.fileio import atomic_path
 
     ckpt = Path(a.ckpt)
     try:
-        fit = collect(ckpt, Path(a.data), a.split, a.max_windows, a.limit, a.progress and sys.stderr.isatty())
+        fit = collect(ckpt, Path(a.data), a.split, a.max_windows, a.limit, a.progress and sys.stderr.isatty(), history)
     except ToffeError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     if fit["true"].size == 0:
         print(f"error: no matched objects in {a.data}/{a.split}", file=sys.stderr)
         return 2
-    grid = [(score(fit, w, t)["fused_err_px_ms"], float(w), float(t)) for w in WEIGHTS for t in THRESHOLDS]
-    _err, w, t = min(grid)
-    _err, wd = min((score(fit, w, t, d)["fused_dir_err_deg"], float(d)) for d in DIR_WEIGHTS)
-    report = {"fit_split": a.split, "plane_fit_weight": w, "plane_fit_min_px_ms": t, "plane_fit_dir_weight": wd,
-              "splits": {a.split: score(fit, w, t, wd)}}
+    best = None
+    for di in range(len(distances)) if distances else [None]:
+        _err, w, t = min((score(fit, w, t, 0.0, di)["fused_err_px_ms"], float(w), float(t))
+                         for w in WEIGHTS for t in THRESHOLDS)
+        _err, wd = min((score(fit, w, t, d, di)["fused_dir_err_deg"], float(d)) for d in DIR_WEIGHTS)
+        r = score(fit, w, t, wd, di)
+        rel = r["fused_err_px_ms"] / r["ofpd_err_px_ms"] + r["fused_dir_err_deg"] / r["ofpd_dir_err_deg"]
+        if di is not None:
+            print(f"D {distances[di]:g} px: speed {r['fused_err_px_ms']:.3f} px/ms, "
+                  f"direction {r['fused_dir_err_deg']:.2f} deg "
+                  f"(weights {w}, {t}, {wd}; relative sum {rel:.3f})")
+        if best is None or rel < best[0]:
+            best = (rel, di, w, t, wd)
+    _rel, di, w, t, wd = best
+    keys = {"plane_fit_weight": w, "plane_fit_min_px_ms": t, "plane_fit_dir_weight": wd}
+    if di is not None:
+        keys["plane_fit_history"] = [distances[di], a.history_windows, a.history_margin]
+    report = {"fit_split": a.split, **keys, "splits": {a.split: score(fit, w, t, wd, di)}}
     for split in [s for s in a.check.split(",") if s]:
         report["splits"][split] = score(collect(ckpt, Path(a.data), split, a.max_windows, a.limit,
-                                                a.progress and sys.stderr.isatty()), w, t, wd)
-    print(f"fitted on {a.split}: plane_fit_weight {w}, plane_fit_min_px_ms {t}, plane_fit_dir_weight {wd}")
+                                                a.progress and sys.stderr.isatty(),
+                                                ([distances[di]], a.history_windows, a.history_margin)
+                                                if di is not None else ()), w, t, wd, 0 if di is not None else None)
+    print(f"fitted on {a.split}: " + ", ".join(f"{k} {v}" for k, v in keys.items()))
     print("| split | objects | speed error px/ms: OFPD -> fused | bin accuracy: OFPD -> fused | direction error deg: OFPD -> fused |")
     print("|---|---|---|---|---|")
     for split, r in report["splits"].items():
@@ -144,7 +201,7 @@ def main(argv=None) -> int:
     if a.write:
         cfg_path = ckpt / "config.json"
         cfg = json.loads(cfg_path.read_text())
-        cfg.setdefault("ofpd", {}).update({"plane_fit_weight": w, "plane_fit_min_px_ms": t, "plane_fit_dir_weight": wd})
+        cfg.setdefault("ofpd", {}).update(keys)
         with atomic_path(cfg_path) as tmp:
             tmp.write_text(json.dumps(cfg, indent=2) + "\n")
         print(f"wrote {cfg_path}")

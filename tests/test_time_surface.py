@@ -144,7 +144,8 @@ def env(tmp_path_factory, make_bundle, make_recording):
 
 def _windows(rec, cfg):
     with open_events(rec) as src:
-        return [(t0, bin_window(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size)) for t0, ev in src.iter_windows(cfg.dt_us)]
+        return [(t0, bin_window(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size))
+                for t0, ev in src.iter_windows(cfg.dt_us)]
 
 
 def _rows(objs):

@@ -4,10 +4,9 @@ what the plane fit (toffe_deploy/plane_fit.py) reads instead of the object's one
 Why: one 500 us window is 5 bins of 100 us. A bin-1 object (under 2 px/ms) moves under a pixel
 in it, so its one-window time surface is flat and its direction is a guess (held-out
 ``appearance``: 67 deg mean error on bin 1, 11 deg on bin 2). Over the K windows an object takes
-to move about D px the surface is a clean ramp again; measured offline on ``train`` (64
-sequences), the fit's direction error over every object fell from 15.6 to 3.6 deg and its speed
-error from 0.85 to 0.38 px/ms. A fast object wants few windows (it leaves its box, and curved
-paths stop being one velocity), a slow one many, so K follows the OFPD's own speed s (px/ms):
+to move about D px the surface is a clean ramp again. A fast object wants few windows (it
+leaves its box, and curved paths stop being one velocity), a slow one many, so K follows the
+OFPD's own speed s (px/ms):
 
     K = min(K_max, max(1, ceil(D / (s * dt_ms))))          (plane_fit_history = [D, K_max, margin])
 
@@ -15,14 +14,19 @@ Surface: for each polarity p, T_p(x, y) = the first time bin, counted from the o
 windows (t = j * B + b for window j = 0..K-1 and bin b), at which pixel (x, y) fired, over the
 object's bounding box (its merged ones of this window) grown by ``margin`` px. Only the front
 end's ones count (every target computes the same front end on the host), so the surface is the
-same bits on cpu, cuda, the Lava targets and in eval.
+same bits on cpu, cuda, the Lava targets and in eval. D and the fusion weights come from
+benchmarks/fit_plane_fit.py --history on ``train`` (ckpt/README.md, "Plane fit over the windows
+before": D = 10 px; the OFPD's speed error 0.996 -> 0.378 px/ms and direction error 16.9 -> 4.6
+deg over 2,186 matched training objects); K_max = 20 and the 3 px margin from a sweep on
+``train`` too (K 1-20 per speed bin: bin-1 objects still gained at 20; margin 0 or 3 px).
 
 ``OnesHistory`` keeps the front end's ones of the last K_max windows, each window's indexed by
 row (2 H rows: p * H + y), in a ring; ``OnesHistory.flow`` fills each object's surface from K
 windows x (2 x box rows) row slices (no pass over the sensor) and fits it as plane_fit does its
-one-window surface (the same plane and IRLS code). Window starts follow SupportHistory's rule: the next window (t0 = last +
-dt) keeps the ring, a gap of whole windows leaves empty windows between, anything else
-(a jump back, a gap that is no multiple of dt) forgets it.
+one-window surface (the same plane and IRLS code; at most MAX_PLANES planes per object).
+Window starts follow SupportHistory's rule: the next window (t0 = last + dt) keeps the ring, a
+gap of whole windows leaves empty windows between, anything else (a jump back, a gap that is no
+multiple of dt) forgets it.
 """
 from __future__ import annotations
 
