@@ -2087,21 +2087,51 @@ def bin_index(t, x, y, p, t0, dt_us, n_bins, height, width):
 
 @njit(cache=True, nogil=True)
 def sorted_unique(values):
-    """np.unique of non-negative ints: the stable radix order (_stable_order: 11-bit digits,
-    two passes for a 640x480x5x2 volume's linear ids), then one pass dropping repeats."""
+    """np.unique of non-negative ints: an LSD radix sort of the values themselves (11-bit
+    digits, two passes for a 640x480x5x2 volume's linear ids; every digit's histogram from one
+    pass over them), then one pass dropping repeats. Sorting the values, not an order of them
+    (_stable_order: equal ints need no stable order here), spares a gather per pass."""
     n = values.shape[0]
     if n == 0:
         return values.copy()
-    order = _stable_order(values)
-    a = np.empty(n, values.dtype)
-    a[0] = values[order[0]]
+    top = values.max()
+    n_pass = 0
+    while n_pass < 6 and (top >> (11 * n_pass)) > 0:       # 6 digits hold any int64
+        n_pass += 1
+    cnt = np.zeros((max(n_pass, 1), 2049), np.int64)
+    if n_pass == 2:                                # the usual volume: both digits unrolled
+        c0 = cnt[0]
+        c1 = cnt[1]
+        for i in range(n):
+            v = values[i]
+            c0[(v & 2047) + 1] += 1
+            c1[((v >> 11) & 2047) + 1] += 1
+    else:
+        for i in range(n):
+            v = values[i]
+            for d in range(n_pass):
+                cnt[d, ((v >> (11 * d)) & 2047) + 1] += 1
+    for d in range(n_pass):
+        for k in range(2048):
+            cnt[d, k + 1] += cnt[d, k]
+    src = values.copy()
+    dst = np.empty(n, values.dtype)
+    for d in range(n_pass):
+        shift = 11 * d
+        c = cnt[d]
+        for i in range(n):
+            v = src[i]
+            k = (v >> shift) & 2047
+            dst[c[k]] = v
+            c[k] += 1
+        src, dst = dst, src
     m = 1
     for i in range(1, n):
-        v = values[order[i]]
-        if v != a[m - 1]:
-            a[m] = v
+        v = src[i]
+        if v != src[m - 1]:
+            src[m] = v
             m += 1
-    return a[:m].copy()
+    return src[:m].copy()
 
 
 @njit(cache=True, nogil=True)
