@@ -807,14 +807,16 @@ def link_components_ordered(xs, ys, link, width):
                     _union(parent, q, k)
                     k += 1
     label_of_root = np.full(m, -1, np.int64)
+    run_label = np.empty(m, np.int64)
     c = 0
     for q in range(m):                         # runs in row-major order: components numbered so
         root = _root(parent, q)
         if label_of_root[root] < 0:
             label_of_root[root] = c
             c += 1
-    for a in range(n):
-        labels[order[a]] = label_of_root[_root(parent, run_of[a])]
+        run_label[q] = label_of_root[root]
+    for a in range(n):                         # each pixel its run's label: no root search per pixel
+        labels[order[a]] = run_label[run_of[a]]
     return labels, c, order
 
 
