@@ -212,6 +212,7 @@ class Pipeline:
         self.cascade = _make_cascade(bundle, target, tag, self.config.ofs_grid(self.sensor_size))
         self.keep_stages = bool(keep_stages)
         self._decode = Decoder(self.config)          # ofpd_io.decode, set up once
+        self._batch = ofpd_input.batch_settings(self.config)   # the same for ofpd_input.batch
         self._fusion = PlaneFusion(self.config)
         self._track = track
         self.support = (SupportHistory(self.config.input_support[0], self.sensor_size, self.config.dt_us)
@@ -279,7 +280,7 @@ class Pipeline:
         the decoded columns, and ids and states go into the objects' constructor: reading the
         fields back off the objects and setting them afterwards cost more than the tracking).
         recent: the front end's SupportHistory after this window (ofpd.recent_events)."""
-        ks, x, n_events, ones = ofpd_input.batch(volume, frames, self.config, self._scratch, recent)
+        ks, x, n_events, ones = ofpd_input.batch(volume, frames, self.config, self._scratch, recent, self._batch)
         if not ks.size:
             if t0_us is not None:
                 self.tracker.columns(_NO_DETECTIONS, t0_us)
