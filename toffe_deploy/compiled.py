@@ -962,7 +962,7 @@ def surrounds(xs, ys):
 
 
 @njit(cache=True, nogil=True)
-def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
+def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count, known_closed=None):
     """Groups a frame's components into objects, closest pairs first.
 
     Components with >= min_count pixels (seeds) are joined in order of their gap (smallest
@@ -973,7 +973,8 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
     to it join, not a neighbour's edges. A smaller component (a speck) joins the first seed it
     comes within frac_closed * the seed's extent of; specks never group on their own. Returns
     (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count,
-    bbox and whether it surrounds its centroid)."""
+    bbox and whether it surrounds its centroid). known_closed (C,) int8, optional: a seed's
+    ``surrounds`` when the caller knows it (0 / 1), -1 where not (union_objects' second pass)."""
     n = count.shape[0]
     start = np.zeros(n + 1, np.int64)
     for c in range(n):
@@ -994,7 +995,10 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
     closed = np.zeros(n, np.bool_)
     gbox = bbox.copy()
     for a in seeds:
-        closed[a] = surrounds(px[start[a]:start[a + 1]], py[start[a]:start[a + 1]])
+        if known_closed is not None and known_closed[a] >= 0:
+            closed[a] = known_closed[a] > 0
+        else:
+            closed[a] = surrounds(px[start[a]:start[a + 1]], py[start[a]:start[a + 1]])
     # candidate seed pairs and their gap ratio, smallest first
     m = seeds.shape[0]
     pa = np.empty(m * m, np.int64)
@@ -1458,10 +1462,18 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
         stage_of[starts[i]:starts[i + 1]] = i
     labels, n_comp, order = link_components_ordered(xs, ys, link, width)
     count, _sx, _sy, bbox = component_stats(labels, n_comp, xs, ys)
-    first, count1, box1, _closed1 = merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count)
+    first, count1, box1, closed1 = merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count)
+    # a group without specks is its seeds, whose ``surrounds`` the first pass computed last
+    # (closed1); one with specks gets it computed again over all its pixels
+    known = np.empty(count1.shape[0], np.int8)
+    for q in range(count1.shape[0]):
+        known[q] = 1 if closed1[q] else 0
+    for c in range(n_comp):
+        if first[c] >= 0 and count[c] < min_count:
+            known[first[c]] = -1
     inside = np.flatnonzero(first[labels] >= 0)                # the same rule once more, on the groups
     second, gcount, _gbox, _gclosed = merge_blobs(first[labels[inside]], count1, box1, xs[inside], ys[inside],
-                                                  frac_closed, frac_open, min_count)
+                                                  frac_closed, frac_open, min_count, known)
     comp_group = np.full(n_comp, -1, np.int64)
     for c in range(n_comp):
         if first[c] >= 0:
