@@ -1708,17 +1708,22 @@ def frame_pixels(frames, pix_inverse, upix, width, plane, n_channels):
     ys = np.empty(n_frames * n, np.int64)
     starts = np.zeros(n_frames + 1, np.int64)
     in_any = np.zeros(n, np.bool_)
+    sel = np.empty(n, np.int64)
     m = 0
     for k in range(n_frames):
-        for i in range(n):
-            if frames[k, i]:
-                in_any[i] = True
-                u = pix_inverse[i]
-                if stamp[u] != k:
-                    stamp[u] = k
-                    xs[m] = ux[u]
-                    ys[m] = uy[u]
-                    m += 1
+        cnt = 0
+        for i in range(n):                     # the frame's ones, compacted without a branch per one
+            f = frames[k, i]
+            sel[cnt] = i
+            cnt += f
+            in_any[i] |= f
+        for j in range(cnt):
+            u = pix_inverse[sel[j]]
+            if stamp[u] != k:
+                stamp[u] = k
+                xs[m] = ux[u]
+                ys[m] = uy[u]
+                m += 1
         starts[k + 1] = m
     n_ev = 0
     for i in range(n):
