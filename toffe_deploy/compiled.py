@@ -218,14 +218,13 @@ def split_closed(alive, pix_inverse, closed_at_pixel):
     """(in_closed, rest) over a window's ones: in_closed = alive & closed at the one's pixel
     (the stage's frame, inp_k & closed_k), rest = alive & ~closed (the next stage's input)."""
     n = alive.shape[0]
-    in_closed = np.zeros(n, np.bool_)
-    rest = np.zeros(n, np.bool_)
-    for i in range(n):
-        if alive[i]:
-            if closed_at_pixel[pix_inverse[i]]:
-                in_closed[i] = True
-            else:
-                rest[i] = True
+    in_closed = np.empty(n, np.bool_)
+    rest = np.empty(n, np.bool_)
+    for i in range(n):                         # no branch per one: alive and closed are data
+        a = alive[i]
+        c = closed_at_pixel[pix_inverse[i]]
+        in_closed[i] = a & c
+        rest[i] = a & (not c)
     return in_closed, rest
 
 
