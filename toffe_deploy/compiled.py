@@ -332,14 +332,15 @@ def _cascade(b, c, pix_inverse, input_pixels, tap_target, active, weights, dv, v
             n_fired += f_k[s]
         if n_fired == 0:
             continue
-        f_r = np.empty(n_fired, np.int64)
-        f_c = np.empty(n_fired, np.int64)
+        f_r = np.empty(m, np.int64)               # the fired pixels, compacted without a branch per neuron
+        f_c = np.empty(m, np.int64)
         j = 0
         for s in range(m):
-            if f_k[s]:
-                f_r[j] = act_r[s]
-                f_c[j] = act_c[s]
-                j += 1
+            f_r[j] = act_r[s]
+            f_c[j] = act_c[s]
+            j += f_k[s]
+        f_r = f_r[:n_fired]
+        f_c = f_c[:n_fired]
         if 1 <= mask_kernel <= 32:
             at = closed_bits(f_r, f_c, in_r, in_c, height, width, mask_kernel)
         else:
