@@ -74,7 +74,7 @@ def main(argv=None) -> int:
                 frames = (pipe.cascade.pooled_frames(vol, cfg.ofs_pool) if cfg.ofs_pool > 1   # as Pipeline runs it
                           else sensor_frames(pipe.cascade, vol, cfg.ofs_pool))
                 t.append(clock())
-                ks, x, _n, ones = ofpd_input.batch(vol, frames, cfg, pipe._scratch)
+                ks, x, _n, ones = ofpd_input.batch(vol, frames, cfg, pipe._scratch, pipe.support, pipe._batch)   # as Pipeline.objects_of
                 t.append(clock())
                 out = pipe.ofpd.run(x) if ks.size else None
                 t.append(clock())

@@ -218,14 +218,13 @@ def split_closed(alive, pix_inverse, closed_at_pixel):
     """(in_closed, rest) over a window's ones: in_closed = alive & closed at the one's pixel
     (the stage's frame, inp_k & closed_k), rest = alive & ~closed (the next stage's input)."""
     n = alive.shape[0]
-    in_closed = np.zeros(n, np.bool_)
-    rest = np.zeros(n, np.bool_)
-    for i in range(n):
-        if alive[i]:
-            if closed_at_pixel[pix_inverse[i]]:
-                in_closed[i] = True
-            else:
-                rest[i] = True
+    in_closed = np.empty(n, np.bool_)
+    rest = np.empty(n, np.bool_)
+    for i in range(n):                         # no branch per one: alive and closed are data
+        a = alive[i]
+        c = closed_at_pixel[pix_inverse[i]]
+        in_closed[i] = a & c
+        rest[i] = a & (not c)
     return in_closed, rest
 
 
@@ -333,14 +332,15 @@ def _cascade(b, c, pix_inverse, input_pixels, tap_target, active, weights, dv, v
             n_fired += f_k[s]
         if n_fired == 0:
             continue
-        f_r = np.empty(n_fired, np.int64)
-        f_c = np.empty(n_fired, np.int64)
+        f_r = np.empty(m, np.int64)               # the fired pixels, compacted without a branch per neuron
+        f_c = np.empty(m, np.int64)
         j = 0
         for s in range(m):
-            if f_k[s]:
-                f_r[j] = act_r[s]
-                f_c[j] = act_c[s]
-                j += 1
+            f_r[j] = act_r[s]
+            f_c[j] = act_c[s]
+            j += f_k[s]
+        f_r = f_r[:n_fired]
+        f_c = f_c[:n_fired]
         if 1 <= mask_kernel <= 32:
             at = closed_bits(f_r, f_c, in_r, in_c, height, width, mask_kernel)
         else:
@@ -807,14 +807,16 @@ def link_components_ordered(xs, ys, link, width):
                     _union(parent, q, k)
                     k += 1
     label_of_root = np.full(m, -1, np.int64)
+    run_label = np.empty(m, np.int64)
     c = 0
     for q in range(m):                         # runs in row-major order: components numbered so
         root = _root(parent, q)
         if label_of_root[root] < 0:
             label_of_root[root] = c
             c += 1
-    for a in range(n):
-        labels[order[a]] = label_of_root[_root(parent, run_of[a])]
+        run_label[q] = label_of_root[root]
+    for a in range(n):                         # each pixel its run's label: no root search per pixel
+        labels[order[a]] = run_label[run_of[a]]
     return labels, c, order
 
 
@@ -960,7 +962,7 @@ def surrounds(xs, ys):
 
 
 @njit(cache=True, nogil=True)
-def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
+def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count, known_closed=None):
     """Groups a frame's components into objects, closest pairs first.
 
     Components with >= min_count pixels (seeds) are joined in order of their gap (smallest
@@ -971,7 +973,8 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
     to it join, not a neighbour's edges. A smaller component (a speck) joins the first seed it
     comes within frac_closed * the seed's extent of; specks never group on their own. Returns
     (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count,
-    bbox and whether it surrounds its centroid)."""
+    bbox and whether it surrounds its centroid). known_closed (C,) int8, optional: a seed's
+    ``surrounds`` when the caller knows it (0 / 1), -1 where not (union_objects' second pass)."""
     n = count.shape[0]
     start = np.zeros(n + 1, np.int64)
     for c in range(n):
@@ -992,7 +995,10 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count):
     closed = np.zeros(n, np.bool_)
     gbox = bbox.copy()
     for a in seeds:
-        closed[a] = surrounds(px[start[a]:start[a + 1]], py[start[a]:start[a + 1]])
+        if known_closed is not None and known_closed[a] >= 0:
+            closed[a] = known_closed[a] > 0
+        else:
+            closed[a] = surrounds(px[start[a]:start[a + 1]], py[start[a]:start[a + 1]])
     # candidate seed pairs and their gap ratio, smallest first
     m = seeds.shape[0]
     pa = np.empty(m * m, np.int64)
@@ -1456,10 +1462,18 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
         stage_of[starts[i]:starts[i + 1]] = i
     labels, n_comp, order = link_components_ordered(xs, ys, link, width)
     count, _sx, _sy, bbox = component_stats(labels, n_comp, xs, ys)
-    first, count1, box1, _closed1 = merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count)
+    first, count1, box1, closed1 = merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count)
+    # a group without specks is its seeds, whose ``surrounds`` the first pass computed last
+    # (closed1); one with specks gets it computed again over all its pixels
+    known = np.empty(count1.shape[0], np.int8)
+    for q in range(count1.shape[0]):
+        known[q] = 1 if closed1[q] else 0
+    for c in range(n_comp):
+        if first[c] >= 0 and count[c] < min_count:
+            known[first[c]] = -1
     inside = np.flatnonzero(first[labels] >= 0)                # the same rule once more, on the groups
     second, gcount, _gbox, _gclosed = merge_blobs(first[labels[inside]], count1, box1, xs[inside], ys[inside],
-                                                  frac_closed, frac_open, min_count)
+                                                  frac_closed, frac_open, min_count, known)
     comp_group = np.full(n_comp, -1, np.int64)
     for c in range(n_comp):
         if first[c] >= 0:
@@ -1694,17 +1708,22 @@ def frame_pixels(frames, pix_inverse, upix, width, plane, n_channels):
     ys = np.empty(n_frames * n, np.int64)
     starts = np.zeros(n_frames + 1, np.int64)
     in_any = np.zeros(n, np.bool_)
+    sel = np.empty(n, np.int64)
     m = 0
     for k in range(n_frames):
-        for i in range(n):
-            if frames[k, i]:
-                in_any[i] = True
-                u = pix_inverse[i]
-                if stamp[u] != k:
-                    stamp[u] = k
-                    xs[m] = ux[u]
-                    ys[m] = uy[u]
-                    m += 1
+        cnt = 0
+        for i in range(n):                     # the frame's ones, compacted without a branch per one
+            f = frames[k, i]
+            sel[cnt] = i
+            cnt += f
+            in_any[i] |= f
+        for j in range(cnt):
+            u = pix_inverse[sel[j]]
+            if stamp[u] != k:
+                stamp[u] = k
+                xs[m] = ux[u]
+                ys[m] = uy[u]
+                m += 1
         starts[k + 1] = m
     n_ev = 0
     for i in range(n):
@@ -2087,21 +2106,51 @@ def bin_index(t, x, y, p, t0, dt_us, n_bins, height, width):
 
 @njit(cache=True, nogil=True)
 def sorted_unique(values):
-    """np.unique of non-negative ints: the stable radix order (_stable_order: 11-bit digits,
-    two passes for a 640x480x5x2 volume's linear ids), then one pass dropping repeats."""
+    """np.unique of non-negative ints: an LSD radix sort of the values themselves (11-bit
+    digits, two passes for a 640x480x5x2 volume's linear ids; every digit's histogram from one
+    pass over them), then one pass dropping repeats. Sorting the values, not an order of them
+    (_stable_order: equal ints need no stable order here), spares a gather per pass."""
     n = values.shape[0]
     if n == 0:
         return values.copy()
-    order = _stable_order(values)
-    a = np.empty(n, values.dtype)
-    a[0] = values[order[0]]
+    top = values.max()
+    n_pass = 0
+    while n_pass < 6 and (top >> (11 * n_pass)) > 0:       # 6 digits hold any int64
+        n_pass += 1
+    cnt = np.zeros((max(n_pass, 1), 2049), np.int64)
+    if n_pass == 2:                                # the usual volume: both digits unrolled
+        c0 = cnt[0]
+        c1 = cnt[1]
+        for i in range(n):
+            v = values[i]
+            c0[(v & 2047) + 1] += 1
+            c1[((v >> 11) & 2047) + 1] += 1
+    else:
+        for i in range(n):
+            v = values[i]
+            for d in range(n_pass):
+                cnt[d, ((v >> (11 * d)) & 2047) + 1] += 1
+    for d in range(n_pass):
+        for k in range(2048):
+            cnt[d, k + 1] += cnt[d, k]
+    src = values.copy()
+    dst = np.empty(n, values.dtype)
+    for d in range(n_pass):
+        shift = 11 * d
+        c = cnt[d]
+        for i in range(n):
+            v = src[i]
+            k = (v >> shift) & 2047
+            dst[c[k]] = v
+            c[k] += 1
+        src, dst = dst, src
     m = 1
     for i in range(1, n):
-        v = values[order[i]]
-        if v != a[m - 1]:
-            a[m] = v
+        v = src[i]
+        if v != src[m - 1]:
+            src[m] = v
             m += 1
-    return a[:m].copy()
+    return src[:m].copy()
 
 
 @njit(cache=True, nogil=True)

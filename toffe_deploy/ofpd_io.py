@@ -717,16 +717,17 @@ class Decoder:
     def columns(self, pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: np.ndarray
                 ) -> dict[str, list]:
         """decode's result as one list per key (float, int, bool)."""
-        pose = np.asarray(pose).reshape(-1, 2)
+        xy = np.asarray(pose, dtype=np.float64).reshape(-1, 2).T.tolist()    # [xs, ys], also for no rows
         direction = np.asarray(direction, dtype=np.float64).reshape(-1, 2)
-        speed = np.asarray(speed, dtype=np.float64).reshape(-1)
+        speed = np.asarray(speed, dtype=np.float64).reshape(-1).tolist()
         ks = np.asarray(stage_k, dtype=np.int64).reshape(-1).tolist()
-        if not (pose.shape[0] == direction.shape[0] == speed.shape[0] == len(ks)):
+        if not (len(xy[0]) == direction.shape[0] == len(speed) == len(ks)):
             raise ValueError("pose, direction, speed and stage_k must have the same number of rows")
         if ks and (min(ks) < 1 or max(ks) > self.n_speed_bins):
             raise ValueError(f"stage_k must be in 1..{self.n_speed_bins}")
-        # np.minimum(np.maximum(...)) is np.clip's result (NaN included) at a fraction of its call cost
-        reg = np.exp(np.minimum(np.maximum(speed, -10.0), 10.0)).tolist()
+        # _clip per float is np.minimum(np.maximum(...)) (np.clip, NaN included); numpy's exp on
+        # the contiguous float64 array, as before (its kernel, not libm's: the reference)
+        reg = np.exp(np.array([_clip(v, -10.0, 10.0) for v in speed], dtype=np.float64)).tolist()
         f = self.px_ms_per_mps
         v_px, v_mps, clipped, bins = [], [], [], []
         if self.mode == "ofpd":
@@ -750,7 +751,6 @@ class Decoder:
                 else:
                     v_mps.append(v)
                     v_px.append(v * f)                           # speed_scale.to_px_ms
-        xy = np.asarray(pose, dtype=np.float64).T.tolist()          # [xs, ys], also for no rows
         rep = self._representative
         return {"x_px": xy[0], "y_px": xy[1],
                 "direction_rad": np.arctan2(direction[:, 1], direction[:, 0]).tolist(),

@@ -68,8 +68,18 @@ def _crop_args(s: dict, g: int) -> tuple[int, int, int, int]:
     return int(s["crop_px"]) if s["crop"] == "fixed" else 0, g, int(s["pool_min"]), int(s["pool_max"])
 
 
+def batch_settings(config: ToffeConfig) -> tuple:
+    """What ``batch`` reads from a config: (ofpd_settings, C, g of input_shape, blob_settings,
+    _crop_args), for a caller that runs every window of one config (the Pipeline) to work out
+    once: the dict copies and look-ups cost ~6 us a window."""
+    s = ofpd_settings(config)
+    c, g, _ = input_shape(config)
+    return s, c, g, blob_settings(s), _crop_args(s, g)
+
+
 def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig,
-          scratch: np.ndarray | None = None, recent=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple]:
+          scratch: np.ndarray | None = None, recent=None,
+          settings: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple]:
     """``prepare(*merge_objects(...))`` in one pass: (stage_k (G,), OFPD input (G, C, g, g)
     float32, n_events (G,) = the number of ones of each merged frame, ones = (object, x, y,
     channel) flat arrays of every object's merged ones: plane_fit.object_planes_flow's input,
@@ -85,17 +95,16 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
     from one compiled call (compiled.object_input: object_crops, then ofpd_io.prepare_flat's kernels).
     For grouping "blobs" with a ``scratch`` (the pipeline) every step is one compiled call
     (compiled.window_objects: the same kernels back to back, fewer crossings into compiled code).
-    recent: merge_objects'.
+    recent: merge_objects'. settings: ``batch_settings(config)`` when the caller keeps it.
     """
     _b, nc, h, w = volume.shape
     upix, pinv = volume.pixel_index(scratch)
     stacked = (frames if isinstance(frames, np.ndarray) else       # the cpu cascade's (N, n) array as it is
                np.stack(frames) if len(frames) else np.zeros((0, len(pinv)), bool))
-    s = ofpd_settings(config)
-    c, g, _ = input_shape(config)
+    s, c, g, blobs, crop = batch_settings(config) if settings is None else settings
     if s["grouping"] == "blobs" and scratch is not None:     # the cpu pipeline: every step in one compiled call
-        stage, x, n_ev, *ones = window_objects(stacked, pinv, upix, w, volume.bc, nc, *blob_settings(s), scratch,
-                                               *_crop_args(s, g), h, c, int(config.n_bins), COORD_SCALE,
+        stage, x, n_ev, *ones = window_objects(stacked, pinv, upix, w, volume.bc, nc, *blobs, scratch,
+                                               *crop, h, c, int(config.n_bins), COORD_SCALE,
                                                *recent_args(s, recent))
         return stage + 1, x, n_ev, tuple(ones)
     sx, sy, starts, ev_u, fx, fy, ch = frame_pixels(stacked, pinv, upix, w, volume.bc, nc)
@@ -104,7 +113,7 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
         none = np.zeros(0, dtype=np.int64)
         return none, np.zeros((0, c, g, g), np.float32), none, (none, none, none, none)
     x, n_ev, *ones = object_input(claims.matrix(fx, fy, len(objs), scratch), fx, fy, ch, ev_u, upix.shape[0],
-                                  *_crop_args(s, g), w, h, c, int(config.n_bins), COORD_SCALE)
+                                  *crop, w, h, c, int(config.n_bins), COORD_SCALE)
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), x, n_ev, tuple(ones)
 
 

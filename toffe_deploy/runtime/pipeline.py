@@ -46,7 +46,8 @@ from ..time_surface import OnesHistory, history_flow
 from ..time_surface import warm_up as history_warm_up
 from ..tracking import Tracker, TrackerConfig
 from . import ofpd_input
-from ..compiled import new_scratch, warm_up
+from ..compiled import warm_up
+from ..events.frontend import slots_for
 from .cpu import CpuCascade
 from .ofpd_runner import OFPDRunner
 from .spikes import SpikeVolume
@@ -211,9 +212,9 @@ class Pipeline:
             raise ValueError(f"sensor size must be positive, got {self.sensor_size}")
         self.speed_scale = self.config.speed_scale if speed_scale is None else speed_scale
         self.cascade = _make_cascade(bundle, target, tag, self.config.ofs_grid(self.sensor_size))
-        self._scratch = new_scratch(self.sensor_size[0] * self.sensor_size[1])   # for ofpd_input's O(n) de-duplication
         self.keep_stages = bool(keep_stages)
         self._decode = Decoder(self.config)          # ofpd_io.decode, set up once
+        self._batch = ofpd_input.batch_settings(self.config)   # the same for ofpd_input.batch
         self._fusion = PlaneFusion(self.config)
         self._track = track
         self.support = (SupportHistory(self.config.input_support[0], self.sensor_size, self.config.dt_us)
@@ -265,6 +266,14 @@ class Pipeline:
         self.__exit__(None, None, None)
 
     @property
+    def _scratch(self) -> np.ndarray:
+        """The all -1 (H * W,) scratch of ofpd_input's O(n) de-duplication: the front end's own
+        (events.frontend.slots_for, this thread's; the kernels leave it all -1), so that the
+        grouping's lookups land on the cache lines the front end touched at the same pixels
+        (~3 us a window less than a scratch of its own, measured in-process on the sample)."""
+        return slots_for(self.sensor_size[0] * self.sensor_size[1])
+
+    @property
     def sparse(self) -> bool:
         """Whether the backend takes windows as coordinates (cpu, cuda) or dense (Lava)."""
         return isinstance(self.cascade, CpuCascade)
@@ -283,7 +292,7 @@ class Pipeline:
         the decoded columns, and ids and states go into the objects' constructor: reading the
         fields back off the objects and setting them afterwards cost more than the tracking).
         recent: the front end's SupportHistory after this window (ofpd.recent_events)."""
-        ks, x, n_events, ones = ofpd_input.batch(volume, frames, self.config, self._scratch, recent)
+        ks, x, n_events, ones = ofpd_input.batch(volume, frames, self.config, self._scratch, recent, self._batch)
         if not ks.size:
             if t0_us is not None:
                 self.tracker.columns(_NO_DETECTIONS, t0_us)
