@@ -350,7 +350,7 @@ class PlaneFusion:
         from .time_surface import history_windows
 
         s = np.asarray(speed_ln, dtype=np.float64).reshape(-1).tolist()
-        return history_windows([math.exp(v) for v in s], self.history[0], self.history[1], self.dt_us)
+        return history_windows(s, self.history[0], self.history[1], self.dt_us, log=True)
 
     def apply(self, speed_ln, direction, flow_of, available: int | None = None):
         """(speed, direction) with the plane fit blended in, or as given when it is off or no

@@ -78,6 +78,8 @@ def _surface_flow(ring_ptr, ring_xs, ring_bs, slot_win, now, n_bins, height, box
     n_slots = slot_win.shape[0]
     bw = bh = cap = 0
     for j in range(n_obj):
+        if boxes[j, 0] < 0:
+            k_win[j] = 0                        # no ones: no box
         if k_win[j] > 0:
             bw = max(bw, boxes[j, 2] - boxes[j, 0] + 3)
             bh = max(bh, boxes[j, 3] - boxes[j, 1] + 3)
@@ -139,12 +141,14 @@ def object_boxes(obj, xs, ys, n_obj, margin, width, height):
     return out
 
 
-def history_windows(speed_px_ms, distance_px: float, k_max: int, dt_us: int) -> list[int]:
-    """K of each object: the windows it takes to move ``distance_px`` at its speed (px/ms),
-    1..k_max (k_max for a speed of 0 or not finite). Per row in Python: a handful of objects."""
+def history_windows(speed_px_ms, distance_px: float, k_max: int, dt_us: int, log: bool = False) -> list[int]:
+    """K of each object: the windows it takes to move ``distance_px`` at its speed (px/ms; ln
+    px/ms with ``log``), 1..k_max (k_max for a speed of 0 or not finite). Per row in Python: a
+    handful of objects."""
     dt_ms = dt_us / 1000.0
     out = []
-    for s in np.asarray(speed_px_ms, dtype=np.float64).reshape(-1).tolist():
+    for s in (speed_px_ms.tolist() if isinstance(speed_px_ms, np.ndarray) else speed_px_ms):
+        s = math.exp(min(s, 700.0)) if log and math.isfinite(s) else (math.nan if log else float(s))
         k = k_max if not (s > 0.0 and math.isfinite(s)) else math.ceil(distance_px / (s * dt_ms))
         out.append(int(min(k_max, max(1, k))))
     return out
@@ -208,11 +212,10 @@ class OnesHistory:
         (object_boxes; x0 < 0: none) over its K latest windows (k_windows; 0: none). Where K
         windows go back before the stream's first window (since a reset), the windows there
         (``available``; PlaneFusion then takes the direction from the fit but not the speed)."""
-        boxes = np.asarray(boxes, dtype=np.int64).reshape(-1, 4)
-        k_win = np.minimum(np.asarray(k_windows, dtype=np.int64).reshape(-1), self.k)
-        k_win = np.where(boxes[:, 0] < 0, 0, np.minimum(k_win, self.available))
-        return _surface_flow(self._ptr, self._xs, self._bs, self._slot_win, self.now, self.n_bins, self.height, boxes,
-                             k_win, NEIGHBOURHOODS)
+        avail = self.available
+        k_win = np.array([min(int(k), avail) for k in k_windows], np.int64)   # a handful: no numpy per row
+        return _surface_flow(self._ptr, self._xs, self._bs, self._slot_win, self.now, self.n_bins, self.height,
+                             np.asarray(boxes, dtype=np.int64).reshape(-1, 4), k_win, NEIGHBOURHOODS)
 
 
 def warm_up() -> None:
@@ -229,7 +232,7 @@ def history_flow(history: OnesHistory, ones, n_obj: int, want, k_windows, margin
     window grown by ``margin``: the (n_obj, 2) px-per-bin flow (NaN: no answer or not wanted)."""
     boxes = object_boxes(np.asarray(ones[0], np.int64), np.asarray(ones[1], np.int64), np.asarray(ones[2], np.int64),
                          int(n_obj), int(margin), history.width, history.height)
-    return history.flow(boxes, np.where(np.asarray(want, dtype=np.bool_), np.asarray(k_windows, dtype=np.int64), 0))
+    return history.flow(boxes, [k if w else 0 for k, w in zip(k_windows, np.asarray(want).tolist())])
 
 
 def dense_history_flow(frames: np.ndarray, history: OnesHistory, want, k_windows, margin: int) -> np.ndarray:
