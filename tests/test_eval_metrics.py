@@ -158,6 +158,18 @@ def test_eval_any_split_directory_with_breakdown(eval_env, tmp_path, capsys):
     assert sum(b["false_positives"] for b in by["buckets"]) == a["false_positives"]
 
 
+def test_eval_skip_stream_start_leaves_out_each_first_window(eval_env, tmp_path, capsys):
+    """The same sample less each sequence's first window: 2 sequences x 3 windows -> 4."""
+    from toffe_deploy.cli import main
+
+    out = tmp_path / "e.json"
+    assert main(["eval", str(eval_env["ck"]), "--data", str(eval_env["data"]), "--split", "appearance", "--dt", "500",
+                 "--max-windows", "3", "--skip-stream-start", "--json", str(out), "--no-progress"]) == 0
+    assert "3 windows each less its first" in capsys.readouterr().out
+    r = json.loads(out.read_text())
+    assert r["skip_stream_start"] is True and r["per_dt"][0]["all"]["n_windows"] == 4
+
+
 def test_eval_unknown_split_names_the_splits_there(eval_env, capsys):
     from toffe_deploy.cli import main
 

@@ -48,6 +48,7 @@ class EvalOptions:
     by: tuple[Breakdown, ...] = ()
     progress: bool = True
     track_windows: int = 0          # > 0: tracking metrics over this many consecutive windows per sequence
+    skip_stream_start: bool = False  # leave out each sequence's first window (no windows before it)
 
 
 def _sample_starts(t_start: int, t_end: int, dt: int, n: int) -> np.ndarray:
@@ -146,7 +147,7 @@ def evaluate(opts: EvalOptions) -> dict:
 
     results = {"checkpoint": str(opts.ckpt), "trained_dt_us": cfg.dt_us, "split": opts.split, "ofs": opts.ofs,
                "sequences": len(files), "max_windows_per_sequence": opts.max_windows, "gate_px": opts.gate_px,
-               "track_windows": opts.track_windows, "per_dt": []}
+               "track_windows": opts.track_windows, "skip_stream_start": opts.skip_stream_start, "per_dt": []}
 
     def new_errors():
         return FlowErrors(gate_px=opts.gate_px, n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
@@ -165,7 +166,10 @@ def evaluate(opts: EvalOptions) -> dict:
                 if tuple(sensor) != tuple(cfg.sensor_size):
                     raise InputError(path, f"sensor size {list(sensor)} differs from the checkpoint's {list(cfg.sensor_size)}")
                 focal = sequence_focal_px(attrs[fi])
-                for t0 in _sample_starts(src.t_start_us, src.t_end_us, dt, opts.max_windows):
+                starts = _sample_starts(src.t_start_us, src.t_end_us, dt, opts.max_windows)
+                if opts.skip_stream_start:         # the same sample less a stream's first window
+                    starts = starts[starts > src.t_start_us]
+                for t0 in starts:
                     truth = window_truth(gt, int(t0), dt)
                     binned, recent, history = sampled_window_history(src.read, int(t0), dt, cfg, sensor, src.t_start_us)
                     preds, res = predict_window(binned, run_stage, ofpd, cfg, recent, history)
@@ -206,7 +210,8 @@ def format_markdown(r: dict) -> str:
     paper's, then per-bin rows, the bin confusion matrix, the breakdowns and the OFS separation."""
     rows = sorted(r["per_dt"], key=lambda x: -x["dt_us"])
     lines = [f"Checkpoint `{r['checkpoint']}` (trained at dt = {r['trained_dt_us']} us), split `{r['split']}`, "
-             f"{r['sequences']} sequences, <= {r['max_windows_per_sequence']} windows each, OFS {r['ofs']}; "
+             f"{r['sequences']} sequences, <= {r['max_windows_per_sequence']} windows each"
+             f"{' less its first' if r.get('skip_stream_start') else ''}, OFS {r['ofs']}; "
              f"one-to-one matching within {r['gate_px']:g} px.", "",
              "| dt (us) | recall | FP / window | bin acc. | pixE (px) | dirE (deg) | speedE (m/s) | speedE (px/ms) "
              "| speedE bin-only (m/s) | paper pixE | paper dirE | paper speedE |",

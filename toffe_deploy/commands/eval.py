@@ -48,6 +48,10 @@ def register(sub) -> None:
                    help="window lengths in us, comma separated (default 200,500,1000,2000,5000)")
     p.add_argument("--max-windows", type=int, default=20,
                    help="windows per sequence and dt, evenly spaced (default 20)")
+    p.add_argument("--skip-stream-start", action="store_true",
+                   help="leave each sequence's first window out of the sample: there the front end's temporal "
+                        "support and the plane fit have no windows before it, which a running stream has "
+                        "(1 window in 200 of a recording, 1 in --max-windows of this sample)")
     p.add_argument("--ofs", choices=("fixed", "float"), default="fixed",
                    help="OFS arithmetic: Loihi fixed point as deployed (default) or the float weights")
     p.add_argument("--gate", type=float, default=GATE_PX,
@@ -94,7 +98,8 @@ def run(args) -> int:
     torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
     res = evaluate(EvalOptions(ckpt=args.ckpt, data=args.data, dts=args.dt, split=args.split,
                                max_windows=args.max_windows, ofs=args.ofs, gate_px=args.gate,
-                               by=tuple(args.by), progress=show_progress(args), track_windows=args.track_windows))
+                               by=tuple(args.by), progress=show_progress(args), track_windows=args.track_windows,
+                               skip_stream_start=args.skip_stream_start))
     print(format_markdown(res))
     if args.json:
         with atomic_path(args.json) as tmp:
