@@ -69,7 +69,7 @@ def main(argv=None) -> int:
                 t.append(clock())
                 vol = front_end(vol, cfg, pipe.support, t0)       # the Pipeline's own windows before (input_support)
                 if pipe.ones_history is not None:
-                    pipe.ones_history.push(t0, vol.idx)            # the plane fit's windows (plane_fit_history)
+                    pipe.ones_history.push(t0, vol.idx, (vol.bc, vol.pix))   # the plane fit's windows (plane_fit_history)
                 t.append(clock())
                 frames = (pipe.cascade.pooled_frames(vol, cfg.ofs_pool) if cfg.ofs_pool > 1   # as Pipeline runs it
                           else sensor_frames(pipe.cascade, vol, cfg.ofs_pool))

@@ -41,25 +41,24 @@ MAX_PLANES = 256        # planes per object: every ceil(n / 256)-th surface pixe
 
 
 @njit(cache=True, nogil=True)
-def _window_rows(idx, n_pix, width, height, ptr, xs, bs):
-    """The ones ``idx`` (linear into (B, 2, H, W), sorted) by row p * H + y: ptr (2 H + 1)
-    offsets into xs, bs (capacity >= idx.size). Each row keeps the ones' order, so a pixel's
-    ones come bin by bin."""
+def _window_rows(bc, pix, width, height, ptr, xs, bs):
+    """The ones (plane bc = 2 b + p, pixel pix = y W + x; in idx order, sorted) by row p * H + y:
+    ptr (2 H + 1) offsets into xs, bs (capacity >= the ones). Each row keeps the ones' order, so
+    a pixel's ones come bin by bin. One division per one."""
     rows = 2 * height
+    n = bc.shape[0]
+    row = np.empty(n, np.int64)
     for r in range(rows + 1):
         ptr[r] = 0
-    n = idx.shape[0]
     for i in range(n):
-        bc = idx[i] // n_pix
-        ptr[(bc & 1) * height + (idx[i] - bc * n_pix) // width + 1] += 1
+        row[i] = (bc[i] & 1) * height + pix[i] // width
+        ptr[row[i] + 1] += 1
     for r in range(rows):
         ptr[r + 1] += ptr[r]
     for i in range(n):                          # ptr[r] walks to the end of row r, then is shifted back
-        bc = idx[i] // n_pix
-        pix = idx[i] - bc * n_pix
-        r = (bc & 1) * height + pix // width
-        xs[ptr[r]] = pix - (pix // width) * width
-        bs[ptr[r]] = bc >> 1
+        r = row[i]
+        xs[ptr[r]] = pix[i] - (r - (bc[i] & 1) * height) * width
+        bs[ptr[r]] = bc[i] >> 1
         ptr[r] += 1
     for r in range(rows, 0, -1):
         ptr[r] = ptr[r - 1]
@@ -183,9 +182,10 @@ class OnesHistory:
         """The windows it holds since the stream's start or last reset (at most k)."""
         return min(self.k, self.now + 1)
 
-    def push(self, t0: int, idx: np.ndarray) -> None:
+    def push(self, t0: int, idx: np.ndarray, bc_pix: tuple | None = None) -> None:
         """Add the window starting at t0 with the front end's ones ``idx`` (sorted, unique linear
-        indices into (B, 2, H, W))."""
+        indices into (B, 2, H, W)); bc_pix: their (plane, pixel) = divmod(idx, H W) when the
+        caller has them (runtime.spikes.SpikeVolume.bc, .pix: the pipeline needs them anyway)."""
         t0 = int(t0)
         if self.last_t0 is None:
             step = 1
@@ -197,14 +197,15 @@ class OnesHistory:
                 step = 1
         self.now += step
         self.last_t0 = t0
-        idx = np.asarray(idx, dtype=np.int64)
-        if idx.size > self._cap:
-            cap = max(idx.size, 2 * self._cap)
+        bc, pix = np.divmod(np.asarray(idx, dtype=np.int64), self.width * self.height) if bc_pix is None else bc_pix
+        if bc.size > self._cap:
+            cap = max(bc.size, 2 * self._cap)
             xs, bs = np.zeros((self.k, cap), np.int64), np.zeros((self.k, cap), np.int64)
             xs[:, :self._cap], bs[:, :self._cap] = self._xs, self._bs
             self._xs, self._bs, self._cap = xs, bs, cap
         s = self.now % self.k
-        _window_rows(idx, self.width * self.height, self.width, self.height, self._ptr[s], self._xs[s], self._bs[s])
+        _window_rows(np.asarray(bc, np.int64), np.asarray(pix, np.int64), self.width, self.height, self._ptr[s],
+                     self._xs[s], self._bs[s])
         self._slot_win[s] = self.now
 
     def flow(self, boxes: np.ndarray, k_windows) -> np.ndarray:

@@ -241,7 +241,7 @@ class Pipeline:
         recent: the front end's history after it (objects_of). Windows come here in time order on
         every target, so the plane fit's history takes this window's ones here."""
         if self.ones_history is not None:
-            self.ones_history.push(t0, volume.idx)
+            self.ones_history.push(t0, volume.idx, (volume.bc, volume.pix))
         tracker = self.tracker
         objects = self.objects_of(volume, frames, None if tracker is None else t0, recent)
         return WindowResult(t0, t0 + self.config.dt_us, objects,
