@@ -211,8 +211,9 @@ class OnesHistory:
     def flow(self, boxes: np.ndarray, k_windows) -> np.ndarray:
         """(n, 2) px-per-bin plane-fit flow of each object over its time surface: its box
         (object_boxes; x0 < 0: none) over its K latest windows (k_windows; 0: none). Where K
-        windows go back before the stream's first window (since a reset), the windows there
-        (``available``; PlaneFusion then takes the direction from the fit but not the speed)."""
+        windows reach back before the stream's first window (or the last reset), only the
+        windows held count (``available``; PlaneFusion then takes the fit's direction but not
+        its speed)."""
         avail = self.available
         k_win = np.array([min(int(k), avail) for k in k_windows], np.int64)   # a handful: no numpy per row
         return _surface_flow(self._ptr, self._xs, self._bs, self._slot_win, self.now, self.n_bins, self.height,
