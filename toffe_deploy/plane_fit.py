@@ -41,6 +41,11 @@ velocity and of the OFPD's (cos, sin) averaged with weight ``plane_fit_dir_weigh
 for every object the plane fit answers for; the OFPD is unsure where the time surface is
 clear (fast objects) and the other way round. The constants are fitted on the training split
 (benchmarks/fit_plane_fit.py), never on held-out data.
+
+With ``plane_fit_history`` ([D, K_max, margin]; toffe_deploy/time_surface.py) the surface is
+each object's over its last K windows instead of its ones of this one (the same planes and
+IRLS, at most time_surface.MAX_PLANES planes); the shipped checkpoint then takes the fit alone
+(both weights 1, threshold 0: fitted so on ``train``).
 """
 from __future__ import annotations
 
