@@ -111,12 +111,13 @@ def object_size_px(attrs: dict, oid: int, depth, focal) -> tuple[float, float, f
     return size, float(a.get("log_contrast", math.nan)), float(a.get("events_per_edge", math.nan))
 
 
-def diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, dt, recent=None):
+def diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, dt, recent=None, history=None):
     """(miss rows, fp rows, number of predictions) of one window (module doc); recent: the front
-    end's SupportHistory after it (ofpd.recent_events)."""
+    end's SupportHistory after it (ofpd.recent_events); history: the plane fit's windows up to it
+    (ofpd.plane_fit_history; events.support.sampled_window_history)."""
     from toffe_deploy.model.reference import predict_window
 
-    preds, res = predict_window(binned, run_stage, ofpd, cfg, recent)
+    preds, res = predict_window(binned, run_stage, ofpd, cfg, recent, history)
     need = int(ofpd_io.ofpd_settings(cfg)["min_events"])
     h, w = binned.shape[-2:]
     pool = int(cfg.ofs_pool)
@@ -273,7 +274,7 @@ def main(argv=None) -> int:
     from toffe_deploy.dataset.groundtruth import window_truth
     from toffe_deploy.evaluate import _sample_starts, reference_models, split_files
     from toffe_deploy.events.io import open_events
-    from toffe_deploy.events.support import sampled_window_recent
+    from toffe_deploy.events.support import sampled_window_history
     from toffe_deploy.runtime.truth import sequence_focal_px
 
     cfg, run_stage, ofpd = reference_models(Path(a.ckpt), "fixed")
@@ -295,8 +296,10 @@ def main(argv=None) -> int:
             for t0 in _sample_starts(src.t_start_us, src.t_end_us, a.dt, a.max_windows):
                 truth = window_truth(gt, int(t0), a.dt)
                 raw = src.read(int(t0), int(t0) + a.dt)
-                binned, recent = sampled_window_recent(src.read, int(t0), a.dt, cfg, src.sensor_size)
-                ms, fs, n = diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, a.dt, recent)
+                binned, recent, history = sampled_window_history(src.read, int(t0), a.dt, cfg, src.sensor_size,
+                                                                 src.t_start_us)
+                ms, fs, n = diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, a.dt, recent,
+                                            history)
                 for r in ms + fs:
                     r["sequence"], r["t0"] = Path(path).stem, int(t0)
                 misses += ms

@@ -133,6 +133,8 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
 
     from toffe_deploy.events.binning import bin_window, window_slice
     from toffe_deploy.events.support import SupportHistory, front_end, window_pixels
+    from toffe_deploy.plane_fit import history_settings
+    from toffe_deploy.time_surface import OnesHistory
 
     dt, b, size = config.dt_us, config.n_bins, tuple(config.sensor_size)
     out: list[tuple[int, np.ndarray]] = []
@@ -141,17 +143,27 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
     # input_support: every window read goes into the history; args.supports[i]: window i's (registry.BenchContext)
     hist = SupportHistory(config.input_support[0], size, dt) if config.input_support is not None else None
     args.supports = []
+    # plane_fit_history: every window's front-end ones go into the ring; args.ones[i]: the ring before window i
+    h = history_settings(config)
+    ring = OnesHistory(h[1], size, b, dt) if h is not None else None
+    args.ones = []
 
     def take(t0, ev) -> bool:
         if len(ev) < args.min_events:
-            if hist is not None:
+            if ring is not None:
+                ring.push(t0, np.flatnonzero(front_end(bin_window(ev, t0, dt, b, size), config, hist, int(t0))))
+            elif hist is not None:
                 hist.push(t0, window_pixels(ev, t0, dt, size))
             return False
         if hist is not None:
             hist.advance(t0)
             args.supports.append(copy.deepcopy(hist))
+        if ring is not None:
+            args.ones.append(copy.deepcopy(ring))
         # the counts the network sees: through the bundle's input front end (events/support.py's front_end)
         out.append((int(t0), front_end(bin_window(ev, t0, dt, b, size), config, hist, int(t0)).astype(np.uint8)))
+        if ring is not None:
+            ring.push(t0, np.flatnonzero(out[-1][1]))
         events.append(np.array(ev))
         counts.append(len(ev))
         return len(out) >= args.windows
@@ -201,10 +213,14 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
 def pipeline_objects(pipe, i: int, windows, events, args) -> list:
     """The objects the Pipeline reports for window i (untimed). With input_support it gets the raw
     window and the windows before it (load_windows' args.supports): its front end is not
-    idempotent; without, the front end's window (which it is)."""
+    idempotent; without, the front end's window (which it is). With plane_fit_history it gets
+    the plane fit's windows before it too (args.ones)."""
+    import copy
+
+    if args.ones:
+        pipe.ones_history = copy.deepcopy(args.ones[i])    # the plane fit's windows before (plane_fit_history)
     if not args.supports:
         return list(pipe.process_stream([windows[i]]))[0].objects
-    import copy
 
     from toffe_deploy.events.binning import bin_window
 
@@ -382,7 +398,7 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
 
         ctx = BenchContext(windows=windows, events=events, bundle=bundle, config=cfg, pipe=cpu_pipe,
                            counts={"toffe": toffe_counts, "dotie": dotie_counts, "dotie_cluster": dotie_cl_counts},
-                           supports=args.supports)
+                           supports=args.supports, ones=args.ones)
         lfl = like_for_like(args, ctx, machine, reader)
 
     # ---- cpu: DOTIE without / with clustering and TOFFE (deployed pipeline), timed in turn ------

@@ -147,3 +147,20 @@ def test_quick_run_with_a_counter_reports_measured_or_below_noise(tiny_bundle, t
     for r in res["like_for_like"]["rows"]:           # like for like: the counter first, never a number here
         assert r["energy_measured"]["status"] == "below noise" and r["energy"]["event"]["total_uj"] > 0
     assert "below noise (RAPL" in md.split("Like for like")[1]
+
+
+def test_quick_run_with_the_plane_fit_history(make_bundle, tiny_events, tmp_path):
+    """A bundle with input_support and plane_fit_history: the harness hands every model window
+    i's windows before it (both histories), so its reference and optimised TOFFE run."""
+    from toffe_deploy import ofpd_io
+
+    ofpd = {"crop_px": 32, "pool": 2, **ofpd_io.CURRENT_LAYOUT, "min_events": 8, "plane_fit_weight": 1.0,
+            "plane_fit_min_px_ms": 0.0, "plane_fit_dir_weight": 1.0, "plane_fit_history": [8, 6, 2]}
+    bundle = make_bundle(tmp_path / "b", sensor=SIZE, ofpd=ofpd, input_min_cluster=4, input_support=(3, 1, 3, 1))
+    out = tmp_path / "results"
+    rc = _load_harness().main(["--quick", "--bundle", str(bundle.root), "--events", str(tiny_events), "--out", str(out),
+                               "--targets", "cpu", "--sysfs-root", str(tmp_path / "no-sysfs")])
+    assert rc == 0
+    res = json.loads((out / "energy_latency.json").read_text())
+    assert {r["key"] for r in res["like_for_like"]["rows"]} >= {"toffe@reference", "toffe@optimised"}
+    assert any(r["model"] == "toffe" and r["status"] == "ok" for r in res["rows"])

@@ -31,7 +31,8 @@ class BenchContext:
     """What every factory may use: windows (t0, front-end binned (B, 2, H, W)), their events,
     the bundle and its config, the cpu Pipeline (or None), and the counted ModelCounts per
     family ("toffe", "dotie", "dotie_cluster"), index i = window i; ``supports``: with the
-    config's input_support, window i's SupportHistory of the K windows before it (events/support.py)."""
+    config's input_support, window i's SupportHistory of the K windows before it (events/support.py);
+    ``ones``: with plane_fit_history, window i's time_surface.OnesHistory before it."""
 
     windows: list
     events: list
@@ -40,6 +41,7 @@ class BenchContext:
     pipe: Any
     counts: dict = field(default_factory=dict)
     supports: list = field(default_factory=list)
+    ones: list = field(default_factory=list)
 
 
 @dataclass
@@ -143,9 +145,14 @@ def toffe_models(ctx: BenchContext) -> list[BenchModel]:
     def run_ref(i):
         hist = history(i)
         binned = front_end(bin_window(ev[i], t0s[i], dt, nb, size, dtype=np.uint8), cfg, hist, t0s[i])
-        return predict_window(binned, stage, pipe.ofpd.run, cfg, hist)[0]
+        ring = copy.deepcopy(ctx.ones[i]) if ctx.ones else None      # the plane fit's windows, this one pushed
+        if ring is not None:
+            ring.push(t0s[i], np.flatnonzero(binned))
+        return predict_window(binned, stage, pipe.ofpd.run, cfg, hist, ring)[0]
 
     def run_opt(i):
+        if ctx.ones:
+            pipe.ones_history = copy.deepcopy(ctx.ones[i])
         if ctx.supports:
             pipe.support = history(i)
         vol = SpikeVolume.from_events(ev[i], t0s[i], dt, nb, size)
