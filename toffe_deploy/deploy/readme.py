@@ -122,7 +122,11 @@ cascade's stage, the speed clipped into it. With `config.ofpd.plane_fit_weight` 
 speed of an object whose OFPD speed exceeds `plane_fit_min_px_ms` is blended, before that
 decoding, with the velocity of planes fitted to the time surface of its ones (ln s = w ln
 |v_plane| + (1 - w) ln s_OFPD; `toffe_deploy.plane_fit`, numpy/numba on the host, from the same
-ones the crop is cut from; absent or 0: the OFPD's speed alone). Which events form one object is
+ones the crop is cut from; absent or 0: the OFPD's speed alone); `plane_fit_dir_weight` blends
+the direction the same way, and with `plane_fit_history` [D, K_max, margin] the time surface is
+the object's box (grown by margin px) over its last K = min(K_max, ceil(D / (s dt))) windows of
+the front end's ones (`toffe_deploy.time_surface`: the host keeps the last K_max windows; an
+object wanting more windows than the stream has seen keeps the OFPD's speed). Which events form one object is
 `config.ofpd.grouping`: `"blobs"` (connected event blobs of any size, an object's edges joined
 until they surround it; keys `link_px`, `merge_frac`, `edge_merge_frac`, `min_events`; with
 `split_frac` > 0, `"union"` only, a blob whose two halves are each a closed outline meeting
