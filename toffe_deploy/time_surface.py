@@ -30,6 +30,7 @@ multiple of dt) forgets it.
 """
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -207,6 +208,13 @@ class OnesHistory:
         _window_rows(np.asarray(bc, np.int64), np.asarray(pix, np.int64), self.width, self.height, self._ptr[s],
                      self._xs[s], self._bs[s])
         self._slot_win[s] = self.now
+
+    def after(self, t0: int, window: np.ndarray) -> "OnesHistory":
+        """A copy with the dense (B, 2, H, W) front-end window at t0 pushed: what a reference run
+        of that window reads, leaving this history as it was (held-out and benchmark windows)."""
+        ring = copy.deepcopy(self)
+        ring.push(t0, np.flatnonzero(window))
+        return ring
 
     def flow(self, boxes: np.ndarray, k_windows) -> np.ndarray:
         """(n, 2) px-per-bin plane-fit flow of each object over its time surface: its box

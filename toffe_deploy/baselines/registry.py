@@ -145,9 +145,7 @@ def toffe_models(ctx: BenchContext) -> list[BenchModel]:
     def run_ref(i):
         hist = history(i)
         binned = front_end(bin_window(ev[i], t0s[i], dt, nb, size, dtype=np.uint8), cfg, hist, t0s[i])
-        ring = copy.deepcopy(ctx.ones[i]) if ctx.ones else None      # the plane fit's windows, this one pushed
-        if ring is not None:
-            ring.push(t0s[i], np.flatnonzero(binned))
+        ring = ctx.ones[i].after(t0s[i], binned) if ctx.ones else None   # the plane fit's windows, this one in
         return predict_window(binned, stage, pipe.ofpd.run, cfg, hist, ring)[0]
 
     def run_opt(i):

@@ -64,9 +64,7 @@ class HeldOut:
         """The plane fit's history after window i (its ones pushed), or None without."""
         if not self.ones:
             return None
-        ring = copy.deepcopy(self.ones[i])
-        ring.push(self.t0[i], np.flatnonzero(self.windows[i]))
-        return ring
+        return self.ones[i].after(self.t0[i], self.windows[i])
 
     def add(self, t0: int, window: np.ndarray, truths, support, ones=None) -> None:
         self.windows.append(window)
