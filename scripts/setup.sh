@@ -39,7 +39,9 @@ stamp="$VENV/.toffe-installed"
 want="$(sha256sum pyproject.toml | cut -c1-16) $EXTRAS"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     echo "toffe-deploy set-up: installing toffe-deploy[$EXTRAS] into $VENV (first time: a few minutes, ~6 GB with torch)"
-    "$VENV/bin/python" -m pip install -q --upgrade pip
-    "$VENV/bin/python" -m pip install -q -e ".[$EXTRAS]"
+    # --no-cache-dir: the wheels (torch and its CUDA libraries, ~3.5 GB) are not kept a second
+    # time in ~/.cache/pip; a CI runner with a small disk ran out of space with the cache on.
+    "$VENV/bin/python" -m pip install -q --no-cache-dir --upgrade pip
+    "$VENV/bin/python" -m pip install -q --no-cache-dir -e ".[$EXTRAS]"
     echo "$want" > "$stamp"
 fi
