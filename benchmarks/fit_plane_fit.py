@@ -6,7 +6,7 @@ on held-out data.
 
     .venv/bin/python benchmarks/fit_plane_fit.py --ckpt ckpt --data data/synth --split train
         [--max-windows 3] [--limit N] [--check appearance,test] [--write] [--json FILE]
-        [--history 4,6,8,10,12,16 --history-windows 20 --history-margin 3]
+        [--history 4,6,8,10,12,16 --history-windows 20 --history-margin 3 --refits 0,1]
 
 Runs the checkpoint as eval does (OFS in fixed point, OFPD in torch) on ``--max-windows``
 windows of each sequence of ``--split``, matches the objects to the ground truth (one to one,
@@ -22,7 +22,9 @@ split and each ``--check`` split (read-only: shown, never used to choose), and w
 K = ceil(D / (s dt)) up to ``--history-windows`` (the windows before each sampled one come
 from a stream started at the recording's start, as eval reads them); each D gets the grid
 search above, and the D whose fused speed and direction errors, each relative to the OFPD's,
-sum least is kept.
+sum least is kept. ``--refits R,R,..`` (default 0): each D is tried with each number of refits
+too (``plane_fit_refits``: K again from the fit's own speed, plane_fit.refit_history), and the
+pair (D, refits) that sums least is kept.
 """
 from __future__ import annotations
 
@@ -45,9 +47,9 @@ DIR_WEIGHTS = np.round(np.arange(0.0, 1.01, 0.1), 2)
 def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | None, progress: bool,
             history: tuple = ()) -> dict:
     """Matched objects of a split: OFPD ln px/ms and (cos, sin), plane-fit flow (px per bin),
-    true px/ms, bin and direction. history = (distances, K_max, margin): the flow over the time
-    surface for each distance too (``flow_D``: (n, len(distances), 2)) and the windows each
-    object had (``short_D``: its K exceeded them)."""
+    true px/ms, bin and direction. history = (candidates, K_max, margin), candidates (D,
+    refits) pairs: the flow over the time surface for each too (``flow_D``: (n,
+    len(candidates), 2)) and the windows each object had (``short_D``: its K exceeded them)."""
     from tqdm import tqdm
 
     from toffe_deploy.dataset.groundtruth import window_truth
@@ -57,13 +59,13 @@ def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | N
     from toffe_deploy.metrics import match_gated
     from toffe_deploy.model.reference import window_outputs
     from toffe_deploy.ofpd_io import decode
-    from toffe_deploy.plane_fit import dense_flow
+    from toffe_deploy.plane_fit import dense_flow, px_ms_per_px_bin, refit_history
     from toffe_deploy.time_surface import dense_history_flow, history_windows
 
     cfg, run_stage, ofpd = reference_models(ckpt)
     if history:
-        distances, k_max, margin = history
-        cfg = dataclasses.replace(cfg, ofpd={**(cfg.ofpd or {}), "plane_fit_history": [distances[0], k_max, margin]})
+        candidates, k_max, margin = history
+        cfg = dataclasses.replace(cfg, ofpd={**(cfg.ofpd or {}), "plane_fit_history": [candidates[0][0], k_max, margin]})
     files = split_files(data, split)[:limit]
     rows = {"speed_ln": [], "direction": [], "flow": [], "true": [], "bin": [], "true_dir": [], "flow_D": [],
             "short_D": []}
@@ -86,9 +88,19 @@ def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | N
                 flow_d, short_d = [], []
                 if history:
                     s_px_ms = np.exp(np.asarray(speed, dtype=np.float64).reshape(-1))
-                    for dist in distances:
+                    every = np.ones(ks.size, np.bool_)
+
+                    def flow_of(want, k):
+                        return dense_history_flow(merged, ring, want, k, margin)
+
+                    for dist, refits in candidates:
                         k = history_windows(s_px_ms, dist, k_max, cfg.dt_us)
-                        flow_d.append(dense_history_flow(merged, ring, np.ones(ks.size, np.bool_), k, margin))
+                        f = flow_of(every, k)
+                        if refits:                  # as PlaneFusion.apply: short by either K
+                            f, k_fit = refit_history(f, k, every, flow_of, dist, k_max, cfg.dt_us,
+                                                     px_ms_per_px_bin(cfg), refits)
+                            k = [max(a, b) for a, b in zip(k, k_fit)]
+                        flow_d.append(f)
                         short_d.append(np.asarray(k) > ring.available)
                 for i, j in match_gated(np.stack([d["x_px"], d["y_px"]], 1), [(t.x, t.y) for t in truth], 20.0):
                     t = truth[i]
@@ -148,10 +160,13 @@ def main(argv=None) -> int:
     ap.add_argument("--history", default="", help="comma-separated distances D (px) to try with plane_fit_history")
     ap.add_argument("--history-windows", type=int, default=20, help="K_max of plane_fit_history")
     ap.add_argument("--history-margin", type=int, default=3, help="box margin (px) of plane_fit_history")
+    ap.add_argument("--refits", default="0", help="comma-separated plane_fit_refits to try with each D")
     ap.add_argument("--no-progress", dest="progress", action="store_false")
     a = ap.parse_args(argv)
     distances = [float(v) for v in a.history.split(",") if v]
-    history = (distances, a.history_windows, a.history_margin) if distances else ()
+    refit_list = [int(v) for v in a.refits.split(",") if v] or [0]
+    candidates = [(d, r) for d in distances for r in refit_list]
+    history = (candidates, a.history_windows, a.history_margin) if candidates else ()
     from toffe_deploy.errors import ToffeError
     from toffe_deploy.fileio import atomic_path
 
@@ -165,14 +180,14 @@ def main(argv=None) -> int:
         print(f"error: no matched objects in {a.data}/{a.split}", file=sys.stderr)
         return 2
     best = None
-    for di in range(len(distances)) if distances else [None]:
+    for di in range(len(candidates)) if candidates else [None]:
         _err, w, t = min((score(fit, w, t, 0.0, di)["fused_err_px_ms"], float(w), float(t))
                          for w in WEIGHTS for t in THRESHOLDS)
         _err, wd = min((score(fit, w, t, d, di)["fused_dir_err_deg"], float(d)) for d in DIR_WEIGHTS)
         r = score(fit, w, t, wd, di)
         rel = r["fused_err_px_ms"] / r["ofpd_err_px_ms"] + r["fused_dir_err_deg"] / r["ofpd_dir_err_deg"]
         if di is not None:
-            print(f"D {distances[di]:g} px: speed {r['fused_err_px_ms']:.3f} px/ms, "
+            print(f"D {candidates[di][0]:g} px, {candidates[di][1]} refits: speed {r['fused_err_px_ms']:.3f} px/ms, "
                   f"direction {r['fused_dir_err_deg']:.2f} deg "
                   f"(weights {w}, {t}, {wd}; relative sum {rel:.3f})")
         if best is None or rel < best[0]:
@@ -180,12 +195,13 @@ def main(argv=None) -> int:
     _rel, di, w, t, wd = best
     keys = {"plane_fit_weight": w, "plane_fit_min_px_ms": t, "plane_fit_dir_weight": wd}
     if di is not None:
-        keys["plane_fit_history"] = [distances[di], a.history_windows, a.history_margin]
+        keys["plane_fit_history"] = [candidates[di][0], a.history_windows, a.history_margin]
+        keys["plane_fit_refits"] = candidates[di][1]
     report = {"fit_split": a.split, **keys, "splits": {a.split: score(fit, w, t, wd, di)}}
     for split in [s for s in a.check.split(",") if s]:
         report["splits"][split] = score(collect(ckpt, Path(a.data), split, a.max_windows, a.limit,
                                                 a.progress and sys.stderr.isatty(),
-                                                ([distances[di]], a.history_windows, a.history_margin)
+                                                ([candidates[di]], a.history_windows, a.history_margin)
                                                 if di is not None else ()), w, t, wd, 0 if di is not None else None)
     print(f"fitted on {a.split}: " + ", ".join(f"{k} {v}" for k, v in keys.items()))
     print("| split | objects | speed error px/ms: OFPD -> fused | bin accuracy: OFPD -> fused | direction error deg: OFPD -> fused |")

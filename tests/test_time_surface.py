@@ -14,7 +14,7 @@ from toffe_deploy.config import ToffeConfig
 from toffe_deploy.events.binning import bin_window
 from toffe_deploy.events.io import open_events
 from toffe_deploy.events.support import sampled_window_history
-from toffe_deploy.plane_fit import PlaneFusion, dense_flow, history_settings
+from toffe_deploy.plane_fit import PlaneFusion, dense_flow, history_settings, refit_history, refit_settings
 from toffe_deploy.time_surface import OnesHistory, history_flow, history_windows
 
 SENSOR = (64, 48)
@@ -130,6 +130,37 @@ def test_fusion_keeps_the_ofpd_speed_until_the_history_holds_k_windows():
     assert s[0] == pytest.approx(math.log(2.0)) and d[0] == pytest.approx([0.0, 1.0])
 
 
+def test_refit_takes_k_from_the_fit_and_refits_only_what_changed():
+    """K from the first fit's speed; only objects whose K changes are fitted again; one whose new
+    fit gives no answer keeps its first flow and K."""
+    calls = []
+    # px per bin -> px/ms: x 10 at B 5, dt 500. Object 0: fit 2 px/ms (K 8 from D 8) where the
+    # OFPD said 0.5 (K 20); object 1: fit agrees with its K; object 2: K changes but no answer.
+    first = np.array([[0.2, 0.0], [0.0, 0.8], [0.4, 0.0]])
+
+    def flow_of(want, k):
+        calls.append((want.tolist(), list(k)))
+        return np.array([[0.0, 0.25], [9.0, 9.0], [np.nan, np.nan]])
+
+    flow, k = refit_history(first, [20, 2, 20], np.ones(3, bool), flow_of, 8.0, 20, DT, 10.0, 1)
+    assert calls == [([True, False, True], [8, 0, 4])]
+    assert flow.tolist() == [[0.0, 0.25], [0.0, 0.8], [0.4, 0.0]] and k == [8, 2, 20]
+    calls.clear()
+    flow, k = refit_history(first, [20, 2, 20], np.ones(3, bool), flow_of, 8.0, 20, DT, 10.0, 2)
+    assert len(calls) == 2 and calls[1] == ([True, False, True], [7, 0, 4])     # 2.5 px/ms: K 7
+    assert refit_history(first, [20, 2, 20], np.ones(3, bool), flow_of, 8.0, 20, DT, 10.0, 0)[1] == [20, 2, 20]
+
+
+@pytest.mark.parametrize("bad", [-1, 5, 1.0, True, "1"])
+def test_bad_refit_settings_are_one_line_errors(bad):
+    with pytest.raises(ValueError, match="plane_fit_refits must be"):
+        refit_settings(ToffeConfig(ofpd={"plane_fit_history": [8, 20, 3], "plane_fit_refits": bad}))
+    with pytest.raises(ValueError, match="needs ofpd.plane_fit_history"):
+        refit_settings(ToffeConfig(ofpd={"plane_fit_refits": 1}))
+    assert refit_settings(ToffeConfig(ofpd={"plane_fit_history": [8, 20, 3], "plane_fit_refits": 1})) == 1
+    assert refit_settings(ToffeConfig()) == 0
+
+
 HISTORY_OFPD = {"crop_px": 32, "pool": 2, **ofpd_io.CURRENT_LAYOUT, "min_events": 8, "plane_fit_weight": 1.0,
                 "plane_fit_min_px_ms": 0.0, "plane_fit_dir_weight": 1.0, "plane_fit_history": [8, 6, 2]}
 
@@ -139,6 +170,8 @@ def env(tmp_path_factory, make_bundle, make_recording):
     root = tmp_path_factory.mktemp("history")
     return {"on": make_bundle(root / "on", sensor=SENSOR, ofpd=HISTORY_OFPD, input_min_cluster=4,
                               input_support=(3, 1, 3, 1)),
+            "refit": make_bundle(root / "refit", sensor=SENSOR, ofpd={**HISTORY_OFPD, "plane_fit_refits": 1},
+                                 input_min_cluster=4, input_support=(3, 1, 3, 1)),
             "rec": make_recording(root / "rec.h5", sensor=SENSOR, duration=0.008)}
 
 
@@ -182,6 +215,41 @@ def test_cpu_pipeline_equals_reference_and_the_history_changes_it(env):
                                 for p in predict_window(binned, run, lambda x: run_onnx(sess, x), off, recent)[0]]))
     assert ours == ref
     assert sum(map(len, ours)) > 0 and ours != plain
+
+
+def test_refits_pipeline_equals_reference(env, monkeypatch):
+    """plane_fit_refits: the streaming cpu Pipeline == eval's reference, and the refit is read
+    (some object's K changes)."""
+    from toffe_deploy import plane_fit
+    from toffe_deploy.deploy.onnx_export import ort_session, run_onnx
+    from toffe_deploy.model.reference import fixed_stage_fn, predict_window
+    from toffe_deploy.runtime.pipeline import Pipeline
+
+    b = env["refit"]
+    cfg = b.config
+    sess, run = ort_session(b.ofpd_onnx), fixed_stage_fn(b.ofs)
+    wins = _windows(env["rec"], cfg)
+    changed, refit = [], plane_fit.refit_history
+
+    def spy(flow, k, *a):
+        out = refit(flow, k, *a)
+        changed.append(out[1] != list(k))
+        return out
+
+    monkeypatch.setattr(plane_fit, "refit_history", spy)
+    with Pipeline(b, "cpu", track=False) as pipe:
+        got = list(pipe.process_stream(wins))
+    assert any(changed)
+    ours, ref = [], []
+    with open_events(env["rec"]) as src:
+        for (t0, _x), res in zip(wins, got):
+            binned, recent, history = sampled_window_history(src.read, t0, cfg.dt_us, cfg, cfg.sensor_size,
+                                                             src.t_start_us)
+            ours.append(_rows([(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps) for o in res.objects]))
+            ref.append(_rows([(p.stage, p.x, p.y, p.direction_rad, p.speed_mps)
+                              for p in predict_window(binned, run, lambda x: run_onnx(sess, x), cfg, recent,
+                                                      history)[0]]))
+    assert ours == ref and sum(map(len, ours)) > 0
 
 
 def test_cpu_equals_loihi_sim_with_history(env, lines_per_target):

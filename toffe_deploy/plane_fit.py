@@ -45,7 +45,8 @@ clear (fast objects) and the other way round. The constants are fitted on the tr
 With ``plane_fit_history`` ([D, K_max, margin]; toffe_deploy/time_surface.py) the surface is
 each object's over its last K windows instead of its ones of this one (the same planes and
 IRLS, at most time_surface.MAX_PLANES planes); the shipped checkpoint then takes the fit alone
-(both weights 1, threshold 0: fitted so on ``train``).
+(both weights 1, threshold 0: fitted so on ``train``). ``plane_fit_refits`` (refit_history):
+K again from the fit's own speed, which is closer than the OFPD's.
 """
 from __future__ import annotations
 
@@ -275,7 +276,51 @@ def fit_settings(config: ToffeConfig) -> tuple[float, float, float]:
     if not lo >= 0.0:
         raise ValueError(f"ofpd.plane_fit_min_px_ms must be >= 0, got {lo}")
     history_settings(config)
+    refit_settings(config)
     return w, lo, wd
+
+
+def refit_settings(config: ToffeConfig) -> int:
+    """config.ofpd.plane_fit_refits: how many times K is worked out again from the plane fit's
+    own speed and the surface fitted again (refit_history); 0 (off) when absent. Needs
+    plane_fit_history."""
+    v = (config.ofpd or {}).get("plane_fit_refits", 0)
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 4:
+        raise ValueError(f"ofpd.plane_fit_refits must be an integer 0-4, got {v!r}")
+    if v and history_settings(config) is None:
+        raise ValueError("ofpd.plane_fit_refits needs ofpd.plane_fit_history")
+    return v
+
+
+def refit_history(flow, k_windows: list[int], want, flow_of, distance_px: float, k_max: int, dt_us: int,
+                  px_ms_per_px_bin: float, refits: int) -> tuple[np.ndarray, list[int]]:
+    """(flow, K) after ``refits`` rounds of: K again from each wanted object's fitted speed
+    (time_surface.history_windows of |v|), then ``flow_of(redo, K)`` for the objects whose K
+    changed; an object keeps its earlier flow and K where the new fit gives no answer.
+
+    Why: K comes first from the OFPD's speed, and where that errs the surface spans the wrong
+    time (too short: a noisy ramp; too long: a turning path). The fit's own speed is closer
+    (train: 0.38 against 1.0 px/ms), so K from it spans nearer the D px the fit wants
+    (benchmarks/fit_plane_fit.py --refits; ckpt/README.md, "Plane fit over the windows before")."""
+    from .time_surface import history_windows
+
+    flow = np.array(flow, dtype=np.float64).reshape(-1, 2)
+    k = list(k_windows)
+    wanted = np.asarray(want, dtype=bool).reshape(-1).tolist()
+    for _ in range(int(refits)):
+        speeds = [math.hypot(fx, fy) * px_ms_per_px_bin for fx, fy in flow.tolist()]
+        k_new = history_windows(speeds, distance_px, k_max, dt_us)
+        redo = [w and s > 0.0 and math.isfinite(s) and a != b for w, s, a, b in zip(wanted, speeds, k, k_new)]
+        if not any(redo):
+            break
+        again = np.asarray(flow_of(np.array(redo, np.bool_), [b if r else 0 for r, b in zip(redo, k_new)]),
+                           dtype=np.float64).reshape(-1, 2)
+        for i, (r, (fx, fy)) in enumerate(zip(redo, again.tolist())):
+            v = math.hypot(fx, fy)
+            if r and v > 0.0 and math.isfinite(v):
+                flow[i] = fx, fy
+                k[i] = k_new[i]
+    return flow, k
 
 
 def history_settings(config: ToffeConfig) -> tuple[float, int, int] | None:
@@ -333,6 +378,7 @@ class PlaneFusion:
         self.log_min = math.log(self.min_px_ms) if self.min_px_ms > 0 else -math.inf
         self.per_bin = px_ms_per_px_bin(config)
         self.history = history_settings(config)      # (D, K_max, margin) or None
+        self.refits = refit_settings(config)
         self.dt_us = int(config.dt_us)
 
     @property
@@ -361,7 +407,8 @@ class PlaneFusion:
         """(speed, direction) with the plane fit blended in, or as given when it is off or no
         object wants it; ``flow_of(want, k_windows)`` gives the (N, 2) plane-fit flow of the
         objects ``want`` marks (the runtime fits those only, eval every object: the unwanted rows
-        are not read), k_windows: ``windows(speed_ln)`` (None: each object's ones of this window).
+        are not read), k_windows: ``windows(speed_ln)`` (None: each object's ones of this window),
+        then again from the fit's speed with plane_fit_refits (refit_history).
         available: the windows the history holds (plane_fit_history): an object that wants more
         gets the fit's direction but keeps the OFPD's speed (its surface is too short in time:
         a slow object's reads too fast), as at a stream's start."""
@@ -372,6 +419,10 @@ class PlaneFusion:
             return speed_ln, direction
         k = self.windows(speed_ln)
         flow = flow_of(want, k)
+        if k is not None and self.refits:        # short: by the OFPD's K or the refitted one
+            flow, k_fit = refit_history(flow, k, want, flow_of, self.history[0], self.history[1], self.dt_us,
+                                        self.per_bin, self.refits)
+            k = [max(a, b) for a, b in zip(k, k_fit)]
         if k is not None and available is not None and any(v > available for v in k):
             short = np.array([v > available for v in k])
             speed_flow = np.where(short[:, None], np.nan, np.asarray(flow, dtype=np.float64).reshape(-1, 2))

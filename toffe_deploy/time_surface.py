@@ -10,6 +10,9 @@ OFPD's own speed s (px/ms):
 
     K = min(K_max, max(1, ceil(D / (s * dt_ms))))          (plane_fit_history = [D, K_max, margin])
 
+and with ``plane_fit_refits`` n, K is worked out n times again from the fit's own speed s
+(plane_fit.refit_history), the surface fitted again where K changed.
+
 Surface: for each polarity p, T_p(x, y) = the first time bin, counted from the oldest of the K
 windows (t = j * B + b for window j = 0..K-1 and bin b), at which pixel (x, y) fired, over the
 object's bounding box (its merged ones of this window) grown by ``margin`` px. Only the front

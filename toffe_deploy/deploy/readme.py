@@ -126,7 +126,9 @@ ones the crop is cut from; absent or 0: the OFPD's speed alone); `plane_fit_dir_
 the direction the same way, and with `plane_fit_history` [D, K_max, margin] the time surface is
 the object's box (grown by margin px) over its last K = min(K_max, ceil(D / (s dt))) windows of
 the front end's ones (`toffe_deploy.time_surface`: the host keeps the last K_max windows; an
-object wanting more windows than the stream has seen keeps the OFPD's speed). Which events form one object is
+object wanting more windows than the stream has seen keeps the OFPD's speed); with
+`plane_fit_refits` n (0-4, absent 0), K is worked out again n times from the fit's own speed
+and the surface fitted again where K changed. Which events form one object is
 `config.ofpd.grouping`: `"blobs"` (connected event blobs of any size, an object's edges joined
 until they surround it; keys `link_px`, `merge_frac`, `edge_merge_frac`, `min_events`; with
 `split_frac` > 0, `"union"` only, a blob whose two halves are each a closed outline meeting
