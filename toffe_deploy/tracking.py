@@ -18,7 +18,15 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
                (a detection within the gates of 2+ confirmed tracks, a blob of two objects, moves
                p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay; the gates
-               here without the coasting growth unless ``shared_gate_grows``)
+               here without the coasting growth unless ``shared_gate_grows``; so does a
+               detection within hidden_px of the prediction p_m' of a confirmed track m still
+               missed after re-identification and approaching track i,
+               (p_m' - p_i') . (v_m' - v_i') < 0: two converging objects of which one vanished
+               are seen as one blob, nearer the bigger share of it, often outside m's gate; its
+               motion, neither object's, would turn and slow track i, which then left its object
+               where the two part. Objects side by side, not converging, are a miss: the one
+               still seen keeps learning its motion. The updates run once every track's
+               detection is known, after re-identification)
     merges     a detection z nearer the midpoint c of two confirmed tracks' predictions than to
                either, within gate_px of c, the two at most merge_px apart and each moving at
                least merge_move_px per window, is one blob of both: both move by alpha (z - c)
@@ -131,7 +139,11 @@ class TrackerConfig:
     px added to the association cost per radian between a detection's direction and a track's
     (ambiguous windows only); reid_growth: how much of the distance a coasting track's
     prediction covers per missed window widens reid_px; reid_ratio_missed: the ratio test
-    against the other confirmed tracks missed in this window only."""
+    against the other confirmed tracks missed in this window only; hidden_px: a detection
+    within this distance of a confirmed track's prediction that is missed in the window and
+    converging on the track the detection goes to is a blob of both (its taker keeps its
+    motion, as for shared_keeps_motion; 0: off; objects up to ~50 px across hide each other
+    from ~40 px apart, and 35-50 measured alike: README's tracking section)."""
 
     gate_px: float = 17.0
     gate_growth: float = 0.5
