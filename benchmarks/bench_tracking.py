@@ -7,7 +7,7 @@
         [--max-occluded O] [--turn-beta B] [--max-turn RAD] [--merge PX] [--merge-move PX]
         [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R] [--coast-px PX] [--max-coast N]
         [--pos-beta B] [--pos-min PX] [--pos-max-rad RAD] [--blob-growth G] [--heading-cost PX] [--reid-growth G]
-        [--no-reid-ratio-missed]
+        [--no-reid-ratio-missed] [--hidden PX]
         [--truth-blobs [--truth-merge F]] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
@@ -351,6 +351,9 @@ def main(argv=None) -> int:
                     help="reid_growth: reid_px grows by this much of a coasting track's travel per miss")
     ap.add_argument("--no-reid-ratio-missed", dest="reid_ratio_missed", action="store_false",
                     help="the re-identification ratio test against every other confirmed track, not only missed ones")
+    ap.add_argument("--hidden", type=float, default=d.hidden_px,
+                    help="hidden_px: a detection this near a missed confirmed track converging on its taker is a blob "
+                         "of both (0: off)")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--truth-merge", type=float, default=1.0, metavar="F",
@@ -373,7 +376,7 @@ def main(argv=None) -> int:
                              shared_gate_grows=a.shared_gate_grows, reid_px=a.reid, reid_ratio=a.reid_ratio,
                              coast_px=a.coast_px, max_coast=a.max_coast, pos_beta=a.pos_beta, pos_min_px=a.pos_min,
                              pos_max_rad=a.pos_max_rad, blob_growth=a.blob_growth, heading_cost_px=a.heading_cost,
-                             reid_growth=a.reid_growth, reid_ratio_missed=a.reid_ratio_missed)
+                             reid_growth=a.reid_growth, reid_ratio_missed=a.reid_ratio_missed, hidden_px=a.hidden)
     bundle = load_bundle(a.bundle)
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)

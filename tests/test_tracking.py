@@ -383,7 +383,7 @@ def test_a_blob_between_two_tracks_moves_both_and_stays_with_one():
 def test_new_settings_reject_nonsense():
     for bad in (dict(turn_beta=-0.1), dict(turn_beta=1.5), dict(max_turn_rad=-1), dict(merge_px=-1),
                 dict(merge_move_px=-1), dict(pos_beta=1.5), dict(pos_min_px=-1), dict(pos_max_rad=-0.1),
-                dict(blob_growth=-1), dict(heading_cost_px=-1), dict(reid_growth=-1)):
+                dict(blob_growth=-1), dict(heading_cost_px=-1), dict(reid_growth=-1), dict(hidden_px=-1)):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
 
@@ -534,3 +534,30 @@ def test_direction_breaks_the_tie_when_two_parting_objects_are_in_both_gates():
         like_b = Obj(a.x, a.y + 2.0, math.radians(-30.0), 14000)
         tr.update([like_a, like_b], 10 * DT_US)
         assert ((like_a.track_id, like_b.track_id) == ids) == by_direction
+
+
+def test_a_detection_beside_a_missed_track_is_a_blob_and_the_crossing_keeps_its_ids():
+    """Two objects on an X (6 px per window, +20 and -20 deg) seen as one detection while closer
+    than 40 px (20 windows): it lies a fifth of the way from A to B (the bigger share of the
+    blob is A's), so it is neither nearer the pair's midpoint (no merge) nor in B's base gate
+    (B's prediction up to 32 px away), and it moves the blob's way (0 deg, half speed). With
+    hidden_px (default 40) B, missed within 40 px of it, makes it a blob: A's track follows it
+    in position only, keeps its +-20 deg and is reported merged, and both ids come out of the
+    crossing on their objects; without (hidden_px 0) A's track takes the blob's motion, and
+    the two ids leave the crossing swapped (the earlier tracker)."""
+    for hidden_px, kept in ((40.0, True), (0.0, False)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(hidden_px=hidden_px))
+        ids, blobs = None, 0
+        for w in range(60):
+            a, b = mover(100, 200, 20, 12000, w - 30), mover(100, 200, -20, 12000, w - 30)
+            if math.hypot(a.x - b.x, a.y - b.y) < 40:
+                blob = Obj(a.x + 0.2 * (b.x - a.x), a.y + 0.2 * (b.y - a.y), 0.0, 6000)
+                tr.update([blob], w * DT_US)
+                blobs += 1
+                if hidden_px > 0 and blobs > 1:
+                    assert blob.track["merged"] and abs(abs(blob.track["direction_deg"]) - 20.0) < 1.0
+            else:
+                tr.update([a, b] if w % 2 else [b, a], w * DT_US)
+                ids = ids or (a.track_id, b.track_id)
+        assert blobs == 20 and tr.next_id == 2
+        assert ((a.track_id, b.track_id) == ids) == kept

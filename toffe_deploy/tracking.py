@@ -18,7 +18,15 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
                (a detection within the gates of 2+ confirmed tracks, a blob of two objects, moves
                p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay; the gates
-               here without the coasting growth unless ``shared_gate_grows``)
+               here without the coasting growth unless ``shared_gate_grows``; so does a
+               detection within hidden_px of the prediction p_m' of a confirmed track m still
+               missed after re-identification and approaching track i,
+               (p_m' - p_i') . (v_m' - v_i') < 0: two converging objects of which one vanished
+               are seen as one blob, nearer the bigger share of it, often outside m's gate; its
+               motion, neither object's, would turn and slow track i, which then left its object
+               where the two part. Objects side by side, not converging, are a miss: the one
+               still seen keeps learning its motion. The updates run once every track's
+               detection is known, after re-identification)
     merges     a detection z nearer the midpoint c of two confirmed tracks' predictions than to
                either, within gate_px of c, the two at most merge_px apart and each moving at
                least merge_move_px per window, is one blob of both: both move by alpha (z - c)
@@ -131,7 +139,11 @@ class TrackerConfig:
     px added to the association cost per radian between a detection's direction and a track's
     (ambiguous windows only); reid_growth: how much of the distance a coasting track's
     prediction covers per missed window widens reid_px; reid_ratio_missed: the ratio test
-    against the other confirmed tracks missed in this window only."""
+    against the other confirmed tracks missed in this window only; hidden_px: a detection
+    within this distance of a confirmed track's prediction that is missed in the window and
+    converging on the track the detection goes to is a blob of both (its taker keeps its
+    motion, as for shared_keeps_motion; 0: off; objects up to ~50 px across hide each other
+    from ~40 px apart, and 35-50 measured alike: README's tracking section)."""
 
     gate_px: float = 17.0
     gate_growth: float = 0.5
@@ -164,6 +176,7 @@ class TrackerConfig:
     heading_cost_px: float = 5.0
     reid_growth: float = 0.5
     reid_ratio_missed: bool = True
+    hidden_px: float = 40.0
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -188,8 +201,8 @@ class TrackerConfig:
             raise ValueError(f"reid_px must be >= 0 and reid_ratio > 0, got {self.reid_px}, {self.reid_ratio}")
         if not (0 <= self.pos_beta <= 1 and self.pos_min_px >= 0 and self.pos_max_rad >= 0):
             raise ValueError("pos_beta must be in [0, 1], pos_min_px and pos_max_rad >= 0")
-        if not min(self.blob_growth, self.heading_cost_px, self.reid_growth) >= 0:
-            raise ValueError("blob_growth, heading_cost_px and reid_growth must be >= 0")
+        if not min(self.blob_growth, self.heading_cost_px, self.reid_growth, self.hidden_px) >= 0:
+            raise ValueError("blob_growth, heading_cost_px, reid_growth and hidden_px must be >= 0")
 
 
 _F = np.float64
@@ -289,7 +302,7 @@ class BinEdges:
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
  P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO, P_COAST_PX, P_MAX_COAST, P_POS_BETA, P_POS_MIN, P_POS_MAX_RAD,
- P_BLOB_GROWTH, P_HEADING_COST, P_REID_GROWTH, P_REID_MISSED) = range(32)
+ P_BLOB_GROWTH, P_HEADING_COST, P_REID_GROWTH, P_REID_MISSED, P_HIDDEN) = range(33)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -301,7 +314,7 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
                      cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px,
                      float(cfg.shared_gate_grows), cfg.reid_ratio, cfg.coast_px, cfg.max_coast,
                      cfg.pos_beta, cfg.pos_min_px, cfg.pos_max_rad, cfg.blob_growth, cfg.heading_cost_px,
-                     cfg.reid_growth, float(cfg.reid_ratio_missed)],
+                     cfg.reid_growth, float(cfg.reid_ratio_missed), cfg.hidden_px],
                     dtype=_F)
 
 
@@ -443,8 +456,6 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
         if blob_of[k] >= 0:                                  # a blob of two tracks: moved in _merges
             continue
         hit[i], free[k], det_of[i] = True, False, k
-        blob[i] = shared[k] > 1 and p[P_SHARED_KEEPS] > 0
-        _hit(a, i, z, k, p, lo, hi, inner, shared[k] > 1)
     if p[P_REID] > 0:                                        # second association: missed tracks claim leftovers
         while True:
             best, bi, bk = np.inf, -1, -1
@@ -464,8 +475,16 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
             if bi < 0:
                 break
             hit[bi], free[bk], det_of[bi] = True, False, bk
-            blob[bi] = shared[bk] > 1 and p[P_SHARED_KEEPS] > 0
-            _hit(a, bi, z, bk, p, lo, hi, inner, shared[bk] > 1)
+    for i in range(n_t):                                     # the updates, once every track's detection is known
+        k = det_of[i]
+        if k < 0 or blob_of[k] >= 0:                         # blobs of two tracks: moved in _merges
+            continue
+        for m in range(n_t):                                 # a confirmed track missed next to it: hidden in k
+            if m != i and not hit[m] and t[m, CONF] > 0 and d[m, k] <= p[P_HIDDEN] and p[P_HIDDEN] > 0 and \
+                    (a[m, X] - a[i, X]) * (a[m, VX] - a[i, VX]) + (a[m, Y] - a[i, Y]) * (a[m, VY] - a[i, VY]) < 0:
+                shared[k] = max(shared[k], 2)
+        blob[i] = shared[k] > 1 and p[P_SHARED_KEEPS] > 0
+        _hit(a, i, z, k, p, lo, hi, inner, shared[k] > 1)
     keep = np.zeros(n_t, np.bool_)
     taken = ~free                                            # detections assigned to a track
     dt_s = p[P_DT]
@@ -568,7 +587,7 @@ def _listing(out, assigned, p):
     return info
 
 
-N_P = P_REID_MISSED + 1
+N_P = P_HIDDEN + 1
 
 
 @njit(cache=True, nogil=True)
