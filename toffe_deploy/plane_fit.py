@@ -301,7 +301,7 @@ def refit_history(flow, k_windows: list[int], want, flow_of, distance_px: float,
     Why: K comes first from the OFPD's speed, and where that errs the surface spans the wrong
     time (too short: a noisy ramp; too long: a turning path). The fit's own speed is closer
     (train: 0.38 against 1.0 px/ms), so K from it spans nearer the D px the fit wants
-    (benchmarks/fit_plane_fit.py --refits; ckpt/README.md, "Plane fit over the windows before")."""
+    (benchmarks/fit_plane_fit.py --refits; ckpt/README.md, "Refitting K")."""
     from .time_surface import history_windows
 
     flow = np.array(flow, dtype=np.float64).reshape(-1, 2)
