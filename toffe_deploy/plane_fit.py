@@ -293,9 +293,9 @@ def refit_settings(config: ToffeConfig) -> int:
 
 
 def refit_history(flow, k_windows: list[int], want, flow_of, distance_px: float, k_max: int, dt_us: int,
-                  px_ms_per_px_bin: float, refits: int) -> tuple[np.ndarray, list[int]]:
+                  per_bin: float, refits: int) -> tuple[np.ndarray, list[int]]:
     """(flow, K) after ``refits`` rounds of: K again from each wanted object's fitted speed
-    (time_surface.history_windows of |v|), then ``flow_of(redo, K)`` for the objects whose K
+    (time_surface.history_windows of |v| per_bin px/ms), then ``flow_of(redo, K)`` for the objects whose K
     changed; an object keeps its earlier flow and K where the new fit gives no answer.
 
     Why: K comes first from the OFPD's speed, and where that errs the surface spans the wrong
@@ -308,7 +308,7 @@ def refit_history(flow, k_windows: list[int], want, flow_of, distance_px: float,
     k = list(k_windows)
     wanted = np.asarray(want, dtype=bool).reshape(-1).tolist()
     for _ in range(int(refits)):
-        speeds = [math.hypot(fx, fy) * px_ms_per_px_bin for fx, fy in flow.tolist()]
+        speeds = [math.hypot(fx, fy) * per_bin for fx, fy in flow.tolist()]       # px/ms
         k_new = history_windows(speeds, distance_px, k_max, dt_us)
         redo = [w and s > 0.0 and math.isfinite(s) and a != b for w, s, a, b in zip(wanted, speeds, k, k_new)]
         if not any(redo):
