@@ -132,7 +132,11 @@ def unlink_prefix(prefix: str, shm_dir: str = SHM_DIR) -> int:
     Only a segment this call unlinked is unregistered: the segment manager's process may unlink
     (and unregister) the same one at the same moment, and a second UNREGISTER of a name makes the
     tracker print a KeyError traceback on the shared stderr. Whoever's unlink succeeds
-    unregisters; the other's unlink fails before its unregister (SharedMemory.unlink)."""
+    unregisters; the other's unlink fails before its unregister (SharedMemory.unlink). The
+    UNREGISTER follows a REGISTER of the same name: a Ctrl-C can land in SharedMemory(create=True)
+    between shm_open and its REGISTER, leaving a segment the tracker never saw (its UNREGISTER
+    alone was the same traceback, once in CI); the tracker keeps a set, so a second REGISTER of a
+    registered name changes nothing."""
     from multiprocessing import resource_tracker
 
     n = 0
@@ -146,6 +150,7 @@ def unlink_prefix(prefix: str, shm_dir: str = SHM_DIR) -> int:
                 continue                      # gone already: its unlinker unregistered it
             n += 1
             with contextlib.suppress(Exception):
+                resource_tracker.register("/" + name, "shared_memory")
                 resource_tracker.unregister("/" + name, "shared_memory")
     return n
 
