@@ -80,9 +80,7 @@ def main(argv=None) -> int:
                 t.append(clock())
                 if ks.size:
                     pose, direction, speed = out                                 # as Pipeline.objects_of
-                    speed, direction = pipe._fusion.apply(
-                        speed, direction, lambda want, k: pipe.plane_flow(ones, ks.size, want, k),
-                        None if pipe.ones_history is None else pipe.ones_history.available)
+                    speed, direction = pipe.fuse(speed, direction, ones, ks.size)          # as Pipeline.objects_of
                     speeds_of(pipe._decode.columns(pose, direction, speed, ks), cfg, pipe.speed_scale)   # as Pipeline.objects_of
                 t.append(clock())
                 for name, a, b in zip(PARTS, t[:-1], t[1:]):

@@ -151,6 +151,40 @@ def test_refit_takes_k_from_the_fit_and_refits_only_what_changed():
     assert refit_history(first, [20, 2, 20], np.ones(3, bool), flow_of, 8.0, 20, DT, 10.0, 0)[1] == [20, 2, 20]
 
 
+@pytest.mark.parametrize("ofpd", [
+    {"plane_fit_weight": 1.0, "plane_fit_min_px_ms": 0.0, "plane_fit_dir_weight": 1.0, "plane_fit_refits": 1},
+    {"plane_fit_weight": 0.6, "plane_fit_min_px_ms": 1.5, "plane_fit_dir_weight": 0.0},
+    {"plane_fit_weight": 0.0, "plane_fit_min_px_ms": 0.0, "plane_fit_dir_weight": 0.7, "plane_fit_refits": 2}])
+@pytest.mark.parametrize("n_windows", [3, 12])
+def test_fused_history_equals_apply(ofpd, n_windows):
+    """time_surface.fuse_history (the runtime's one compiled call) == PlaneFusion.apply with
+    history_flow (eval's form), to the bit: two discs (slow and fast) and an object without
+    ones; early in the stream (3 windows: the slow disc is short of windows) and later; weights
+    that blend, a speed threshold that leaves an object out, refits."""
+    from toffe_deploy.time_surface import fuse_history
+
+    cfg = ToffeConfig(ofpd={**ofpd, "plane_fit_history": [6, 10, 2]})
+    fusion = PlaneFusion(cfg)
+    slow, fast = disc_windows(n_windows, 0.8, 30, start=(16.0, 14.0)), disc_windows(n_windows, 4.0, 200,
+                                                                                   start=(46.0, 32.0))
+    hist = OnesHistory(10, SENSOR, B, DT)
+    for (t0, a), (_t, b) in zip(slow, fast):
+        hist.push(t0, np.union1d(a, b))
+    (_, a), (_, b) = slow[-1], fast[-1]
+    oa, ob = box_ones(a), box_ones(b)
+    ones = (np.concatenate([oa[0], ob[0] + 1]), np.concatenate([oa[1], ob[1]]), np.concatenate([oa[2], ob[2]]))
+    speed_ln = np.log([[0.5], [3.0], [2.0]]).astype(np.float32)         # object 2 has no ones
+    direction = np.array([[1.0, 0.0], [0.6, -0.8], [0.0, 1.0]], np.float32)
+    ref_s, ref_d = fusion.apply(speed_ln, direction, lambda want, k: history_flow(hist, ones, 3, want, k, 2),
+                                hist.available)
+    got_s, got_d = fuse_history(fusion, hist, speed_ln, direction, ones)
+    assert np.asarray(got_s).tolist() == np.asarray(ref_s, np.float64).reshape(-1).tolist()
+    assert np.asarray(got_d).tolist() == np.asarray(ref_d, np.float64).reshape(-1, 2).tolist()
+    assert np.asarray(got_d).tolist() != direction.astype(np.float64).tolist() or ofpd["plane_fit_dir_weight"] == 0
+    changed = np.asarray(got_s).tolist() != speed_ln.astype(np.float64).reshape(-1).tolist()
+    assert changed == (n_windows == 12 and ofpd["plane_fit_weight"] > 0)     # at 3 windows both are short
+
+
 @pytest.mark.parametrize("bad", [-1, 5, 1.0, True, "1"])
 def test_bad_refit_settings_are_one_line_errors(bad):
     with pytest.raises(ValueError, match="plane_fit_refits must be"):
@@ -218,8 +252,9 @@ def test_cpu_pipeline_equals_reference_and_the_history_changes_it(env):
 
 
 def test_refits_pipeline_equals_reference(env, monkeypatch):
-    """plane_fit_refits: the streaming cpu Pipeline == eval's reference, and the refit is read
-    (some object's K changes)."""
+    """plane_fit_refits: the streaming cpu Pipeline (time_surface.fused_history_flow, one compiled
+    call) == eval's reference (PlaneFusion.apply with refit_history), and the refit is read (some
+    object's K changes)."""
     from toffe_deploy import plane_fit
     from toffe_deploy.deploy.onnx_export import ort_session, run_onnx
     from toffe_deploy.model.reference import fixed_stage_fn, predict_window
@@ -229,6 +264,8 @@ def test_refits_pipeline_equals_reference(env, monkeypatch):
     cfg = b.config
     sess, run = ort_session(b.ofpd_onnx), fixed_stage_fn(b.ofs)
     wins = _windows(env["rec"], cfg)
+    with Pipeline(b, "cpu", track=False) as pipe:
+        got = list(pipe.process_stream(wins))
     changed, refit = [], plane_fit.refit_history
 
     def spy(flow, k, *a):
@@ -237,9 +274,6 @@ def test_refits_pipeline_equals_reference(env, monkeypatch):
         return out
 
     monkeypatch.setattr(plane_fit, "refit_history", spy)
-    with Pipeline(b, "cpu", track=False) as pipe:
-        got = list(pipe.process_stream(wins))
-    assert any(changed)
     ours, ref = [], []
     with open_events(env["rec"]) as src:
         for (t0, _x), res in zip(wins, got):
@@ -249,6 +283,7 @@ def test_refits_pipeline_equals_reference(env, monkeypatch):
             ref.append(_rows([(p.stage, p.x, p.y, p.direction_rad, p.speed_mps)
                               for p in predict_window(binned, run, lambda x: run_onnx(sess, x), cfg, recent,
                                                       history)[0]]))
+    assert any(changed)
     assert ours == ref and sum(map(len, ours)) > 0
 
 

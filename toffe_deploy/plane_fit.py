@@ -308,7 +308,7 @@ def refit_history(flow, k_windows: list[int], want, flow_of, distance_px: float,
     k = list(k_windows)
     wanted = np.asarray(want, dtype=bool).reshape(-1).tolist()
     for _ in range(int(refits)):
-        speeds = [math.hypot(fx, fy) * per_bin for fx, fy in flow.tolist()]       # px/ms
+        speeds = flow_speed_rows(flow, per_bin).tolist()       # px/ms
         k_new = history_windows(speeds, distance_px, k_max, dt_us)
         redo = [w and s > 0.0 and math.isfinite(s) and a != b for w, s, a, b in zip(wanted, speeds, k, k_new)]
         if not any(redo):
@@ -349,8 +349,7 @@ def px_ms_per_px_bin(config: ToffeConfig) -> float:
 
 def flow_px_ms(flow_px_bin: np.ndarray, config: ToffeConfig) -> np.ndarray:
     """Plane-fit speeds |v| in px/ms of object_planes_flow's (N, 2) px per bin."""
-    f = np.asarray(flow_px_bin, dtype=np.float64).reshape(-1, 2)
-    return np.array([math.hypot(x, y) for x, y in f.tolist()]) * px_ms_per_px_bin(config)
+    return flow_speed_rows(_rows2(flow_px_bin), 1.0) * px_ms_per_px_bin(config)
 
 
 class PlaneFusion:
@@ -365,9 +364,10 @@ class PlaneFusion:
     - ``wanted(speed_ln)``: the objects whose plane fit either would use (the runtime fits those
       only): every object when wd > 0, else those over the speed threshold.
 
-    Rows without a plane fit (NaN) keep the OFPD's values. Per row in Python (math.hypot,
-    math.log): a window holds a handful of objects, where each numpy call costs more than the
-    row's arithmetic; eval and every target call this same code, so they agree to the bit."""
+    Rows without a plane fit (NaN) keep the OFPD's values. The row arithmetic is compiled
+    (fuse_speed_rows, fuse_direction_rows, time_surface.history_rows) and shared by every path:
+    eval runs ``apply``; the runtime, with plane_fit_history, runs the same steps on the same
+    pieces in one compiled call (time_surface.fuse_history); they agree to the bit (tests)."""
 
     def __init__(self, config: ToffeConfig, weight: float | None = None, min_px_ms: float | None = None,
                  dir_weight: float | None = None):
@@ -430,30 +430,57 @@ class PlaneFusion:
         return self.speed(speed_ln, flow), self.direction(direction, flow)
 
     def speed(self, speed_ln, flow_px_bin) -> list[float]:
-        s = np.asarray(speed_ln, dtype=np.float64).reshape(-1).tolist()
-        if self.weight <= 0.0:
-            return s
-        w, lo = self.weight, self.log_min
-        for i, (fx, fy) in enumerate(np.asarray(flow_px_bin, dtype=np.float64).reshape(-1, 2).tolist()):
-            v = math.hypot(fx, fy) * self.per_bin
-            if s[i] > lo and v > 0.0 and math.isfinite(v):
-                s[i] = w * math.log(v) + (1.0 - w) * s[i]
-        return s
+        s = np.array(speed_ln, dtype=np.float64).reshape(-1)
+        if self.weight > 0.0:
+            fuse_speed_rows(s, _rows2(flow_px_bin), self.weight, self.log_min, self.per_bin)
+        return s.tolist()
 
     def direction(self, direction, flow_px_bin) -> np.ndarray:
         d = np.array(direction, dtype=np.float64).reshape(-1, 2)
-        if self.dir_weight <= 0.0:
-            return d
-        wd = self.dir_weight
-        rows = d.tolist()
-        for i, (fx, fy) in enumerate(np.asarray(flow_px_bin, dtype=np.float64).reshape(-1, 2).tolist()):
-            v = math.hypot(fx, fy)
-            c, s = rows[i]
-            n = math.hypot(c, s)
-            if v > 0.0 and math.isfinite(v) and n > 0.0:
-                d[i, 0] = wd * (fx / v) + (1.0 - wd) * (c / n)
-                d[i, 1] = wd * (fy / v) + (1.0 - wd) * (s / n)
+        if self.dir_weight > 0.0:
+            fuse_direction_rows(d, _rows2(flow_px_bin), self.dir_weight)
         return d
+
+
+def _rows2(flow) -> np.ndarray:
+    """(N, 2) C-contiguous float64 rows of a flow (the compiled row kernels' input)."""
+    return np.ascontiguousarray(np.asarray(flow, dtype=np.float64).reshape(-1, 2))
+
+
+@njit(cache=True, nogil=True)
+def fuse_speed_rows(s, flow, w, log_min, per_bin):
+    """PlaneFusion.speed in place on s (N,) ln px/ms: ln s = w ln |v| + (1 - w) ln s where
+    s > log_min and |v| = hypot(flow) * per_bin (px/ms) is finite and > 0. Compiled, and the
+    one implementation every path calls: numba's hypot and CPython's math.hypot differ in the
+    last bit for ~0.2 % of inputs, so the runtime and eval must share it to agree to the bit."""
+    for i in range(s.shape[0]):
+        v = math.hypot(flow[i, 0], flow[i, 1]) * per_bin
+        if s[i] > log_min and v > 0.0 and math.isfinite(v):
+            s[i] = w * math.log(v) + (1.0 - w) * s[i]
+
+
+@njit(cache=True, nogil=True)
+def fuse_direction_rows(d, flow, wd):
+    """PlaneFusion.direction in place on d (N, 2) (cos, sin): u = wd v / |v| + (1 - wd) d / |d|
+    for the rows whose flow v is finite and > 0 (and |d| > 0)."""
+    for i in range(d.shape[0]):
+        fx, fy = flow[i, 0], flow[i, 1]
+        v = math.hypot(fx, fy)
+        c, sn = d[i, 0], d[i, 1]
+        n = math.hypot(c, sn)
+        if v > 0.0 and math.isfinite(v) and n > 0.0:
+            d[i, 0] = wd * (fx / v) + (1.0 - wd) * (c / n)
+            d[i, 1] = wd * (fy / v) + (1.0 - wd) * (sn / n)
+
+
+@njit(cache=True, nogil=True)
+def flow_speed_rows(flow, per_bin):
+    """(N,) |v| px/ms = hypot(flow) * per_bin of (N, 2) px-per-bin rows (the compiled hypot:
+    fuse_speed_rows)."""
+    out = np.empty(flow.shape[0])
+    for i in range(flow.shape[0]):
+        out[i] = math.hypot(flow[i, 0], flow[i, 1]) * per_bin
+    return out
 
 
 def fuse_speed(speed_ln: np.ndarray, flow_px_bin: np.ndarray, config: ToffeConfig, weight: float | None = None,

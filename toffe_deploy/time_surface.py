@@ -39,7 +39,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .plane_fit import NEIGHBOURHOODS, _grid_planes, _solve
+from .plane_fit import (NEIGHBOURHOODS, _grid_planes, _solve, flow_speed_rows, fuse_direction_rows,
+                        fuse_speed_rows)
 
 MAX_PLANES = 256        # planes per object: every ceil(n / 256)-th surface pixel (a slow object's reach thousands)
 
@@ -146,14 +147,28 @@ def object_boxes(obj, xs, ys, n_obj, margin, width, height):
 
 def history_windows(speed_px_ms, distance_px: float, k_max: int, dt_us: int, log: bool = False) -> list[int]:
     """K of each object: the windows it takes to move ``distance_px`` at its speed (px/ms; ln
-    px/ms with ``log``), 1..k_max (k_max for a speed of 0 or not finite). Per row in Python: a
-    handful of objects."""
-    dt_ms = dt_us / 1000.0
-    out = []
-    for s in (speed_px_ms.tolist() if isinstance(speed_px_ms, np.ndarray) else speed_px_ms):
-        s = math.exp(min(s, 700.0)) if log and math.isfinite(s) else (math.nan if log else float(s))
-        k = k_max if not (s > 0.0 and math.isfinite(s)) else math.ceil(distance_px / (s * dt_ms))
-        out.append(int(min(k_max, max(1, k))))
+    px/ms with ``log``), 1..k_max (k_max for a speed of 0 or not finite): history_rows."""
+    s = np.array(speed_px_ms, dtype=np.float64).reshape(-1)
+    return history_rows(s, bool(log), float(distance_px), int(k_max), dt_us / 1000.0).tolist()
+
+
+@njit(cache=True, nogil=True)
+def history_rows(speed, log, distance_px, k_max, dt_ms):
+    """(N,) int64 K = min(k_max, max(1, ceil(distance_px / (s dt_ms)))) of speeds s px/ms
+    (``log``: ln px/ms, exp'd with its argument capped at 700), k_max where s is 0 or not finite.
+    Compiled: the runtime's fused_history_flow calls it too, so that eval and every target
+    take the same K."""
+    out = np.empty(speed.shape[0], np.int64)
+    for i in range(speed.shape[0]):
+        s = speed[i]
+        if log:
+            s = math.exp(min(s, 700.0)) if math.isfinite(s) else math.nan
+        k = k_max
+        if s > 0.0 and math.isfinite(s):
+            q = distance_px / (s * dt_ms)
+            if q < k_max:
+                k = max(1, int(math.ceil(q)))
+        out[i] = k
     return out
 
 
@@ -168,10 +183,13 @@ class OnesHistory:
         self.k = int(k)
         self.width, self.height = int(sensor_size[0]), int(sensor_size[1])
         self.n_bins, self.dt_us = int(n_bins), int(dt_us)
-        self._ptr = np.zeros((self.k, 2 * self.height + 1), np.int64)
+        # narrow ring (x: int16 up to 32,767 px wide, bin: int16, row offsets: int32): a quarter
+        # of int64's cache footprint; the ring is read back every window, between the other stages
+        self._x_dtype = np.int16 if self.width <= np.iinfo(np.int16).max else np.int32
+        self._ptr = np.zeros((self.k, 2 * self.height + 1), np.int32)
         self._cap = 256
-        self._xs = np.zeros((self.k, self._cap), np.int64)
-        self._bs = np.zeros((self.k, self._cap), np.int64)
+        self._xs = np.zeros((self.k, self._cap), self._x_dtype)
+        self._bs = np.zeros((self.k, self._cap), np.int16)
         self._slot_win = np.full(self.k, -1, np.int64)
         self.reset()
 
@@ -204,7 +222,7 @@ class OnesHistory:
         bc, pix = np.divmod(np.asarray(idx, dtype=np.int64), self.width * self.height) if bc_pix is None else bc_pix
         if bc.size > self._cap:
             cap = max(bc.size, 2 * self._cap)
-            xs, bs = np.zeros((self.k, cap), np.int64), np.zeros((self.k, cap), np.int64)
+            xs, bs = np.zeros((self.k, cap), self._x_dtype), np.zeros((self.k, cap), np.int16)
             xs[:, :self._cap], bs[:, :self._cap] = self._xs, self._bs
             self._xs, self._bs, self._cap = xs, bs, cap
         s = self.now % self.k
@@ -237,6 +255,10 @@ def warm_up() -> None:
     h.push(0, np.array([0], np.int64))
     boxes = object_boxes(np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64), 1, 1, 2, 2)
     h.flow(boxes, [1])
+    z = np.zeros(1, np.int64)
+    fused_history_flow(np.zeros(1), np.ones((1, 2)), z, z, z, 1, h._ptr, h._xs, h._bs, h._slot_win, h.now,
+                       h.available, h.n_bins, h.width, h.height, NEIGHBOURHOODS, 10.0, 1, 0.5, 10.0, 1.0, -np.inf,
+                       1.0, 1)
 
 
 def history_flow(history: OnesHistory, ones, n_obj: int, want, k_windows, margin: int) -> np.ndarray:
@@ -246,6 +268,76 @@ def history_flow(history: OnesHistory, ones, n_obj: int, want, k_windows, margin
     boxes = object_boxes(np.asarray(ones[0], np.int64), np.asarray(ones[1], np.int64), np.asarray(ones[2], np.int64),
                          int(n_obj), int(margin), history.width, history.height)
     return history.flow(boxes, [k if w else 0 for k, w in zip(k_windows, np.asarray(want).tolist())])
+
+
+@njit(cache=True, nogil=True)
+def fused_history_flow(speed_ln, direction, obj, xs, ys, margin, ring_ptr, ring_xs, ring_bs, slot_win, now,
+                       available, n_bins, width, height, table, distance_px, k_max, dt_ms, per_bin, w, log_min, wd,
+                       refits):
+    """plane_fit.PlaneFusion.apply with plane_fit_history, flow_of = history_flow, in one
+    compiled call: the cpu runtime's form (a window crosses into compiled code once, not a
+    dozen numpy and kernel calls: ~60 us a window less). The same steps on the same compiled
+    pieces (history_rows, object_boxes, _surface_flow, flow_speed_rows, fuse_speed_rows,
+    fuse_direction_rows) as apply and refit_history, which eval runs; a test checks the two
+    agree to the bit. speed_ln (N,) float64 ln px/ms and direction (N, 2) float64 (cos, sin) of
+    the OFPD, the objects' ones (obj, xs, ys) of this window, the OnesHistory's arrays; returns
+    new (speed_ln, direction)."""
+    s = speed_ln.copy()
+    d = direction.copy()
+    n = s.shape[0]
+    want = np.empty(n, np.bool_)
+    wanted = False
+    for i in range(n):
+        want[i] = wd > 0.0 or (w > 0.0 and s[i] > log_min)        # PlaneFusion.wanted
+        wanted |= want[i]
+    if not wanted:
+        return s, d
+    k = history_rows(s, True, distance_px, k_max, dt_ms)           # PlaneFusion.windows
+    boxes = object_boxes(obj, xs, ys, n, margin, width, height)
+    k_win = np.empty(n, np.int64)
+    for i in range(n):
+        k_win[i] = min(k[i], available) if want[i] else 0
+    flow = _surface_flow(ring_ptr, ring_xs, ring_bs, slot_win, now, n_bins, height, boxes, k_win, table)
+    k_fit = k.copy()
+    for _r in range(refits):                                        # refit_history
+        speeds = flow_speed_rows(flow, per_bin)
+        k_new = history_rows(speeds, False, distance_px, k_max, dt_ms)
+        redo = False
+        for i in range(n):
+            r = want[i] and speeds[i] > 0.0 and math.isfinite(speeds[i]) and k_fit[i] != k_new[i]
+            k_win[i] = min(k_new[i], available) if r else 0
+            redo |= r
+        if not redo:
+            break
+        again = _surface_flow(ring_ptr, ring_xs, ring_bs, slot_win, now, n_bins, height, boxes, k_win, table)
+        for i in range(n):
+            v = math.hypot(again[i, 0], again[i, 1])
+            if k_win[i] > 0 and v > 0.0 and math.isfinite(v):
+                flow[i, 0], flow[i, 1] = again[i, 0], again[i, 1]
+                k_fit[i] = k_new[i]
+    if w > 0.0:
+        speed_flow = flow.copy()                 # an object short of windows keeps the OFPD's speed
+        for i in range(n):
+            if max(k[i], k_fit[i]) > available:
+                speed_flow[i, 0] = speed_flow[i, 1] = np.nan
+        fuse_speed_rows(s, speed_flow, w, log_min, per_bin)
+    if wd > 0.0:
+        fuse_direction_rows(d, flow, wd)
+    return s, d
+
+
+def fuse_history(fusion, history: "OnesHistory", speed_ln, direction, ones) -> tuple[np.ndarray, np.ndarray]:
+    """``fusion.apply(speed_ln, direction, flow_of, history.available)`` with flow_of the plane
+    fit over ``history`` (history_flow; ``ones`` = (object, x, y, ...) of this window) through
+    fused_history_flow: (ln px/ms (N,), direction (N, 2)) float64. fusion: a PlaneFusion with
+    plane_fit_history."""
+    d_px, k_max, margin = fusion.history
+    return fused_history_flow(
+        np.asarray(speed_ln, dtype=np.float64).reshape(-1), np.asarray(direction, dtype=np.float64).reshape(-1, 2),
+        np.asarray(ones[0], np.int64), np.asarray(ones[1], np.int64), np.asarray(ones[2], np.int64), int(margin),
+        history._ptr, history._xs, history._bs, history._slot_win, history.now, history.available, history.n_bins,
+        history.width, history.height, NEIGHBOURHOODS, float(d_px), int(k_max), fusion.dt_us / 1000.0,
+        fusion.per_bin, fusion.weight, fusion.log_min, fusion.dir_weight, int(fusion.refits))
 
 
 def dense_history_flow(frames: np.ndarray, history: OnesHistory, want, k_windows, margin: int) -> np.ndarray:

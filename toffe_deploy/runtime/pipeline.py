@@ -42,7 +42,7 @@ from ..events.support import SupportHistory, front_end
 from ..events.support import warm_up as support_warm_up
 from ..ofpd_io import Decoder, ofpd_settings
 from ..plane_fit import PlaneFusion, object_planes_flow
-from ..time_surface import OnesHistory, history_flow
+from ..time_surface import OnesHistory, fuse_history
 from ..time_surface import warm_up as history_warm_up
 from ..tracking import Tracker, TrackerConfig
 from . import ofpd_input
@@ -298,9 +298,7 @@ class Pipeline:
                 self.tracker.columns(_NO_DETECTIONS, t0_us)
             return []
         pose, direction, speed = self.ofpd.run(x)
-        speed, direction = self._fusion.apply(                                  # plane_fit
-            speed, direction, lambda want, k: self.plane_flow(ones, ks.size, want, k),
-            None if self.ones_history is None else self.ones_history.available)
+        speed, direction = self.fuse(speed, direction, ones, ks.size)          # plane_fit
         dec = self._decode.columns(pose, direction, speed, ks)          # Python lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         px_s = [v * 1000.0 for v in px_ms]
@@ -312,12 +310,13 @@ class Pipeline:
             dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"], dec["y_px"], dec["direction_rad"],
             n_events.tolist(), dec["speed_clipped"], ids, states)]
 
-    def plane_flow(self, ones, n_obj: int, want, k_windows) -> np.ndarray:
-        """PlaneFusion.apply's flow_of: the plane fit over each wanted object's ones of this
-        window (k_windows None) or over its time surface of its K latest windows."""
-        if k_windows is None:
-            return object_planes_flow(*ones, n_obj, want)
-        return history_flow(self.ones_history, ones, n_obj, want, k_windows, self._fusion.history[2])
+    def fuse(self, speed, direction, ones, n_obj: int):
+        """The OFPD's (speed, direction) with the plane fit blended in (plane_fit.PlaneFusion.apply):
+        over each object's time surface of its K latest windows (time_surface.fuse_history, one
+        compiled call) or over its ones of this window (object_planes_flow)."""
+        if self.ones_history is not None:
+            return fuse_history(self._fusion, self.ones_history, speed, direction, ones)
+        return self._fusion.apply(speed, direction, lambda want, _k: object_planes_flow(*ones, n_obj, want))
 
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
         """(t0_us, window) pairs in, WindowResult per window out, in order, streaming. Windows are
