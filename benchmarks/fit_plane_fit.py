@@ -6,7 +6,7 @@ on held-out data.
 
     .venv/bin/python benchmarks/fit_plane_fit.py --ckpt ckpt --data data/synth --split train
         [--max-windows 3] [--limit N] [--check appearance,test] [--write] [--json FILE]
-        [--history 4,6,8,10,12,16 --history-windows 20 --history-margin 3 --refits 0,1]
+        [--history 4,6,8,10,12,16 --history-windows 20,40 --history-margin 3 --refits 0,1] [--per-bin]
 
 Runs the checkpoint as eval does (OFS in fixed point, OFPD in torch) on ``--max-windows``
 windows of each sequence of ``--split``, matches the objects to the ground truth (one to one,
@@ -24,7 +24,10 @@ from a stream started at the recording's start, as eval reads them); each D gets
 search above, and the D whose fused speed and direction errors, each relative to the OFPD's,
 sum least is kept. ``--refits R,R,..`` (default 0): each D is tried with each number of refits
 too (``plane_fit_refits``: K again from the fit's own speed, plane_fit.refit_history), and the
-pair (D, refits) that sums least is kept.
+pair (D, refits) that sums least is kept. ``--history-windows K,K,..``: each pair with each
+K_max too, from one pass (the windows before are read once, for the largest K_max: a smaller
+one reads the latest K of them and counts the same windows as missing at a stream's start).
+``--per-bin``: each candidate's fused speed and direction errors per true speed bin as well.
 """
 from __future__ import annotations
 
@@ -49,7 +52,8 @@ def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | N
     """Matched objects of a split: OFPD ln px/ms and (cos, sin), plane-fit flow (px per bin),
     true px/ms, bin and direction. history = (candidates, K_max, margin), candidates (D,
     refits) pairs: the flow over the time surface for each too (``flow_D``: (n,
-    len(candidates), 2)) and the windows each object had (``short_D``: its K exceeded them)."""
+    len(candidates), 2)) and the windows each object had (``short_D``: its K exceeded them);
+    k_max: an int, or one per candidate (the ring holds the largest)."""
     from tqdm import tqdm
 
     from toffe_deploy.dataset.groundtruth import window_truth
@@ -65,7 +69,9 @@ def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | N
     cfg, run_stage, ofpd = reference_models(ckpt)
     if history:
         candidates, k_max, margin = history
-        cfg = dataclasses.replace(cfg, ofpd={**(cfg.ofpd or {}), "plane_fit_history": [candidates[0][0], k_max, margin]})
+        k_maxes = [int(k) for k in k_max] if isinstance(k_max, (list, tuple)) else [int(k_max)] * len(candidates)
+        cfg = dataclasses.replace(cfg, ofpd={**(cfg.ofpd or {}),
+                                             "plane_fit_history": [candidates[0][0], max(k_maxes), margin]})
     files = split_files(data, split)[:limit]
     rows = {"speed_ln": [], "direction": [], "flow": [], "true": [], "bin": [], "true_dir": [], "flow_D": [],
             "short_D": []}
@@ -93,11 +99,11 @@ def collect(ckpt: Path, data: Path, split: str, max_windows: int, limit: int | N
                     def flow_of(want, k):
                         return dense_history_flow(merged, ring, want, k, margin)
 
-                    for dist, refits in candidates:
-                        k = history_windows(s_px_ms, dist, k_max, cfg.dt_us)
+                    for (dist, refits), k_cap in zip(candidates, k_maxes):
+                        k = history_windows(s_px_ms, dist, k_cap, cfg.dt_us)
                         f = flow_of(every, k)
                         if refits:                  # as PlaneFusion.apply: short by either K
-                            f, k_fit = refit_history(f, k, every, flow_of, dist, k_max, cfg.dt_us,
+                            f, k_fit = refit_history(f, k, every, flow_of, dist, k_cap, cfg.dt_us,
                                                      px_ms_per_px_bin(cfg), refits)
                             k = [max(a, b) for a, b in zip(k, k_fit)]
                         flow_d.append(f)
@@ -147,6 +153,16 @@ def score(rows: dict, weight: float, threshold: float, dir_weight: float = 0.0, 
     return out
 
 
+def score_bins(rows: dict, weight: float, threshold: float, dir_weight: float, d_index: int | None) -> dict:
+    """score() over each true speed bin's objects alone: {bin: score}."""
+    per_object = [k for k, v in rows.items() if isinstance(v, np.ndarray) and v.shape[:1] == rows["true"].shape]
+    out = {}
+    for b in np.unique(rows["bin"]).astype(int).tolist():
+        keep = rows["bin"] == b
+        out[b] = score({**rows, **{k: rows[k][keep] for k in per_object}}, weight, threshold, dir_weight, d_index)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ckpt", default=str(ROOT / "ckpt"))
@@ -158,15 +174,20 @@ def main(argv=None) -> int:
     ap.add_argument("--write", action="store_true", help="set the fitted keys in CKPT/config.json")
     ap.add_argument("--json", default=None)
     ap.add_argument("--history", default="", help="comma-separated distances D (px) to try with plane_fit_history")
-    ap.add_argument("--history-windows", type=int, default=20, help="K_max of plane_fit_history")
+    ap.add_argument("--history-windows", default="20",
+                    help="comma-separated K_max of plane_fit_history to try with each D and refits")
     ap.add_argument("--history-margin", type=int, default=3, help="box margin (px) of plane_fit_history")
     ap.add_argument("--refits", default="0", help="comma-separated plane_fit_refits to try with each D")
+    ap.add_argument("--per-bin", action="store_true", help="each candidate's errors per true speed bin too")
     ap.add_argument("--no-progress", dest="progress", action="store_false")
     a = ap.parse_args(argv)
     distances = [float(v) for v in a.history.split(",") if v]
     refit_list = [int(v) for v in a.refits.split(",") if v] or [0]
-    candidates = [(d, r) for d in distances for r in refit_list]
-    history = (candidates, a.history_windows, a.history_margin) if candidates else ()
+    windows = [int(v) for v in a.history_windows.split(",") if v] or [20]
+    triples = [(d, r, k) for k in windows for d in distances for r in refit_list]
+    candidates = [(d, r) for d, r, _k in triples]
+    k_of = [k for _d, _r, k in triples]
+    history = (candidates, k_of, a.history_margin) if candidates else ()
     from toffe_deploy.errors import ToffeError
     from toffe_deploy.fileio import atomic_path
 
@@ -187,21 +208,25 @@ def main(argv=None) -> int:
         r = score(fit, w, t, wd, di)
         rel = r["fused_err_px_ms"] / r["ofpd_err_px_ms"] + r["fused_dir_err_deg"] / r["ofpd_dir_err_deg"]
         if di is not None:
-            print(f"D {candidates[di][0]:g} px, {candidates[di][1]} refits: speed {r['fused_err_px_ms']:.3f} px/ms, "
-                  f"direction {r['fused_dir_err_deg']:.2f} deg "
-                  f"(weights {w}, {t}, {wd}; relative sum {rel:.3f})")
+            print(f"D {candidates[di][0]:g} px, K_max {k_of[di]}, {candidates[di][1]} refits: "
+                  f"speed {r['fused_err_px_ms']:.3f} px/ms, direction {r['fused_dir_err_deg']:.2f} deg "
+                  f"(weights {w}, {t}, {wd}; relative sum {rel:.4f})")
+            if a.per_bin:
+                print("    per bin (n: px/ms / deg): " + ", ".join(
+                    f"{b} ({q['n']}: {q['fused_err_px_ms']:.3f} / {q['fused_dir_err_deg']:.2f})"
+                    for b, q in score_bins(fit, w, t, wd, di).items()))
         if best is None or rel < best[0]:
             best = (rel, di, w, t, wd)
     _rel, di, w, t, wd = best
     keys = {"plane_fit_weight": w, "plane_fit_min_px_ms": t, "plane_fit_dir_weight": wd}
     if di is not None:
-        keys["plane_fit_history"] = [candidates[di][0], a.history_windows, a.history_margin]
+        keys["plane_fit_history"] = [candidates[di][0], k_of[di], a.history_margin]
         keys["plane_fit_refits"] = candidates[di][1]
     report = {"fit_split": a.split, **keys, "splits": {a.split: score(fit, w, t, wd, di)}}
     for split in [s for s in a.check.split(",") if s]:
         report["splits"][split] = score(collect(ckpt, Path(a.data), split, a.max_windows, a.limit,
                                                 a.progress and sys.stderr.isatty(),
-                                                ([candidates[di]], a.history_windows, a.history_margin)
+                                                ([candidates[di]], k_of[di], a.history_margin)
                                                 if di is not None else ()), w, t, wd, 0 if di is not None else None)
     print(f"fitted on {a.split}: " + ", ".join(f"{k} {v}" for k, v in keys.items()))
     print("| split | objects | speed error px/ms: OFPD -> fused | bin accuracy: OFPD -> fused | direction error deg: OFPD -> fused |")
