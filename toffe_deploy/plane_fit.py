@@ -349,7 +349,7 @@ def px_ms_per_px_bin(config: ToffeConfig) -> float:
 
 def flow_px_ms(flow_px_bin: np.ndarray, config: ToffeConfig) -> np.ndarray:
     """Plane-fit speeds |v| in px/ms of object_planes_flow's (N, 2) px per bin."""
-    return flow_speed_rows(_rows2(flow_px_bin), 1.0) * px_ms_per_px_bin(config)
+    return flow_speed_rows(_rows2(flow_px_bin), px_ms_per_px_bin(config))
 
 
 class PlaneFusion:

@@ -30,7 +30,9 @@ one-window surface (the same plane and IRLS code; at most MAX_PLANES planes per 
 The cpu runtime runs the whole fusion with the history (K, boxes, surfaces, refits, blending) in
 one compiled call (``fuse_history``: ~60 us a window less than the Python steps of
 plane_fit.PlaneFusion.apply, which eval runs on the same compiled pieces; a test checks that
-they agree to the bit). Window starts follow SupportHistory's rule: the next window (t0 = last + dt) keeps the ring, a
+they agree to the bit).
+
+Window starts follow SupportHistory's rule: the next window (t0 = last + dt) keeps the ring, a
 gap of whole windows leaves empty windows between, anything else (a jump back, a gap that is no
 multiple of dt) forgets it.
 """
