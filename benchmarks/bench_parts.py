@@ -15,7 +15,8 @@ took from it, so parts compare across runs on a busy machine better than wall ti
     batch    runtime.ofpd_input.batch (object grouping, crops, OFPD input)
     ort      the onnxruntime call
     decode   the plane fit of the fast objects and its fusion (ofpd.plane_fit_weight > 0: plane_fit),
-             ofpd_io.Decoder.columns and pipeline.speeds_of
+             ofpd_io.Decoder.columns, slow objects' positions from their outlines
+             (ofpd.outline_centre: Pipeline.place) and pipeline.speeds_of
 
 Prints one JSON line: the median of each part over windows and repeats (us), the median and
 mean of their sum, the number of windows and the 1-minute load average when it ended.
@@ -81,7 +82,8 @@ def main(argv=None) -> int:
                 if ks.size:
                     pose, direction, speed = out                                 # as Pipeline.objects_of
                     speed, direction = pipe.fuse(speed, direction, ones, ks.size)          # as Pipeline.objects_of
-                    speeds_of(pipe._decode.columns(pose, direction, speed, ks), cfg, pipe.speed_scale)   # as Pipeline.objects_of
+                    speeds_of(pipe.place(pipe._decode.columns(pose, direction, speed, ks), ones), cfg,
+                              pipe.speed_scale)                                            # as Pipeline.objects_of
                 t.append(clock())
                 for name, a, b in zip(PARTS, t[:-1], t[1:]):
                     parts[name].append((b - a) / 1e3)

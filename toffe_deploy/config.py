@@ -186,10 +186,12 @@ class ToffeConfig:
         if self.ofpd is not None and not isinstance(self.ofpd, dict):
             bad(f"ofpd must be an object of settings, got {type(self.ofpd).__name__}")
         from .ofpd_io import _ofpd_settings                 # imported here: ofpd_io imports this module
+        from .outline_centre import outline_settings
         from .plane_fit import fit_settings
         try:
             _ofpd_settings(self)
             fit_settings(self)
+            outline_settings(self)
         except (TypeError, ValueError) as exc:
             bad(str(exc))
 

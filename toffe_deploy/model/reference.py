@@ -20,6 +20,7 @@ from ..config import ToffeConfig
 from ..fixed_point import LoihiOFSParams, quantize_ofs, run_ofs_fixed
 from ..metrics import Prediction
 from .. import ofpd_io
+from ..outline_centre import outline_positions, outline_settings
 from ..plane_fit import PlaneFusion, dense_flow
 from ..time_surface import dense_history_flow
 
@@ -103,8 +104,10 @@ def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, rec
     Objects are the report groups of the stage frames (ofpd_io.merge_frames: speed bin = the
     fastest stage that fires, input = the union of the group's frames); one batched OFPD call;
     the plane fit blended into its speed and direction when config.ofpd says so
-    (toffe_deploy/plane_fit.py). recent: window_outputs'. history: the plane fit's windows up
-    to this one (ofpd.plane_fit_history; events.support.sampled_window_history gives both).
+    (toffe_deploy/plane_fit.py), and slow objects' positions from their outlines over the
+    windows before (ofpd.outline_centre; toffe_deploy/outline_centre.py). recent:
+    window_outputs'. history: the plane fit's windows up to this one (ofpd.plane_fit_history;
+    events.support.sampled_window_history gives both).
     """
     ks, merged, pose, direction, speed, res = window_outputs(binned, run_stage, ofpd, config, recent)
     if ks.size == 0:
@@ -114,6 +117,11 @@ def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, rec
         dense_flow(merged) if k is None else dense_history_flow(merged, history, want, k, fusion.history[2])),
         None if history is None else history.available)
     d = ofpd_io.decode(pose, direction, speed, ks, config)
+    outline = outline_settings(config)
+    if outline is not None and history is not None:           # slow objects' positions from their outlines
+        obj, _b, _c, ys, xs = np.nonzero(merged > 0)
+        d["x_px"], d["y_px"] = outline_positions(outline, history, (obj, xs, ys), d["x_px"], d["y_px"],
+                                                 d["speed_px_ms"], d["direction_rad"], config.dt_us)
     preds = [Prediction(int(k), float(d["x_px"][i]), float(d["y_px"][i]), float(d["direction_rad"][i]),
                         float(d["speed_mps"][i]), float(d["speed_bin_mps"][i]), float(d["speed_px_ms"][i]))
              for i, k in enumerate(d["speed_bin"].tolist())]

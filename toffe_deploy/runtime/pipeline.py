@@ -42,6 +42,8 @@ from ..events.support import SupportHistory, front_end
 from ..events.support import warm_up as support_warm_up
 from ..ofpd_io import Decoder, ofpd_settings
 from ..plane_fit import PlaneFusion, object_planes_flow
+from ..outline_centre import outline_positions, outline_settings
+from ..outline_centre import warm_up as outline_warm_up
 from ..time_surface import OnesHistory, fuse_history
 from ..time_surface import warm_up as history_warm_up
 from ..tracking import Tracker, TrackerConfig
@@ -220,8 +222,10 @@ class Pipeline:
         self.support = (SupportHistory(self.config.input_support[0], self.sensor_size, self.config.dt_us)
                         if self.config.input_support is not None else None)   # the front end's windows before
         h = self._fusion.history
+        self._outline = outline_settings(self.config)        # a slow object's position from its outline
         self.ones_history = (OnesHistory(h[1], self.sensor_size, self.config.n_bins, self.config.dt_us)
-                             if h is not None and self._fusion.on else None)   # the plane fit's windows (time_surface)
+                             if h is not None and (self._fusion.on or self._outline is not None)
+                             else None)   # the plane fit's windows (time_surface), also the outline's
         self.reset_tracks()
         self._entered = False
 
@@ -253,6 +257,8 @@ class Pipeline:
             support_warm_up()
         if self.ones_history is not None:
             history_warm_up()
+        if self._outline is not None:
+            outline_warm_up()
         self.cascade.__enter__()
         self._entered = True
         return self
@@ -299,7 +305,7 @@ class Pipeline:
             return []
         pose, direction, speed = self.ofpd.run(x)
         speed, direction = self.fuse(speed, direction, ones, ks.size)          # plane_fit
-        dec = self._decode.columns(pose, direction, speed, ks)          # Python lists: no numpy scalar per field
+        dec = self.place(self._decode.columns(pose, direction, speed, ks), ones)   # lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         px_s = [v * 1000.0 for v in px_ms]
         # track_id and track per object; the tracker takes raw_detections' columns: x, y, direction_rad, speed_px_s, bin
@@ -309,6 +315,15 @@ class Pipeline:
                 for sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st in zip(
             dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"], dec["y_px"], dec["direction_rad"],
             n_events.tolist(), dec["speed_clipped"], ids, states)]
+
+    def place(self, dec: dict, ones) -> dict:
+        """Decoded columns ``dec`` with slow objects' positions from their outlines over the
+        windows before (ofpd.outline_centre; toffe_deploy/outline_centre.py), or as they are."""
+        if self._outline is not None:
+            x, y = outline_positions(self._outline, self.ones_history, ones, dec["x_px"], dec["y_px"],
+                                     dec["speed_px_ms"], dec["direction_rad"], self.config.dt_us)
+            dec["x_px"], dec["y_px"] = x.tolist(), y.tolist()
+        return dec
 
     def fuse(self, speed, direction, ones, n_obj: int):
         """The OFPD's (speed, direction) with the plane fit blended in (plane_fit.PlaneFusion.apply):
