@@ -67,10 +67,10 @@ def test_one_edge_gives_the_centre_with_its_lag_undone():
     ones = object_ones(lead)
     edge_x = float(np.mean(ones[1]))
     assert edge_x - truth[0][0] > 4.0
-    x, y = outline_positions((10.0, 4, 1.0), hist, ones, [edge_x], [32.0], [0.4], [0.0], DT)
+    x, y = outline_positions((10.0, 4, 1.0, 0.0), hist, ones, [edge_x], [32.0], [0.4], [0.0], DT)
     assert abs(x[0] - truth[0][0]) < 0.5 and abs(y[0] - truth[0][1]) < 0.5
     # without the lag term the outline's centroid trails by about (K - 1) / 2 windows of motion
-    x_lag, _ = outline_positions((10.0, 4, 1.0), hist, ones, [edge_x], [32.0], [0.4], [math.pi], DT)
+    x_lag, _ = outline_positions((10.0, 4, 1.0, 0.0), hist, ones, [edge_x], [32.0], [0.4], [math.pi], DT)
     assert truth[0][0] - x_lag[0] == pytest.approx(2 * 0.2 * 19 / 2, abs=0.6)
 
 
@@ -79,13 +79,31 @@ def test_only_slow_objects_with_their_windows_held_move():
     K windows) keep the decoded position; so does an object without ones."""
     hist, lead, _truth = discs_ring(25, 0.4, [(40.0, 32.0)])
     ones = object_ones(lead)
-    x, _ = outline_positions((10.0, 4, 1.0), hist, ones, [70.0], [32.0], [8.0], [0.0], DT)   # K = 3 < 4
+    x, _ = outline_positions((10.0, 4, 1.0, 0.0), hist, ones, [70.0], [32.0], [8.0], [0.0], DT)   # K = 3 < 4
     assert x[0] == 70.0
     short, lead_s, _t = discs_ring(10, 0.4, [(40.0, 32.0)])                                   # 10 < K = 20
-    x, _ = outline_positions((10.0, 4, 1.0), short, object_ones(lead_s), [70.0], [32.0], [0.4], [0.0], DT)
+    x, _ = outline_positions((10.0, 4, 1.0, 0.0), short, object_ones(lead_s), [70.0], [32.0], [0.4], [0.0], DT)
     assert x[0] == 70.0
-    x, _ = outline_positions((10.0, 4, 1.0), hist, (np.zeros(0, np.int64),) * 3, [70.0], [32.0], [0.4], [0.0], DT)
+    x, _ = outline_positions((10.0, 4, 1.0, 0.0), hist, (np.zeros(0, np.int64),) * 3, [70.0], [32.0], [0.4], [0.0], DT)
     assert x[0] == 70.0
+
+
+def test_a_closed_outline_keeps_the_decoded_position():
+    """closed_frac: an object whose own pixels of this window lie all round their centroid (each
+    quadrant >= the fraction of them) is an outline the OFPD saw whole, or two objects in one
+    detection: it keeps the decoded position; one edge still moves."""
+    hist, lead, truth = discs_ring(25, 0.4, [(40.0, 32.0)])
+    yy, xx = np.mgrid[0:64, 0:96]
+    ring = np.abs(np.hypot(xx - truth[0][0], yy - truth[0][1]) - 10.0) < 0.5
+    ys, xs = np.nonzero(ring)
+    whole = (np.zeros(xs.size, np.int64), xs.astype(np.int64), ys.astype(np.int64))
+    x, _ = outline_positions((10.0, 4, 1.0, 0.1), hist, whole, [45.0], [32.0], [0.4], [0.0], DT)
+    assert x[0] == 45.0
+    x, _ = outline_positions((10.0, 4, 1.0, 0.0), hist, whole, [45.0], [32.0], [0.4], [0.0], DT)
+    assert abs(x[0] - truth[0][0]) < 0.5
+    ones = object_ones(lead)
+    x, _ = outline_positions((10.0, 4, 1.0, 0.1), hist, ones, [45.0], [32.0], [0.4], [0.0], DT)
+    assert abs(x[0] - truth[0][0]) < 0.5
 
 
 @pytest.mark.parametrize("gap, off_px", [(30.0, 3.0), (40.0, None)])
@@ -101,16 +119,17 @@ def test_a_neighbour_does_not_pull(gap, off_px):
         xs0 = [float(np.mean(ones[1][ones[0] == i])) for i in range(2)]
     else:
         xs0 = [truth[0][0] + off_px, truth[1][0] - off_px]
-    x, y = outline_positions((10.0, 4, 1.0), hist, ones, xs0, [32.0, 32.0], [0.4, 0.4], [0.0, 0.0], DT)
+    x, y = outline_positions((10.0, 4, 1.0, 0.0), hist, ones, xs0, [32.0, 32.0], [0.4, 0.4], [0.0, 0.0], DT)
     for i in range(2):
         assert abs(x[i] - truth[i][0]) < 0.5 and abs(y[i] - truth[i][1]) < 0.5
     alone, lead1, truth1 = discs_ring(25, 0.4, [(20.0, 32.0)])
-    x1, _ = outline_positions((10.0, 4, 1.0), alone, object_ones(lead1), xs0[:1], [32.0], [0.4], [0.0], DT)
+    x1, _ = outline_positions((10.0, 4, 1.0, 0.0), alone, object_ones(lead1), xs0[:1], [32.0], [0.4], [0.0], DT)
     assert x1[0] == pytest.approx(x[0], abs=1e-9)
 
 
 @pytest.mark.parametrize("bad", [[10, 4], [0, 4, 1.0], [10, 0, 1.0], [10, 4.5, 1.0], [10, 4, 0], [10, True, 1],
-                                 ["a", 4, 1], [10, 4, float("nan")], 7])
+                                 ["a", 4, 1], [10, 4, float("nan")], 7, [10, 4, 1.0, 0.5],
+                                 [10, 4, 1.0, -0.1], [10, 4, 1.0, 0.1, 0]])
 def test_bad_settings_are_one_line_errors(bad, tmp_path):
     """outline_settings refuses nonsense and a missing ring; a config.json with it is refused
     on load as one line naming the file."""
@@ -122,7 +141,9 @@ def test_bad_settings_are_one_line_errors(bad, tmp_path):
         outline_settings(ToffeConfig(ofpd={"outline_centre": [10, 4, 1.0]}))
     assert outline_settings(ToffeConfig(ofpd={"plane_fit_history": [10, 20, 3]})) is None
     cfg = ToffeConfig(ofpd={"plane_fit_history": [10, 20, 3], "outline_centre": [10, 4, 1.0]})
-    assert outline_settings(cfg) == (10.0, 4, 1.0)
+    assert outline_settings(cfg) == (10.0, 4, 1.0, 0.0)
+    cfg4 = ToffeConfig(ofpd={"plane_fit_history": [10, 20, 3], "outline_centre": [10, 4, 1.0, 0.1]})
+    assert outline_settings(cfg4) == (10.0, 4, 1.0, 0.1)
     d = {**cfg.to_dict(), "ofpd": {"plane_fit_history": [10, 20, 3], "outline_centre": bad}}
     with pytest.raises((InputError, ValueError), match="config.json.*outline_centre|outline_centre must be"):
         ToffeConfig.from_dict(d, tmp_path / "config.json")

@@ -8,9 +8,10 @@ of a running stream were reported 20-39 px from objects of 22-75 px (detect_diag
 outline, and the outline's centre is the object's centre less the motion over those windows.
 
 For each object whose decoded speed s (px/ms) asks for K >= k_min windows, where the ring holds
-all K of them (a stream's start keeps the OFPD's position):
+all K of them (a stream's start keeps the OFPD's position), and whose own pixels of this window
+are not closed (below):
 
-    K = min(K_ring, ceil(D / (s dt_ms)))                     (outline_centre = [D, k_min, reach])
+    K = min(K_ring, ceil(D / (s dt_ms)))          (outline_centre = [D, k_min, reach, closed_frac])
     P = the distinct pixels the front end kept in the last K windows (OnesHistory, any bin or
         polarity) within c0 +- 2 r
     c0 = centroid of the object's distinct pixels of this window; r = max(6, reach * extent)
@@ -21,19 +22,16 @@ all K of them (a stream's start keeps the OFPD's position):
     position = c + s dt_ms (K - 1) / 2 (cos a, sin a)         (a: the decoded direction)
 
 The last term undoes the lag of the outline's centroid: it spans the K windows, so it lies
-half of them behind the object. Every target runs the same compiled kernel on the same front-end
-ones (the ring the plane fit reads, ``plane_fit_history``), so positions are the same bits on
-cpu, cuda, the Lava targets and in eval. D = 10 px is the plane fit's; k_min 4 (bins 1-3 at
-dt 500 us) and reach 1.0 from eval on ``appearance`` and ``pairs``. The neighbour test keeps two
-objects 3 radii apart from pulling each other, and the path (not the position alone) keeps a
-faster object's trail of the last K windows, as it passes a slow one, out of the slow one's
-outline.
+half of them behind the object. Closed: each quadrant around c0 holds at least closed_frac of
+the object's own pixels. Such an object is an outline the OFPD saw whole, or two objects in one
+detection as their paths cross; for the second, the outline holds both and the decoded velocity
+is neither's, which moved positions up to 27 px off and cost tracking through crossings 0.02
+MOTA and 0.06 IDF1 before this test (ckpt/README.md, "Position from the outline").
 
-An option, off in the shipped checkpoint (ckpt/README.md, "Position from the outline"): it
-lowers pixE and false positives on every split and finds slow objects the OFPD misplaces
-(``appearance`` on a running stream: recall 0.955 -> 0.972), but tracking objects whose paths
-cross loses 0.02 MOTA and 0.05 IDF1 with it (crossing seeds 0-3), which no tracker setting
-tried gave back.
+Every target runs the same compiled kernel on the same front-end ones (the ring the plane fit
+reads, ``plane_fit_history``), so positions are the same bits on cpu, cuda, the Lava targets
+and in eval. D = 10 px is the plane fit's; k_min 4 (bins 1-3 at dt 500 us), reach 1.0 and
+closed_frac 0.1 from eval on ``appearance`` and ``pairs`` and tracking on ``crossing`` seed 0.
 """
 from __future__ import annotations
 
@@ -48,29 +46,33 @@ MIN_REACH_PX = 6.0      # r's floor: a blob of a few pixels still reaches its ou
 SHIFTS = 5              # mean-shift steps (converged well before on every split measured)
 
 
-def outline_settings(config: ToffeConfig) -> tuple[float, int, float] | None:
-    """(D px, k_min windows, reach) of config.ofpd.outline_centre, or None (absent: the OFPD's
-    position stands). Needs ofpd.plane_fit_history (its ring holds the windows before)."""
+def outline_settings(config: ToffeConfig) -> tuple[float, int, float, float] | None:
+    """(D px, k_min windows, reach, closed_frac) of config.ofpd.outline_centre ([D, k_min,
+    reach] means closed_frac 0), or None (absent: the OFPD's position stands). Needs
+    ofpd.plane_fit_history (its ring holds the windows before)."""
     v = (config.ofpd or {}).get("outline_centre")
     if v is None:
         return None
-    bad = ValueError(f"ofpd.outline_centre must be [distance px > 0, min windows >= 1, reach > 0], got {v!r}")
-    if not isinstance(v, (list, tuple)) or len(v) != 3 or any(isinstance(a, bool) for a in v):
+    bad = ValueError("ofpd.outline_centre must be [distance px > 0, min windows >= 1, reach > 0(, closed "
+                     f"fraction 0-0.25)], got {v!r}")
+    if not isinstance(v, (list, tuple)) or len(v) not in (3, 4) or any(isinstance(a, bool) for a in v):
         raise bad
     try:
         d, k, reach = float(v[0]), v[1], float(v[2])
+        closed = float(v[3]) if len(v) == 4 else 0.0
     except (TypeError, ValueError):
         raise bad from None
-    if not (isinstance(k, int) and k >= 1 and math.isfinite(d) and d > 0 and math.isfinite(reach) and reach > 0):
+    if not (isinstance(k, int) and k >= 1 and math.isfinite(d) and d > 0 and math.isfinite(reach) and reach > 0
+            and 0.0 <= closed <= 0.25):
         raise bad
     if (config.ofpd or {}).get("plane_fit_history") is None:
         raise ValueError("ofpd.outline_centre needs ofpd.plane_fit_history (the windows before)")
-    return d, k, reach
+    return d, k, reach, closed
 
 
 @njit(cache=True, nogil=True)
 def outline_centres(obj, xs, ys, n_obj, x_px, y_px, speed_px_ms, direction_rad, ring_ptr, ring_xs, slot_win, now,
-                    available, width, height, distance_px, k_min, reach, dt_ms):
+                    available, width, height, distance_px, k_min, reach, dt_ms, closed_frac):
     """The module doc's positions: (x, y) float64 arrays of n_obj, the decoded (x_px, y_px)
     where an object does not qualify. obj, xs, ys: the objects' ones of this window (any
     order, repeats allowed); ring_*: an OnesHistory's arrays with this window pushed."""
@@ -93,6 +95,12 @@ def outline_centres(obj, xs, ys, n_obj, x_px, y_px, speed_px_ms, direction_rad, 
         cx = ox.mean()
         cy = oy.mean()
         extent = max(ox.max() - ox.min(), oy.max() - oy.min()) + 1
+        if closed_frac > 0.0:                        # its own pixels all round their centroid: an
+            q = np.zeros(4)                          # outline the OFPD saw whole, or two objects
+            for m in range(ox.size):
+                q[(1 if ox[m] >= cx else 0) + (2 if oy[m] >= cy else 0)] += 1.0
+            if q.min() >= closed_frac * ox.size:
+                continue
         r = max(MIN_REACH_PX, reach * extent)
         # candidates: the ring's pixels of the last k windows within c0 +- 2 r, once each (a
         # bitmap of the box marks the pixels seen)
@@ -172,14 +180,14 @@ def outline_positions(settings: tuple[float, int, float], history, ones, x_px, y
                       dt_us: int) -> tuple[np.ndarray, np.ndarray]:
     """outline_centres for ``settings`` (outline_settings), an OnesHistory with this window
     pushed and the objects' ones (object, x, y, ...) of this window: (x, y) float64 arrays."""
-    d_px, k_min, reach = settings
+    d_px, k_min, reach, closed_frac = settings
     x = np.asarray(x_px, np.float64).reshape(-1)
     return outline_centres(np.asarray(ones[0], np.int64), np.asarray(ones[1], np.int64),
                            np.asarray(ones[2], np.int64), x.size, x, np.asarray(y_px, np.float64).reshape(-1),
                            np.asarray(speed_px_ms, np.float64).reshape(-1),
                            np.asarray(direction_rad, np.float64).reshape(-1), history._ptr, history._xs,
                            history._slot_win, history.now, history.available, history.width, history.height,
-                           float(d_px), int(k_min), float(reach), dt_us / 1000.0)
+                           float(d_px), int(k_min), float(reach), dt_us / 1000.0, float(closed_frac))
 
 
 def warm_up() -> None:
@@ -190,4 +198,4 @@ def warm_up() -> None:
     h.push(0, np.array([0, 5], np.int64))
     h.push(500, np.array([1, 6], np.int64))
     z = np.zeros(2, np.int64)
-    outline_positions((10.0, 1, 1.0), h, (z, np.array([0, 1]), np.array([0, 1])), [0.0], [0.0], [1.0], [0.0], 500)
+    outline_positions((10.0, 1, 1.0, 0.1), h, (z, np.array([0, 1]), np.array([0, 1])), [0.0], [0.0], [1.0], [0.0], 500)

@@ -128,11 +128,12 @@ the object's box (grown by margin px) over its last K = min(K_max, ceil(D / (s d
 the front end's ones (`toffe_deploy.time_surface`: the host keeps the last K_max windows; an
 object wanting more windows than the stream has seen keeps the OFPD's speed); with
 `plane_fit_refits` n (0-4, absent 0), K is worked out again n times from the fit's own speed
-and the surface fitted again where K changed. With `outline_centre` [D, k_min, reach] (needs
-`plane_fit_history`), an object whose decoded speed asks for K = ceil(D / (s dt)) >= k_min
-windows, all held, is placed at the mean-shift centre of the pixels its last K windows fired
-within reach x its extent, plus s dt (K - 1) / 2 along its direction (the outline's lag;
-`toffe_deploy.outline_centre`); absent: the OFPD's position. Which events form one object is
+and the surface fitted again where K changed. With `outline_centre` [D, k_min, reach, closed_frac]
+(needs `plane_fit_history`), an object whose decoded speed asks for K = ceil(D / (s dt)) >=
+k_min windows, all held, and whose own pixels do not lie all round their centroid (each
+quadrant >= closed_frac of them), is placed at the mean-shift centre of the pixels its last K
+windows fired within reach x its extent, plus s dt (K - 1) / 2 along its direction (the
+outline's lag; `toffe_deploy.outline_centre`); absent: the OFPD's position. Which events form one object is
 `config.ofpd.grouping`: `"blobs"` (connected event blobs of any size, an object's edges joined
 until they surround it; keys `link_px`, `merge_frac`, `edge_merge_frac`, `min_events`; with
 `split_frac` > 0, `"union"` only, a blob whose two halves are each a closed outline meeting
