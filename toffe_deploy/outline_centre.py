@@ -41,6 +41,7 @@ import numpy as np
 from numba import njit
 
 from .config import ToffeConfig
+from .time_surface import OnesHistory, history_rows
 
 MIN_REACH_PX = 6.0      # r's floor: a blob of a few pixels still reaches its outline
 SHIFTS = 5              # mean-shift steps (converged well before on every split measured)
@@ -79,11 +80,12 @@ def outline_centres(obj, xs, ys, n_obj, x_px, y_px, speed_px_ms, direction_rad, 
     out_x = x_px.copy()
     out_y = y_px.copy()
     k_ring = ring_ptr.shape[0]
+    ks = history_rows(speed_px_ms, False, distance_px, k_ring, dt_ms)     # the plane fit's K rule
     for i in range(n_obj):
         step = speed_px_ms[i] * dt_ms
         if not (step > 0.0 and math.isfinite(step)):
             continue
-        k = min(k_ring, int(math.ceil(distance_px / step)))
+        k = ks[i]
         if k < k_min or k > available:
             continue
         sel = np.flatnonzero(obj == i)
@@ -176,7 +178,7 @@ def _to_path(x, y, ax, ay, dx, dy):
     return ex * ex + ey * ey
 
 
-def outline_positions(settings: tuple[float, int, float], history, ones, x_px, y_px, speed_px_ms, direction_rad,
+def outline_positions(settings: tuple[float, int, float, float], history: OnesHistory, ones, x_px, y_px, speed_px_ms, direction_rad,
                       dt_us: int) -> tuple[np.ndarray, np.ndarray]:
     """outline_centres for ``settings`` (outline_settings), an OnesHistory with this window
     pushed and the objects' ones (object, x, y, ...) of this window: (x, y) float64 arrays."""
@@ -192,8 +194,6 @@ def outline_positions(settings: tuple[float, int, float], history, ones, x_px, y
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) the kernel before the first window is timed."""
-    from .time_surface import OnesHistory
-
     h = OnesHistory(2, (4, 4), 1, 500)
     h.push(0, np.array([0, 5], np.int64))
     h.push(500, np.array([1, 6], np.int64))
