@@ -18,7 +18,8 @@ ground-truth object, as the detections report them and as its track reports them
 and per ground-truth speed bin the mean direction error of the matched detections, as the
 detection reports it (this window only) and as its confirmed track's smoothed velocity does
 (tracked, causal: from past and current windows only). Prints one markdown row per split and
-a direction table; the JSON holds every figure and the settings.
+a direction table; the JSON holds every figure and the settings, and each sequence's MOTA, IDF1, ID switches,
+misses and false positives (per_sequence).
 
 ``--save-detections DIR``: also write each split's per-window detections (the pipeline's
 objects, before tracking) to DIR/SPLIT.jsonl (JSON lines: a header {"split", "files", "fields"},
@@ -137,6 +138,7 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
     det_bins, trk_bins, t_track, n_win = [], [], 0.0, 0
     dir_det = {k: [] for k in range(1, cfg.n_speed_bins + 1)}
     dir_trk = {k: [] for k in range(1, cfg.n_speed_bins + 1)}
+    per_sequence = []
     for fi, path in enumerate(files):
         with open_events(path) as src:
             truth, focal = TruthIndex(src.ground_truth), sequence_focal_px(src.attrs)
@@ -149,6 +151,8 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                     yield t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor)
 
             track.new_sequence()
+            own = TrackingErrors(gate)                      # this sequence alone (per_sequence)
+            own.new_sequence()
             with contextlib.ExitStack() as stack:
                 if saved is None:
                     pipe = stack.enter_context(Pipeline(bundle, "cpu", sensor_size=sensor, track=settings))
@@ -162,6 +166,7 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                     flow.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps, o.speed_bin_mps,
                                                 o.speed_px_s / 1000.0) for o in res.objects], gt, focal)
                     track.add_result(res, gt)
+                    own.add_result(res, gt)
                     for i, j in match_gated([(o.x, o.y) for o in res.objects], [(t.x, t.y) for t in gt], gate):
                         key = (fi, gt[i].object_id)
                         o, b = res.objects[j], int(gt[i].speed_bin)
@@ -174,11 +179,15 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                                 dir_trk[b].append(angle_err_deg(math.radians(o.track["direction_deg"]),
                                                                 gt[i].direction))
                     n_win += 1
+            m = own.summary()
+            per_sequence.append({"sequence": Path(path).stem, "mota": m["mota"], "idf1": m["idf1"],
+                                 "id_switches": m["id_switches"], "misses": m["misses"],
+                                 "false_positives": m["false_positives"]})
     e = flow.summary()
     return {"sequences": len(files), "windows": n_win, "recall": e["recall"], "fp_per_window": e["fp_per_window"],
             "bin_accuracy": e["bin_accuracy"], "tracking": track.summary(),
             "bin_changes_detections": bin_flicker(det_bins), "bin_changes_tracks": bin_flicker(trk_bins),
-            "matched": len(det_bins),
+            "matched": len(det_bins), "per_sequence": per_sequence,
             "direction_error_deg": {str(k): {"detection": float(np.mean(dir_det[k])) if dir_det[k] else None,
                                              "tracked_causal": float(np.mean(dir_trk[k])) if dir_trk[k] else None,
                                              "n": len(dir_det[k]), "n_tracked": len(dir_trk[k])} for k in dir_det}}

@@ -121,8 +121,7 @@ def diagnose_window(binned, raw, run_stage, ofpd, cfg, truth, attrs, focal, dt, 
     need = int(ofpd_io.ofpd_settings(cfg)["min_events"])
     h, w = binned.shape[-2:]
     pool = int(cfg.ofs_pool)
-    pixels = ofpd_io.event_pixels(np.stack(res.frames))                 # (N, H, W)
-    stage_px = [np.nonzero(p)[::-1] for p in pixels]
+    stage_px = ofpd_io.stage_pixels_of(np.stack(res.frames), cfg)       # [(xs, ys(, pol))] per stage
     objs, claims = ofpd_io.group_objects_xy(stage_px, (w, h), cfg, recent)
     assert len(objs) == len(preds)
     # every stage pixel: stage, candidate group of its stage, owner object

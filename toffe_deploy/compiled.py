@@ -1219,6 +1219,8 @@ def blob_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_
 
 SPLIT_ELONGATION = 1.8     # split_two: the blob's principal variances differ by at least this factor
 SPLIT_MIDDLE = 0.15        # split_two: the cut leaves at least this share of the pixels on each side
+SPLIT_SIDES_APART = 0.3    # two_sided: the two polarities' centroids lie >= this * the set's extent apart
+SPLIT_SIDES_ALIKE = 0.6    # split_two: a half whole by two_sided alone has >= this * the other's extent, and v.v.
 
 
 @njit(cache=True, nogil=True)
@@ -1236,7 +1238,7 @@ def _elongated(n, sx, sy, sxx, syy, sxy):
 
 
 @njit(cache=True, nogil=True)
-def split_two(gx, gy, need, frac, waist):
+def split_two(gx, gy, need, frac, waist, gpol=None, polarity=0.0):
     """Whether the pixels (gx, gy) of one group are two objects, and if so which side each is
     on (else an all-False array). The cut is the line across the principal axis (1 px steps,
     leaving >= SPLIT_MIDDLE of the pixels and >= need on each side) where the pixels within
@@ -1245,7 +1247,14 @@ def split_two(gx, gy, need, frac, waist):
     narrower half's width across the axis (a fast object's smear, a filled disc, a ring are as
     wide at any cut in their middle), each half surrounds its own centroid (``surrounds``: a
     whole outline, not a leading or trailing edge of one object, not half of a ring) and their
-    centroids are >= frac * the larger half's extent apart. Blobs that are not elongated
+    centroids are >= frac * the larger half's extent apart. With ``gpol`` (each pixel's
+    polarities, bit 1 one channel, bit 2 the other) and ``polarity`` > 0, a half that does not
+    surround its centroid is a whole object too when it holds both a leading and a trailing
+    edge (``two_sided``: two objects in a row along their motion, whose facing edges join) and
+    the halves' extents are alike (>= SPLIT_SIDES_ALIKE of each other): a star's spike cut off
+    its body is two-sided too, but half the body's extent (measured on `test`: 13 against 26 px,
+    where the pairs of `pairs` that it splits have halves of 17-23 px against 18-19).
+    Blobs that are not elongated
     (_elongated) are one object without trying: the test that keeps this cheap (most groups
     stop there, after one pass over their pixels)."""
     n = gx.shape[0]
@@ -1333,33 +1342,80 @@ def split_two(gx, gy, need, frac, waist):
     ay = np.empty(n - nb_side, np.int64)
     bx = np.empty(nb_side, np.int64)
     by = np.empty(nb_side, np.int64)
+    pa = np.zeros(n - nb_side if gpol is not None else 0, np.int8)
+    pb = np.zeros(nb_side if gpol is not None else 0, np.int8)
     ia = ib = 0
     for i in range(n):
         if side[i]:
             bx[ib] = gx[i]
             by[ib] = gy[i]
+            if gpol is not None:
+                pb[ib] = gpol[i]
             ib += 1
         else:
             ax[ia] = gx[i]
             ay[ia] = gy[i]
+            if gpol is not None:
+                pa[ia] = gpol[i]
             ia += 1
     dist = np.sqrt((bx.sum() / ib - ax.sum() / ia) ** 2 + (by.sum() / ib - ay.sum() / ia) ** 2)
     ea = max(ax.max() - ax.min(), ay.max() - ay.min()) + 1
     eb = max(bx.max() - bx.min(), by.max() - by.min()) + 1
     if dist < frac * max(ea, eb):
         return none
-    if not surrounds(ax, ay) or not surrounds(bx, by):
+    if gpol is None or polarity <= 0.0:
+        if not surrounds(ax, ay) or not surrounds(bx, by):
+            return none
+        return side
+    alike = min(ea, eb) >= SPLIT_SIDES_ALIKE * max(ea, eb)
+    if not (surrounds(ax, ay) or (alike and two_sided(ax, ay, pa, polarity))):
+        return none
+    if not (surrounds(bx, by) or (alike and two_sided(bx, by, pb, polarity))):
         return none
     return side
 
 
 @njit(cache=True, nogil=True)
-def split_groups(xs, ys, pg, n_groups, need, frac, waist):
+def two_sided(xs, ys, pol, frac):
+    """Whether pixels hold a moving object's leading and trailing edges: >= frac of them fired
+    one polarity only and >= frac the other only (pol: bit 1 and bit 2 as split_two's gpol), and
+    the centroids of the two lie >= SPLIT_SIDES_APART * the set's extent (max(width, height))
+    apart. An edge moving over the sensor fires the sign of its contrast, which is opposite on
+    an object's leading and trailing sides, so one object moving fast enough to outrun the
+    edges' noise gives two single-polarity bands about its length apart along its motion; one
+    edge of it (what a cut through one object leaves on each side) has one polarity; mixed
+    polarities on the same pixels (noise, flicker) have both centroids in one place."""
+    n = xs.shape[0]
+    if n == 0:
+        return False
+    c1 = c2 = 0
+    x1 = y1 = x2 = y2 = 0
+    for i in range(n):
+        p = pol[i]
+        if p == 1:
+            c1 += 1
+            x1 += xs[i]
+            y1 += ys[i]
+        elif p == 2:
+            c2 += 1
+            x2 += xs[i]
+            y2 += ys[i]
+    if c1 < frac * n or c2 < frac * n or c1 == 0 or c2 == 0:
+        return False
+    extent = max(xs.max() - xs.min(), ys.max() - ys.min()) + 1
+    dx = x1 / c1 - x2 / c2
+    dy = y1 / c1 - y2 / c2
+    return np.sqrt(dx * dx + dy * dy) >= SPLIT_SIDES_APART * extent
+
+
+@njit(cache=True, nogil=True)
+def split_groups(xs, ys, pg, n_groups, need, frac, waist, pol=None, polarity=0.0):
     """Splits every group of pixels (pg (n,) group per pixel, -1 for none; groups 0..n_groups-1)
     that split_two finds to be two objects, in place: the second side becomes group n_groups,
     n_groups + 1, ... and each part is tried again (three objects in one blob: two splits).
     Only groups with >= 2 * need pixels that are elongated are looked at (their moments from one
-    pass over the pixels; the others cost nothing more). Returns the number of groups."""
+    pass over the pixels; the others cost nothing more). pol, polarity: split_two's gpol (per
+    pixel) and polarity. Returns the number of groups."""
     n = xs.shape[0]
     mom = np.zeros((n_groups, 6), np.int64)         # count and sums of x, y, x^2, y^2, xy per group
     for p in range(n):
@@ -1406,7 +1462,10 @@ def split_groups(xs, ys, pg, n_groups, need, frac, waist):
         hi = stack[top, 1]
         q = stack[top, 2]
         idx = order[lo:hi].copy()
-        side = split_two(xs[idx], ys[idx], need, frac, waist)
+        if pol is None:
+            side = split_two(xs[idx], ys[idx], need, frac, waist)
+        else:
+            side = split_two(xs[idx], ys[idx], need, frac, waist, pol[idx], polarity)
         na = 0
         for i in range(hi - lo):
             na += not side[i]
@@ -1435,7 +1494,7 @@ def split_groups(xs, ys, pg, n_groups, need, frac, waist):
 
 @njit(cache=True, nogil=True)
 def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_count, split_frac=0.0,
-                  split_waist=0.65, recent=None, recent_rule=None):
+                  split_waist=0.65, split_polarity=0.0, recent=None, recent_rule=None, pol=None):
     """ofpd_io.blob_objects_xy with ofpd.stages "union": the window's stage pixels (stage i's
     are xs, ys[starts[i]:starts[i + 1]], disjoint: the cascade gives each pixel to one stage)
     form blobs together (link_components, component_stats, merge_blobs, as one frame's), and
@@ -1448,7 +1507,10 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
     centroid, so a neighbour's edges join it only within frac_closed. Objects are numbered
     fastest stage first, then by group. With split_frac > 0, a group that split_groups finds to
     hold two objects (two touching outlines, split_two with split_frac and split_waist) is two
-    groups. With ``recent`` (the (H * W,) uint8 event-pixel counts of the latest windows,
+    groups; with split_polarity > 0 and ``pol`` (per pixel: bit 1 and bit 2 for the two
+    polarities of its ones, frame_pixels' spol) a half that holds a leading and a trailing
+    edge is a whole object too (split_two, two_sided). With ``recent`` (the (H * W,) uint8
+    event-pixel counts of the latest windows,
     ofpd.recent_events) a group short of need is an object too when recent_reaches holds for it
     (recent_rule = [r, m, c, E]; its stage is then the one holding most of its pixels).
     Returns what blob_objects returns."""
@@ -1483,7 +1545,10 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
     for p in range(n):
         pg[p] = comp_group[labels[p]]
     if split_frac > 0.0:
-        n_groups = split_groups(xs, ys, pg, n_groups, need, split_frac, split_waist)
+        if pol is None or split_polarity <= 0.0:
+            n_groups = split_groups(xs, ys, pg, n_groups, need, split_frac, split_waist)
+        else:
+            n_groups = split_groups(xs, ys, pg, n_groups, need, split_frac, split_waist, pol, split_polarity)
     per_stage = np.zeros((n_groups, n_stages), np.int64)
     gsx = np.zeros(n_groups, np.int64)
     gsy = np.zeros(n_groups, np.int64)
@@ -1682,13 +1747,15 @@ def crop_pool(extent, g, pool_min, pool_max):
 
 
 @njit(cache=True, nogil=True)
-def frame_pixels(frames, pix_inverse, upix, width, plane, n_channels):
+def frame_pixels(frames, pix_inverse, upix, width, plane, n_channels, polarity=False):
     """The unique pixels of a window's stage frames and the ones in any frame: frames (N, n)
     bool over the window's ones, pix_inverse (n,) the window pixel of each one, upix (U,) the
     window pixels (linear y * W + x), plane (n,) each one's b * C + c. Returns (xs, ys (M,) the
     pixels of frame 0, then frame 1, ..., each frame's in order of first appearance, starts
     (N + 1,) where each frame's begin, then for the ones in any frame, in order: their window
-    pixel ev_u, x, y and OFPD channel 2 b + c (E,))."""
+    pixel ev_u, x, y and OFPD channel 2 b + c (E,), then spol (M,) int8: with ``polarity``, the
+    polarities of each listed pixel's ones in any frame (bit 1: channel 0, bit 2: channel 1;
+    ofpd_io.pixel_polarity of the dense frames), else empty)."""
     n_frames, n = frames.shape
     n_u = upix.shape[0]
     ux = np.empty(n_u, np.int64)
@@ -1706,6 +1773,7 @@ def frame_pixels(frames, pix_inverse, upix, width, plane, n_channels):
     stamp = np.full(n_u, -1, np.int64)
     xs = np.empty(n_frames * n, np.int64)
     ys = np.empty(n_frames * n, np.int64)
+    su = np.empty(n_frames * n if polarity else 0, np.int64)     # each listed pixel's window pixel
     starts = np.zeros(n_frames + 1, np.int64)
     in_any = np.zeros(n, np.bool_)
     sel = np.empty(n, np.int64)
@@ -1723,6 +1791,8 @@ def frame_pixels(frames, pix_inverse, upix, width, plane, n_channels):
                 stamp[u] = k
                 xs[m] = ux[u]
                 ys[m] = uy[u]
+                if polarity:
+                    su[m] = u
                 m += 1
         starts[k + 1] = m
     n_ev = 0
@@ -1742,7 +1812,15 @@ def frame_pixels(frames, pix_inverse, upix, width, plane, n_channels):
             pl = plane[i]
             ch[e] = pl if n_channels == 2 else (pl // n_channels) * 2 + pl % n_channels
             e += 1
-    return xs[:m], ys[:m], starts, ev_u, fx, fy, ch
+    if not polarity:
+        return xs[:m], ys[:m], starts, ev_u, fx, fy, ch, np.zeros(0, np.int8)
+    pol_u = np.zeros(n_u, np.int8)
+    for j in range(n_ev):
+        pol_u[ev_u[j]] |= np.int8(1 << (ch[j] & 1))
+    spol = np.empty(m, np.int8)
+    for j in range(m):
+        spol[j] = pol_u[su[j]]
+    return xs[:m], ys[:m], starts, ev_u, fx, fy, ch, spol
 
 
 @njit(cache=True, nogil=True)
@@ -1813,18 +1891,24 @@ def object_input(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_m
 
 @njit(cache=True, nogil=True)
 def window_objects(frames, pix_inverse, upix, width, plane, n_channels, union, link, frac_closed, frac_open, need,
-                   min_count, split_frac, split_waist, slot_of, fixed_size, g, pool_min, pool_max, height, n_input,
-                   n_bins, coord_scale, recent=None, recent_rule=None):
+                   min_count, split_frac, split_waist, split_polarity, slot_of, fixed_size, g, pool_min, pool_max,
+                   height, n_input, n_bins, coord_scale, recent=None, recent_rule=None):
     """The runtime's batch for grouping "blobs" in one call: frame_pixels, then union_objects
     (``union``) or blob_objects, claimed_by (scratch ``slot_of``) and object_input, the same
     kernels on the same arrays back to back, so that a window crosses from Python into compiled
     code once for all of them and gets back seven arrays instead of sixteen. Returns (stage
     (G,) 0-based, OFPD input (G, n_input, g, g) float32, n_ones (G,), then object_input's
     claimed ones: object, x, y, channel); ``recent``, ``recent_rule``: union_objects'."""
-    sx, sy, starts, ev_u, fx, fy, ch = frame_pixels(frames, pix_inverse, upix, width, plane, n_channels)
-    if union:
+    with_pol = union and split_frac > 0.0 and split_polarity > 0.0
+    sx, sy, starts, ev_u, fx, fy, ch, spol = frame_pixels(frames, pix_inverse, upix, width, plane, n_channels,
+                                                          with_pol)
+    if with_pol:
         stage, _cx, _cy, _own, keys, owner = union_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
-                                                           min_count, split_frac, split_waist, recent, recent_rule)
+                                                           min_count, split_frac, split_waist, split_polarity, recent,
+                                                           recent_rule, spol)
+    elif union:
+        stage, _cx, _cy, _own, keys, owner = union_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
+                                                           min_count, split_frac, split_waist, 0.0, recent, recent_rule)
     else:
         stage, _cx, _cy, _own, keys, owner = blob_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
                                                           min_count)
@@ -2300,7 +2384,7 @@ def warm_up() -> None:
     merge_blobs(labels, count, bbox, i64, i64, 0.2, 1.5, 1)
     blob_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1)
     union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65)
-    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, np.zeros(2, np.uint8),
+    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, np.zeros(2, np.uint8),
                   np.zeros(4, np.int64))
     split_groups(i64, i64, i64.copy(), 1, 1, 0.6, 0.65)
     min_gap(i64, i64, i64, i64, 1.0)
@@ -2311,8 +2395,8 @@ def warm_up() -> None:
     frame_pixels(np.ones((1, 1), np.bool_), i64, i64, 1, i64, 2)
     object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2)
     object_input(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2, 5, 1, 1000.0)
-    window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, scratch, 0, 1, 1,
-                   1, 2, 5, 1, 1000.0)
+    window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, scratch,
+                   0, 1, 1, 1, 2, 5, 1, 1000.0)
     crop_origin(i64, i64, 1, 2, 2)
     two_pass_centroid(i64, i64, 1.0, 2, 2)
     fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 1000.0)

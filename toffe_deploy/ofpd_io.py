@@ -99,6 +99,8 @@ OFPD_DEFAULTS: dict[str, Any] = {
     "edge_merge_frac": 1.5,  # ... or within edge_merge_frac when both are open edges (not surrounding their centroid)
     "split_frac": 0.0,      # stages "union": a group cut at its narrowest into two closed outlines is two objects when
     "split_waist": 0.65,    # >= split_frac * extent apart, cut <= split_waist * width (compiled.split_two); 0 = never
+    "split_polarity": 0.0,  # split_frac > 0: a half that does not surround its centroid is an object too when >= this
+                            # share of its pixels fired each polarity only, apart (compiled.two_sided); 0 = never
     "recent_events": None,  # stages "union": [r, m, c], a group short of min_events is an object when the event pixels
                             # of the latest K windows (input_support's) in its box grown by r px reach
                             # m + floor(c * box area * their density) (compiled.recent_reaches); None = never
@@ -140,6 +142,11 @@ def _ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
             raise ValueError(f"ofpd.{key} must be one of {', '.join(choices)}, got {s[key]!r}")
     if float(s["split_frac"]) > 0 and s["stages"] != "union":
         raise ValueError('ofpd.split_frac > 0 needs ofpd.stages "union"')
+    pol = s["split_polarity"]
+    if isinstance(pol, bool) or not isinstance(pol, (int, float)) or not 0.0 <= float(pol) <= 0.5:
+        raise ValueError(f"ofpd.split_polarity must be a number in [0, 0.5], got {pol!r}")
+    if float(pol) > 0 and float(s["split_frac"]) <= 0:
+        raise ValueError("ofpd.split_polarity > 0 needs ofpd.split_frac > 0 (it relaxes that split's test)")
     if s["recent_events"] is not None:
         check_recent_events(s, config)
     if s["bin_from"] == "ofpd" and s["speed_unit"] != "px_ms":
@@ -206,6 +213,26 @@ def event_pixels(frames: np.ndarray) -> np.ndarray:
     """(N, B, 2, H, W) -> (N, H, W) bool: pixels with any event in any bin or polarity."""
     frames = np.asarray(frames)
     return frames.reshape(frames.shape[0], int(np.prod(frames.shape[1:-2])), *frames.shape[-2:]).any(axis=1)
+
+
+def pixel_polarity(frames: np.ndarray) -> np.ndarray:
+    """(N, B, 2, H, W) -> (H, W) int8: the polarities a pixel fired in any frame and bin, bit 1
+    for channel 0 and bit 2 for channel 1 (0: none, 3: both), as compiled.frame_pixels gives them."""
+    frames = np.asarray(frames) > 0
+    per_channel = frames.any(axis=(0, 1))                 # (2, H, W)
+    return (per_channel[0].astype(np.int8) | (per_channel[1].astype(np.int8) << 1)).astype(np.int8)
+
+
+def stage_pixels_of(frames: np.ndarray, config: ToffeConfig) -> list[tuple[np.ndarray, ...]]:
+    """The stage pixels group_objects_xy takes, from the N stage frames (N, B, 2, H, W) of one
+    window: [(xs, ys)] per stage, with each pixel's polarities as a third array when the
+    grouping reads them (ofpd.split_polarity > 0)."""
+    pixels = event_pixels(frames)
+    xy = [np.nonzero(p)[::-1] for p in pixels]
+    if not uses_polarity(ofpd_settings(config)):
+        return xy
+    pol = pixel_polarity(frames)
+    return [(xs, ys, pol[ys, xs]) for xs, ys in xy]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -320,10 +347,11 @@ def group_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sens
     at them: object_masks_xy).
 
     stage_pixels[k-1] = (xs, ys): the unique event pixels of stage k's frame (any order) on a
-    sensor (width, height). Why fastest first: OFS_k fires for speed bin >= k, so an object's
-    bin is the fastest stage that fires on it. The cascade's closed mask rarely takes every
-    event of the object; its leftover edges reach the slower stages, which would otherwise
-    report the same object again at a wrong speed (measured on the test split: bin assignment
+    sensor (width, height), or (xs, ys, pol) with each pixel's polarities (``stage_pixels_of``;
+    read by ofpd.split_polarity only, which without them splits as if it were 0). Why fastest
+    first: OFS_k fires for speed bin >= k, so an object's bin is the fastest stage that fires on
+    it. The cascade's closed mask rarely takes every event of the object; its leftover edges
+    reach the slower stages, which would otherwise report the same object again at a wrong speed (measured on the test split: bin assignment
     92 % with this rule, 57 % when every frame reports and the nearest report is matched).
 
     ofpd.grouping "blobs" (blob_objects_xy): objects follow the event blobs, any size, any
@@ -340,11 +368,12 @@ def group_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sens
 
 
 def group_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, sensor_size: tuple[int, int],
-                       config: ToffeConfig, recent=None) -> tuple[Objects, "Claims"]:
+                       config: ToffeConfig, recent=None, pol=None) -> tuple[Objects, "Claims"]:
     """group_objects_xy of stage pixels given as flat int64 arrays: stage i's are
-    xs, ys[starts[i]:starts[i + 1]] (the cpu runtime's form: no per-stage arrays to join)."""
+    xs, ys[starts[i]:starts[i + 1]] (the cpu runtime's form: no per-stage arrays to join);
+    pol: their polarities as stage_pixels_of gives them (ofpd.split_polarity), or None."""
     if ofpd_settings(config)["grouping"] == "blobs":
-        return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config, recent)
+        return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config, recent, pol)
     stage_pixels = [(xs[a:b], ys[a:b]) for a, b in zip(starts[:-1].tolist(), starts[1:].tolist())]
     return _with_regions(box_objects_xy(stage_pixels, sensor_size, config), int(sensor_size[0]), config)
 
@@ -469,32 +498,49 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
     ofpd.split_frac > 0 ("union" only): then a group cut across its principal axis where it is
     narrowest into two halves that each surround their own centroid, lie >= split_frac * the
     larger half's extent apart and meet in a waist <= split_waist * the narrower one's width
-    (compiled.split_two) is two objects, each at its own centroid. Measured on the
+    (compiled.split_two) is two objects, each at its own centroid; with ofpd.split_polarity > 0
+    (stage pixels given with their polarities, stage_pixels_of) a half that holds a leading and
+    a trailing edge passes for a closed outline (two objects in a row along their motion,
+    compiled.two_sided). Measured on the
     crossing sequences (objects whose paths cross): touching outlines are split, while one
     object's separated leading and trailing edges (open halves), a ring's two halves (open) and
     a fast object's smear (as wide at the cut as elsewhere) stay one."""
-    pix = [tuple(_int64(a) for a in p) for p in stage_pixels]
+    pix = [tuple(_int64(a) for a in p[:2]) for p in stage_pixels]
     starts = np.cumsum([0] + [p[0].shape[0] for p in pix]).astype(np.int64)
     xs = np.concatenate([p[0] for p in pix]) if pix else np.zeros(0, np.int64)
     ys = np.concatenate([p[1] for p in pix]) if pix else np.zeros(0, np.int64)
-    return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config, recent)
+    pol = (np.concatenate([np.asarray(p[2], np.int8) for p in stage_pixels])
+           if pix and all(len(p) > 2 for p in stage_pixels) else None)
+    return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config, recent, pol)
 
 
-def blob_settings(s: dict) -> tuple[bool, int, float, float, int, int, float, float]:
+def blob_settings(s: dict) -> tuple[bool, int, float, float, int, int, float, float, float]:
     """(stages "union"?, then link, frac_closed, frac_open, need, min_count as compiled.union_objects /
-    blob_objects take them, then split_frac, split_waist, union_objects' only) from ofpd_settings ``s``."""
+    blob_objects take them, then split_frac, split_waist, split_polarity, union_objects' only) from
+    ofpd_settings ``s``."""
     need = int(s["min_events"])
     return (s["stages"] == "union", int(s["link_px"]), float(s["merge_frac"]), float(s["edge_merge_frac"]), need,
-            max(1, -(-need // 4)), float(s["split_frac"]), float(s["split_waist"]))
+            max(1, -(-need // 4)), float(s["split_frac"]), float(s["split_waist"]), float(s["split_polarity"]))
+
+
+def uses_polarity(s: dict) -> bool:
+    """Whether the grouping of ofpd_settings ``s`` reads each pixel's polarities (split_polarity)."""
+    return s["stages"] == "union" and float(s["split_frac"]) > 0 and float(s["split_polarity"]) > 0
 
 
 def _blob_objects_flat(xs: np.ndarray, ys: np.ndarray, starts: np.ndarray, w: int, config: ToffeConfig,
-                       recent=None) -> tuple[Objects, Claims]:
+                       recent=None, pol=None) -> tuple[Objects, Claims]:
     """blob_objects_xy on flat stage pixels (group_objects_flat), in one compiled pass."""
     s = ofpd_settings(config)
     union, *args = blob_settings(s)
     if union:
-        stage, cx, cy, _owner, keys, owner = union_objects(xs, ys, starts, w, *args, *recent_args(s, recent))
+        if pol is not None and uses_polarity(s):
+            pol = np.ascontiguousarray(pol, np.int8)
+            if pol.shape != xs.shape:
+                raise ValueError(f"pixel polarities {pol.shape} do not match the stage pixels {xs.shape}")
+        else:
+            pol = None
+        stage, cx, cy, _owner, keys, owner = union_objects(xs, ys, starts, w, *args, *recent_args(s, recent), pol)
     else:
         stage, cx, cy, _owner, keys, owner = blob_objects(xs, ys, starts, w, *args[:5])
     objs = list(zip(stage.tolist(), cx.tolist(), cy.tolist()))       # (int, float, float) rows
@@ -599,7 +645,8 @@ def has_object(frames: np.ndarray, config: ToffeConfig, recent=None) -> np.ndarr
     if frames.ndim == 4:
         frames = frames[None]
     keep = np.zeros(frames.shape[0], dtype=bool)
-    for i, _cx, _cy in report_objects(event_pixels(frames), config, recent):
+    h, w = frames.shape[-2:]
+    for i, _cx, _cy in report_objects_xy(stage_pixels_of(frames, config), (w, h), config, recent):
         keep[i] = True
     return keep
 
@@ -612,9 +659,8 @@ def merge_frames(frames: np.ndarray, config: ToffeConfig, recent=None) -> tuple[
     to, and none of another object's. Feed these to prepare / decode. recent: group_objects_xy's.
     """
     frames = np.asarray(frames) > 0
-    pixels = event_pixels(frames)
     h, w = frames.shape[-2:]
-    objs, claims = group_objects_xy([np.nonzero(p)[::-1] for p in pixels], (w, h), config, recent)
+    objs, claims = group_objects_xy(stage_pixels_of(frames, config), (w, h), config, recent)
     every = np.flatnonzero(frames.any(axis=0))             # the window's ones, (b, c, y, x) linear
     ys, xs = np.divmod(every % (h * w), w)
     merged = np.zeros((len(objs), int(np.prod(frames.shape[1:]))), dtype=bool)

@@ -137,7 +137,9 @@ outline's lag; `toffe_deploy.outline_centre`); absent: the OFPD's position. Whic
 `config.ofpd.grouping`: `"blobs"` (connected event blobs of any size, an object's edges joined
 until they surround it; keys `link_px`, `merge_frac`, `edge_merge_frac`, `min_events`; with
 `split_frac` > 0, `"union"` only, a blob whose two halves are each a closed outline meeting
-the other in a narrow waist, at most `split_waist` of the narrower one's width, is two objects;
+the other in a narrow waist, at most `split_waist` of the narrower one's width, is two objects,
+and with `split_polarity` f > 0 so is a blob whose halves each hold a leading and a trailing edge
+instead (>= f of a half's pixels fired one polarity only, >= f the other, apart; extents alike);
 with `recent_events` [r, m, c], `"union"` and `input_support` only, a blob short of `min_events`
 is an object when the latest K windows' event pixels in its box grown by r px reach
 m + floor(c A E / (H W)) and it lies apart from every object) or

@@ -28,7 +28,7 @@ import numpy as np
 from ..compiled import dedupe, frame_pixels, object_input, window_objects
 from ..config import ToffeConfig
 from ..ofpd_io import (COORD_SCALE, blob_settings, crop_origin_xy, group_objects_flat, group_objects_xy, input_shape,
-                       object_masks_xy, ofpd_settings, prepare_xy, recent_args)
+                       object_masks_xy, ofpd_settings, prepare_xy, recent_args, uses_polarity)
 from .spikes import SpikeVolume
 
 
@@ -53,10 +53,15 @@ def merge_objects(volume: SpikeVolume, frames: Sequence[np.ndarray], config: Tof
     """
     _b, _c, h, w = volume.shape
     pix = volume.pix
-    objs, claims = group_objects_xy([unique_xy(pix[m], w, scratch) for m in frames], (w, h), config, recent)
+    stage_px = [unique_xy(pix[m], w, scratch) for m in frames]
+    every = np.flatnonzero(np.logical_or.reduce(list(frames)))     # the ones of every frame
+    if uses_polarity(ofpd_settings(config)):                       # ofpd_io.pixel_polarity on the ones
+        pol = np.zeros(h * w, np.int8)
+        np.bitwise_or.at(pol, pix[every], (1 << volume.c[every]).astype(np.int8))
+        stage_px = [(xs, ys, pol[ys * w + xs]) for xs, ys in stage_px]
+    objs, claims = group_objects_xy(stage_px, (w, h), config, recent)
     if not objs:
         return np.zeros(0, dtype=np.int64), []
-    every = np.flatnonzero(np.logical_or.reduce(list(frames)))     # the ones of every frame
     fy, fx = np.divmod(pix[every], w)
     merged = [volume.subset(every[m]) for m in object_masks_xy(fx, fy, objs, claims)]
     return np.array([i + 1 for i, _, _ in objs], dtype=np.int64), merged
@@ -107,8 +112,9 @@ def batch(volume: SpikeVolume, frames: Sequence[np.ndarray], config: ToffeConfig
                                                *crop, h, c, int(config.n_bins), COORD_SCALE,
                                                *recent_args(s, recent))
         return stage + 1, x, n_ev, tuple(ones)
-    sx, sy, starts, ev_u, fx, fy, ch = frame_pixels(stacked, pinv, upix, w, volume.bc, nc)
-    objs, claims = group_objects_flat(sx, sy, starts, (w, h), config, recent)
+    with_pol = uses_polarity(s)
+    sx, sy, starts, ev_u, fx, fy, ch, spol = frame_pixels(stacked, pinv, upix, w, volume.bc, nc, with_pol)
+    objs, claims = group_objects_flat(sx, sy, starts, (w, h), config, recent, spol if with_pol else None)
     if not objs:
         none = np.zeros(0, dtype=np.int64)
         return none, np.zeros((0, c, g, g), np.float32), none, (none, none, none, none)
