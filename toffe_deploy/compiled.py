@@ -1253,10 +1253,9 @@ def split_two(gx, gy, need, frac, waist, gpol=None, polarity=0.0):
     edge (``two_sided``: two objects in a row along their motion, whose facing edges join) and
     the halves' extents are alike (>= SPLIT_SIDES_ALIKE of each other): a star's spike cut off
     its body is two-sided too, but half the body's extent (measured on `test`: 13 against 26 px,
-    where the pairs of `pairs` that it splits have halves of 17-23 px against 18-19).
-    Blobs that are not elongated
-    (_elongated) are one object without trying: the test that keeps this cheap (most groups
-    stop there, after one pass over their pixels)."""
+    where the pairs of `pairs` that it splits have halves of 17-23 px against 18-19). Blobs
+    that are not elongated (_elongated) are one object without trying: the test that keeps
+    this cheap (most groups stop there, after one pass over their pixels)."""
     n = gx.shape[0]
     none = np.zeros(n, np.bool_)
     if n < 2 * need:
@@ -2386,6 +2385,10 @@ def warm_up() -> None:
     union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65)
     union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, np.zeros(2, np.uint8),
                   np.zeros(4, np.int64))
+    i8 = np.zeros(1, np.int8)                  # ofpd.split_polarity: the pixels' polarities
+    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.6, 0.65, 0.25, None, None, i8)
+    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.6, 0.65, 0.25, np.zeros(2, np.uint8),
+                  np.zeros(4, np.int64), i8)
     split_groups(i64, i64, i64.copy(), 1, 1, 0.6, 0.65)
     min_gap(i64, i64, i64, i64, 1.0)
     surrounds(i64, i64)

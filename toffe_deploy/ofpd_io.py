@@ -351,8 +351,9 @@ def group_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], sens
     read by ofpd.split_polarity only, which without them splits as if it were 0). Why fastest
     first: OFS_k fires for speed bin >= k, so an object's bin is the fastest stage that fires on
     it. The cascade's closed mask rarely takes every event of the object; its leftover edges
-    reach the slower stages, which would otherwise report the same object again at a wrong speed (measured on the test split: bin assignment
-    92 % with this rule, 57 % when every frame reports and the nearest report is matched).
+    reach the slower stages, which would otherwise report the same object again at a wrong
+    speed (measured on the test split: bin assignment 92 % with this rule, 57 % when every
+    frame reports and the nearest report is matched).
 
     ofpd.grouping "blobs" (blob_objects_xy): objects follow the event blobs, any size, any
     spacing above what the closing bridges. "boxes" (box_objects_xy, checkpoints before it):
@@ -501,8 +502,8 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
     (compiled.split_two) is two objects, each at its own centroid; with ofpd.split_polarity > 0
     (stage pixels given with their polarities, stage_pixels_of) a half that holds a leading and
     a trailing edge passes for a closed outline (two objects in a row along their motion,
-    compiled.two_sided). Measured on the
-    crossing sequences (objects whose paths cross): touching outlines are split, while one
+    compiled.two_sided). Measured on the crossing sequences (objects whose paths cross):
+    touching outlines are split, while one
     object's separated leading and trailing edges (open halves), a ring's two halves (open) and
     a fast object's smear (as wide at the cut as elsewhere) stay one."""
     pix = [tuple(_int64(a) for a in p[:2]) for p in stage_pixels]
