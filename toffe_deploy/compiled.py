@@ -1901,13 +1901,11 @@ def window_objects(frames, pix_inverse, upix, width, plane, n_channels, union, l
     with_pol = union and split_frac > 0.0 and split_polarity > 0.0
     sx, sy, starts, ev_u, fx, fy, ch, spol = frame_pixels(frames, pix_inverse, upix, width, plane, n_channels,
                                                           with_pol)
-    if with_pol:
+    if union:                                  # spol is empty and split_polarity 0 when polarities are not read
         stage, _cx, _cy, _own, keys, owner = union_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
-                                                           min_count, split_frac, split_waist, split_polarity, recent,
-                                                           recent_rule, spol)
-    elif union:
-        stage, _cx, _cy, _own, keys, owner = union_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
-                                                           min_count, split_frac, split_waist, 0.0, recent, recent_rule)
+                                                           min_count, split_frac, split_waist,
+                                                           split_polarity if with_pol else 0.0, recent, recent_rule,
+                                                           spol)
     else:
         stage, _cx, _cy, _own, keys, owner = blob_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
                                                           min_count)
