@@ -7,7 +7,8 @@
         [--max-occluded O] [--turn-beta B] [--max-turn RAD] [--merge PX] [--merge-move PX]
         [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R] [--coast-px PX] [--max-coast N]
         [--pos-beta B] [--pos-min PX] [--pos-max-rad RAD] [--blob-growth G] [--heading-cost PX] [--reid-growth G]
-        [--no-reid-ratio-missed] [--hidden PX]
+        [--no-reid-ratio-missed] [--hidden PX] [--handover PX] [--handover-reach K] [--handover-windows N]
+        [--handover-speed-ratio R]
         [--truth-blobs [--truth-merge F]] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
@@ -363,6 +364,15 @@ def main(argv=None) -> int:
     ap.add_argument("--hidden", type=float, default=d.hidden_px,
                     help="hidden_px: a detection this near a missed confirmed track converging on its taker is a blob "
                          "of both (0: off)")
+    ap.add_argument("--handover", type=float, default=d.handover_px,
+                    help="handover_px: a new track confirmed this near a lost track's last detection takes its id "
+                         "(0: off)")
+    ap.add_argument("--handover-reach", type=float, default=d.handover_reach,
+                    help="handover_reach: the hand-over radius grows by this much of the lost track's travel per window")
+    ap.add_argument("--handover-windows", type=int, default=d.handover_windows,
+                    help="handover_windows: a lost track can hand its id over for this many windows since its detection")
+    ap.add_argument("--handover-speed-ratio", type=float, default=d.handover_speed_ratio,
+                    help="handover_speed_ratio: the most the two tracks' speeds may differ by (a factor)")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--truth-merge", type=float, default=1.0, metavar="F",
@@ -385,7 +395,9 @@ def main(argv=None) -> int:
                              shared_gate_grows=a.shared_gate_grows, reid_px=a.reid, reid_ratio=a.reid_ratio,
                              coast_px=a.coast_px, max_coast=a.max_coast, pos_beta=a.pos_beta, pos_min_px=a.pos_min,
                              pos_max_rad=a.pos_max_rad, blob_growth=a.blob_growth, heading_cost_px=a.heading_cost,
-                             reid_growth=a.reid_growth, reid_ratio_missed=a.reid_ratio_missed, hidden_px=a.hidden)
+                             reid_growth=a.reid_growth, reid_ratio_missed=a.reid_ratio_missed, hidden_px=a.hidden,
+                             handover_px=a.handover, handover_reach=a.handover_reach,
+                             handover_windows=a.handover_windows, handover_speed_ratio=a.handover_speed_ratio)
     bundle = load_bundle(a.bundle)
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)

@@ -468,10 +468,11 @@ def test_a_slow_track_outlives_max_misses_while_its_prediction_stays_near():
     """A slow object (1 px per window) hidden for 25 windows (behind a passing object) comes
     back where its track coasted: the track lives while it has coasted at most coast_px (25 px
     < 30), so the object keeps its id; a fast one (8 px per window) dies after max_misses as
-    before, and max_coast bounds the slow one's life."""
+    before, and max_coast bounds the slow one's life (hand-over off: it would give the object's
+    new track the dead one's id)."""
     for speed, coast_px, max_coast, same in ((2000, 30.0, 40, True), (2000, 0.0, 40, False),
                                              (2000, 30.0, 20, False), (16000, 30.0, 40, False)):
-        tr = Tracker(CFG, DT_US, TrackerConfig(coast_px=coast_px, max_coast=max_coast))
+        tr = Tracker(CFG, DT_US, TrackerConfig(coast_px=coast_px, max_coast=max_coast, handover_px=0.0))
         for w in range(45):
             o = mover(50, 200, 0, speed, w)
             tr.update([] if 10 <= w < 35 else [o], w * DT_US)
@@ -561,3 +562,71 @@ def test_a_detection_beside_a_missed_track_is_a_blob_and_the_crossing_keeps_its_
                 ids = ids or (a.track_id, b.track_id)
         assert blobs == 20 and tr.next_id == 2
         assert ((a.track_id, b.track_id) == ids) == kept
+
+
+def test_an_object_back_far_from_its_prediction_hands_its_new_track_the_old_id():
+    """An object (10 px per window) hidden for 8 windows comes back 45 px beside its straight-line
+    path (it turned while hidden): outside its gate and re-identification radius (their growth
+    with the misses off), so a
+    new track is born, tentative (a new id, not yet confirmed); at its confirmation it continues
+    the coasting track and takes its id (the coasting one is dropped). Hand-over off: the new
+    id stays and the old track coasts on."""
+    for handover_px, want in ((40.0, 0), (0.0, 1)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(handover_px=handover_px, gate_growth=0.0, reid_growth=0.0))
+        for w in range(22):
+            o = mover(50, 200, 0, 20000, w)
+            if w >= 18:
+                o.y += 45.0
+            tr.update([] if 10 <= w < 18 else [o], w * DT_US)
+            if w == 18:
+                assert o.track_id == 1 and not o.track["confirmed"]
+        assert o.track["confirmed"] and o.track_id == want
+        assert sorted(tr.tracks.id) == ([0] if handover_px else [0, 1])
+
+
+def test_a_dead_track_hands_its_id_over_within_handover_windows_and_alike_speeds_only():
+    """An object (8 px per window) hidden long enough for its track to die (max_misses) comes back
+    60 px off its path: its new track takes the dead one's id, if the speeds are alike and it
+    comes back within handover_windows; a slow object (1 px per window) appearing there, or the
+    same one coming back too late, keeps its new id."""
+    cases = ((16000, 80, True), (2000, 80, False), (16000, 25, False))
+    for speed, windows, handed in cases:
+        tr = Tracker(CFG, DT_US, TrackerConfig(handover_windows=windows, max_misses=10, max_occluded=10,
+                                               coast_px=0.0))
+        for w in range(10):
+            tr.update([mover(50, 200, 0, 16000, w)], w * DT_US)
+        assert len(tr.tracks) == 1
+        for w in range(10, 40):                         # hidden: the track dies after 10 misses
+            tr.update([], w * DT_US)
+        assert len(tr.tracks) == 0 and len(tr.tracks.lost) == (1 if windows >= 30 else 0)
+        for w in range(40, 44):
+            o = mover(50, 260, 0, speed, w)
+            tr.update([o], w * DT_US)
+        assert o.track["confirmed"] and (o.track_id == 0) == handed
+
+
+def test_two_tracks_seen_apart_each_take_their_own_detection_not_one_blob():
+    """Two objects moving right 24 px apart; then A's detection lies between their predictions
+    (10 px from A's, 14 from B's: nearer the midpoint than either) and B's 22 px below B's
+    prediction (outside its gate). As the pair is seen apart (B's detection is within reid_px
+    of B), A's detection is A's and B re-identifies its own; were the pair one blob (the
+    apart test needs reid_px: off with it), A's would be a blob of both and B's a fragment."""
+    for reid_px, apart in ((30.0, True), (0.0, False)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(reid_px=reid_px))
+        for w in range(8):
+            a, b = mover(50, 200, 0, 24000, w), mover(50, 224, 0, 24000, w)
+            tr.update([a, b], w * DT_US)
+        ids = (a.track_id, b.track_id)
+        a, b = mover(50, 210, 0, 24000, 8), mover(50, 246, 0, 24000, 8)
+        tr.update([a, b], 8 * DT_US)
+        if apart:
+            assert (a.track_id, b.track_id) == ids
+        else:
+            assert a.track["merged"] and b.track_id is None
+
+
+def test_handover_settings_reject_nonsense():
+    for bad in (dict(handover_px=-1), dict(handover_reach=-1), dict(handover_windows=-1),
+                dict(handover_speed_ratio=0.5)):
+        with pytest.raises(ValueError):
+            TrackerConfig(**bad)

@@ -29,7 +29,10 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                detection is known, after re-identification)
     merges     a detection z nearer the midpoint c of two confirmed tracks' predictions than to
                either, within gate_px of c, the two at most merge_px apart and each moving at
-               least merge_move_px per window, is one blob of both: both move by alpha (z - c)
+               least merge_move_px per window, and the two not seen apart (no other detection that
+               no third track took within reid_px of either: two objects that parted are two
+               detections, and the one between them is one of them), is one blob of both: both
+               move by alpha (z - c)
                (each keeps its own motion, so the pair parts where their motions take them), the
                blob is reported as the one of the two missed for fewer windows (it stays with
                the track that had it), the other coasts occluded
@@ -55,6 +58,15 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                own detection claims no blob) (a track that coasted through a merge picks its
                object up again where it reappears a little outside its gate; a blob between two
                tracks stays unclaimed); updated as a hit; repeated while pairs remain
+    hand-over  a tentative track confirmed in this window continues a confirmed track that lost
+               its object, missed in this window or died (kept ``lost`` for handover_windows
+               windows since its last detection), and takes its id (the lost one is dropped),
+               where its position lies within handover_px + handover_reach s_l dt n_l of the lost
+               track's last own detection l (n_l windows ago; s_l its speed) and their speeds
+               differ by at most a factor handover_speed_ratio (or 1 px a window); the best
+               fit (distance over that reach) wins. An object hidden in a blob of two for tens
+               of windows, turning or passed over, comes back far from any prediction: without
+               this its new track has a new id (IDF1 counts the rest of its run as another object)
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
@@ -143,7 +155,11 @@ class TrackerConfig:
     within this distance of a confirmed track's prediction that is missed in the window and
     converging on the track the detection goes to is a blob of both (its taker keeps its
     motion, as for shared_keeps_motion; 0: off; objects up to ~50 px across hide each other
-    from ~40 px apart, and 35-50 measured alike: README's tracking section)."""
+    from ~40 px apart, and 35-50 measured alike: README's tracking section). handover_px,
+    handover_reach, handover_windows, handover_speed_ratio: the hand-over (module doc; 0 px:
+    off): the radius around a lost track's last own detection, its growth in multiples of the
+    lost track's travel per window since then, how many windows since its last detection a lost
+    track can hand its id over, and the most the two speeds may differ by (a factor)."""
 
     gate_px: float = 17.0
     gate_growth: float = 0.5
@@ -177,6 +193,10 @@ class TrackerConfig:
     reid_growth: float = 0.5
     reid_ratio_missed: bool = True
     hidden_px: float = 40.0
+    handover_px: float = 40.0
+    handover_reach: float = 4.0
+    handover_windows: int = 80
+    handover_speed_ratio: float = 2.0
 
     def __post_init__(self):
         if not self.gate_px > 0:
@@ -203,6 +223,11 @@ class TrackerConfig:
             raise ValueError("pos_beta must be in [0, 1], pos_min_px and pos_max_rad >= 0")
         if not min(self.blob_growth, self.heading_cost_px, self.reid_growth, self.hidden_px) >= 0:
             raise ValueError("blob_growth, heading_cost_px, reid_growth and hidden_px must be >= 0")
+        if not (min(self.handover_px, self.handover_reach, self.handover_windows) >= 0
+                and self.handover_speed_ratio >= 1):
+            raise ValueError("handover_px, handover_reach and handover_windows must be >= 0 and "
+                             f"handover_speed_ratio >= 1, got {self.handover_px}, {self.handover_reach}, "
+                             f"{self.handover_windows}, {self.handover_speed_ratio}")
 
 
 _F = np.float64
@@ -221,9 +246,12 @@ class Tracks:
     hx, hy (px/s: the reported direction's vector), turn rate w (rad/s, + turns from x towards y),
     its last own detection's position lx, ly (px) and window lt (its age then), the velocity
     those positions give ux, uy (px/s), and blob b (windows in a row its detection was a blob
-    of two or more tracks' objects); the properties give the columns."""
+    of two or more tracks' objects); the properties give the columns. ``lost``: the confirmed
+    tracks that died in the last handover_windows windows (same columns; their id can be handed
+    over to a new track)."""
 
     a: np.ndarray = field(default_factory=lambda: np.zeros((0, N_COLS), _F))
+    lost: np.ndarray = field(default_factory=lambda: np.zeros((0, N_COLS), _F))
 
     def __len__(self) -> int:
         return int(self.a.shape[0])
@@ -302,7 +330,8 @@ class BinEdges:
 (P_DT, P_GATE, P_GROWTH, P_ALPHA, P_BETA, P_H, P_CONFIRM, P_TENTATIVE, P_MAX_MISSES, P_BIRTH_GAP, P_GATE_SPEED,
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
  P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO, P_COAST_PX, P_MAX_COAST, P_POS_BETA, P_POS_MIN, P_POS_MAX_RAD,
- P_BLOB_GROWTH, P_HEADING_COST, P_REID_GROWTH, P_REID_MISSED, P_HIDDEN) = range(33)
+ P_BLOB_GROWTH, P_HEADING_COST, P_REID_GROWTH, P_REID_MISSED, P_HIDDEN, P_HANDOVER, P_HANDOVER_REACH,
+ P_HANDOVER_WINDOWS, P_HANDOVER_RATIO) = range(37)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -314,7 +343,8 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
                      cfg.max_turn_rad, cfg.merge_px, cfg.merge_move_px, cfg.report_misses, cfg.reid_px,
                      float(cfg.shared_gate_grows), cfg.reid_ratio, cfg.coast_px, cfg.max_coast,
                      cfg.pos_beta, cfg.pos_min_px, cfg.pos_max_rad, cfg.blob_growth, cfg.heading_cost_px,
-                     cfg.reid_growth, float(cfg.reid_ratio_missed), cfg.hidden_px],
+                     cfg.reid_growth, float(cfg.reid_ratio_missed), cfg.hidden_px, cfg.handover_px,
+                     cfg.handover_reach, cfg.handover_windows, cfg.handover_speed_ratio],
                     dtype=_F)
 
 
@@ -373,7 +403,8 @@ def _merges(a, t, z, r, j, d, p):
                 if math.hypot(a[i, X] - a[m, X], a[i, Y] - a[m, Y]) > p[P_MERGE_PX]:
                     continue
                 dm = math.hypot(z[k, 0] - 0.5 * (a[i, X] + a[m, X]), z[k, 1] - 0.5 * (a[i, Y] + a[m, Y]))
-                if dm <= p[P_GATE] and dm <= min(d[i, k], d[m, k]) and dm < best:
+                if dm <= p[P_GATE] and dm <= min(d[i, k], d[m, k]) and dm < best and \
+                        not _seen_apart(d, owner, k, i, m, p[P_REID]):
                     best, bi, bm = dm, i, m
         if bi < 0:
             continue
@@ -387,6 +418,36 @@ def _merges(a, t, z, r, j, d, p):
             busy[i] = True
         blob_of[k], mate[k] = bi, bm
     return blob_of, mate
+
+
+@njit(cache=True, nogil=True)
+def _seen_apart(d, owner, k, i, m, reach):
+    """Whether tracks i and m, near detection k, are seen apart: another detection that no third
+    track took lies within ``reach`` of either's prediction (the pair has parted, so k is one of
+    them, not a blob of both)."""
+    for k2 in range(d.shape[1]):
+        if k2 != k and (owner[k2] < 0 or owner[k2] == i or owner[k2] == m) and min(d[i, k2], d[m, k2]) <= reach:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _handover_fit(new, old, p):
+    """How well a newly confirmed track (row ``new``) continues a lost one (row ``old``): its
+    distance from the lost track's last own detection over the reach there, handover_px +
+    handover_reach x the lost track's travel in the windows since (<= 1: within reach), or inf
+    where their speeds differ by more than handover_speed_ratio (and more than 1 px a window:
+    a slow object's speed is noisy)."""
+    dt_s = p[P_DT]
+    sa, sb = old[S] * dt_s, new[S] * dt_s
+    if abs(sa - sb) > max(HANDOVER_SLOW_PX, (p[P_HANDOVER_RATIO] - 1.0) * min(sa, sb)):
+        return np.inf
+    reach = p[P_HANDOVER] + p[P_HANDOVER_REACH] * sa * (old[AGE] - old[LT])
+    return math.hypot(new[X] - old[LX], new[Y] - old[LY]) / reach
+
+
+#: below this difference (px per window) two tracks' speeds are alike whatever their ratio
+HANDOVER_SLOW_PX = 1.0
 
 
 @njit(cache=True, nogil=True)
@@ -431,9 +492,10 @@ def _hit(a, i, z, k, p, lo, hi, inner, shared):
 
 
 @njit(cache=True, nogil=True)
-def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
-    """Update, confirmation, deaths, births and bin hysteresis of ``step`` (module doc) on the
-    predicted tracks ``a`` (t: the tracks before the window) and the pairs (r, j)."""
+def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost):
+    """Update, confirmation, hand-over, deaths, births and bin hysteresis of ``step`` (module
+    doc) on the predicted tracks ``a`` (t: the tracks before the window), the pairs (r, j) and
+    the lost tracks -> (tracks, each detection's row, next id, lost tracks)."""
     n_t, n_d = a.shape[0], z.shape[0]
     hit = np.zeros(n_t, np.bool_)
     free = np.ones(n_d, np.bool_)
@@ -520,6 +582,45 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
             for k in range(n_d):
                 if d[i, k] <= p[P_BIRTH_GAP]:
                     free[k] = False
+    lost = lost.copy()                                       # the lost tracks: one more window missed
+    lost[:, AGE] += 1.0
+    lost[:, MISS] += 1.0
+    used = np.zeros(lost.shape[0], np.bool_)                 # a lost track whose id was handed over
+    gone = np.zeros(n_t, np.bool_)                           # a live one that handed its id over
+    if p[P_HANDOVER] > 0:
+        for i in range(n_t):                                 # a track confirmed in this window
+            if not (keep[i] and a[i, CONF] > 0 and t[i, CONF] <= 0):
+                continue
+            best, bm, bl = 1.0, -1, -1
+            for m in range(n_t):                             # a confirmed track that lost its object
+                if m != i and not hit[m] and not gone[m] and t[m, CONF] > 0:
+                    f = _handover_fit(a[i], a[m], p)
+                    if f <= best:
+                        best, bm, bl = f, m, -1
+            for m in range(lost.shape[0]):                   # one that died of it
+                if not used[m]:
+                    f = _handover_fit(a[i], lost[m], p)
+                    if f <= best:
+                        best, bm, bl = f, -1, m
+            if bm >= 0:
+                a[i, ID], keep[bm], gone[bm] = a[bm, ID], False, True
+            elif bl >= 0:
+                a[i, ID], used[bl] = lost[bl, ID], True
+    n_lost = 0                                               # lost: the dead confirmed tracks, for a while
+    for m in range(lost.shape[0]):
+        n_lost += not used[m] and lost[m, MISS] <= p[P_HANDOVER_WINDOWS]
+    for i in range(n_t):
+        n_lost += p[P_HANDOVER] > 0 and a[i, CONF] > 0 and not keep[i] and not gone[i]
+    lost_out = np.empty((n_lost, a.shape[1]))
+    row = 0
+    for m in range(lost.shape[0]):
+        if not used[m] and lost[m, MISS] <= p[P_HANDOVER_WINDOWS]:
+            lost_out[row] = lost[m]
+            row += 1
+    for i in range(n_t):
+        if p[P_HANDOVER] > 0 and a[i, CONF] > 0 and not keep[i] and not gone[i]:
+            lost_out[row] = a[i]
+            row += 1
     n_keep = int(keep.sum())
     n_new = int(free.sum())
     out = np.zeros((n_keep + n_new, a.shape[1]))
@@ -544,16 +645,16 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id):
             assigned[k] = row
             next_id += 1
             row += 1
-    return out, assigned, next_id
+    return out, assigned, next_id, lost_out
 
 
 @njit(cache=True, nogil=True)
-def _step_simple(t, z, p, lo, hi, inner, next_id):
+def _step_simple(t, z, p, lo, hi, inner, next_id, lost):
     """The whole step in one call when the gates pair tracks and detections unambiguously (the
     usual window; ``done`` False otherwise, and the caller runs the Hungarian method)."""
     a, d, ok, simple = _predict(t, z, p)
     if not simple:
-        return a, np.full(z.shape[0], -1, np.int64), next_id, False
+        return a, np.full(z.shape[0], -1, np.int64), next_id, lost, False
     r, j = np.empty(ok.shape[0], np.int64), np.empty(ok.shape[0], np.int64)
     m = 0
     for i in range(ok.shape[0]):                             # np.nonzero(ok): at most one pair per row
@@ -561,8 +662,8 @@ def _step_simple(t, z, p, lo, hi, inner, next_id):
             if ok[i, k]:
                 r[m], j[m] = i, k
                 m += 1
-    out, assigned, next_id = _update(a, t, z, r[:m], j[:m], d, p, lo, hi, inner, next_id)
-    return out, assigned, next_id, True
+    out, assigned, next_id, lost = _update(a, t, z, r[:m], j[:m], d, p, lo, hi, inner, next_id, lost)
+    return out, assigned, next_id, lost, True
 
 
 @njit(cache=True, nogil=True)
@@ -587,39 +688,41 @@ def _listing(out, assigned, p):
     return info
 
 
-N_P = P_HIDDEN + 1
+N_P = P_HANDOVER_RATIO + 1
 
 
 @njit(cache=True, nogil=True)
-def _window(t, zr, pe, next_id):
+def _window(t, zr, pe, next_id, lost):
     """Tracker.update's window in one compiled call when the gates pair tracks and detections
     unambiguously (``_step_simple`` on raw_detections' array): -> (tracks, _listing, next id,
-    done); ``done`` False: the caller runs ``_step_matched`` (the Hungarian method). pe: params
-    then the bin edges lo, hi, inner (one argument: numba's dispatch cost grows with their number)."""
+    lost tracks, done); ``done`` False: the caller runs ``_step_matched`` (the Hungarian
+    method). pe: params then the bin edges lo, hi, inner (one argument: numba's dispatch cost
+    grows with their number)."""
     n = (pe.shape[0] - N_P + 1) // 3
     p, lo, hi, inner = pe[:N_P], pe[N_P:N_P + n], pe[N_P + n:N_P + 2 * n], pe[N_P + 2 * n:]
-    out, assigned, nid, done = _step_simple(t, _detections(zr), p, lo, hi, inner, next_id)
-    return out, _listing(out, assigned, p) if done else assigned, nid, done
+    out, assigned, nid, lost, done = _step_simple(t, _detections(zr), p, lo, hi, inner, next_id, lost)
+    return out, _listing(out, assigned, p) if done else assigned, nid, lost, done
 
 
 def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edges: BinEdges,
          next_id: int, p: np.ndarray | None = None) -> tuple[Tracks, np.ndarray, int]:
-    """One window of tracking (module doc): -> (live tracks, assigned track row of each detection
-    in the returned tracks (-1: a fragment, no track), next free id). Pure: the inputs are not
-    modified. Compiled loops (numba, as compiled.py): a window has a handful of objects, so
+    """One window of tracking (module doc): -> (live and lost tracks, assigned track row of each
+    detection in the returned tracks (-1: a fragment, no track), next free id). Pure: the inputs
+    are not modified. Compiled loops (numba, as compiled.py): a window has a handful of objects, so
     per-call overhead, not array size, would set the cost of numpy here. p: ``params(cfg,
     dt_s)`` when the caller keeps it."""
     t, z = tracks.a, dets.a
     p = params(cfg, dt_s) if p is None else p
-    out, assigned, nid, done = _step_simple(t, z, p, edges.lo, edges.hi, edges.inner, int(next_id))
+    out, assigned, nid, lost, done = _step_simple(t, z, p, edges.lo, edges.hi, edges.inner, int(next_id),
+                                                  tracks.lost)
     if not done:
-        out, assigned, nid = _step_matched(t, z, p, edges, nid)
-    return Tracks(out), assigned, int(nid)
+        out, assigned, nid, lost = _step_matched(t, z, p, edges, nid, tracks.lost)
+    return Tracks(out, lost), assigned, int(nid)
 
 
-def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, next_id: int):
+def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, next_id: int, lost: np.ndarray):
     """``step`` where a gate holds two candidates: the Hungarian method on the gated distances,
-    confirmed tracks first, then tentative ones -> (tracks array, assigned, next id)."""
+    confirmed tracks first, then tentative ones -> (tracks array, assigned, next id, lost)."""
     a, d, ok, _simple = _predict(t, z, p)
     conf = t[:, CONF] > 0
     cost = d                                 # the gates are on d; the choice among gated pairs weighs direction too
@@ -633,7 +736,7 @@ def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, 
     pairs += match_within(cost, ok & ~conf[:, None] & ~taken[None, :])
     r, j = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
     return _update(a, t, z, np.ascontiguousarray(r), np.ascontiguousarray(j), d, p, edges.lo, edges.hi, edges.inner,
-                   int(next_id))
+                   int(next_id), lost)
 
 
 class Tracker:
@@ -651,6 +754,7 @@ class Tracker:
         self._pe = np.concatenate([self._p, self.edges.lo, self.edges.hi, self.edges.inner])   # _window's
         self.k_mps = None if px_ms_per_mps is None else 1.0 / (1000.0 * px_ms_per_mps)
         self._a = Tracks().a                 # the live tracks (``tracks``)
+        self._lost = Tracks().lost           # the dead confirmed ones that may hand their id over
         self.next_id = 0
         self.t0_last: int | None = None
         self._coasting: list = []
@@ -658,7 +762,7 @@ class Tracker:
         one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
         step(step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0], one, 1e-3, self.settings, self.edges, 1)
         zr = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
-        _window(_window(Tracks().a, zr, self._pe, 0)[0], zr, self._pe, 1)
+        _window(_window(Tracks().a, zr, self._pe, 0, self._lost)[0], zr, self._pe, 1, self._lost)
 
     def update(self, objects: list, t0_us: int) -> Tracks:
         """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin;
@@ -669,8 +773,8 @@ class Tracker:
 
     @property
     def tracks(self) -> Tracks:
-        """Every live track after the last window."""
-        return Tracks(self._a)
+        """Every live track after the last window (and the lost ones)."""
+        return Tracks(self._a, self._lost)
 
     def columns(self, zr: np.ndarray, t0_us: int) -> tuple[list, list]:
         """``update`` on the window's detections as raw_detections' (5 n,) columns (the pipeline
@@ -681,9 +785,9 @@ class Tracker:
         leave)."""
         last, t0_us = self.t0_last, int(t0_us)
         self.t0_last = t0_us
-        t = self._a
+        t, lost = self._a, self._lost
         n_win = 1 if last is None or t0_us - last == self.dt_us else max(1, round((t0_us - last) / self.dt_us))
-        if n_win > 1 and len(t):        # windows never seen: coast the tracks through them
+        if n_win > 1 and len(t) + len(lost):    # windows never seen: coast the tracks through them
             a, gap = t.copy(), (n_win - 1) * self.dt_us * 1e-6
             a[:, X] += a[:, VX] * gap
             a[:, Y] += a[:, VY] * gap
@@ -691,12 +795,19 @@ class Tracker:
             a[:, MISS] += n_win - 1
             a[:, STREAK] = 0
             s = self.settings
-            t = a[a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)]
+            live = a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)
+            lost = lost.copy()
+            lost[:, AGE] += n_win - 1
+            lost[:, MISS] += n_win - 1
+            if s.handover_px > 0:       # died in the gap
+                lost = np.concatenate([lost, a[~live & (a[:, CONF] > 0)]])
+            t, lost = a[live], lost[lost[:, MISS] <= s.handover_windows]
         # the usual window in one compiled call, the results handed out from one int array
         # (Python-level work, not the tracking, was most of the cost)
-        out, info, self.next_id, done = _window(t, zr, self._pe, self.next_id)
+        out, info, self.next_id, self._lost, done = _window(t, zr, self._pe, self.next_id, lost)
         if not done:
-            out, assigned, self.next_id = _step_matched(t, _detections(zr), self._p, self.edges, self.next_id)
+            out, assigned, self.next_id, self._lost = _step_matched(t, _detections(zr), self._p, self.edges,
+                                                                    self.next_id, lost)
             info = _listing(out, assigned, self._p)
         self._a = out
         n, k, info = zr.shape[0] // 5, self.k_mps, info.tolist()
