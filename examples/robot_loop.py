@@ -22,6 +22,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from toffe_deploy import api  # noqa: E402
+from toffe_deploy.errors import ToffeError  # noqa: E402
 from toffe_deploy.events.io import open_events  # noqa: E402
 
 SAMPLE = ROOT / "toffe_deploy" / "samples" / "sample_multi.h5"
@@ -42,7 +43,17 @@ def main(argv=None) -> int:
     ap.add_argument("--packet-us", type=int, default=2000, help="events per packet, in us of recording")
     ap.add_argument("--max-ms", type=float, default=50.0, help="stop after this much recording")
     a = ap.parse_args(argv)
+    if a.packet_us <= 0 or not a.max_ms > 0:
+        ap.error(f"--packet-us and --max-ms must be > 0, got {a.packet_us}, {a.max_ms}")
+    try:
+        return loop(a)
+    except ToffeError as exc:           # a missing or broken bundle or recording: one line, exit 2
+        print(f"robot_loop: error: {exc}", file=sys.stderr)
+        return exc.exit_code
 
+
+def loop(a) -> int:
+    """The loop of ``main`` over the parsed arguments."""
     bundle = api.load_bundle(a.bundle)
     n_windows, ids = 0, set()
     with open_events(a.events) as src, api.FlowStream(bundle, a.target, sensor_size=src.sensor_size) as flow:

@@ -63,3 +63,17 @@ def test_robot_loop_example_runs(env):
     lines = p.stdout.splitlines()
     assert len(lines) == 9 and lines[0].startswith("t=    0.0 ms:")            # one line per 1.5 ms packet
     assert lines[-1].startswith("24 windows, ") and "confirmed tracks" in lines[-1]
+
+
+def test_flush_processes_or_drops_the_last_partial_window(env):
+    """Three whole windows and half of a fourth fed: flush() processes the partial fourth too,
+    flush(partial=False) drops it (its objects would come from half a window)."""
+    ev = read_events(env["rec"]).events
+    dt = env["bundle"].config.dt_us
+    cut = ev[ev["t"] < 3 * dt + dt // 2]
+    assert cut["t"].max() >= 3 * dt
+    for partial, n in ((True, 4), (False, 3)):
+        with api.FlowStream(str(env["bundle"].root), "cpu", t_start_us=0) as flow:
+            got = flow.feed(cut["x"], cut["y"], cut["t"], cut["p"]) + flow.flush(partial=partial)
+            assert flow.flush() == []                   # nothing left buffered either way
+        assert [r.t0_us for r in got] == [k * dt for k in range(n)]

@@ -425,3 +425,63 @@ def test_pipeline_tracks_from_the_decoded_columns_as_tracker_update_does_from_ob
         assert tracked(objs, tr.coasting()) == tracked(res.objects, res.coasting)
     assert sum(o.track_id is not None for r in got for o in r.objects) >= 10
     assert any(o.track is not None and o.track["confirmed"] for r in got for o in r.objects)
+
+
+
+#: run in a fresh process: a Pipeline (tracking on) over a recording, and a Tracker over an
+#: ambiguous window; prints the kernels that gained a compiled signature after start-up
+_NO_COMPILE_SCRIPT = """
+import json, sys
+from toffe_deploy.deploy.bundle import load_bundle
+from toffe_deploy.events.io import open_events
+from toffe_deploy.runtime.pipeline import ObjectFlow, Pipeline
+from toffe_deploy.runtime.spikes import SpikeVolume
+from toffe_deploy.tracking import Tracker
+
+def signatures():
+    out = {}
+    for mod_name, mod in list(sys.modules.items()):
+        if mod_name.startswith("toffe_deploy"):
+            for name, f in list(vars(mod).items()):
+                if hasattr(f, "signatures") and hasattr(f, "py_func"):
+                    out[f.py_func.__module__ + "." + name] = len(f.signatures)
+    return out
+
+bundle = load_bundle(sys.argv[1])
+cfg = bundle.config
+with Pipeline(bundle, "cpu") as pipe, open_events(sys.argv[2]) as src:
+    tracker = Tracker(cfg, cfg.dt_us)
+    before = signatures()
+    windows = [(t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size))   # as `run` bins
+               for t0, ev in src.iter_windows(cfg.dt_us, t_start=src.t_start_us)]
+    n_objects = sum(len(r.objects) for r in pipe.process_stream(windows))
+    for w in range(8):          # a track, then two detections in its gate (the Hungarian path), then a gap
+        objs = [ObjectFlow(3, 3, 30.0, 30.0, 9000.0, 50.0 + 4.5 * w, 40.0, 0.0, 20)]
+        if w == 6:
+            objs.append(ObjectFlow(3, 3, 30.0, 30.0, 9000.0, 53.0 + 4.5 * w, 40.0, 0.0, 20))
+        tracker.update(objs, (w + 3 * (w == 7)) * cfg.dt_us)
+    after = signatures()
+print(json.dumps({"n_objects": n_objects, "new": {k: v for k, v in after.items() if v != before.get(k)}}))
+"""
+
+
+def test_a_cpu_runs_windows_compile_no_kernel_after_start_up(tmp_path, make_bundle, make_recording):
+    """With the shipped checkpoint's settings (union grouping, splits by polarity, recent_events,
+    the plane fit over the windows before, input_support, pooled OFS) and tracking, every numba
+    kernel the windows call is compiled, or loaded from numba's cache, at start-up: no window
+    pays 10-80 ms for one (the first windows of a run were that slow). Checked in a second fresh
+    process, once the first has filled the cache: within one process that compiled a kernel,
+    the kernels it calls are registered too, and nothing would show."""
+    from pathlib import Path
+
+    shipped = json.loads((Path(__file__).resolve().parent.parent / "ckpt" / "config.json").read_text())
+    ofpd = {**shipped["ofpd"], "crop_px": 32, "pool": 2, "min_events": 4}
+    bundle = make_bundle(tmp_path, ofpd=ofpd, ofs_pool=shipped["ofs_pool"], reset=shipped["reset"],
+                         input_support=shipped["input_support"])
+    rec = make_recording(tmp_path / "rec.h5", duration=0.02)
+    for _ in range(2):
+        p = subprocess.run([sys.executable, "-c", _NO_COMPILE_SCRIPT, str(bundle.root), str(rec)],
+                           capture_output=True, text=True, timeout=600)
+        assert p.returncode == 0, p.stderr
+    got = json.loads(p.stdout.splitlines()[-1])
+    assert got["n_objects"] > 0 and got["new"] == {}

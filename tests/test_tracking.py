@@ -625,8 +625,23 @@ def test_two_tracks_seen_apart_each_take_their_own_detection_not_one_blob():
             assert a.track["merged"] and b.track_id is None
 
 
-def test_handover_settings_reject_nonsense():
+def test_settings_reject_nonsense_nan_and_wrong_kinds_with_a_value_error():
     for bad in (dict(handover_px=-1), dict(handover_reach=-1), dict(handover_windows=-1),
-                dict(handover_speed_ratio=0.5)):
+                dict(handover_speed_ratio=0.5), dict(handover_reach=math.nan), dict(handover_windows=math.nan),
+                dict(handover_windows=2.5), dict(confirm_hits=1.5), dict(max_misses=True), dict(gate_growth=-1),
+                dict(birth_gap_px=math.nan), dict(handover_px="40"), dict(reid_ratio_missed=1),
+                dict(hidden_px=math.inf)):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
+
+
+def test_confirmed_lists_every_live_confirmed_track_also_past_report_misses():
+    """The API's tracks(): a confirmed track coasting longer than report_misses is no longer in a
+    window's coasting list but is still alive, and listed with its misses."""
+    tr = Tracker(CFG, DT_US, TrackerConfig(report_misses=2))
+    for w in range(12):
+        tr.update([mover(50, 200, 0, 8000, w)] if w < 6 else [], w * DT_US)
+    assert tr.coasting() == []
+    (t,) = tr.confirmed()
+    assert t["track_id"] == 0 and t["track"]["misses"] == 6 and t["track"]["confirmed"]
+

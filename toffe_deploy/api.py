@@ -19,7 +19,7 @@ down to a multiple of dt); a window is processed once an event at or after its e
 through them), up to ``skip_empty_after`` in a row; a longer gap is jumped over, as `run` does.
 ``feed_window(t0_us, window)`` takes a ready window instead: a dense (B, 2, H, W) array or a
 runtime.spikes.SpikeVolume. Results are pipeline.WindowResult (``objects``: ObjectFlow;
-``coasting``: tracks not seen in the window; ``to_json()``: the JSON line of `run`, schema.py).
+``coasting``: tracks not seen in the window; ``to_json()``: the JSON line of `run` as a dict, schema.py).
 
 Conventions (as the JSON lines, README "JSON lines"): x, y in sensor pixels from the top-left
 pixel (0, 0), y down; direction atan2(dy, dx) in the image plane (0 = moving right, +90 deg =
@@ -103,14 +103,20 @@ class FlowStream:
             self._buf = np.concatenate([self._buf, ev]) if self._buf.shape[0] else ev
         return self._drain(final=False)
 
-    def flush(self) -> list[WindowResult]:
-        """Process the windows still buffered, the last partial one included."""
-        return self._drain(final=True)
+    def flush(self, partial: bool = True) -> list[WindowResult]:
+        """Process the windows still buffered. The last one is partial (its events end where the
+        stream ended, so its objects are found from part of a window: a slow one's position and
+        speed from a fraction of its edges): processed with ``partial``, dropped without."""
+        out = self._drain(final=True, partial=partial)
+        self._buf = self._buf[:0]
+        return out
 
-    def _drain(self, final: bool) -> list[WindowResult]:
+    def _drain(self, final: bool, partial: bool = True) -> list[WindowResult]:
         out = []
         while self._buf.shape[0] and (final or int(self._buf["t"][-1]) >= self.t0 + self.dt_us):
             t1 = self.t0 + self.dt_us
+            if final and not partial and int(self._buf["t"][-1]) < t1:
+                break                                      # the last, partial window: dropped
             cut = int(np.searchsorted(self._buf["t"], t1, side="left"))
             win, self._buf = self._buf[:cut], self._buf[cut:]
             self._empty = 0 if cut else self._empty + 1
@@ -124,10 +130,9 @@ class FlowStream:
         return out
 
     def tracks(self) -> list[dict]:
-        """Every confirmed track after the last window, as the JSON lines hold them
-        ([{"track_id", "track"}]: seen in the window or coasting); [] without tracking."""
+        """Every live confirmed track after the last window ([{"track_id", "track"}]: seen in it,
+        ``track["misses"]`` 0, or coasting, > 0, also past the report_misses windows for which
+        the JSON lines list a coasting track); [] without tracking."""
         if self._last is None or self.pipeline.tracker is None:
             return []
-        seen = [{"track_id": o.track_id, "track": o.track} for o in self._last.objects
-                if o.track is not None and o.track["confirmed"]]
-        return seen + list(self._last.coasting or ())
+        return self.pipeline.tracker.confirmed()

@@ -2398,6 +2398,8 @@ def warm_up() -> None:
     object_input(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2, 5, 1, 1000.0)
     window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, scratch,
                    0, 1, 1, 1, 2, 5, 1, 1000.0)
+    window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, scratch,
+                   0, 1, 1, 1, 2, 5, 1, 1000.0, np.zeros(4, np.uint8), np.zeros(4, np.int64))   # with recent_events
     crop_origin(i64, i64, 1, 2, 2)
     two_pass_centroid(i64, i64, 1.0, 2, 2)
     fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 1000.0)
@@ -2406,8 +2408,8 @@ def warm_up() -> None:
     front_end_keep(i64, 2, 1, 1, True, 2, scratch)
     from .events.core import EVENT_DTYPE
 
-    ev = np.zeros(1, EVENT_DTYPE)
-    sorted_unique(bin_index(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1))
-    binned_ones(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1)
+    for ev in (np.zeros(1, EVENT_DTYPE), np.zeros(2, EVENT_DTYPE)):   # fields of 2+ events are strided ('A')
+        sorted_unique(bin_index(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1))
+        binned_ones(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1)
     unique_inverse(i64)
     pool_index(i64, 1, 1, 1, 1, 1)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -88,6 +89,28 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
                 shutil.rmtree(tmp, ignore_errors=True)
             if old is not None:
                 shutil.rmtree(old, ignore_errors=True)
+
+
+def finite_json(obj: Any) -> Any:
+    """``obj`` with every float that is NaN or infinite replaced by None (JSON null),
+    recursively through dicts, lists and tuples: strict JSON has no NaN, and parsers other than
+    Python's (JavaScript's JSON.parse, jq, serde) reject Python's bare ``NaN``."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    return obj
+
+
+def json_text(obj: Any, **kwargs) -> str:
+    """json.dumps(obj, **kwargs) as strict JSON: NaN and infinities become null (finite_json).
+    The usual object (all finite) is dumped once: only a refusal walks it."""
+    try:
+        return json.dumps(obj, allow_nan=False, **kwargs)
+    except ValueError:
+        return json.dumps(finite_json(obj), allow_nan=False, **kwargs)
 
 
 def read_json(path: str | os.PathLike) -> Any:

@@ -13,6 +13,8 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
+from .fileio import json_text
+
 SCHEMA_NAME = "toffe-deploy/object-flow"
 SCHEMA_VERSION = 1
 SCHEMA_PATH = Path(__file__).resolve().parent / "schemas" / f"object_flow.v{SCHEMA_VERSION}.schema.json"
@@ -62,4 +64,4 @@ def header(bundle, *, target: str, sensor_size, camera_json: dict, ofpd_variant:
 def write_header(stream, line: dict) -> None:
     """The header as the first JSON line of ``stream`` (compact, like the window lines); returns
     None, so that ``head = head and write_header(stream, head)`` writes it once."""
-    stream.write(json.dumps(line, separators=(",", ":")) + "\n")
+    stream.write(json_text(line, separators=(",", ":")) + "\n")

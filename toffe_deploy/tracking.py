@@ -97,7 +97,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 from numba import njit
@@ -199,6 +199,20 @@ class TrackerConfig:
     handover_speed_ratio: float = 2.0
 
     def __post_init__(self):
+        for f in fields(self):                  # kinds first: NaN, strings or 2.5 windows fail here
+            v = getattr(self, f.name)
+            if f.type == "bool":
+                ok, what = isinstance(v, (bool, np.bool_)), "true or false"
+            elif f.type == "int":
+                ok, what = isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)), "an integer"
+            else:
+                ok = (isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+                      and math.isfinite(v))
+                what = "a finite number"
+            if not ok:
+                raise ValueError(f"{f.name} must be {what}, got {v!r}")
+        if not (self.gate_growth >= 0 and self.birth_gap_px >= 0):
+            raise ValueError(f"gate_growth and birth_gap_px must be >= 0, got {self.gate_growth}, {self.birth_gap_px}")
         if not self.gate_px > 0:
             raise ValueError(f"gate_px must be > 0, got {self.gate_px}")
         if not (0 < self.alpha <= 1 and 0 < self.beta <= 1):
@@ -760,9 +774,15 @@ class Tracker:
         self._coasting: list = []
         # compile (first run on a machine) or load the cached kernels now, not in the first window
         one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
-        step(step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0], one, 1e-3, self.settings, self.edges, 1)
+        two = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0], [1.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
+        t1 = step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0]
+        step(t1, one, 1e-3, self.settings, self.edges, 1)
+        step(t1, two, 1e-3, self.settings, self.edges, 1)   # ambiguous: _step_matched, as columns calls it
         zr = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
-        _window(_window(Tracks().a, zr, self._pe, 0, self._lost)[0], zr, self._pe, 1, self._lost)
+        out, _info, _nid, _lost, _done = _window(_window(Tracks().a, zr, self._pe, 0, self._lost)[0], zr, self._pe, 1,
+                                                 self._lost)
+        _listing(out, np.zeros(1, np.int64), self._p)
+        _detections(zr)
 
     def update(self, objects: list, t0_us: int) -> Tracks:
         """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin;
@@ -816,6 +836,13 @@ class Tracker:
         if min(rows, default=0) >= 0:
             return ids, [TrackState(out, r, k) for r in rows]
         return [i if i >= 0 else None for i in ids], [TrackState(out, r, k) if r >= 0 else None for r in rows]
+
+    def confirmed(self) -> list[dict]:
+        """Every live confirmed track after the last window, seen (``misses`` 0) or coasting:
+        [{"track_id", "track"}] (the API's FlowStream.tracks)."""
+        a = self._a
+        return [{"track_id": int(a[r, ID]), "track": TrackState(a, r, self.k_mps)}
+                for r in np.flatnonzero(a[:, CONF] > 0).tolist()]
 
     def coasting(self) -> list[dict]:
         """The confirmed tracks no detection of the last window was assigned to, for their first

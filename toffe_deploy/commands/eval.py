@@ -70,8 +70,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    import json
-
     from ..checkpoint import load_checkpoint
     from ..errors import ToffeError
 
@@ -93,7 +91,7 @@ def run(args) -> int:
     import torch
 
     from ..evaluate import EvalOptions, evaluate, format_markdown
-    from ..fileio import atomic_path
+    from ..fileio import atomic_path, json_text
 
     torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
     res = evaluate(EvalOptions(ckpt=args.ckpt, data=args.data, dts=args.dt, split=args.split,
@@ -103,5 +101,5 @@ def run(args) -> int:
     print(format_markdown(res))
     if args.json:
         with atomic_path(args.json) as tmp:
-            tmp.write_text(json.dumps(res, indent=1, allow_nan=True))
+            tmp.write_text(json_text(res, indent=1) + "\n")
     return 0

@@ -281,6 +281,9 @@ def run_command(args) -> int:
             t_start, n_total = None, args.max_windows
         else:
             t_start = src.t_start_us if args.start_us is None else int(args.start_us)
+            if args.start_us is not None and t_start >= src.t_end_us:
+                raise ToffeError(f"--start-us {t_start} is at or after the end of the recording: it spans "
+                                 f"[{src.t_start_us}, {src.t_end_us}) us")
             n_total = max(0, -(-(src.t_end_us - t_start) // cfg.dt_us))
             if args.max_windows is not None:
                 n_total = min(n_total, args.max_windows)
@@ -398,10 +401,10 @@ def run_command(args) -> int:
     if args.summary_json:
         import json
 
-        from ..fileio import atomic_path
+        from ..fileio import atomic_path, json_text
 
         with atomic_path(args.summary_json) as tmp:
-            tmp.write_text(json.dumps(summary.to_json(), indent=2) + "\n", encoding="utf-8")
+            tmp.write_text(json_text(summary.to_json(), indent=2) + "\n", encoding="utf-8")
     if report is not None:
         report.write(args.report, summary.to_json())
     if interrupted:

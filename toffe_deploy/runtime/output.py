@@ -20,7 +20,6 @@ cut back to the last whole line before the error is reported. The other outputs
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import os
 import sys
@@ -31,7 +30,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import InputError
-from ..fileio import atomic_path
+from ..fileio import atomic_path, json_text
 from .pipeline import WindowResult
 from .traffic import Traffic
 
@@ -100,7 +99,7 @@ def jsonl_sink(path: str | Path | None) -> Iterator[LineFile | LineStdout]:
 
 def write_line(stream, obj: dict) -> None:
     """One dict as one compact JSON line, written whole (any line: a window, a header)."""
-    stream.write(json.dumps(obj, separators=(",", ":")) + "\n")
+    stream.write(json_text(obj, separators=(",", ":")) + "\n")
 
 
 def write_window(stream, result: WindowResult) -> None:
