@@ -173,3 +173,28 @@ def test_train_and_eval_with_input_support(data, tmp_path, capsys):
     assert main(["train", "--data", str(data), "--out", str(tmp_path / "bad"), "--input-support", "4,1,5"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--input-support" in err and "input_support must be" in err
+
+
+def test_a_data_set_of_one_camera_states_the_bins_for_that_camera(tmp_path, random_events):
+    """make_config: training files all recorded with one focal length (an EVK4's 1646 px) give a
+    config stated for that camera (manifest and `run` without --focal-px then speak of it), with
+    the same image-plane bins (px/ms) as the reference; files of several focal lengths (the
+    randomized data set) keep the reference camera."""
+    from pathlib import Path
+
+    from toffe_deploy.config import ToffeConfig
+    from toffe_deploy.events.fmt_toffe import write_events_h5
+    from toffe_deploy.model.train import make_config
+
+    ref = ToffeConfig()
+    for focals, want in (((1646.0, 1646.0), 1646.0), ((1646.0, 900.0), ref.focal_px)):
+        files = []
+        for i, f in enumerate(focals):
+            path = tmp_path / f"{len(focals)}_{f:g}_{i}.h5"
+            write_events_h5(path, random_events(sensor_size=(128, 72)), (128, 72), attrs={"focal_px": f})
+            files.append(path)
+        cfg = make_config(files, Path(tmp_path), 500, 0, "first", 5, 4)
+        assert cfg.sensor_size == (128, 72) and cfg.focal_px == pytest.approx(want)
+        assert np.allclose(cfg.speed_bins_px_ms, ref.speed_bins_px_ms, rtol=1e-12)
+        assert np.allclose(cfg.speed_scale.to_px_ms(np.array(cfg.representative_speeds)),
+                           ref.speed_scale.to_px_ms(np.array(ref.representative_speeds)), rtol=1e-12)

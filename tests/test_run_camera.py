@@ -189,3 +189,26 @@ def test_bundle_without_camera_fields_loads_with_the_reference_camera(cam, capsy
     rc, out, err = run_cli(capsys, old, "--events", cam["rec"], "--max-windows", "2", "--out", tmp_path / "o.jsonl")
     assert rc == 0, err
     assert "focal 831.4 px (the bundle's 6.6 deg horizontal FoV over 96 px" in out and "depth 5 m (the bundle's)" in out
+
+
+def test_the_summarys_speed_errors_do_not_follow_the_stated_depth_when_the_truth_knows_it(cam, capsys, tmp_path):
+    """Truth with each object's depth and px/ms speed, and a file that states its camera: the
+    summary's speedE and bin-only speedE are errors at the true depth, so --depth-m (what the
+    JSON lines' m/s assume) moves neither (the bin-only one did: it took the run's m/s back to
+    px/ms with the bundle's camera instead of the run's)."""
+    from toffe_deploy.events.fmt_toffe import write_events_h5
+    from toffe_deploy.events.io import open_events
+
+    rec = tmp_path / "rec_focal.h5"
+    with open_events(cam["rec"]) as src:
+        write_events_h5(rec, src.read(src.t_start_us, src.t_end_us), src.sensor_size, ground_truth=src.ground_truth,
+                        attrs={"focal_px": 120.0}, t_range=(src.t_start_us, src.t_end_us))
+    got = []
+    for depth in (3, 9):
+        rc, _, err = run_cli(capsys, cam["bundle"].root, "--events", rec, "--depth-m", depth, "--focal-px", 150,
+                             "--summary-json", tmp_path / f"s{depth}.json")
+        assert rc == 0, err
+        got.append(json.loads((tmp_path / f"s{depth}.json").read_text())["errors"])
+    assert got[0]["n_matched"] > 0
+    for key in ("speedE", "speedE_bin_only"):
+        assert got[0][key] == pytest.approx(got[1][key], rel=1e-9)

@@ -236,6 +236,67 @@ def test_stdin_run_equals_the_file_run_from_the_first_event(env, tmp_path):
     assert b"live: newest event -> JSON line p50" in r.stderr
 
 
+def _paced_stdin(ev, pieces, pause_s, stall_after=None):
+    """A StdinSource on a real pipe whose writer thread hands over ``pieces`` chunks of ``ev``,
+    ``pause_s`` apart (or with one pause, after chunk ``stall_after``): -> (windows, stats)."""
+    import threading
+
+    from toffe_deploy.events.live import StdinSource
+
+    r, w = os.pipe()
+
+    def write():
+        with os.fdopen(w, "wb") as f:
+            f.write(stdin_header(SENSOR))
+            f.flush()
+            for i, part in enumerate(np.array_split(ev, pieces)):
+                f.write(part.tobytes())
+                f.flush()
+                if stall_after is None or i == stall_after:
+                    time.sleep(pause_s)
+
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    try:
+        src = StdinSource(fd=r)
+        wins = collect(src)
+    finally:
+        writer.join(timeout=30)
+        os.close(r)
+    return wins, src.stats
+
+
+def test_a_producer_slower_than_real_time_loses_no_event(env):
+    """A pipe that hands over a piece of the recording every 80 ms (20 ms of events in 0.64 s,
+    30x slower than real time), at the default 5 ms grace: the clock closing quiet windows
+    follows the producer's pace, so no window is closed before its events come, and the
+    windows are the file's, cut from the first event."""
+    ev = events_of(env)
+    wins, stats = _paced_stdin(ev, pieces=8, pause_s=0.08)
+    assert stats.late_events == 0 and stats.received_events == len(ev)
+    t_first = int(ev["t"][0])
+    assert len(wins) == -(-(int(ev["t"][-1]) + 1 - t_first) // 500) > 10
+    for t0, got in wins:
+        assert t0 == t_first + (t0 - t_first) // 500 * 500
+        assert np.array_equal(got, ev[(ev["t"] >= t0) & (ev["t"] < t0 + 500)])
+
+
+def test_a_stalled_producer_has_its_late_events_counted_and_the_summary_warns(env):
+    """Half the recording at once, a 1 s stall, the rest: the stall's windows close on time (as a
+    quiet camera's), the events that come after it are late, dropped and counted; `run`'s
+    summary then says how many and what gives a stalling producer longer."""
+    from dataclasses import asdict
+
+    from toffe_deploy.runtime.output import RunSummary
+
+    ev = events_of(env)
+    _wins, stats = _paced_stdin(ev, pieces=2, pause_s=1.0, stall_after=0)
+    assert 0 < stats.late_events <= len(ev) // 2 + 1
+    lines = RunSummary(target="cpu", live=asdict(stats)).lines()
+    assert any(ln.startswith(f"warning: {stats.late_events} of {len(ev)} events") and "--window-grace-ms" in ln
+               for ln in lines)
+
+
 def test_udp_run_streams_lines_and_a_sigkill_leaves_whole_lines(env, tmp_path):
     """A paced sender; the run's --out is read while it runs, then the run is SIGKILLed."""
     ev = events_of(env)
@@ -322,3 +383,20 @@ def test_a_closed_stdout_pipe_ends_the_run_quietly(env):
     r = subprocess.run(" ".join(map(str, cli(env["bundle"], "--events", env["rec"]))) + " | head -n 2",
                        shell=True, capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
     assert r.stdout.count(b"\n") == 2 and b"Traceback" not in r.stderr and b"Exception" not in r.stderr, r.stderr
+
+
+def test_stdin_refuses_polarities_other_than_0_1(env):
+    """The stdin records carry p as a byte: 7 is refused, as a file's is, not binned as ON."""
+    from toffe_deploy.errors import InputError
+    from toffe_deploy.events.live import StdinSource
+
+    ev = events_of(env)[:100].copy()
+    ev["p"][50] = 7
+    r, w = os.pipe()
+    os.write(w, stdin_header(SENSOR) + ev.tobytes())
+    os.close(w)
+    try:
+        with pytest.raises(InputError, match="polarity p = 7 at event 50"):
+            collect(StdinSource(fd=r))
+    finally:
+        os.close(r)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import sys
 
 from . import __version__
@@ -12,8 +13,35 @@ from .errors import ToffeError
 from .signals import Terminated, exceptions_on_signals
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with its errors on one line (``PROG: error: MESSAGE (PROG --help for usage)``,
+    exit 2), like every other error of the command line, instead of the usage block first."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} ({self.prog} --help for usage)\n")
+
+
+#: a negative number or range (``-1.5,-0.3``) that argparse would take for an option
+_NEGATIVE_VALUE = re.compile(r"-(\d|\.\d)[\d.eE+-]*(,[-+]?[\d.eE+-]+)?")
+
+
+def join_negative_values(argv: list[str]) -> list[str]:
+    """``--opt -1.5,-0.3`` as ``--opt=-1.5,-0.3`` (argparse reads a lone negative number as a
+    value but a negative range as an unknown option), and ``--sensor-size W H`` as ``WxH``."""
+    out: list[str] = []
+    for tok in argv:
+        if (out and out[-1].startswith("--") and "=" not in out[-1] and _NEGATIVE_VALUE.fullmatch(tok)
+                and "," in tok):
+            out[-1] = f"{out[-1]}={tok}"
+        elif len(out) >= 2 and out[-2] == "--sensor-size" and out[-1].isdigit() and tok.isdigit():
+            out[-1] = f"{out[-1]}x{tok}"          # --sensor-size W H, the older spelling of WxH
+        else:
+            out.append(tok)
+    return out
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="toffe-deploy",
         description="Deploy TOFFE object flow (OFS spiking cascade + OFPD CNN) on Loihi 2 "
         "(Lava) and an edge GPU (onnxruntime); train, export, run and measure it.",
@@ -38,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     with exceptions_on_signals():
         try:
             parser = build_parser()
-            args = parser.parse_args(argv)
+            args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
             if not getattr(args, "func", None):
                 parser.print_help()
                 return 2

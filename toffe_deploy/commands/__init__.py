@@ -5,10 +5,10 @@ that ``toffe-deploy --help`` and the lean runtime stay fast and torch-free."""
 COMMAND_MODULES = ("events", "dataset", "train", "eval", "export", "run")
 
 
-def add_progress_flag(parser, *, alias_quiet: bool = False) -> None:
-    """The one progress switch of every command: ``--no-progress`` (``--quiet`` kept as an alias
-    where a command had it)."""
-    names = ("--no-progress", "--quiet") if alias_quiet else ("--no-progress",)
+def add_progress_flag(parser) -> None:
+    """The one progress switch of every command: ``--no-progress`` (``--quiet`` an alias, the name
+    `export` had)."""
+    names = ("--no-progress", "--quiet")
     parser.add_argument(*names, dest="no_progress", action="store_true",
                         help="no progress bars (they are shown only when stderr is a terminal)")
 

@@ -34,6 +34,11 @@ def _number(cast, low: float, strict: bool):
     return parse
 
 
+def warn(message: str) -> None:
+    """A one-line warning on stderr: an option that applies to part of what was asked only."""
+    print(f"toffe-deploy: warning: {message}", file=sys.stderr)
+
+
 def _range(low: float, strict: bool, high: float | None = None):
     """An argparse type for ``LO,HI`` or a single value V (= V,V): both finite, > low (strict) or
     >= low, <= high when given, and LO <= HI; returns (lo, hi)."""
@@ -125,10 +130,11 @@ def register(sub) -> None:
     r.add_argument("--size-m", type=_range(0, True), default=None, metavar="LO,HI",
                    help="physical object size in metres, instead of --size-px")
     r.add_argument("--object-contrast", type=_range(-10, False, 10.0), default=None, metavar="LO,HI",
-                   help="signed log contrast of object vs background, per object; negative = dark object "
-                   "(random: 0.3,2.0)")
+                   help="signed log contrast of object vs background, per object; negative = dark object, "
+                   "e.g. --object-contrast=-1.5,-0.3 (random: 0.3,2.0)")
     r.add_argument("--dark-fraction", type=_fraction, default=None, metavar="F",
-                   help="probability that an object's drawn contrast changes sign (random: 0.3)")
+                   help="probability that an object's drawn contrast changes sign (random: 0.3; 0 when "
+                   "--object-contrast is given: the sign given is kept)")
     r.add_argument("--background", type=_range(0, True, 1.0), default=None, metavar="LO,HI",
                    help="background linear intensity (random: 0.1,0.6; paper: 0.4)")
     r.add_argument("--threshold", type=_range(0, True), default=None, metavar="LO,HI",
@@ -142,7 +148,7 @@ def register(sub) -> None:
                    help="background-activity noise rate per pixel in Hz (random: 0.1,50; paper: 0)")
     r.add_argument("--hot-pixels", type=_range(0, False, 1.0), default=None, metavar="LO,HI",
                    help="fraction of pixels that are hot, firing 1 kHz of one polarity (random: 0,1e-4; paper: 0)")
-    r.add_argument("--texture", type=_range(0, False), default=None, metavar="LO,HI",
+    r.add_argument("--texture", type=_range(0, False, 1.0), default=None, metavar="LO,HI",
                    help="relative amplitude of a smooth background texture (random: 0,0.3; paper: 0)")
     s.add_argument("--contrast", choices=("bright", "dark", "mixed"), default="bright",
                    help="paper splits: objects brighter than the background (default), darker, or either per "
@@ -159,6 +165,7 @@ def register(sub) -> None:
                         "and draw each object's ground truth: outline, motion direction (hue = direction), "
                         "speed and bin, in the style of `run --render`.")
     w.add_argument("file", type=Path, help="an events file with ground truth (written by `dataset synth`)")
+    add_progress_flag(w)
     w.add_argument("--out", type=Path, default=None,
                    help="PNG to write (default: FILE with the extension .png)")
     w.add_argument("--t0-us", type=_nonneg_int, default=None,
@@ -203,6 +210,18 @@ def _ranges(args, splits):
     if unused and not randoms:
         raise ToffeError(f"--{unused[0].replace('_', '-')} applies to random-appearance splits only "
                          f"(add --appearance random)")
+    if "object_contrast" in given and given["object_contrast"] == (0.0, 0.0):
+        raise ToffeError("--object-contrast 0: an object of the background's intensity fires no events")
+    if "object_contrast" in given and "dark_fraction" not in given:
+        given["dark_fraction"] = 0.0            # the sign given is the sign drawn
+    papers_asked = [s for s in splits if s not in randoms]
+    if unused and papers_asked:
+        warn(f"--{unused[0].replace('_', '-')} applies to the random-appearance splits only: "
+             f"{', '.join(papers_asked)} keep the paper protocol (640x480, 60 deg, 5 m; --appearance random "
+             f"to change them)")
+    if args.contrast != "bright" and not papers_asked:
+        warn(f"--contrast {args.contrast} applies to paper-appearance splits only (random ones draw "
+             f"--object-contrast and --dark-fraction)")
     rnd = dataclasses.replace(RANDOM, **given)
     if "focal_px" in given:
         rnd = dataclasses.replace(rnd, hfov_deg=RANDOM.hfov_deg)

@@ -6,6 +6,7 @@ import json
 import sys
 
 from . import add_progress_flag, show_progress
+from .run import parse_size
 
 FORMATS_HELP = ("our HDF5 layout (toffe-events), DSEC HDF5, MVSEC HDF5, .npz, .npy, AEDAT4, "
                 "Prophesee RAW (EVT2/EVT3) and DAT, Metavision HDF5, ROS1 .bag / ROS2 bag directory; "
@@ -13,10 +14,10 @@ FORMATS_HELP = ("our HDF5 layout (toffe-events), DSEC HDF5, MVSEC HDF5, .npz, .n
 
 
 def _add_common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sensor-size", nargs=2, type=int, metavar=("W", "H"), default=None,
-                   help="sensor width and height in pixels; overrides the file's (defaults for files "
-                        "without one: DSEC 640 480, MVSEC 346 260, npz/npy inferred from the coordinates; "
-                        "RAW, DAT, Metavision HDF5 and ROS bags carry theirs)")
+    p.add_argument("--sensor-size", type=parse_size, metavar="WxH", default=None,
+                   help="sensor width and height in pixels, WxH as `run` takes it (W H also works); overrides "
+                        "the file's (defaults for files without one: DSEC 640x480, MVSEC 346x260, npz/npy "
+                        "inferred from the coordinates; RAW, DAT, Metavision HDF5 and ROS bags carry theirs)")
     p.add_argument("--sort", action="store_true",
                    help="sort events by time instead of rejecting decreasing timestamps "
                         "(loads the whole file into memory)")
@@ -46,6 +47,7 @@ def register(sub) -> None:
     conv.add_argument("input", metavar="IN", help=f"event file ({FORMATS_HELP})")
     conv.add_argument("output", metavar="OUT", help="output file: .h5/.hdf5 (our layout) or .npz")
     conv.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
+    add_progress_flag(conv)
     _add_common(conv)
     conv.set_defaults(func=_convert)
 
@@ -78,13 +80,20 @@ def _convert(args) -> int:
     suffix = out.suffix.lower()
     if suffix not in (".h5", ".hdf5", ".npz"):
         raise InputError(out, "output must end in .h5, .hdf5 (our HDF5 layout) or .npz")
+    check_outputs(files=[("OUT", out)], inputs=[("the input file", args.input)])
     if out.exists() and not args.force:
         raise InputError(out, "exists (use --force to overwrite)")
-    check_outputs(files=[("OUT", out)], inputs=[("the input file", args.input)])
     with open_events(args.input, sensor_size=_size(args), sort=args.sort) as src:
         ev = src.read_all()
         if suffix == ".npz":
             write_events_npz(out, ev.events, ev.sensor_size)
+            lost = (["the ground truth"] if src.ground_truth else []) + (
+                [f"the recording's span [{src.t_start_us}, {src.t_end_us}) us (an .npz spans its events)"]
+                if len(ev) and (src.t_start_us, src.t_end_us) != (int(ev.events["t"][0]), int(ev.events["t"][-1]) + 1)
+                else [])
+            if lost:
+                print(f"note: .npz holds x, y, t, p and the sensor size only: {' and '.join(lost)} not kept "
+                      "(write .h5 to keep them)", file=sys.stderr)
         else:
             attrs = {k: v for k, v in src.attrs.items()}
             attrs.setdefault("converted_from", {"path": str(args.input), "format": src.format_name})

@@ -34,7 +34,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed for choosing/generating held-out windows (default: 0)")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 1 when a parity check fails its goal (the bundle is still written)")
-    add_progress_flag(p, alias_quiet=True)
+    add_progress_flag(p)
     p.set_defaults(func=run)
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -258,10 +259,15 @@ def run_command(args) -> int:
         raise ToffeError(f"--start-us must be in 0..2**53 us, got {args.start_us}")
     if args.skip_empty_after < 0:
         raise ToffeError("--skip-empty-after must be >= 0 (0: never skip)")
+    if args.events and "://" in args.events and not is_live(args.events):
+        raise ToffeError(f"--events {args.events}: unknown live source (udp://HOST:PORT, dv://HOST:PORT, "
+                         "dv-camera[:SERIAL] or - for stdin; anything else is a file path)")
     if is_live(args.events) and args.start_us is not None:
         raise ToffeError("--start-us applies to files: a live source starts at its first event")
-    if args.idle_timeout < 0 or args.window_grace_ms < 0:
-        raise ToffeError("--idle-timeout and --window-grace-ms must be >= 0")
+    if not (args.idle_timeout >= 0 and args.window_grace_ms >= 0) or not math.isfinite(args.idle_timeout) \
+            or not math.isfinite(args.window_grace_ms):
+        raise ToffeError(f"--idle-timeout and --window-grace-ms must be finite and >= 0, got {args.idle_timeout}, "
+                         f"{args.window_grace_ms}")
     if args.video and not args.render:
         raise ToffeError("--video needs --render DIR")
     if args.tag != "fixed_pt" and args.target in ("cpu", "cuda"):
@@ -294,7 +300,7 @@ def run_command(args) -> int:
             from ..runtime.truth import TruthIndex, sequence_focal_px
 
             truth = TruthIndex(truth)
-            errors = FlowErrors(n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
+            errors = FlowErrors(n_bins=cfg.n_speed_bins, pred_scale=camera.scale)   # the run's m/s back in px/ms
             focal_px = sequence_focal_px(src.attrs)
         renderer = None
         if args.render:

@@ -12,9 +12,17 @@ Clock: a source's timestamps are mapped to host time at the first event,
     host(t) = host_first + (t - t_first) * 1e-6 s
 
 (``host_first``: ``time.perf_counter()`` when the chunk holding the first event arrived). A window
-is closed when an event at or past its end arrives, or when host time passes host(t1) + the
-grace (``grace_s``, default GRACE_S; ``run --window-grace-ms``) with nothing newer in the queue (a quiet stream still yields its windows on time).
-An event older than the window being filled arrived too late: it is dropped and counted. After
+is closed when an event at or past its end arrives, or when host time passes close(t1) + the
+grace (``grace_s``, default GRACE_S; ``run --window-grace-ms``) with nothing newer in the queue
+and the producer quiet for QUIET_GAPS of its usual gaps between chunks (a quiet stream still
+yields its windows on time). close(t) is host(t) moved later whenever a chunk arrives later
+than its newest event maps (close(t_newest) <= its arrival): a producer slower than real time
+(a pipe from a converter, a driver that buffers, one that sends a chunk every 50 ms) has its
+windows closed at its own pace, by its events, not by the clock before its events come. A
+producer that stalls for much longer than its usual gaps and the grace has the windows of the
+stall closed empty on time, as a quiet camera's; its events that then come are late.
+An event older than the window being filled arrived too late: it is dropped and counted (the
+run's summary says how many and how to give a stalling producer longer). After
 the queue dropped chunks, the windows whose events were dropped are jumped over (no line: they
 were not empty, their events are gone; counted in ``dropped_windows``), so a run that falls
 behind works on the newest events instead of walking through the lost span. The
@@ -52,6 +60,12 @@ GRACE_S = 0.005
 STDIN_MAGIC = b"TOFFE-EV"
 STDIN_HEADER = struct.Struct("<8sHHHH")
 STDIN_VERSION = 1
+#: the clock closes a window only once the producer has been quiet for QUIET_GAPS of its usual
+#: gaps between chunks (a decaying maximum, GAP_DECAY per chunk): a pipe that delivers a chunk
+#: every 50 ms is not a quiet stream between its chunks
+QUIET_GAPS, GAP_DECAY = 2.0, 0.95
+#: the usual gap assumed until the second chunk tells it (a slow pipe's first windows wait for it)
+FIRST_GAP_S = 0.1
 _POLL_S = 0.1                   # how often a blocked reader or the run's thread checks for a stop
 _END = object()
 
@@ -175,7 +189,9 @@ class LiveSource(abc.ABC):
         self._thread: threading.Thread | None = None
         self._t_first: int | None = None
         self._host_first = 0.0
+        self._close_first = 0.0           # close(t)'s anchor: host_first, moved later by a slow producer
         self._last_arrival = 0.0
+        self._gap = FIRST_GAP_S            # the producer's usual gap between chunks (s)
         self._opened = time.perf_counter()
         self._offset = 0
 
@@ -192,6 +208,12 @@ class LiveSource(abc.ABC):
         self._offset += int(ev.shape[0])
         if self._t_first is None:
             self._t_first, self._host_first = int(ev["t"][0]), now
+            self._close_first = now
+        behind = now - (self._close_first + (int(ev["t"].max()) - self._t_first) * 1e-6)
+        if behind > 0:                          # the producer is slower than real time: follow its pace
+            self._close_first += behind
+        if self._last_arrival:                  # its usual gap between chunks: a decaying maximum
+            self._gap = max(now - self._last_arrival, GAP_DECAY * self._gap)
         self._last_arrival = now
         self.queue.put(ev)
 
@@ -213,6 +235,12 @@ class LiveSource(abc.ABC):
     def host_time(self, t_us: int) -> float:
         """perf_counter() seconds at which an event stamped ``t_us`` happened (first-event mapping)."""
         return self._host_first + (int(t_us) - (self._t_first or 0)) * 1e-6
+
+    def close_time(self, t_us: int) -> float:
+        """perf_counter() seconds by which the events stamped before ``t_us`` have come at the
+        stream's own pace (host_time moved later by a producer slower than real time): a window
+        ending at t_us is closed by the clock at close_time + grace."""
+        return self._close_first + (int(t_us) - (self._t_first or 0)) * 1e-6
 
     def _next(self, timeout: float):
         """A chunk, None (nothing yet) or _END; ends the stream after ``idle_timeout_s`` of silence."""
@@ -250,7 +278,8 @@ class LiveSource(abc.ABC):
             while not exhausted and (not buf.shape[0] or buf["t"][-1] < t1):
                 item = self._next(0.0)
                 if item is None:
-                    left = _POLL_S if waiting else self.host_time(t1) + self.grace_s - time.perf_counter()
+                    left = _POLL_S if waiting else max(self.close_time(t1) + self.grace_s,
+                                                       self._last_arrival + QUIET_GAPS * self._gap) - time.perf_counter()
                     if left <= 0:
                         break                        # closed by the clock: nothing newer came
                     item = self._next(min(left, _POLL_S))

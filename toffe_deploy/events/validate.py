@@ -49,7 +49,7 @@ def check_chunk(path: str | os.PathLike, ev: np.ndarray, sensor_size: tuple[int,
                 prev_t: int | None = None, check_order: bool = True) -> None:
     """Raise InputError for the first bad event of ``ev`` (events ``offset``.. of the file).
 
-    Checks: coordinates inside the sensor, no negative timestamps and (``check_order``) no
+    Checks: coordinates inside the sensor, polarities 0/1, no negative timestamps and (``check_order``) no
     timestamp smaller than the one before it, ``prev_t`` being the last of the previous chunk.
     Vectorized: one pass of numpy comparisons per check.
     """
@@ -62,6 +62,10 @@ def check_chunk(path: str | os.PathLike, ev: np.ndarray, sensor_size: tuple[int,
             i = int(bad[0])
             raise InputError(path, f"{name} = {int(ev[name][i])} outside the {w}x{h} sensor at event "
                                    f"{offset + i} (give the right sensor size?)")
+    bad = np.flatnonzero(ev["p"] > 1)
+    if bad.size:
+        i = int(bad[0])
+        raise InputError(path, f"polarity p = {int(ev['p'][i])} at event {offset + i} is not 0/1")
     t = ev["t"]
     bad = np.flatnonzero((t < 0) | (t > MAX_TIME_US))
     if bad.size:

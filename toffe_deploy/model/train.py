@@ -429,16 +429,39 @@ def _save_state(out: Path, state: dict, ofpd_model=None, opt=None) -> None:
 
 def make_config(files, data: Path, dt_us: int, seed: int, input_norm: str, ofs_kernel: int,
                 min_cluster: int) -> ToffeConfig:
-    """Config from the data set's sensor size and provenance."""
+    """Config from the data set's sensor size, camera and provenance. The speed bins stay the
+    reference image-plane bins (px/ms: what the data set's labels and the OFS stages use); when
+    every training sequence was recorded with one focal length (a data set for one camera:
+    ``dataset synth --focal-px`` or ``--hfov-deg``), they are stated in m/s for that camera at
+    the reference depth, so that the bundle's manifest and `run` without ``--focal-px`` speak
+    of the data's camera, not of a 640 px one at 60 deg."""
     from ..events.io import open_events
+    from ..runtime.truth import sequence_focal_px
 
-    with open_events(files[0]) as src:
-        sensor = src.sensor_size
-        attrs = dict(src.attrs)
+    focals = set()
+    for i, f in enumerate(files):
+        with open_events(f) as src:
+            if i == 0:
+                sensor = src.sensor_size
+                attrs = dict(src.attrs)
+            focal = sequence_focal_px(src.attrs)
+            focals.add(None if focal is None else round(focal, 3))
     prov = {"data_dir": os.fspath(data), "train_sequences": len(files), "train_seed": seed,
             "generator": attrs.get("generator"), "first_sequence": files[0].name}
-    return ToffeConfig(sensor_size=tuple(sensor), dt_us=int(dt_us), ofpd=dict(ofpd_io.OFPD_DEFAULTS), dataset=prov,
-                       input_norm=input_norm, ofs_kernel=int(ofs_kernel), input_min_cluster=int(min_cluster))
+    config = ToffeConfig(sensor_size=tuple(sensor), dt_us=int(dt_us), ofpd=dict(ofpd_io.OFPD_DEFAULTS),
+                         dataset=prov, input_norm=input_norm, ofs_kernel=int(ofs_kernel),
+                         input_min_cluster=int(min_cluster))
+    (focal,) = focals if len(focals) == 1 else (None,)
+    return config if focal is None else for_camera(config, focal)
+
+
+def for_camera(config: ToffeConfig, focal_px: float) -> ToffeConfig:
+    """``config`` stated for a camera of focal length ``focal_px`` at its depth: the same
+    image-plane bins (px/ms) and representative speeds, in m/s for that camera."""
+    k = config.focal_px / float(focal_px)                  # m/s at the new focal length per m/s at the old
+    return dataclasses.replace(config, focal_px=float(focal_px),
+                               speed_bins=tuple((lo * k, hi * k) for lo, hi in config.speed_bins),
+                               representative_speeds=tuple(v * k for v in config.representative_speeds))
 
 
 def with_ofpd_settings(config: ToffeConfig, pool: int | None, kernels: tuple[int, int] | None
