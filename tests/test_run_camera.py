@@ -212,3 +212,39 @@ def test_the_summarys_speed_errors_do_not_follow_the_stated_depth_when_the_truth
     assert got[0]["n_matched"] > 0
     for key in ("speedE", "speedE_bin_only"):
         assert got[0][key] == pytest.approx(got[1][key], rel=1e-9)
+
+
+def test_eval_reads_another_sensor_size_as_the_runtime_does(cam, capsys, tmp_path):
+    """eval's reference (predict_window on a window and the windows before it, as eval samples
+    them) finds on a 96x72 recording what the cpu runtime of a 64x48 bundle finds, window for
+    window; and `eval` takes such a data set (it refused any size but the checkpoint's)."""
+    from toffe_deploy.deploy.onnx_export import ort_session, run_onnx
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.events.support import sampled_window_history
+    from toffe_deploy.model.reference import fixed_stage_fn, predict_window
+    from toffe_deploy.runtime.pipeline import Pipeline
+    from toffe_deploy.runtime.spikes import SpikeVolume
+
+    b = cam["bundle"]
+    cfg = b.config
+    sess, stage = ort_session(b.ofpd_onnx), fixed_stage_fn(b.ofs)
+    with open_events(cam["rec"]) as src:
+        wins = [(t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, OTHER))
+                for t0, ev in src.iter_windows(cfg.dt_us, t_start=src.t_start_us)]
+        ref = []
+        for t0, _ in wins:
+            binned, recent, history = sampled_window_history(src.read, t0, cfg.dt_us, cfg, OTHER, src.t_start_us)
+            ref.append(predict_window(binned, stage, lambda x: run_onnx(sess, x), cfg, recent, history)[0])
+    with Pipeline(b, "cpu", sensor_size=OTHER, track=False) as pipe:
+        got = list(pipe.process_stream(wins))
+    rows = [([(o.speed_bin, round(o.x, 3), round(o.y, 3)) for o in r.objects],
+             [(p.stage, round(p.x, 3), round(p.y, 3)) for p in want]) for r, want in zip(got, ref)]
+    assert sum(len(a) for a, _ in rows) > 0 and [a for a, _ in rows] == [r for _, r in rows]
+
+    data = tmp_path / "d96"
+    assert main(["dataset", "synth", "--out", str(data), "--split", "test", "--limit", "1", "--duration-s", "0.003",
+                 "--sensor-size", "96x72", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(b.root.parent / "ckpt"), "--data", str(data), "--dt", "500", "--max-windows", "2",
+                 "--no-progress"]) == 0
+    assert "| 500 |" in capsys.readouterr().out

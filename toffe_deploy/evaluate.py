@@ -163,8 +163,6 @@ def evaluate(opts: EvalOptions) -> dict:
                 if gt is None:
                     raise InputError(path, "has no ground truth (needed for evaluation)")
                 sensor = src.sensor_size
-                if tuple(sensor) != tuple(cfg.sensor_size):
-                    raise InputError(path, f"sensor size {list(sensor)} differs from the checkpoint's {list(cfg.sensor_size)}")
                 focal = sequence_focal_px(attrs[fi])
                 starts = _sample_starts(src.t_start_us, src.t_end_us, dt, opts.max_windows)
                 if opts.skip_stream_start:         # the same sample less a stream's first window
