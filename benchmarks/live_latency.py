@@ -73,7 +73,7 @@ def measure(bundle: str, ev: np.ndarray, sensor, seconds: float, target: str, qu
         port = s.getsockname()[1]
     with tempfile.TemporaryDirectory(prefix="live-latency-") as tmp:
         argv = [sys.executable, "-m", "toffe_deploy.cli", "run", bundle, "--target", target, "--events",
-                f"udp://127.0.0.1:{port}", "--sensor-size", f"{sensor[0]}x{sensor[1]}", "--idle-timeout", "1",
+                f"udp://127.0.0.1:{port}", "--sensor-size", f"{sensor[0]}x{sensor[1]}", "--idle-timeout", "4",
                 "--out", f"{tmp}/o.jsonl", "--summary-json", f"{tmp}/s.json", "--no-progress"]
         if queue:
             argv += ["--queue-events", str(queue)]
@@ -87,7 +87,8 @@ def measure(bundle: str, ev: np.ndarray, sensor, seconds: float, target: str, qu
             if p.poll() is not None:
                 raise SystemExit(p.stderr.read().decode())
             time.sleep(0.05)
-        time.sleep(2.0)                           # the pipeline warms up after the socket opens
+        time.sleep(2.0)                           # the pipeline warms up after the socket opens (the run's
+                                                  # --idle-timeout 4 s must not end it before the first event)
         sent = send_paced(ev, seconds, port)
         _, err = p.communicate(timeout=600)
         if p.returncode:

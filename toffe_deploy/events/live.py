@@ -14,8 +14,8 @@ Clock: a source's timestamps are mapped to host time at the first event,
 (``host_first``: ``time.perf_counter()`` when the chunk holding the first event arrived). A window
 is closed when an event at or past its end arrives, or when host time passes close(t1) + the
 grace (``grace_s``, default GRACE_S; ``run --window-grace-ms``) with nothing newer in the queue
-and the producer quiet for QUIET_GAPS of its usual gaps between chunks (a quiet stream still
-yields its windows on time). close(t) is host(t) moved later whenever a chunk arrives later
+and the producer quiet for QUIET_GAPS of its usual lag gaps (wall time between chunks less the
+stream time between them: ~0 for a real-time source; a quiet stream still yields its windows on time). close(t) is host(t) moved later whenever a chunk arrives later
 than its newest event maps (close(t_newest) <= its arrival): a producer slower than real time
 (a pipe from a converter, a driver that buffers, one that sends a chunk every 50 ms) has its
 windows closed at its own pace, by its events, not by the clock before its events come. A
@@ -61,11 +61,12 @@ STDIN_MAGIC = b"TOFFE-EV"
 STDIN_HEADER = struct.Struct("<8sHHHH")
 STDIN_VERSION = 1
 #: the clock closes a window only once the producer has been quiet for QUIET_GAPS of its usual
-#: gaps between chunks (a decaying maximum, GAP_DECAY per chunk): a pipe that delivers a chunk
-#: every 50 ms is not a quiet stream between its chunks
+#: lag gaps (wall time between chunks less their stream time; a decaying maximum, GAP_DECAY per
+#: chunk): a pipe that delivers 0.5 ms of events every 50 ms is not a quiet stream between them
 QUIET_GAPS, GAP_DECAY = 2.0, 0.95
-#: the usual gap assumed until the second chunk tells it (a slow pipe's first windows wait for it)
-FIRST_GAP_S = 0.1
+#: the gap assumed over the first PACE_CHUNKS chunks, until they tell the pace (a slow pipe's first
+#: windows wait for it; a producer that had to wait for the reader hands its backlog over at once)
+FIRST_GAP_S, PACE_CHUNKS = 0.1, 10
 _POLL_S = 0.1                   # how often a blocked reader or the run's thread checks for a stop
 _END = object()
 
@@ -191,7 +192,8 @@ class LiveSource(abc.ABC):
         self._host_first = 0.0
         self._close_first = 0.0           # close(t)'s anchor: host_first, moved later by a slow producer
         self._last_arrival = 0.0
-        self._gap = FIRST_GAP_S            # the producer's usual gap between chunks (s)
+        self._gap = 0.0                   # the producer's usual lag gap between chunks (s)
+        self._last_t = 0
         self._opened = time.perf_counter()
         self._offset = 0
 
@@ -212,9 +214,11 @@ class LiveSource(abc.ABC):
         behind = now - (self._close_first + (int(ev["t"].max()) - self._t_first) * 1e-6)
         if behind > 0:                          # the producer is slower than real time: follow its pace
             self._close_first += behind
-        if self._last_arrival:                  # its usual gap between chunks: a decaying maximum
-            self._gap = max(now - self._last_arrival, GAP_DECAY * self._gap)
-        self._last_arrival = now
+        t_max = int(ev["t"].max())
+        if self._last_arrival:                  # its usual lag gap between chunks: a decaying maximum
+            lag = (now - self._last_arrival) - (t_max - self._last_t) * 1e-6
+            self._gap = max(lag, GAP_DECAY * self._gap)
+        self._last_arrival, self._last_t = now, max(t_max, self._last_t)
         self.queue.put(ev)
 
     def _run(self) -> None:
@@ -241,6 +245,18 @@ class LiveSource(abc.ABC):
         stream's own pace (host_time moved later by a producer slower than real time): a window
         ending at t_us is closed by the clock at close_time + grace."""
         return self._close_first + (int(t_us) - (self._t_first or 0)) * 1e-6
+
+    def close_by(self, t1_us: int) -> float:
+        """perf_counter() seconds at which the clock closes a window ending at ``t1_us`` when nothing
+        newer has come: close_time + grace, and not before the producer has been quiet for
+        QUIET_GAPS of its usual lag gaps (the wall time between two chunks less the stream time
+        between them: about 0 for a real-time source, bursty or not, whose quiet windows close
+        on time; 50 ms for a pipe that hands over 0.5 ms of events every 50 ms), nor, while its
+        pace is not known (its first PACE_CHUNKS chunks), before FIRST_GAP_S."""
+        at = max(self.close_time(t1_us) + self.grace_s, self._last_arrival + QUIET_GAPS * self._gap)
+        if self.stats.received_chunks < PACE_CHUNKS:
+            at = max(at, self._last_arrival + FIRST_GAP_S)
+        return at
 
     def _next(self, timeout: float):
         """A chunk, None (nothing yet) or _END; ends the stream after ``idle_timeout_s`` of silence."""
@@ -278,8 +294,7 @@ class LiveSource(abc.ABC):
             while not exhausted and (not buf.shape[0] or buf["t"][-1] < t1):
                 item = self._next(0.0)
                 if item is None:
-                    left = _POLL_S if waiting else max(self.close_time(t1) + self.grace_s,
-                                                       self._last_arrival + QUIET_GAPS * self._gap) - time.perf_counter()
+                    left = _POLL_S if waiting else self.close_by(t1) - time.perf_counter()
                     if left <= 0:
                         break                        # closed by the clock: nothing newer came
                     item = self._next(min(left, _POLL_S))
