@@ -279,6 +279,8 @@ def run_command(args) -> int:
     src = open_source(args, cfg.sensor_size)
     live = getattr(src, "live", False)
     with src:
+        if live:        # read from now on, into the bounded queue: not into a socket buffer that
+            src.start()  # overflows while the pipeline starts, nor with a clock anchored late
         sensor = tuple(src.sensor_size)
         camera = resolve_camera(cfg, sensor, depth_m=args.depth_m, focal_px=args.focal_px, hfov_deg=args.hfov_deg,
                                 synthetic_focal_px=src.attrs.get("focal_px") if args.synthetic else None,
