@@ -264,8 +264,7 @@ def run_command(args) -> int:
                          "dv-camera[:SERIAL] or - for stdin; anything else is a file path)")
     if is_live(args.events) and args.start_us is not None:
         raise ToffeError("--start-us applies to files: a live source starts at its first event")
-    if not (args.idle_timeout >= 0 and args.window_grace_ms >= 0) or not math.isfinite(args.idle_timeout) \
-            or not math.isfinite(args.window_grace_ms):
+    if not all(math.isfinite(v) and v >= 0 for v in (args.idle_timeout, args.window_grace_ms)):
         raise ToffeError(f"--idle-timeout and --window-grace-ms must be finite and >= 0, got {args.idle_timeout}, "
                          f"{args.window_grace_ms}")
     if args.video and not args.render:

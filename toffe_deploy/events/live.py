@@ -15,10 +15,11 @@ Clock: a source's timestamps are mapped to host time at the first event,
 is closed when an event at or past its end arrives, or when host time passes close(t1) + the
 grace (``grace_s``, default GRACE_S; ``run --window-grace-ms``) with nothing newer in the queue
 and the producer quiet for QUIET_GAPS of its usual lag gaps (wall time between chunks less the
-stream time between them: ~0 for a real-time source; a quiet stream still yields its windows on time). close(t) is host(t) moved later whenever a chunk arrives later
-than its newest event maps (close(t_newest) <= its arrival): a producer slower than real time
-(a pipe from a converter, a driver that buffers, one that sends a chunk every 50 ms) has its
-windows closed at its own pace, by its events, not by the clock before its events come. A
+stream time between them: ~0 for a real-time source; a quiet stream still yields its windows on
+time). close(t) is host(t) moved later whenever a chunk arrives later than its newest event
+maps (close(t_newest) <= its arrival): a producer slower than real time (a pipe from a
+converter, a driver that buffers, one that sends a chunk every 50 ms) has its windows closed
+at its own pace, by its events, not by the clock before its events come. A
 producer that stalls for much longer than its usual gaps and the grace has the windows of the
 stall closed empty on time, as a quiet camera's; its events that then come are late.
 An event older than the window being filled arrived too late: it is dropped and counted (the
@@ -211,10 +212,10 @@ class LiveSource(abc.ABC):
         if self._t_first is None:
             self._t_first, self._host_first = int(ev["t"][0]), now
             self._close_first = now
-        behind = now - (self._close_first + (int(ev["t"].max()) - self._t_first) * 1e-6)
+        t_max = int(ev["t"].max())
+        behind = now - (self._close_first + (t_max - self._t_first) * 1e-6)
         if behind > 0:                          # the producer is slower than real time: follow its pace
             self._close_first += behind
-        t_max = int(ev["t"].max())
         if self._last_arrival:                  # its usual lag gap between chunks: a decaying maximum
             lag = (now - self._last_arrival) - (t_max - self._last_t) * 1e-6
             self._gap = max(lag, GAP_DECAY * self._gap)
