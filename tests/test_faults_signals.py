@@ -76,6 +76,33 @@ def test_sigterm_and_sigint_raise_once_then_are_ignored():
     assert signal.getsignal(signal.SIGTERM) == before
 
 
+def test_a_ctrl_c_wrapped_by_compiled_code_still_ends_a_live_run_with_its_summary():
+    """A signal that lands while numba's dispatcher calls back into Python arrives as a chain of
+    SystemErrors with the KeyboardInterrupt at its end: a live run treats it as the Ctrl-C (it
+    once escaped, and the run printed no summary), a file run and other errors unwind."""
+    from toffe_deploy.commands.run import live_interrupt
+    from toffe_deploy.signals import signal_behind
+
+    def wrapped(sig, depth):
+        exc = sig
+        for _ in range(depth):
+            try:
+                raise SystemError("returned a result with an exception set") from exc
+            except SystemError as outer:
+                exc = outer
+        return exc
+
+    ki = KeyboardInterrupt()
+    assert signal_behind(wrapped(ki, 3)) is ki and signal_behind(ki) is ki
+    term = Terminated(signal.SIGTERM)
+    assert signal_behind(wrapped(term, 1)) is term
+    assert signal_behind(SystemError("no cause")) is None and signal_behind(ValueError()) is None
+    for exc, live, swallowed in [(wrapped(ki, 2), True, True), (ki, True, True), (wrapped(ki, 2), False, False),
+                                 (wrapped(term, 1), True, False), (SystemError("x"), True, False)]:
+        stop = live_interrupt(live)
+        assert stop.__exit__(type(exc), exc, None) is swallowed and stop.interrupted is swallowed
+
+
 def test_reclaim_removes_only_our_segments_of_dead_hosts(tmp_path):
     dead = subprocess.Popen(["true"])
     dead.wait()

@@ -10,7 +10,7 @@ import sys
 from . import __version__
 from .commands import COMMAND_MODULES
 from .errors import ToffeError
-from .signals import Terminated, exceptions_on_signals
+from .signals import Terminated, exceptions_on_signals, signal_behind
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -81,13 +81,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"toffe-deploy: {exc}", file=sys.stderr)
             return exc.exit_code
         except SystemError as exc:
-            # a signal that landed while compiled code (numba's dispatcher) called back into
-            # Python comes out as "returned a result with an exception set", the signal's
-            # exception as its cause (at the end of a chain of such SystemErrors, one per
-            # compiled frame): the unwinding ran the clean-ups all the same
-            sig, seen = exc, 0
-            while isinstance(sig, SystemError) and seen < 100:
-                sig, seen = sig.__cause__ or sig.__context__, seen + 1
+            # a signal that landed in compiled code (signals.signal_behind): the clean-ups ran
+            sig = signal_behind(exc)
             if isinstance(sig, KeyboardInterrupt):
                 print("toffe-deploy: interrupted", file=sys.stderr)
                 return 130

@@ -78,3 +78,16 @@ def exceptions_on_signals() -> Iterator[None]:
         sys.unraisablehook = prev_hook
         for sig, prev in old.items():
             signal.signal(sig, prev)
+
+
+def signal_behind(exc: BaseException | None) -> BaseException | None:
+    """The KeyboardInterrupt or ``Terminated`` that ``exc`` is, or that it wraps; else None.
+
+    A signal that lands while compiled code (numba's dispatcher) calls back into Python comes out
+    as a SystemError ("returned a result with an exception set") with the signal's exception as
+    its cause, at the end of a chain of such SystemErrors, one per compiled frame. The unwinding
+    ran the clean-ups all the same, so callers treat it as the signal."""
+    seen = 0
+    while isinstance(exc, SystemError) and seen < 100:
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return exc if isinstance(exc, (KeyboardInterrupt, Terminated)) else None

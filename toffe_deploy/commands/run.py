@@ -23,6 +23,7 @@ from pathlib import Path
 
 from ..errors import InputError, ToffeError
 from ..events.live import GRACE_S, QUEUE_EVENTS, is_live
+from ..signals import signal_behind
 from . import add_progress_flag, show_progress
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
@@ -422,7 +423,8 @@ def run_command(args) -> int:
 
 class live_interrupt:
     """Ctrl-C ends a live run like the end of its stream: the windows done so far are kept and the
-    summary is printed (exit 130). File runs let KeyboardInterrupt unwind as before."""
+    summary is printed (exit 130). File runs let KeyboardInterrupt unwind as before. The Ctrl-C may
+    come wrapped, as a SystemError from compiled code (signals.signal_behind)."""
 
     def __init__(self, live: bool):
         self.live = live
@@ -432,7 +434,7 @@ class live_interrupt:
         return self
 
     def __exit__(self, kind, exc, tb) -> bool:
-        if self.live and kind is KeyboardInterrupt:
+        if self.live and isinstance(signal_behind(exc), KeyboardInterrupt):
             self.interrupted = True
             return True
         return False
