@@ -251,6 +251,37 @@ def test_cpu_pipeline_equals_reference_and_the_history_changes_it(env):
     assert sum(map(len, ours)) > 0 and ours != plain
 
 
+def test_eval_windows_in_order_continue_the_stream_with_the_same_results(env):
+    """eval's WindowHistories: windows asked for in order (and after a gap, where the stream is
+    built anew) give the front end's window, the SupportHistory and predictions through the
+    ring that sampled_window_history's fresh build gives for each."""
+    from toffe_deploy.deploy.onnx_export import ort_session, run_onnx
+    from toffe_deploy.events.support import WindowHistories
+    from toffe_deploy.model.reference import fixed_stage_fn, predict_window
+
+    b = env["on"]
+    cfg = b.config
+    sess, run = ort_session(b.ofpd_onnx), fixed_stage_fn(b.ofs)
+    wins = [t0 for t0, _x in _windows(env["rec"], cfg)]
+    asked = wins[:4] + wins[6:10]
+    n_objects = 0
+    with open_events(env["rec"]) as src:
+        stream = WindowHistories(src.read, cfg.dt_us, cfg, cfg.sensor_size, src.t_start_us)
+        for t0 in asked:
+            got = stream(t0)
+            got_preds = _rows([(p.stage, p.x, p.y, p.direction_rad, p.speed_mps)
+                               for p in predict_window(*got[:1], run, lambda x: run_onnx(sess, x), cfg, *got[1:])[0]])
+            got_hist = (got[0].copy(), got[1].counts.copy(), got[1].total, got[2].available)
+            ref = sampled_window_history(src.read, t0, cfg.dt_us, cfg, cfg.sensor_size, src.t_start_us)
+            ref_preds = _rows([(p.stage, p.x, p.y, p.direction_rad, p.speed_mps)
+                               for p in predict_window(*ref[:1], run, lambda x: run_onnx(sess, x), cfg, *ref[1:])[0]])
+            assert np.array_equal(got_hist[0], ref[0]) and np.array_equal(got_hist[1], ref[1].counts)
+            assert got_hist[2:] == (ref[1].total, ref[2].available)
+            assert got_preds == ref_preds
+            n_objects += len(got_preds)
+    assert n_objects > 0 and stream._next == asked[-1] + cfg.dt_us
+
+
 def test_refits_pipeline_equals_reference(env, monkeypatch):
     """plane_fit_refits: the streaming cpu Pipeline (time_surface.fused_history_flow, one compiled
     call) == eval's reference (PlaneFusion.apply with refit_history), and the refit is read (some

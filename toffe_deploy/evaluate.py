@@ -27,7 +27,7 @@ from .breakdown import Breakdown, attr_value, bucket_labels, bucket_order
 from .cascade import stage_frame
 from .checkpoint import load_checkpoint
 from .errors import InputError
-from .events.support import sampled_window_history
+from .events.support import WindowHistories
 from .metrics import GATE_PX, FlowErrors, SeparationCounts
 from .tracking_metrics import TrackingErrors
 from . import ofpd_io
@@ -167,9 +167,10 @@ def evaluate(opts: EvalOptions) -> dict:
                 starts = _sample_starts(src.t_start_us, src.t_end_us, dt, opts.max_windows)
                 if opts.skip_stream_start:         # the same sample less a stream's first window
                     starts = starts[starts > src.t_start_us]
+                windows = WindowHistories(src.read, dt, cfg, sensor, src.t_start_us)
                 for t0 in starts:
                     truth = window_truth(gt, int(t0), dt)
-                    binned, recent, history = sampled_window_history(src.read, int(t0), dt, cfg, sensor, src.t_start_us)
+                    binned, recent, history = windows(t0)
                     preds, res = predict_window(binned, run_stage, ofpd, cfg, recent, history)
                     errs.add_window(preds, truth, focal)
                     for g, (_paths, labels, _order) in enumerate(groups):
@@ -181,8 +182,10 @@ def evaluate(opts: EvalOptions) -> dict:
                             frame = stage_frame(binned, spikes, cfg.mask_kernel, cfg.ofs_pool)
                             sep[k - 1].add(ofpd_io.has_object(frame[None], cfg, recent), truth[0].speed_bin >= k)
                 if track_errs is not None:
-                    def predict(t0, src=src, sensor=sensor):
-                        binned, recent, history = sampled_window_history(src.read, t0, dt, cfg, sensor, src.t_start_us)
+                    stream = WindowHistories(src.read, dt, cfg, sensor, src.t_start_us)
+
+                    def predict(t0, stream=stream):
+                        binned, recent, history = stream(t0)
                         return predict_window(binned, run_stage, ofpd, cfg, recent, history)[0]
 
                     track_sequence(src, gt, dt, opts.track_windows, predict, cfg, track_errs)

@@ -47,7 +47,9 @@ def register(sub) -> None:
     p.add_argument("--dt", type=_dts, default=(200, 500, 1000, 2000, 5000),
                    help="window lengths in us, comma separated (default 200,500,1000,2000,5000)")
     p.add_argument("--max-windows", type=int, default=20,
-                   help="windows per sequence and dt, evenly spaced (default 20)")
+                   help="windows per sequence and dt, evenly spaced (default 20); at least as many as a "
+                        "recording holds (200 for 100 ms at 500 us) is every window: the whole stream, as "
+                        "`run` sees it (windows in a row continue one stream, so each costs one front end)")
     p.add_argument("--skip-stream-start", action="store_true",
                    help="leave each sequence's first window out of the sample: there the front end's temporal "
                         "support and the plane fit have no windows before it, which a running stream has "
