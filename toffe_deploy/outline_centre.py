@@ -81,6 +81,18 @@ def outline_centres(obj, xs, ys, n_obj, x_px, y_px, speed_px_ms, direction_rad, 
     out_y = y_px.copy()
     k_ring = ring_ptr.shape[0]
     ks = history_rows(speed_px_ms, False, distance_px, k_ring, dt_ms)     # the plane fit's K rule
+    first = np.zeros(n_obj + 1, np.int64)       # the ones by object (a counting sort, one pass)
+    for m in range(obj.shape[0]):
+        if 0 <= obj[m] < n_obj:
+            first[obj[m] + 1] += 1
+    for i in range(n_obj):
+        first[i + 1] += first[i]
+    order = np.empty(first[n_obj], np.int64)
+    fill = first[:n_obj].copy()
+    for m in range(obj.shape[0]):
+        if 0 <= obj[m] < n_obj:
+            order[fill[obj[m]]] = m
+            fill[obj[m]] += 1
     for i in range(n_obj):
         step = speed_px_ms[i] * dt_ms
         if not (step > 0.0 and math.isfinite(step)):
@@ -88,14 +100,12 @@ def outline_centres(obj, xs, ys, n_obj, x_px, y_px, speed_px_ms, direction_rad, 
         k = ks[i]
         if k < k_min or k > available:
             continue
-        sel = np.flatnonzero(obj == i)
+        sel = order[first[i]:first[i + 1]]
         if sel.size == 0:
             continue
-        own = np.unique(ys[sel] * width + xs[sel])
-        ox = own % width
-        oy = own // width
-        cx = ox.mean()
-        cy = oy.mean()
+        ox, oy = _distinct_pixels(xs, ys, sel)
+        cx = ox.sum() / ox.size                      # integer sums: exact in any order
+        cy = oy.sum() / oy.size
         extent = max(ox.max() - ox.min(), oy.max() - oy.min()) + 1
         if closed_frac > 0.0:                        # its own pixels all round their centroid: an
             q = np.zeros(4)                          # outline the OFPD saw whole, or two objects
@@ -164,6 +174,29 @@ def outline_centres(obj, xs, ys, n_obj, x_px, y_px, speed_px_ms, direction_rad, 
         out_x[i] = cx + lag * math.cos(direction_rad[i])
         out_y[i] = cy + lag * math.sin(direction_rad[i])
     return out_x, out_y
+
+
+@njit(cache=True, nogil=True)
+def _distinct_pixels(xs, ys, sel):
+    """(x, y) int64 of the distinct pixels among xs[sel], ys[sel] (a bitmap of their box, no sort)."""
+    x0 = x1 = xs[sel[0]]
+    y0 = y1 = ys[sel[0]]
+    for m in sel:
+        x0, x1 = min(x0, xs[m]), max(x1, xs[m])
+        y0, y1 = min(y0, ys[m]), max(y1, ys[m])
+    bw = x1 - x0 + 1
+    seen = np.zeros((y1 - y0 + 1) * bw, np.bool_)
+    ox = np.empty(sel.size, np.int64)
+    oy = np.empty(sel.size, np.int64)
+    n = 0
+    for m in sel:
+        b = (ys[m] - y0) * bw + xs[m] - x0
+        if not seen[b]:
+            seen[b] = True
+            ox[n] = xs[m]
+            oy[n] = ys[m]
+            n += 1
+    return ox[:n], oy[:n]
 
 
 @njit(cache=True, nogil=True)
