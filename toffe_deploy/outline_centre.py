@@ -31,7 +31,9 @@ MOTA and 0.06 IDF1 before this test (ckpt/README.md, "Position from the outline"
 Every target runs the same compiled kernel on the same front-end ones (the ring the plane fit
 reads, ``plane_fit_history``), so positions are the same bits on cpu, cuda, the Lava targets
 and in eval. D = 10 px is the plane fit's; k_min 4 (bins 1-3 at dt 500 us), reach 1.0 and
-closed_frac 0.1 from eval on ``appearance`` and ``pairs`` and tracking on ``crossing`` seed 0.
+closed_frac 0.1 from eval on ``appearance`` and ``pairs`` and tracking on ``crossing`` seed 0;
+the shipped ``ckpt/`` runs [10, 4, 1.0, 0.1] since 2026-11-24 (on whole streams it finds more
+slow objects, and tracking through crossings no longer loses with it: ckpt/README.md).
 """
 from __future__ import annotations
 
