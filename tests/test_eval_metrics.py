@@ -170,6 +170,27 @@ def test_eval_skip_stream_start_leaves_out_each_first_window(eval_env, tmp_path,
     assert r["skip_stream_start"] is True and r["per_dt"][0]["all"]["n_windows"] == 4
 
 
+def test_eval_at_another_dt_converts_motion_with_that_window_length(eval_env, monkeypatch, capsys):
+    """At a --dt other than the checkpoint's, the predictions' px/ms (plane fit, decode, outline
+    lag) come from that window's length: every window is predicted with config.dt_us = its dt
+    (with the training dt, bins came out one slower at 200 us and speedE tripled)."""
+    from toffe_deploy.cli import main
+    from toffe_deploy.model import reference
+
+    seen = []
+    real = reference.predict_window
+
+    def spy(binned, run_stage, ofpd, config, *a):
+        seen.append(config.dt_us)
+        return real(binned, run_stage, ofpd, config, *a)
+
+    monkeypatch.setattr(reference, "predict_window", spy)
+    assert main(["eval", str(eval_env["ck"]), "--data", str(eval_env["data"]), "--split", "appearance",
+                 "--dt", "1000,500", "--max-windows", "2", "--no-progress"]) == 0
+    assert seen == [1000] * 4 + [500] * 4
+    assert "1000*" in capsys.readouterr().out
+
+
 def test_eval_unknown_split_names_the_splits_there(eval_env, capsys):
     from toffe_deploy.cli import main
 

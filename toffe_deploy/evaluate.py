@@ -17,6 +17,7 @@ precision / recall.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -153,6 +154,10 @@ def evaluate(opts: EvalOptions) -> dict:
         return FlowErrors(gate_px=opts.gate_px, n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
 
     for dt in opts.dts:
+        # the window's own length: the plane fit, the OFPD decode and the outline's lag convert
+        # per-bin and per-window motion to px/ms with config.dt_us (the training dt otherwise:
+        # off by the ratio of the two at every other --dt)
+        wcfg = dataclasses.replace(cfg, dt_us=int(dt))
         errs = new_errors()
         track_errs = TrackingErrors(opts.gate_px) if opts.track_windows > 0 else None
         by_errs = [{lab: new_errors() for lab in order} for _paths, _labels, order in groups]
@@ -167,11 +172,11 @@ def evaluate(opts: EvalOptions) -> dict:
                 starts = _sample_starts(src.t_start_us, src.t_end_us, dt, opts.max_windows)
                 if opts.skip_stream_start:         # the same sample less a stream's first window
                     starts = starts[starts > src.t_start_us]
-                windows = WindowHistories(src.read, dt, cfg, sensor, src.t_start_us)
+                windows = WindowHistories(src.read, dt, wcfg, sensor, src.t_start_us)
                 for t0 in starts:
                     truth = window_truth(gt, int(t0), dt)
                     binned, recent, history = windows(t0)
-                    preds, res = predict_window(binned, run_stage, ofpd, cfg, recent, history)
+                    preds, res = predict_window(binned, run_stage, ofpd, wcfg, recent, history)
                     errs.add_window(preds, truth, focal)
                     for g, (_paths, labels, _order) in enumerate(groups):
                         by_errs[g][labels[fi]].add_window(preds, truth, focal)
@@ -180,15 +185,15 @@ def evaluate(opts: EvalOptions) -> dict:
                         for k in range(1, cfg.n_speed_bins + 1):
                             spikes = res.spikes[k - 1] if k == cfg.n_speed_bins else run_stage(k, inp)
                             frame = stage_frame(binned, spikes, cfg.mask_kernel, cfg.ofs_pool)
-                            sep[k - 1].add(ofpd_io.has_object(frame[None], cfg, recent), truth[0].speed_bin >= k)
+                            sep[k - 1].add(ofpd_io.has_object(frame[None], wcfg, recent), truth[0].speed_bin >= k)
                 if track_errs is not None:
-                    stream = WindowHistories(src.read, dt, cfg, sensor, src.t_start_us)
+                    stream = WindowHistories(src.read, dt, wcfg, sensor, src.t_start_us)
 
                     def predict(t0, stream=stream):
                         binned, recent, history = stream(t0)
-                        return predict_window(binned, run_stage, ofpd, cfg, recent, history)[0]
+                        return predict_window(binned, run_stage, ofpd, wcfg, recent, history)[0]
 
-                    track_sequence(src, gt, dt, opts.track_windows, predict, cfg, track_errs)
+                    track_sequence(src, gt, dt, opts.track_windows, predict, wcfg, track_errs)
         row = {"dt_us": dt, "same_dt_as_training": dt == cfg.dt_us, "all": errs.summary(),
                "per_bin": {str(k): errs.summary(k) for k in range(1, cfg.n_speed_bins + 1)},
                "separation": {str(k): sep[k - 1].as_dict() for k in range(1, cfg.n_speed_bins + 1)},
