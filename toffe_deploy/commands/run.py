@@ -321,11 +321,17 @@ def run_command(args) -> int:
         def windows():
             t_next = t_start
             skip = args.skip_empty_after or None
+            dropped = 0              # a live source's windows jumped over after a drop: not empty, not
             for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=t_start, skip_empty_after=skip)):
-                if n_total is not None and i >= n_total:
-                    return
+                if n_total is not None and i >= n_total:              # skipped (the summary's live line
+                    return                                            # counts them), no sensor time done
                 if t_next is not None and t0 > t_next:
-                    summary.skip((t0 - t_next) // cfg.dt_us, cfg.dt_us)
+                    n = (t0 - t_next) // cfg.dt_us
+                    if live:
+                        n -= src.stats.dropped_windows - dropped
+                        dropped = src.stats.dropped_windows
+                    if n > 0:
+                        summary.skip(n, cfg.dt_us)
                 t_next = t0 + cfg.dt_us
                 vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor)
                 pending.append((t0, vol, time.perf_counter(), int(ev["t"][-1]) if live and ev.shape[0] else None))

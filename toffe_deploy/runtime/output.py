@@ -163,7 +163,8 @@ class RunSummary:
     @property
     def realtime_factor(self) -> float:
         """Sensor time processed / wall time (> 1: faster than the sensor makes the windows).
-        Windows skipped over gaps (--skip-empty-after) count as sensor time too."""
+        Windows skipped over gaps (--skip-empty-after) count as sensor time too; a live source's
+        windows jumped over after its queue dropped their events do not (they are not skipped)."""
         if not (self.wall_s > 0 and self.dt_us > 0):
             return math.nan
         return (self.windows + self.skipped_windows) * self.dt_us * 1e-6 / self.wall_s
@@ -217,6 +218,8 @@ def live_line(stats: dict, latencies_s: list[float]) -> str:
             f"{stats['received_events']} events in {stats['received_chunks']} chunks received, "
             f"{stats['dropped_events']} dropped in {stats['dropped_chunks']} chunks (queue of "
             f"{stats['queue_events']} events, peak {stats['peak_queue_events']}), {stats['late_events']} late"
+            + (f"; {stats['dropped_windows']} windows whose events were dropped jumped over (no JSON line, "
+               "not counted as sensor time done)" if stats.get("dropped_windows") else "")
             + (f", {stats['invalid_events']} outside the sensor" if stats.get("invalid_events") else "")
             + (f", {stats['socket_drops']} datagrams dropped by the kernel (socket buffer full)"
                if stats.get("socket_drops") else ""))
