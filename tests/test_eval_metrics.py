@@ -191,6 +191,16 @@ def test_eval_at_another_dt_converts_motion_with_that_window_length(eval_env, mo
     assert "1000*" in capsys.readouterr().out
 
 
+def test_eval_data_that_is_a_file_says_so(eval_env, tmp_path, capsys):
+    from toffe_deploy.cli import main
+
+    f = tmp_path / "rec.h5"
+    f.write_bytes(b"x")
+    assert main(["eval", str(eval_env["ck"]), "--data", str(f), "--dt", "500", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "rec.h5" in err and "is a file, not a data-set directory" in err
+
+
 def test_eval_unknown_split_names_the_splits_there(eval_env, capsys):
     from toffe_deploy.cli import main
 

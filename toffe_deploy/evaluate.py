@@ -87,7 +87,8 @@ def split_files(data: Path, split: str) -> list[Path]:
 
     root = Path(data)
     if not root.is_dir():
-        raise InputError(root, "data directory does not exist")
+        raise InputError(root, "is a file, not a data-set directory (give the directory that holds index.json "
+                               "or split folders of .h5 files)" if root.exists() else "data directory does not exist")
     if (root / "index.json").exists() and any(True for _ in iter_split_files(root, split)):
         return find_sequences(root, split)
     files = sorted((root / split).glob("*.h5"))
