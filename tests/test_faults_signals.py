@@ -76,6 +76,30 @@ def test_sigterm_and_sigint_raise_once_then_are_ignored():
     assert signal.getsignal(signal.SIGTERM) == before
 
 
+def test_a_signal_inside_signals_deferred_is_raised_when_the_block_ends():
+    """A live run's window bookkeeping runs in signals_deferred: a Ctrl-C there lets the block
+    finish (the line and the summary's count both happen) and is raised at its end; a second
+    signal is ignored as before. (A Ctrl-C between the count and the line once left a summary of
+    6 windows over 5 lines.)"""
+    from toffe_deploy.signals import signals_deferred
+
+    done = []
+    with exceptions_on_signals():
+        with pytest.raises(KeyboardInterrupt):
+            with signals_deferred():
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.05)
+                done.append("line")
+                os.kill(os.getpid(), signal.SIGTERM)       # while unwinding: ignored
+                time.sleep(0.05)
+                done.append("count")
+    assert done == ["line", "count"]
+    with exceptions_on_signals():                            # no signal: nothing raised
+        with signals_deferred():
+            done.append("again")
+    assert done[-1] == "again"
+
+
 def test_a_ctrl_c_wrapped_by_compiled_code_still_ends_a_live_run_with_its_summary():
     """A signal that lands while numba's dispatcher calls back into Python arrives as a chain of
     SystemErrors with the KeyboardInterrupt at its end: a live run treats it as the Ctrl-C (it

@@ -37,6 +37,25 @@ class Terminated(BaseException):
         super().__init__(f"terminated by {signal.Signals(self.signum).name}")
 
 
+_DEFER = {"depth": 0, "pending": None}
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Within this block a signal that exceptions_on_signals handles is held, and raised as the
+    block ends: a window's bookkeeping (its JSON line, the summary's counts) is done whole, so a
+    live run's summary always counts the lines its output holds. An error in the block goes on
+    as it is."""
+    _DEFER["depth"] += 1
+    try:
+        yield
+    finally:
+        _DEFER["depth"] -= 1
+    if not _DEFER["depth"] and _DEFER["pending"] is not None:
+        exc, _DEFER["pending"] = _DEFER["pending"], None
+        raise exc
+
+
 @contextlib.contextmanager
 def exceptions_on_signals() -> Iterator[None]:
     """Within this block (main thread only), SIGINT, SIGTERM and SIGHUP raise once, then are ignored."""
@@ -52,6 +71,9 @@ def exceptions_on_signals() -> Iterator[None]:
         fired.append(signum)
         exc = KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
         raised.append(exc)
+        if _DEFER["depth"]:                 # signals_deferred: raised when that block ends
+            _DEFER["pending"] = exc
+            return
         raise exc
 
     prev_hook = sys.unraisablehook

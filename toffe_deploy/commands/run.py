@@ -23,7 +23,7 @@ from pathlib import Path
 
 from ..errors import InputError, ToffeError
 from ..events.live import GRACE_S, QUEUE_EVENTS, is_live
-from ..signals import signal_behind
+from ..signals import signal_behind, signals_deferred
 from . import add_progress_flag, show_progress
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
@@ -372,28 +372,29 @@ def run_command(args) -> int:
                            disable=not show_progress(args) or (n_total or 0) < 2 and not live, leave=False)
                 with bar, live_interrupt(live) as stop:
                     for res in pipe.process_stream(windows()):
-                        t0, vol, t_ready, t_newest = pending.popleft()
-                        summary.add(res, time.perf_counter() - t_ready)
-                        head = head and write_header(sink, head)      # first line, once the input has proven readable
-                        write_window(sink, res)
-                        if t_newest is not None:
-                            summary.event_latencies_s.append(time.perf_counter() - src.host_time(t_newest))
-                        if errors is not None:
-                            errors.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps,
-                                                          o.speed_bin_mps, o.speed_px_s / 1000.0)
-                                               for o in res.objects],
-                                              truth.window(res.t0_us, cfg.dt_us), focal_px)
-                        if tracking is not None:
-                            tracking.add_result(res, truth.window(res.t0_us, cfg.dt_us))
-                        if renderer is not None or report is not None:
-                            win = res.to_json()
-                            if renderer is not None:
-                                renderer.add(vol, win, truth.window(res.t0_us, cfg.dt_us) if truth else ())
-                            if report is not None:
-                                report.add(win)
-                        if dump is not None:
-                            dump.add(res)
-                        bar.update(1)
+                        with signals_deferred():            # the window's line and counts, whole
+                            t0, vol, t_ready, t_newest = pending.popleft()
+                            summary.add(res, time.perf_counter() - t_ready)
+                            head = head and write_header(sink, head)      # first line, once the input has proven readable
+                            write_window(sink, res)
+                            if t_newest is not None:
+                                summary.event_latencies_s.append(time.perf_counter() - src.host_time(t_newest))
+                            if errors is not None:
+                                errors.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps,
+                                                              o.speed_bin_mps, o.speed_px_s / 1000.0)
+                                                   for o in res.objects],
+                                                  truth.window(res.t0_us, cfg.dt_us), focal_px)
+                            if tracking is not None:
+                                tracking.add_result(res, truth.window(res.t0_us, cfg.dt_us))
+                            if renderer is not None or report is not None:
+                                win = res.to_json()
+                                if renderer is not None:
+                                    renderer.add(vol, win, truth.window(res.t0_us, cfg.dt_us) if truth else ())
+                                if report is not None:
+                                    report.add(win)
+                            if dump is not None:
+                                dump.add(res)
+                            bar.update(1)
                 interrupted = stop.interrupted
                 summary.wall_s = time.perf_counter() - t_run
                 head = head and write_header(sink, head)
