@@ -321,13 +321,13 @@ def run_command(args) -> int:
         def windows():
             t_next = t_start
             skip = args.skip_empty_after or None
-            dropped = 0              # a live source's windows jumped over after a drop: not empty, not
+            dropped = 0              # a live source's windows jumped over after its queue dropped their events
             for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=t_start, skip_empty_after=skip)):
-                if n_total is not None and i >= n_total:              # skipped (the summary's live line
-                    return                                            # counts them), no sensor time done
+                if n_total is not None and i >= n_total:
+                    return
                 if t_next is not None and t0 > t_next:
                     n = (t0 - t_next) // cfg.dt_us
-                    if live:
+                    if live:         # not empty, not done: the live line counts them, summary.skip does not
                         n -= src.stats.dropped_windows - dropped
                         dropped = src.stats.dropped_windows
                     if n > 0:
