@@ -198,3 +198,22 @@ def test_a_data_set_of_one_camera_states_the_bins_for_that_camera(tmp_path, rand
         assert np.allclose(cfg.speed_bins_px_ms, ref.speed_bins_px_ms, rtol=1e-12)
         assert np.allclose(cfg.speed_scale.to_px_ms(np.array(cfg.representative_speeds)),
                            ref.speed_scale.to_px_ms(np.array(ref.representative_speeds)), rtol=1e-12)
+
+
+def test_init_from_takes_the_camera_of_the_data_it_trains_on(tmp_path):
+    """--init-from: the start checkpoint's model settings, but the new data's sensor size and
+    focal length (speed bins in m/s for that camera, the same px/ms bins) and provenance."""
+    from toffe_deploy.config import ToffeConfig
+    from toffe_deploy.model.data import find_sequences
+    from toffe_deploy.model.train import init_config
+
+    d = tmp_path / "cam"
+    assert main(["dataset", "synth", "--out", str(d), "--split", "train", "--limit", "1", "--duration-s", "0.005",
+                 "--appearance", "random", "--sensor-size", "160x120", "--focal-px", "140,140", "--no-progress"]) == 0
+    start = ToffeConfig(sensor_size=(640, 480), ofpd={"pool": 4}, input_min_cluster=3)
+    got = init_config(start, find_sequences(d, "train"), d, 5, tmp_path / "src")
+    assert got.sensor_size == (160, 120) and got.focal_px == pytest.approx(140.0)
+    assert got.input_min_cluster == 3                                   # the model's settings are kept
+    np.testing.assert_allclose(got.speed_bins_px_ms, start.speed_bins_px_ms)
+    assert got.speed_bins[0][1] == pytest.approx(start.speed_bins[0][1] * start.focal_px / 140.0)
+    assert got.dataset["init_from"] == str(tmp_path / "src") and got.dataset["train_seed"] == 5

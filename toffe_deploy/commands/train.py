@@ -40,7 +40,7 @@ def register(sub) -> None:
     p.add_argument("--input-support", default=None, metavar="K,R,M,C",
                    help="input front end of a new checkpoint: also keep a pixel the cluster filter drops when the "
                         "window and the K windows before it fired >= M + C * (2R+1)^2 * (their event-pixel density) "
-                        "pixels in its (2R+1)^2 box (config.input_support; the shipped one's: 4,1,5,2; default off)")
+                        "pixels in its (2R+1)^2 box (config.input_support; the shipped one's: 4,2,5,2; default off)")
     p.add_argument("--ofs-kernel", type=int, default=5, metavar="K",
                    help="OFS conv kernel size of a new checkpoint (odd; default 5, the shipped one's: slow edges move "
                         "under a pixel per time bin; the paper's is 3)")

@@ -48,6 +48,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from ..camera import REFERENCE_FOCAL_PX
 from ..checkpoint import (CONFIG_FILE, load_checkpoint, random_ofpd_state, save_checkpoint, dotie_ofs)
 from ..config import ToffeConfig
 from ..errors import InputError, ToffeError
@@ -435,6 +436,17 @@ def make_config(files, data: Path, dt_us: int, seed: int, input_norm: str, ofs_k
     ``dataset synth --focal-px`` or ``--hfov-deg``), they are stated in m/s for that camera at
     the reference depth, so that the bundle's manifest and `run` without ``--focal-px`` speak
     of the data's camera, not of a 640 px one at 60 deg."""
+    sensor, focal, prov = data_camera(files, data, seed)
+    config = ToffeConfig(sensor_size=sensor, dt_us=int(dt_us), ofpd=dict(ofpd_io.OFPD_DEFAULTS),
+                         dataset=prov, input_norm=input_norm, ofs_kernel=int(ofs_kernel),
+                         input_min_cluster=int(min_cluster))
+    return config if focal is None else for_camera(config, focal)
+
+
+def data_camera(files, data: Path, seed: int) -> tuple[tuple[int, int], float | None, dict]:
+    """(sensor size, focal length in px or None, provenance) of a training data set: the first
+    sequence's sensor, the focal length when every sequence was recorded with one (else None),
+    and where the data came from (config.dataset)."""
     from ..events.io import open_events
     from ..runtime.truth import sequence_focal_px
 
@@ -448,11 +460,19 @@ def make_config(files, data: Path, dt_us: int, seed: int, input_norm: str, ofs_k
             focals.add(None if focal is None else round(focal, 3))
     prov = {"data_dir": os.fspath(data), "train_sequences": len(files), "train_seed": seed,
             "generator": attrs.get("generator"), "first_sequence": files[0].name}
-    config = ToffeConfig(sensor_size=tuple(sensor), dt_us=int(dt_us), ofpd=dict(ofpd_io.OFPD_DEFAULTS),
-                         dataset=prov, input_norm=input_norm, ofs_kernel=int(ofs_kernel),
-                         input_min_cluster=int(min_cluster))
     (focal,) = focals if len(focals) == 1 else (None,)
-    return config if focal is None else for_camera(config, focal)
+    return (int(sensor[0]), int(sensor[1])), focal, prov
+
+
+def init_config(init: ToffeConfig, files, data: Path, seed: int, init_from) -> ToffeConfig:
+    """The config of a run that starts from another checkpoint's (``--init-from``): its model
+    settings, but the camera of the data it now trains on (sensor size; speed bins in m/s for
+    the data's focal length, or the reference camera's when the sequences disagree, as
+    make_config states them) and that data's provenance, so that fine-tuning the shipped
+    640x480 checkpoint on EVK4 data gives a bundle that says 1280x720 and 1646 px."""
+    sensor, focal, prov = data_camera(files, data, seed)
+    config = dataclasses.replace(init, sensor_size=sensor, dataset={**prov, "init_from": os.fspath(init_from)})
+    return for_camera(config, REFERENCE_FOCAL_PX if focal is None else focal)
 
 
 def for_camera(config: ToffeConfig, focal_px: float) -> ToffeConfig:
@@ -527,7 +547,7 @@ def train(opts: TrainOptions) -> Path:
             raise InputError(out, f"its OFS stages were trained with reset {config.reset!r}; --reset {opts.reset} "
                                   "needs them retrained (--stage all)")
     elif init_ofs is not None:
-        config = dataclasses.replace(init.config, dataset={**init.config.dataset, "init_from": os.fspath(opts.init_from)})
+        config = init_config(init.config, files, Path(opts.data), opts.seed, opts.init_from)
         ofs_params, ofpd_state = [dict(p) for p in init_ofs], init.ofpd_state
         state = {}
     else:
