@@ -156,6 +156,12 @@ def test_eval_any_split_directory_with_breakdown(eval_env, tmp_path, capsys):
     assert [b["sequences"] for b in by["buckets"]] == [1, 1]
     assert sum(b["n_gt"] for b in by["buckets"]) == a["n_gt"]
     assert sum(b["false_positives"] for b in by["buckets"]) == a["false_positives"]
+    # an attribute no sequence has is an error before the work, naming the ones there are
+    assert main(["eval", str(eval_env["ck"]), "--data", str(eval_env["data"]), "--split", "appearance",
+                 "--by", "shape", "--json", str(tmp_path / "f.json"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--by shape" in err and "size_px" in err
+    assert not (tmp_path / "f.json").exists()
 
 
 def test_eval_skip_stream_start_leaves_out_each_first_window(eval_env, tmp_path, capsys):

@@ -87,6 +87,12 @@ def attr_value(attrs: dict, name: str) -> tuple[str, float] | None:
     return None
 
 
+def numeric_keys(attrs: dict) -> list[str]:
+    """The names --by can break down by in a sequence's attrs: every key with a numeric value
+    (attr_value's), sorted, each once."""
+    return sorted({key for _path, key, v in _walk(attrs) if not key.isdigit() and _numeric(v) is not None})
+
+
 def bucket_labels(values: list[float | None], edges: tuple[float, ...] | None) -> list[str]:
     """Bucket label of each value (None -> ``n/a``), module doc."""
     known = np.asarray([v for v in values if v is not None], dtype=np.float64)

@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .breakdown import Breakdown, attr_value, bucket_labels, bucket_order
+from .breakdown import Breakdown, attr_value, bucket_labels, bucket_order, numeric_keys
 from .cascade import stage_frame
 from .checkpoint import load_checkpoint
-from .errors import InputError
+from .errors import InputError, ToffeError
 from .events.support import WindowHistories
 from .metrics import GATE_PX, FlowErrors, SeparationCounts
 from .tracking_metrics import TrackingErrors
@@ -143,6 +143,10 @@ def evaluate(opts: EvalOptions) -> dict:
     groups = []                                           # per --by: (found paths, bucket of each file, order)
     for b in opts.by:
         found = [attr_value(a, b.name) for a in attrs]
+        if files and not any(found):        # before the work, not after it: an eval can take minutes
+            keys = sorted({k for a in attrs for k in numeric_keys(a)})
+            raise ToffeError(f"--by {b.name}: no sequence of {opts.data}/{opts.split} has a numeric attribute of "
+                             f"that name (they have: {', '.join(keys)})")
         values = [f[1] if f else None for f in found]
         labels = bucket_labels(values, b.edges)
         groups.append((sorted({f[0] for f in found if f}), labels, bucket_order(labels, values)))
