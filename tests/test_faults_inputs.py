@@ -153,6 +153,18 @@ def test_run_never_overwrites_its_inputs(env, capsys, tmp_path, case):
     assert out == "" and not (tmp_path / "o.json").exists()
 
 
+@pytest.mark.parametrize("option", ["--out", "--report", "--summary-json", "--dump-spikes"])
+def test_run_without_events_never_overwrites_the_shipped_sample(env, capsys, option):
+    """No --events reads the shipped sample: it is an input like a given file (an HTML report
+    was written over it, and --out wiped it)."""
+    from toffe_deploy.commands.run import SAMPLE
+
+    with unchanged(SAMPLE):
+        rc, out, err = cli(capsys, "run", env["bundle"], "--no-progress", "--max-windows", 1, option, SAMPLE)
+        one_line_error(rc, err, "would overwrite the input events")
+    assert out == ""
+
+
 def test_other_commands_never_overwrite_their_inputs(env, capsys, tmp_path):
     ev = tmp_path / "rec.npz"
     write_events_npz(ev, read_events(env["rec"]).events, SENSOR)

@@ -202,7 +202,8 @@ def check_run_outputs(args, bundle) -> None:
     nor each other; checked before any work (see fileio.check_outputs)."""
     from ..fileio import check_outputs
 
-    inputs = [("the input events", None if is_live(args.events) else args.events),
+    events = None if args.synthetic or is_live(args.events) else args.events or SAMPLE   # the sample when none given
+    inputs = [("the input events", events),
               ("the bundle directory", bundle.root),
               ("the bundle manifest", bundle.root / "manifest.json")]
     inputs += [("bundle file", bundle.root / rel) for rel in bundle.manifest["files"]]
