@@ -165,6 +165,30 @@ def test_run_without_events_never_overwrites_the_shipped_sample(env, capsys, opt
     assert out == ""
 
 
+def test_a_run_failing_in_its_first_window_leaves_an_existing_out_file(env, capsys, tmp_path):
+    """--out replaces a file with its first line, not when the run starts: events outside the
+    sensor found in the first window leave yesterday's results as they were, and no temp file."""
+    ev = read_events(env["rec"]).events.copy()
+    ev["x"][:50] = SENSOR[0] + 3
+    bad = tmp_path / "bad.npz"
+    write_events_npz(bad, ev, (SENSOR[0] + 8, SENSOR[1]))
+    out = tmp_path / "o.jsonl"
+    out.write_text("precious\n")
+    rc, _, err = cli(capsys, *run_args(env, "--out", out, "--sensor-size", f"{SENSOR[0]}x{SENSOR[1]}", events=bad))
+    one_line_error(rc, err, "outside the")
+    assert out.read_text() == "precious\n" and sorted(p.name for p in tmp_path.iterdir()) == ["bad.npz", "o.jsonl"]
+    assert cli(capsys, *run_args(env, "--out", out, "--max-windows", 2))[0] == 0      # a good run replaces it
+    lines = out.read_text().splitlines()
+    assert len(lines) == 3 and json.loads(lines[0])["type"] == "header"
+    assert oct(out.stat().st_mode & 0o777) == oct(0o644 & ~_umask())
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def test_other_commands_never_overwrite_their_inputs(env, capsys, tmp_path):
     ev = tmp_path / "rec.npz"
     write_events_npz(ev, read_events(env["rec"]).events, SENSOR)

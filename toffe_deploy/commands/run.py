@@ -72,9 +72,10 @@ def register(sub) -> None:
     lens.add_argument("--hfov-deg", type=float, metavar="DEG",
                       help="the recording camera's horizontal field of view instead of --focal-px: "
                            "F = (W / 2) / tan(DEG / 2)")
-    p.add_argument("--out", metavar="FILE.jsonl", help="write the JSON lines to this file instead of stdout: "
-                                                       "truncated when the run starts, then each window's line "
-                                                       "is appended whole as soon as the window is done")
+    p.add_argument("--out", metavar="FILE.jsonl", help="write the JSON lines to this file instead of stdout ('-': "
+                                                       "stdout): it replaces an existing file with its first line "
+                                                       "(the header), then each window's line is appended whole "
+                                                       "as soon as the window is done")
     p.add_argument("--queue-events", type=int, default=QUEUE_EVENTS, metavar="N",
                    help=f"live sources: at most N events wait between the reader and the run; when more "
                         f"arrive the oldest chunks are dropped and counted (default: {QUEUE_EVENTS})")
@@ -271,6 +272,8 @@ def run_command(args) -> int:
                          f"{args.window_grace_ms}")
     if args.video and not args.render:
         raise ToffeError("--video needs --render DIR")
+    if args.out == "-":
+        args.out = None                              # stdout, as --events - is stdin
     if args.tag != "fixed_pt" and args.target in ("cpu", "cuda"):
         raise ToffeError(f"--tag {args.tag} selects Lava process models: it applies to --target loihi-sim or loihi2; "
                          f"the {args.target} target runs the fixed-point OFS")

@@ -20,9 +20,11 @@ cut back to the last whole line before the error is reported. The other outputs
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import math
 import os
 import sys
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -39,14 +41,25 @@ class LineFile:
     """A JSONL file written one whole line at a time: ``write(text)`` takes complete lines and
     puts each call on disk with one ``os.write`` on an O_APPEND descriptor, so the file always
     ends at a line boundary whatever kills the process; a short or refused write is cut back to
-    the previous boundary (ftruncate) before the OSError propagates."""
+    the previous boundary (ftruncate) before the OSError propagates.
+
+    The lines go to a temp file beside ``path`` (missing directories are made) that replaces
+    ``path`` with the first line written, so a run that fails before it has a line to write (bad
+    events in its first window, a live source that never sends) leaves an existing file as it
+    was and no new one; ``close`` then removes the temp file."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
         try:
-            self.fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND | os.O_CLOEXEC, 0o644)
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
         except OSError as exc:
             raise InputError(path, f"cannot write: {exc.strerror or exc}") from None
+        self.fd, self.tmp, self.placed = fd, tmp, False
+        fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) | os.O_APPEND)
+        mask = os.umask(0)
+        os.umask(mask)
+        os.fchmod(fd, 0o644 & ~mask)           # what open(path, "w") gives, not mkstemp's 0600
         self.size = 0
 
     def write(self, text: str) -> None:
@@ -60,6 +73,12 @@ class LineFile:
                 os.ftruncate(self.fd, self.size)
             raise InputError(self.path, f"cannot write: {exc.strerror or exc}") from None
         self.size += done
+        if not self.placed:
+            try:
+                os.replace(self.tmp, self.path)
+            except OSError as exc:
+                raise InputError(self.path, f"cannot write: {exc.strerror or exc}") from None
+            self.placed = True
 
     def flush(self) -> None:
         """Every write is already in the kernel (no user-space buffer)."""
@@ -68,6 +87,9 @@ class LineFile:
         if self.fd >= 0:
             os.close(self.fd)
             self.fd = -1
+            if not self.placed:
+                with contextlib.suppress(OSError):
+                    os.unlink(self.tmp)
 
 
 class LineStdout:
