@@ -53,6 +53,13 @@ def test_feed_window_takes_dense_windows_and_bad_events_are_refused(env):
             flow.feed([1, 2], [1, 2], [50, 10], [0, 1])
         with pytest.raises(ValueError, match="outside"):
             flow.feed([w], [0], [100], [1])
+        for cols, msg in ((([1, 2], [0], [60], [1]), "one length"), (([1], [0], [60], [7]), "polarity p = 7"),
+                          (([1.7], [0], [60], [1]), "x = 1.7"), (([1], [0], [float("nan")], [1]), "not a finite time")):
+            with pytest.raises(ValueError, match=msg):
+                flow.feed(*cols)
+        assert flow._buf.shape[0] == 0                      # nothing refused got in
+        flow.feed([3, 4], [3, 4], [600, 700], [-1, 1])      # -1/+1 as the file readers take it: OFF, ON
+        np.testing.assert_array_equal(flow._buf["p"], [0, 1])
 
 
 def test_robot_loop_example_runs(env):

@@ -32,7 +32,9 @@ import numpy as np
 
 from .camera import SpeedScale
 from .deploy.bundle import Bundle, load_bundle
-from .events.core import EVENT_DTYPE, make_events
+from .errors import InputError
+from .events.convert import time_us, to_events
+from .events.core import EVENT_DTYPE
 from .runtime.pipeline import TARGETS, ObjectFlow, Pipeline, WindowResult
 from .runtime.spikes import SpikeVolume
 from .schema import header, load_schema
@@ -89,9 +91,11 @@ class FlowStream:
         return self._run(t0_us, window)
 
     def feed(self, x, y, t, p) -> list[WindowResult]:
-        """Add a packet of time-sorted events (columns: x, y in px, t in us, p 0/1) and process
-        every window it completes; -> their results, in time order."""
-        ev = make_events(x, y, t, p)
+        """Add a packet of time-sorted events (columns of one length: x, y whole px, t whole us,
+        p 0/1, -1/+1 or bool) and process every window it completes; -> their results, in time
+        order. Columns the file readers would refuse (a fractional or negative coordinate, a
+        NaN time, a polarity 7) are a ValueError here too, not silently cast."""
+        ev = _checked_events(x, y, t, p)
         if ev.shape[0]:
             w, h = self.sensor_size
             if int(ev["x"].max()) >= w or int(ev["y"].max()) >= h:
@@ -136,3 +140,15 @@ class FlowStream:
         if self._last is None or self.pipeline.tracker is None:
             return []
         return self.pipeline.tracker.confirmed()
+
+
+def _checked_events(x, y, t, p) -> np.ndarray:
+    """FlowStream.feed's columns as an event array, with the file readers' checks
+    (events.convert): ValueError on columns of different lengths or values a cast would hide."""
+    cols = [np.asarray(c) for c in (x, y, t, p)]
+    if any(c.ndim != 1 for c in cols) or len({c.shape[0] for c in cols}) != 1:
+        raise ValueError(f"x, y, t, p must be 1-D columns of one length, got shapes {[c.shape for c in cols]}")
+    try:
+        return to_events("FlowStream.feed", cols[0], cols[1], time_us("FlowStream.feed", cols[2]), cols[3])
+    except InputError as exc:
+        raise ValueError(str(exc)) from None
