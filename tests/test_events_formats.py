@@ -42,13 +42,24 @@ def events():
     return ev
 
 
-def _faery_file(path, ev, size=SIZE, version=None):
+def _faery_file(path, ev, size=SIZE, version=None, zero_t0=False):
     faery = pytest.importorskip("faery", reason="faery (test extra) writes the RAW and DAT files")
     arr = np.zeros(len(ev), faery.EVENTS_DTYPE)
     arr["t"], arr["x"], arr["y"], arr["on"] = ev["t"], ev["x"], ev["y"], ev["p"].astype(bool)
     kw = {"version": version} if version else {}
-    faery.events_stream_from_array(arr, size).to_file(str(path), zero_t0=False, **kw)
+    faery.events_stream_from_array(arr, size).to_file(str(path), zero_t0=zero_t0, **kw)
     return path
+
+
+@pytest.mark.parametrize("version", ["evt2", "evt3"])
+def test_a_raw_file_whose_times_start_at_zero_keeps_its_first_events(events, tmp_path, version):
+    """faery's default (zero_t0): EVT3 starts with a time high of 0 and no time low, and the
+    events before the first time low are events at t = 0 + ..., not unknown times."""
+    path = _faery_file(tmp_path / "z.raw", events, version=version, zero_t0=True)
+    got = read_events(path).events
+    want = events.copy()
+    want["t"] -= events["t"][0]
+    np.testing.assert_array_equal(got, want)
 
 
 @pytest.fixture(scope="module")

@@ -51,7 +51,9 @@ def evt3_bound(w):
 @njit(cache=True, nogil=True)
 def evt3_decode(w, state, x, y, t, p):
     """Decode EVT 3.0 words into x, y, t, p (preallocated, evt3_bound long); returns the count.
-    Events before the row, time or vector base are known are dropped."""
+    Events before the row, the first time high or the vector base are known are dropped; the time
+    low is 0 until a time-low word says otherwise (an encoder that starts at t = 0 writes none:
+    faery's default zero_t0 file lost its first events)."""
     ys, tl, th, thraw, loops, base, pol = (state[Y], state[TL], state[TH], state[TH_RAW], state[LOOPS],
                                            state[BASE], state[POL])
     state[BAD] = -1
@@ -92,6 +94,8 @@ def evt3_decode(w, state, x, y, t, p):
                 loops += 1
             thraw = pay
             th = pay + 4096 * loops
+            if tl < 0:
+                tl = 0                    # a time high sets the time; a time low of 0 need not follow
         elif typ == 7 or typ == 10 or typ == 14 or typ == 15:
             pass                          # CONTINUED_4, EXT_TRIGGER, OTHERS, CONTINUED_12
         else:
