@@ -1,5 +1,7 @@
 """Every bad-input case: a real file on disk, an InputError naming it, and from the CLI one line
 on stderr with exit code 2 (no traceback)."""
+import re
+
 import h5py
 import numpy as np
 import pytest
@@ -39,6 +41,14 @@ def test_unknown_format(tmp_path, capsys):
     path = tmp_path / "events.csv"
     path.write_text("x,y,t,p\n1,2,3,1\n")
     _read_fails(path, "unknown event file format")
+    _cli_error(capsys, path)
+
+
+@pytest.mark.parametrize("version", ["2.0", "3.1"])
+def test_old_aedat_says_which_aedat_it_is(tmp_path, capsys, version):
+    path = tmp_path / "old.aedat"
+    path.write_bytes(f"#!AER-DAT{version}\r\n#Format: RAW\r\n".encode() + bytes(64))
+    _read_fails(path, re.escape(f"AEDAT {version} (jAER / cAER) is not read"))
     _cli_error(capsys, path)
 
 

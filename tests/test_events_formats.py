@@ -447,3 +447,13 @@ def test_evt3_time_high_drops_wrap_unless_tiny():
     assert t.tolist() == [100 << 12 | 7, 95 << 12 | 7, (4096 + 50) << 12 | 7]
     with pytest.raises(ValueError, match="word type 0x9 at byte 2"):
         fmt_prophesee.Evt3Decoder().feed(words(TH, 0x9000))
+
+
+def test_prophesee_files_are_known_by_their_header_not_their_extension(prophesee_files, events, tmp_path):
+    """README: formats by content first. An EVT3 RAW named .dat and a DAT named .raw read as
+    what they are (they were decoded as the other and refused)."""
+    for kind, fake in (("evt3", "rec.dat"), ("dat", "rec.raw")):
+        path = tmp_path / fake
+        shutil.copy(prophesee_files[kind], path)
+        assert detect_format(path) == ("raw" if kind == "evt3" else "dat")
+        np.testing.assert_array_equal(read_events(path).events, events)

@@ -287,14 +287,16 @@ def decode_evt3(path, decoder: Evt3Decoder, data: bytes, offset: int = 0) -> np.
 
 
 def prophesee_kind(path) -> str | None:
-    """'raw' or 'dat' for a file starting with '%' header lines, by extension then header."""
-    suffix = str(path).lower().rsplit(".", 1)[-1]
-    if suffix in ("raw", "dat"):
-        return suffix
+    """'raw' or 'dat' for a file starting with '%' header lines: by its header (a RAW file names
+    its encoding, ``% evt`` / ``% format``; a DAT file has ``% Version`` and no encoding), then by
+    the extension, so that a renamed file is still read as what it is."""
     with _open(path) as fh:
         fields, _ = read_header(path, fh)
     if raw_encoding(fields):
         return "raw"
-    if "version" in fields or header_geometry(fields):
+    if "version" in fields:
         return "dat"
-    return None
+    suffix = str(path).lower().rsplit(".", 1)[-1]
+    if suffix in ("raw", "dat"):
+        return suffix
+    return "dat" if header_geometry(fields) else None

@@ -108,6 +108,10 @@ def detect_format(path: str | os.PathLike) -> str:
         return "aedat4"
     if head.startswith(ROSBAG1_MAGIC):
         return "rosbag"
+    if head.startswith(b"#!AER-DAT"):
+        version = head[len(b"#!AER-DAT"):].split(b"\r")[0].split(b"\n")[0].decode("ascii", "replace").strip()
+        raise InputError(path, f"AEDAT {version or '?'} (jAER / cAER) is not read: only AEDAT 4.0 (DV's); save it as "
+                               "AEDAT4 or as a .npy / .npz of x, y, t, p")
     if head.startswith(b"%"):
         from .fmt_prophesee import prophesee_kind
         kind = prophesee_kind(path)
