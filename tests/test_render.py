@@ -144,6 +144,20 @@ def test_failed_run_leaves_no_frames(tmp_path):
     assert not (tmp_path / "gone").exists()
 
 
+def test_a_shorter_run_into_the_same_directory_leaves_only_its_frames(tmp_path):
+    """DIR holds one run's frames: a 2-frame run after a 4-frame one removes frames 2 and 3,
+    and nothing else (a file of the user's stays)."""
+    frame = np.zeros((48, 64, 3), np.uint8)
+    for n in (4, 2):
+        sink = FrameSink(tmp_path / "r")
+        for _ in range(n):
+            sink.add(frame)
+        sink.close(ok=True)
+        if n == 4:
+            (tmp_path / "r" / "notes.txt").write_text("mine")
+    assert sorted(p.name for p in (tmp_path / "r").iterdir()) == ["frame_000000.png", "frame_000001.png", "notes.txt"]
+
+
 class _Page(HTMLParser):
     def __init__(self):
         super().__init__()

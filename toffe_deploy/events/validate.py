@@ -76,14 +76,14 @@ def check_chunk(path: str | os.PathLike, ev: np.ndarray, sensor_size: tuple[int,
         return
     if prev_t is not None and t[0] < prev_t:
         raise InputError(path, f"timestamps decrease at event {offset}: t = {int(t[0])} us after "
-                               f"{int(prev_t)} us (events must be time-sorted; sort them with --sort "
-                               "/ sort=True, which loads the whole file)")
+                               f"{int(prev_t)} us (events must be time-sorted: 'toffe-deploy events convert --sort "
+                               "IN OUT.h5' writes a sorted copy; open_events(sort=True) in Python)")
     bad = np.flatnonzero(np.diff(t) < 0)
     if bad.size:
         i = int(bad[0]) + 1
         raise InputError(path, f"timestamps decrease at event {offset + i}: t = {int(t[i])} us after "
-                               f"{int(t[i - 1])} us (events must be time-sorted; sort them with --sort "
-                               "/ sort=True, which loads the whole file)")
+                               f"{int(t[i - 1])} us (events must be time-sorted: 'toffe-deploy events convert --sort "
+                               "IN OUT.h5' writes a sorted copy; open_events(sort=True) in Python)")
 
 
 def coordinates_in_range(path, name: str, values: np.ndarray, offset: int = 0) -> None:

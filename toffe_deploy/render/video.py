@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import fractions
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -96,9 +97,13 @@ class H264Writer:
             c.close()
 
 
+FRAME_NAME = re.compile(r"frame_(\d{6})\.png")
+
+
 class FrameSink:
-    """One frame per window into ``out_dir``: ``frame_NNNNNN.png`` files, or with ``video`` one
-    ``object_flow.mp4`` (staged and checked, module doc)."""
+    """One frame per window into ``out_dir``: ``frame_NNNNNN.png`` files (those of an earlier,
+    longer run past this one's last are removed), or with ``video`` one ``object_flow.mp4``
+    (staged and checked, module doc)."""
 
     def __init__(self, out_dir: str | os.PathLike, video: bool = False, fps: float = 10.0):
         self.out_dir = Path(out_dir)
@@ -163,8 +168,18 @@ class FrameSink:
                 with write_errors(self.out_dir):
                     for f in sorted(self._stage.iterdir()):
                         os.replace(f, self.out_dir / f.name)
+                    if self._writer is None:
+                        self._drop_stale_frames()
         finally:
             self._drop()
+
+    def _drop_stale_frames(self) -> None:
+        """Frames ``frame_NNNNNN.png`` numbered past this run's last, left by a longer run into
+        the same directory: DIR holds one run's frames (they sat beside the new ones)."""
+        for f in self.out_dir.glob("frame_*.png"):
+            m = FRAME_NAME.fullmatch(f.name)
+            if m and int(m.group(1)) >= self.n:
+                f.unlink()
 
     def _drop(self) -> None:
         shutil.rmtree(self._stage, ignore_errors=True)
