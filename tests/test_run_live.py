@@ -234,6 +234,23 @@ def test_stdin_run_equals_the_file_run_from_the_first_event(env, tmp_path):
     assert live["received_events"] == len(ev) and live["dropped_events"] == 0
     assert set(live["event_latency_ms"]) >= {"p50", "p99"} and live["event_latency_ms"]["p50"] > 0
     assert b"live: newest event -> JSON line p50" in r.stderr
+    assert b"toffe-deploy: reading - (stdin)" in r.stderr and b"no events arrived" not in r.stderr
+
+
+def test_a_live_run_that_gets_no_event_says_so(env, tmp_path):
+    """A sender started before the socket was open sends into nothing: the run says when it
+    reads (the line to wait for) and warns at the end that nothing came; --out holds the header."""
+    port = free_port()
+    r = subprocess.run(cli(env["bundle"], "--events", f"udp://127.0.0.1:{port}", "--sensor-size", "64x48",
+                           "--idle-timeout", "0.3", "--out", tmp_path / "o.jsonl"),
+                       capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
+    assert r.returncode == 0, r.stderr
+    err = r.stderr.decode()
+    assert f"toffe-deploy: reading udp://127.0.0.1:{port} (udp port {port})" in err
+    assert f"toffe-deploy: warning: no events arrived from udp://127.0.0.1:{port}" in err
+    assert "latency per window p50 -" in r.stdout.decode() + err
+    (head,) = (tmp_path / "o.jsonl").read_text().splitlines()
+    assert json.loads(head)["type"] == "header"
 
 
 def _paced_stdin(ev, pieces, pause_s, stall_after=None):
@@ -356,7 +373,8 @@ def test_ctrl_c_ends_a_live_run_with_its_summary(env, tmp_path):
     t = time.time()
     out, err = (s.decode() for s in p.communicate(timeout=60))
     assert p.returncode == 130 and time.time() - t < 10, err
-    assert err.strip() == "toffe-deploy: interrupted"
+    assert err.strip().splitlines() == ["toffe-deploy: reading - (stdin); events sent before this line are lost",
+                                        "toffe-deploy: interrupted"]
     assert "live: newest event -> JSON line" in out and f"{len(ev) // 2} events in" in out
     rows = [json.loads(line) for line in window_lines((tmp_path / "o.jsonl").read_bytes())]
     assert f"target cpu: {len(rows)} windows" in out

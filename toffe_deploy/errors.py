@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import sys
 
 
 class ToffeError(Exception):
@@ -17,3 +18,9 @@ class InputError(ToffeError):
         self.path = os.fspath(path)
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
+
+
+def warn(message: str) -> None:
+    """A one-line warning on stderr (the CLI's form: what was done anyway, and why it may be
+    wrong), e.g. an option that applies to part of what was asked only."""
+    print(f"toffe-deploy: warning: {message}", file=sys.stderr, flush=True)

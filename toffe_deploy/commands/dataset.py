@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-from ..errors import ToffeError
+from ..errors import ToffeError, warn
 from . import add_progress_flag, show_progress
 
 SPLIT_CHOICES = ("train", "test", "multi", "appearance", "pairs", "crossing", "all")
@@ -32,11 +32,6 @@ def _number(cast, low: float, strict: bool):
             raise argparse.ArgumentTypeError(f"must be {bound}, got {text}")
         return v
     return parse
-
-
-def warn(message: str) -> None:
-    """A one-line warning on stderr: an option that applies to part of what was asked only."""
-    print(f"toffe-deploy: warning: {message}", file=sys.stderr)
 
 
 def _range(low: float, strict: bool, high: float | None = None):

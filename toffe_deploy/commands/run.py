@@ -21,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-from ..errors import InputError, ToffeError
+from ..errors import InputError, ToffeError, warn
 from ..events.live import GRACE_S, QUEUE_EVENTS, is_live
 from ..signals import signal_behind, signals_deferred
 from . import add_progress_flag, show_progress
@@ -285,6 +285,9 @@ def run_command(args) -> int:
     with src:
         if live:        # read from now on, into the bounded queue: not into a socket buffer that
             src.start()  # overflows while the pipeline starts, nor with a clock anchored late
+            where = f"udp port {src.port}" if hasattr(src, "port") else "stdin" if args.events == "-" else src.path
+            print(f"toffe-deploy: reading {args.events} ({where}); events sent before this line are lost",
+                  file=sys.stderr, flush=True)
         sensor = tuple(src.sensor_size)
         camera = resolve_camera(cfg, sensor, depth_m=args.depth_m, focal_px=args.focal_px, hfov_deg=args.hfov_deg,
                                 synthetic_focal_px=src.attrs.get("focal_px") if args.synthetic else None,
@@ -410,6 +413,9 @@ def run_command(args) -> int:
                 renderer.close(ok)
         if live:
             summary.live = src.stats_json()
+            if not summary.live.get("received_events"):
+                warn(f"no events arrived from {args.events} (a sender started before 'reading ...' was printed "
+                     "sends into nothing)")
     if errors is not None:
         summary.errors = errors.summary()
         if tracking is not None:

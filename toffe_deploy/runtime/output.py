@@ -213,7 +213,7 @@ class RunSummary:
                f"{self.windows_per_s:.1f} windows/s over {self.wall_s:.2f} s (start-up {self.startup_s:.2f} s"
                + (f"; real-time factor {self.realtime_factor:.3g}" if math.isfinite(self.realtime_factor) else "")
                + "); "
-               f"{what} p50 {lat['p50']:.2f} ms, p90 {lat['p90']:.2f} ms, p99 {lat['p99']:.2f} ms"]
+               f"{what} p50 {_ms(lat['p50'])}, p90 {_ms(lat['p90'])}, p99 {_ms(lat['p99'])}"]
         if self.camera:
             out.append(self.camera)
         if self.traffic is not None:
@@ -233,10 +233,15 @@ class RunSummary:
         return out
 
 
+def _ms(v: float) -> str:
+    """A latency for the summary lines: '1.23 ms', or '-' when no window gave one."""
+    return f"{v:.2f} ms" if math.isfinite(v) else "-"
+
+
 def live_line(stats: dict, latencies_s: list[float]) -> str:
     """The summary's line for a live source: event-to-line latency, received and lost events."""
     lat = percentiles_ms(latencies_s)
-    return (f"live: newest event -> JSON line p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms; "
+    return (f"live: newest event -> JSON line p50 {_ms(lat['p50'])}, p99 {_ms(lat['p99'])}; "
             f"{stats['received_events']} events in {stats['received_chunks']} chunks received, "
             f"{stats['dropped_events']} dropped in {stats['dropped_chunks']} chunks (queue of "
             f"{stats['queue_events']} events, peak {stats['peak_queue_events']}), {stats['late_events']} late"
