@@ -67,7 +67,7 @@ def test_full_queue_drops_the_oldest_chunks_and_counts_them():
     chunks = [make_events([i] * 4, [0] * 4, [i] * 4, [1] * 4) for i in range(4)]
     for c in chunks:
         q.put(c)                                  # 16 events into a queue of 10: the first two chunks go
-    q.put(make_events(range(12), [0] * 12, [9] * 12, [0] * 12))     # larger than the bound: its newest 10 stay
+    q.put(make_events(range(12), [0] * 12, [9] * 12, [0] * 12))     # larger than the bound: its newest 10 stay (a cut chunk counts)
     q.close()
     kept = []
     while isinstance(c := q.get(0), np.ndarray):
@@ -75,7 +75,7 @@ def test_full_queue_drops_the_oldest_chunks_and_counts_them():
     assert [int(c["x"][-1]) for c in kept] == [11]
     assert kept[0].shape[0] == 10
     assert stats.received_events == 28 and stats.received_chunks == 5
-    assert stats.dropped_chunks == 4 and stats.dropped_events == 4 * 4 + 2
+    assert stats.dropped_chunks == 4 + 1 and stats.dropped_events == 4 * 4 + 2
     assert stats.peak_queue_events == 10
 
 

@@ -103,7 +103,7 @@ class LiveStats:
     received_events: int = 0
     received_chunks: int = 0
     dropped_events: int = 0
-    dropped_chunks: int = 0
+    dropped_chunks: int = 0         # chunks dropped whole, or cut to the queue's size (one larger than it)
     dropped_windows: int = 0        # windows jumped over after a drop (their events are gone: no line)
     late_events: int = 0
     invalid_events: int = 0         # UDP: addresses outside the sensor (dropped, not fatal)
@@ -131,8 +131,9 @@ class ChunkQueue:
             s = self.stats
             s.received_events += n
             s.received_chunks += 1
-            if n > self.max_events:
+            if n > self.max_events:                      # cut: it lost its oldest events (a drop, too)
                 s.dropped_events += n - self.max_events
+                s.dropped_chunks += 1
                 chunk, n = chunk[n - self.max_events:], self.max_events
             while self._q and self._n + n > self.max_events:
                 old = self._q.popleft()
