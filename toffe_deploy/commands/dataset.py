@@ -224,6 +224,14 @@ def _ranges(args, splits):
         rnd = dataclasses.replace(rnd, size_px=RANDOM.size_px)
     paper = dataclasses.replace(PAPER, **{k: v for k, v in given.items() if k in SENSOR_FIELDS + ("sensor_size",)})
     papers = [s for s in splits if s not in randoms]
+    if papers and tuple(paper.sensor_size) != tuple(PAPER.sensor_size):
+        from ..camera import REFERENCE_DEPTH_M, REFERENCE_FOCAL_PX, focal_px_from_hfov
+
+        f = focal_px_from_hfov(paper.sensor_size[0], PAPER.hfov_deg[0])
+        warn(f"{', '.join(papers)} at {paper.sensor_size[0]}x{paper.sensor_size[1]}: the paper's 60 deg view gives "
+             f"a {f:.0f} px focal length, so an object programmed for bin k (m/s at {REFERENCE_DEPTH_M:g} m; the file "
+             f"name's _bK, index.json's speed_bin) moves {f / REFERENCE_FOCAL_PX:.2f}x as many px/ms as at 640x480, "
+             "and its ground truth's speed_bin (the image-plane bin the model is scored on) may be another")
     for name, rr, used in (("random", rnd, randoms), ("paper", paper, papers)):
         if used and rr.threshold_sigma[1] >= rr.threshold[0]:
             raise ToffeError(f"--threshold-sigma ({rr.threshold_sigma[1]:g}) must be smaller than --threshold "
