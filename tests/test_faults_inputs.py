@@ -250,6 +250,19 @@ def test_malformed_manifest_sections_are_one_line_errors(env, capsys, tmp_path, 
         one_line_error(*cli(capsys, *run_args(env, bundle=b))[::2], "manifest.json")
 
 
+@pytest.mark.parametrize("edit", ["camera", "config"])
+def test_a_manifest_that_contradicts_config_json_is_refused(env, capsys, tmp_path, edit):
+    """The manifest is the one file no hash covers, and the README sends users to its camera:
+    a focal length of -3 there (or a changed config copy) ran silently with config.json's."""
+    b = copy_bundle(env, tmp_path)
+    if edit == "camera":
+        edit_manifest(b, lambda m: m["camera"].update(focal_px=-3))
+    else:
+        edit_manifest(b, lambda m: m["config"].update(dt_us=1000))
+    with unchanged(b):
+        one_line_error(*cli(capsys, *run_args(env, bundle=b))[::2], "manifest.json", f"its '{edit}' differs")
+
+
 # ------------------------------------------------------------------ 8. full and read-only disks
 
 @contextlib.contextmanager

@@ -180,6 +180,7 @@ def test_bundle_without_camera_fields_loads_with_the_reference_camera(cam, capsy
     (old / "config.json").write_text(json.dumps(cfg))
     m = json.loads((old / MANIFEST).read_text())
     del m["camera"]
+    m["config"] = cfg                      # an old export's manifest copied its config.json
     for k in ("speed_bins_px_ms", "focal_px", "depth_m"):
         del m["config_summary"][k]
     m["files"]["config.json"] = {"sha256": sha256_file(old / "config.json"), "bytes": (old / "config.json").stat().st_size}

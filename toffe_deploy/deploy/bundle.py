@@ -451,6 +451,18 @@ def ofpd_variant_files(root: str | os.PathLike, manifest: dict, verify: bool = T
     return out
 
 
+def check_manifest_config(root: Path, m: dict, config: ToffeConfig) -> None:
+    """The manifest's ``config`` and ``camera`` must say what config.json (hash-checked) says:
+    the manifest is the one file no hash covers, and users read the camera and bins from it, so
+    an edited one is refused rather than read beside a config that runs otherwise."""
+    mpath = root / MANIFEST
+    if "config" in m and m["config"] != read_json(root / CONFIG):
+        raise InputError(mpath, "its 'config' differs from config.json (edited after export?): re-export the bundle")
+    if "camera" in m and m["camera"] != json.loads(json.dumps(camera_section(config))):
+        raise InputError(mpath, "its 'camera' differs from what config.json gives (edited after export?): "
+                                "re-export the bundle")
+
+
 def load_bundle(path: str | os.PathLike, verify: bool = True) -> Bundle:
     """Read a bundle directory; with verify (default) refuse any file whose sha256 differs,
     and any file the runtime would open that the manifest does not list."""
@@ -459,6 +471,8 @@ def load_bundle(path: str | os.PathLike, verify: bool = True) -> Bundle:
     if verify:
         verify_bundle(root, m)
     config = load_config(root / CONFIG)
+    if verify:
+        check_manifest_config(root, m, config)
     ofs_path = root / OFS_FILE
     ofs_d = read_json(ofs_path)
     ofs = ofs_from_json(ofs_d, ofs_path, expect_channels=config.ofs_in_channels, expect_kernel=config.ofs_kernel,
