@@ -162,6 +162,11 @@ def test_eval_any_split_directory_with_breakdown(eval_env, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--by shape" in err and "size_px" in err
     assert not (tmp_path / "f.json").exists()
+    assert main(["eval", str(eval_env["ck"]), "--data", str(eval_env["data"]), "--split", "appearance",
+                 "--dt", "3", "--no-progress"]) == 2                  # shorter than its 5 time bins
+    assert "--dt 3: a window of 5 time bins" in capsys.readouterr().err
+    from toffe_deploy.commands.eval import _dts
+    assert _dts("500,200,500") == (500, 200)                          # each dt once
 
 
 def test_eval_skip_stream_start_leaves_out_each_first_window(eval_env, tmp_path, capsys):

@@ -134,6 +134,9 @@ def evaluate(opts: EvalOptions) -> dict:
     from .runtime.truth import sequence_focal_px
 
     cfg, run_stage, ofpd = reference_models(opts.ckpt, opts.ofs)
+    short = [dt for dt in opts.dts if dt < cfg.n_bins]
+    if short:
+        raise ToffeError(f"--dt {short[0]}: a window of {cfg.n_bins} time bins needs at least {cfg.n_bins} us")
     files = split_files(opts.data, opts.split)
 
     attrs = []

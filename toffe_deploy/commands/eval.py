@@ -16,7 +16,7 @@ def _dts(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"expected comma-separated microseconds, got {text!r}") from None
     if not vals or min(vals) <= 0:
         raise argparse.ArgumentTypeError(f"expected positive microseconds, got {text!r}")
-    return vals
+    return tuple(dict.fromkeys(vals))             # each once, in the order given
 
 
 def _by(text: str):
