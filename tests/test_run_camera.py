@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from toffe_deploy.cli import main
-from toffe_deploy.camera import REFERENCE_DEPTH_M, REFERENCE_FOCAL_PX, SpeedScale, focal_px_from_hfov
+from toffe_deploy.camera import REFERENCE_DEPTH_M, REFERENCE_FOCAL_PX, SpeedScale, focal_px_from_hfov, speed_text
 from toffe_deploy.config import ToffeConfig
 from toffe_deploy.deploy.bundle import MANIFEST, load_bundle, sha256_file, write_bundle
 from toffe_deploy.runtime.run_camera import resolve_camera
@@ -249,3 +249,8 @@ def test_eval_reads_another_sensor_size_as_the_runtime_does(cam, capsys, tmp_pat
     assert main(["eval", str(b.root.parent / "ckpt"), "--data", str(data), "--dt", "500", "--max-windows", "2",
                  "--no-progress"]) == 0
     assert "| 500 |" in capsys.readouterr().out
+
+
+def test_speeds_in_summary_lines_have_three_digits_and_no_exponent():
+    assert [speed_text(v) for v in (0.336729, 6.06113, 84.0, 1.0, 1016.4, 5000.0)] == \
+        ["0.337", "6.06", "84", "1", "1020", "5000"]

@@ -115,3 +115,10 @@ class PinholeCamera:
     def half_extent_m(self, depth_m: float) -> tuple[float, float]:
         """Half width and half height (metres) of the field of view at a depth."""
         return depth_m * (self.width / 2.0) / self.f, depth_m * (self.height / 2.0) / self.f
+
+
+def speed_text(v: float) -> str:
+    """A speed for a summary line: 3 significant digits without an exponent (0.337, 6.06, 84,
+    5000; ``:g`` wrote 5e+03 and ``:.6g`` 0.336729)."""
+    r = float(f"{v:.3g}")
+    return f"{r:.0f}" if abs(r) >= 100 else f"{r:g}"

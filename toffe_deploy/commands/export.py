@@ -65,6 +65,7 @@ def run(args) -> int:
     import sys
 
     from ..errors import ToffeError
+    from ..camera import speed_text
     from ..deploy.exporter import export_bundle
     from ..deploy.parity import summary_lines
 
@@ -85,7 +86,8 @@ def run(args) -> int:
     cam = b.manifest["camera"]
     print(f"  camera: focal {cam['focal_px']:.1f} px ({cam['hfov_deg']:.1f} deg over {b.config.width} px); speed bins "
           + ", ".join(f"{lo * 1000:.0f}-{hi * 1000:.0f}" for lo, hi in cam["speed_bins_px_ms"])
-          + " px/s = " + ", ".join(f"{lo:g}-{hi:g}" for lo, hi in cam["speed_bins_mps"]) + f" m/s at {cam['depth_m']:g} m")
+          + " px/s = " + ", ".join(f"{speed_text(lo)}-{speed_text(hi)}" for lo, hi in cam["speed_bins_mps"])
+          + f" m/s at {cam['depth_m']:g} m")
     for k, st in enumerate(b.manifest["ofs"]["stages"], start=1):
         qr = b.manifest["ofs"]["quantization"][k - 1]
         print(f"  OFS stage {k}: vth_mant {st['vth_mant']}, dv {st['dv']}, weight scale {st['weight_scale']:.4g}; "

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..camera import SpeedScale, focal_px_from_hfov, hfov_deg_from_focal
+from ..camera import SpeedScale, focal_px_from_hfov, hfov_deg_from_focal, speed_text
 from ..config import ToffeConfig
 from ..errors import ToffeError
 
@@ -34,7 +34,8 @@ class RunCamera:
         """One summary line: the camera, where its numbers came from, the bins at this camera."""
         w, h = self.sensor_size
         px = ", ".join(f"{lo * 1000:.0f}-{hi * 1000:.0f}" for lo, hi in config.speed_bins_px_ms)
-        mps = ", ".join(f"{self.scale.to_mps(lo):.3g}-{self.scale.to_mps(hi):.3g}" for lo, hi in config.speed_bins_px_ms)
+        mps = ", ".join(f"{speed_text(self.scale.to_mps(lo))}-{speed_text(self.scale.to_mps(hi))}"
+                        for lo, hi in config.speed_bins_px_ms)
         return (f"camera: {w}x{h} sensor ({self.sensor_from}), focal {self.scale.focal_px:.1f} px ({self.focal_from}), depth "
                 f"{self.scale.depth_m:g} m ({self.depth_from}); speeds in m/s assume that depth and focal length. "
                 f"Speed bins in px/s: {px}; in m/s here: {mps}")
