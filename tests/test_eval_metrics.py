@@ -147,6 +147,7 @@ def test_eval_any_split_directory_with_breakdown(eval_env, tmp_path, capsys):
     table = capsys.readouterr().out
     assert "recall" in table and "FP / window" in table and "bin acc." in table and "pred 1" in table
     assert "By `size` (sequence attribute: size_px)" in table
+    assert table.count("| speedE (px/ms) |") == 3 and "| speedE (px/ms) | speedE bin-only" in table   # all, per bin, --by
     r = json.loads(out.read_text())["per_dt"][0]
     a = r["all"]
     assert a["n_windows"] == 6 and a["gate_px"] == 20.0 and a["n_gt"] > 0

@@ -242,13 +242,14 @@ def format_markdown(r: dict) -> str:
         lines.append(f"\n\\* evaluated with the weights trained at dt = {r['trained_dt_us']} us.")
     lines += ["", "Per ground-truth speed bin (errors over matched objects; bin acc. = cascade put it in its true bin; "
               "FP = unmatched predictions reported in that bin):", "",
-              "| dt (us) | bin | objects | recall | FP | pixE (px) | dirE (deg) | speedE (m/s) | speedE bin-only (m/s) | bin acc. |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+              "| dt (us) | bin | objects | recall | FP | pixE (px) | dirE (deg) | speedE (m/s) | speedE (px/ms) "
+              "| speedE bin-only (m/s) | bin acc. |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         for k, b in row["per_bin"].items():
             lines.append(f"| {row['dt_us']} | {k} | {b['n_gt']} | {_f(b['recall'])} | {b['false_positives']} | "
-                         f"{_f(b['pixE'])} | {_f(b['dirE'])} | {_f(b['speedE'])} | {_f(b['speedE_bin_only'])} | "
-                         f"{_f(b['bin_accuracy'])} |")
+                         f"{_f(b['pixE'])} | {_f(b['dirE'])} | {_f(b['speedE'])} | {_f(b.get('speedE_px_ms'), 3)} | "
+                         f"{_f(b['speedE_bin_only'])} | {_f(b['bin_accuracy'])} |")
     lines += ["", "Bin confusion over matched objects (rows: true bin, columns: predicted bin):"]
     for row in rows:
         c = row["all"]["confusion"]
@@ -259,13 +260,13 @@ def format_markdown(r: dict) -> str:
         found = ", ".join(by["attribute"]) or "not found in any sequence"
         lines += ["", f"By `{by['name']}` (sequence attribute: {found}):", "",
                   f"| dt (us) | {by['name']} | sequences | objects | recall | FP / window | bin acc. | pixE (px) "
-                  "| dirE (deg) | speedE (m/s) |",
-                  "|---|---|---|---|---|---|---|---|---|---|"]
+                  "| dirE (deg) | speedE (m/s) | speedE (px/ms) |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
         for row in rows:
             for b in row["by"][g]["buckets"]:
                 lines.append(f"| {row['dt_us']} | {b['bucket']} | {b['sequences']} | {b['n_gt']} | {_f(b['recall'])} | "
                              f"{_f(b['fp_per_window'], 3)} | {_f(b['bin_accuracy'])} | {_f(b['pixE'])} | "
-                             f"{_f(b['dirE'])} | {_f(b['speedE'])} |")
+                             f"{_f(b['dirE'])} | {_f(b['speedE'])} | {_f(b.get('speedE_px_ms'), 3)} |")
     if any("tracking" in row for row in rows):
         lines += ["", f"Tracking (tracking.Tracker, default settings) over the first {r['track_windows']} consecutive "
                   "windows of each sequence, confirmed and coasting tracks vs the truth within the gate (motmetrics):", "",
