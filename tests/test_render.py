@@ -239,3 +239,11 @@ def test_bad_fps_is_one_line_error_and_leaves_nothing(tmp_path, make_bundle, cap
     err = capsys.readouterr().err
     assert rc == 2 and "--fps must be in" in err and err.count("\n") == 1
     assert not (tmp_path / "v").exists()
+
+
+def test_fps_without_video_is_refused(tmp_path, make_bundle, capsys):
+    bundle = make_bundle(tmp_path)
+    rc = main(["run", str(bundle.root), "--render", str(tmp_path / "v"), "--fps", "-3", "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--fps sets the --video file's frame rate" in err and err.count("\n") == 1
+    assert not (tmp_path / "v").exists()

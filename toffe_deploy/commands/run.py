@@ -90,7 +90,7 @@ def register(sub) -> None:
                                                    "coloured by the flow colour wheel) into DIR")
     p.add_argument("--video", action="store_true", help="with --render: one MP4 (DIR/object_flow.mp4) "
                                                         "instead of PNG frames")
-    p.add_argument("--fps", type=float, default=10.0, help="frame rate of the --video file (default: 10)")
+    p.add_argument("--fps", type=float, default=None, help="frame rate of the --video file (default: 10)")
     p.add_argument("--theme", choices=("dark", "light"), default="dark",
                    help="with --render: events on black (dark, default) or on white (light)")
     p.add_argument("--report", metavar="FILE.html",
@@ -272,6 +272,8 @@ def run_command(args) -> int:
                          f"{args.window_grace_ms}")
     if args.video and not args.render:
         raise ToffeError("--video needs --render DIR")
+    if args.fps is not None and not args.video:
+        raise ToffeError("--fps sets the --video file's frame rate: add --render DIR --video")
     if args.out == "-":
         args.out = None                              # stdout, as --events - is stdin
     if args.tag != "fixed_pt" and args.target in ("cpu", "cuda"):
@@ -315,7 +317,8 @@ def run_command(args) -> int:
         if args.render:
             from ..render.frames import FrameRenderer
 
-            renderer = FrameRenderer(args.render, video=args.video, fps=args.fps, theme=args.theme, attrs=src.attrs)
+            renderer = FrameRenderer(args.render, video=args.video, fps=10.0 if args.fps is None else args.fps,
+                                     theme=args.theme, attrs=src.attrs)
         report = None
         if args.report:
             from ..render.report import RunReport
