@@ -229,7 +229,8 @@ class RunReport:
             u, v = ax.px(c["t_ms"][idx], np.full(idx.size, lane))
             cols = [hex_colour(cc) for cc in flow_color(c["dir"][idx])]
             body += [f'<circle cx="{a:.1f}" cy="{b:.1f}" r="3" fill="{cl}"/>' for a, b, cl in zip(u, v, cols)]
-        out += "<p>One lane per track, a dot per window it was seen in; hue = direction (flow colour wheel).</p>"
+        lane = "track" if tracked else "speed bin"
+        out += f"<p>One lane per {lane}, a dot per window it was seen in; hue = direction (flow colour wheel).</p>"
         out += _svg(900, h, "".join(body), "tracks over time")
         w, hh = self.sensor
         sc = min(900 / w, 500 / hh)
