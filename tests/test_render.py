@@ -202,7 +202,9 @@ def test_report_sections_numbers_and_no_urls(tmp_path):
     rep2 = RunReport(SENSOR)
     rep2.add({"t0_us": 0, "t1_us": 500, "objects": [_obj(10, 10, 90.0)]})
     rep2.write(tmp_path / "u.html", summary)
-    assert "no track ids" in _parse(tmp_path / "u.html")[1]
+    untracked = _parse(tmp_path / "u.html")[1]
+    assert "no track ids" in untracked and "One lane per speed bin" in untracked and "One lane per track" not in untracked
+    assert "One lane per track" in text
 
 
 def test_run_render_video_and_report_on_the_shipped_sample(tmp_path, make_bundle, capsys):
