@@ -731,6 +731,7 @@ def lava_sim_wall(args, bundle, windows, cascades) -> dict:
     (the activity the Loihi 2 model uses must be the simulation's: they must be identical)."""
     if args.sim_windows <= 0:
         return {}
+    from toffe_deploy.cascade import pool_any
     from toffe_deploy.energy.measure import latency_percentiles
 
     sim = windows[:args.sim_windows]
@@ -743,9 +744,15 @@ def lava_sim_wall(args, bundle, windows, cascades) -> dict:
             total = time.perf_counter() - t0
             n_check = min(len(sim), len(cascades))
             same = 0
-            for i, res in enumerate(pipe.cascade.cascade_stream(w for _t0, w in sim[:n_check])):
+            # the network runs on the OFS grid (ofs_pool): fed pooled windows as the Pipeline feeds
+            # it, and compared on that grid (spikes, closed masks, stage inputs; the counted
+            # cascade's frames are on the sensor grid, the network's on the OFS grid)
+            pool = bundle.config.ofs_pool
+            grid = (pool_any(np.asarray(w) > 0, pool).astype(np.uint8) for _t0, w in sim[:n_check])
+            for i, res in enumerate(pipe.cascade.cascade_stream(grid)):
                 ref = cascades[i]
-                same += all(np.array_equal(a, b) for a, b in zip(res.spikes + res.frames, ref.spikes + ref.frames))
+                same += all(np.array_equal(np.asarray(a) > 0, np.asarray(b) > 0)
+                            for a, b in zip(res.spikes + res.closed + res.inputs, ref.spikes + ref.closed + ref.inputs))
             startup = getattr(pipe.cascade, "startup_s", None)
     except (ToffeError, ImportError, RuntimeError, ValueError, OSError) as exc:
         return {"error": str(exc).splitlines()[0] if str(exc) else type(exc).__name__}
