@@ -349,6 +349,17 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         except (ToffeError, ImportError, RuntimeError, ValueError) as exc:
             rows.append({"model": "toffe", "target": target, "status": "unavailable", "reason": str(exc)})
     cpu_pipe = pipes.get("cpu")
+    # the Loihi target's host part (closing, masking, grouping, OFPD) runs on this CPU whether or
+    # not the cpu target's own row was asked for: without it TOFFE's Loihi latency lost its host
+    # part while DOTIE-with-clustering's kept its own (unlike counting)
+    host_pipe = cpu_pipe
+    if host_pipe is None and "loihi-sim" in args.targets:
+        try:
+            from toffe_deploy.runtime.pipeline import Pipeline
+
+            host_pipe = stack.enter_context(Pipeline(bundle, "cpu"))
+        except (ToffeError, ImportError, RuntimeError, ValueError) as exc:
+            log(f"loihi-sim: the host part cannot run on the cpu pipeline ({exc}); its latency is left out")
     # ---- counting pass (untimed): operations and Loihi activity per model ----------------------
     n_count = min(args.count_windows, n)
     try:
@@ -361,7 +372,7 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
                   disable=not show_progress(args)):
         binned = windows[i][1]
         # OFPD rows = the objects the deployed pipeline reports for this window (untimed run)
-        rows_i = len(pipeline_objects(cpu_pipe, i, windows, events, args)) if cpu_pipe is not None else None
+        rows_i = len(pipeline_objects(host_pipe, i, windows, events, args)) if host_pipe is not None else None
         res, mc = count_toffe(binned, list(bundle.ofs), cfg, macs["macs"], in_elems, macs["params"],
                               macs["activations"], ofpd_rows=rows_i)
         toffe_counts.append(mc)
@@ -460,7 +471,7 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
     if "loihi-sim" in args.targets:
         log("loihi-sim: modelled Loihi 2 figures from counted activity; host part timed on this CPU")
         rows.extend(loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts, dotie_counts,
-                               dotie_cl_counts, cpu_pipe, loihi_model, host_model, p))
+                               dotie_cl_counts, host_pipe, loihi_model, host_model, p))
     if "loihi2" in args.targets:
         rows.extend(loihi2_rows(bundle))
 
@@ -684,11 +695,11 @@ def loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts,
     row = {"model": "toffe", "target": "loihi-sim", "status": "ok", "loihi": lo, "host": host,
            "E_mj": lo["energy_mj"] + hmj, "E_kind": f"{cm.LOIHI_LABEL} + host {cm.HOST_LABEL}",
            "E_model_mj": lo["energy_mj"] + hmj,
-           "L_ms": lo["latency_ms"] + (host["latency_ms"] or 0.0),
+           "L_ms": None if host["latency_ms"] is None else lo["latency_ms"] + host["latency_ms"],
            "L_kind": "modelled Loihi 2 (sum of T_ts over B steps and stages) + host part measured p50",
            "notes": [f"Loihi 2 side {lo['cores_total']} cores ({lo['chips_needed']} chip(s) at 128 cores)"]}
     if host["latency_ms"] is None:
-        row["notes"].append("host part not timed (cpu target not run)")
+        row["notes"].append("host part not timed (the cpu pipeline could not run): no total latency")
     sim = lava_sim_wall(args, bundle, windows, cascades)
     if "error" in sim:
         row["notes"].append(f"Lava simulator not run: {sim['error']}")
