@@ -494,7 +494,7 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         "bundle": {"path": str(bundle.root), "sensor_size": list(cfg.sensor_size), "n_stages": len(bundle.ofs),
                    "ofpd_macs": macs},
         "constants": cm.constants_table(), "paper_table2": report.PAPER_TABLE2,
-        "rows": rows, "ratios": report.ratios(rows), "goals": report.goals(rows), "like_for_like": lfl,
+        "rows": rows, "ratios": report.ratios(rows), "goals": report.goals(rows, lfl), "like_for_like": lfl,
         "wall_s": round(time.perf_counter() - t_start, 1),
     }
     md = render_markdown(result, report, short_name(machine))

@@ -86,6 +86,12 @@ def test_quick_run_writes_table_json_and_png(tiny_bundle, tiny_events, tmp_path,
     assert win["status"] == "ok" and win["extra"]["dbscan_runs"] <= 1          # one DBSCAN per window at most
     assert per_step["extra"]["dbscan_runs"] >= win["extra"]["dbscan_runs"]      # DOTIE's code: one per step
     assert "cpu_latency_ratio_window" in res["goals"] and "one DBSCAN per window" in md
+    g = res["goals"]                         # the verdicts are like for like, not across levels
+    like = g["like_for_like"]["optimised"]
+    assert g["verdict_from"] == "like for like, optimised level"
+    assert g["cpu_latency_met"] == like["cpu_latency_met"] == (like["cpu_time_ratio"] >= g["cpu_latency_goal"])
+    assert g["cpu_energy_met"] == (like["energy_ratio_event"] >= g["cpu_energy_goal"])
+    assert "cpu_latency_met_across_levels" in g and "cpu_energy_met_across_rules" in g
     lfl = res["like_for_like"]                 # issue 14: both levels, both rules, CPU time, quality
     keys = {r["key"] for r in lfl["rows"]}
     for fam in ("dotie", "dotie_cluster", "toffe", "asnet"):      # asnet: the shipped Adaptive-SpikeNet weights
