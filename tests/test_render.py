@@ -202,6 +202,15 @@ def test_report_sections_numbers_and_no_urls(tmp_path):
     rep2 = RunReport(SENSOR)
     rep2.add({"t0_us": 0, "t1_us": 500, "objects": [_obj(10, 10, 90.0)]})
     rep2.write(tmp_path / "u.html", summary)
+    from toffe_deploy.runtime.output import RunSummary
+
+    sim = RunSummary(target="loihi-sim", tag="fixed_pt", latencies_s=[1.2, 1.3]).to_json()
+    assert sim["latency_kind"] == "simulator wall time per window (not Loihi 2 latency)" and sim["tag"] == "fixed_pt"
+    sim["bridge_traffic"] = {"windows": 2, "per_window": {"to_chip_spikes": 1950.0}}
+    rep.write(tmp_path / "s.html", sim)
+    sim_text = _parse(tmp_path / "s.html")[1]
+    assert "simulator wall time per window (not Loihi 2 latency), p50 (ms)" in sim_text and "fixed_pt" in sim_text
+    assert "bridge per window: to chip spikes" in sim_text and "1,950" in sim_text
     untracked = _parse(tmp_path / "u.html")[1]
     assert "no track ids" in untracked and "One lane per speed bin" in untracked and "One lane per track" not in untracked
     assert "One lane per track" in text

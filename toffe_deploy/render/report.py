@@ -158,7 +158,10 @@ class RunReport:
                 ["objects", _fmt(s.get("objects"))], ["wall time (s)", _fmt(s.get("wall_s"))],
                 ["windows/s", _fmt(s.get("windows_per_s"))], ["real-time factor", _fmt(s.get("realtime_factor"))],
                 ["start-up (s)", _fmt(s.get("startup_s"))]]
-        rows += [[f"latency {q} (ms)", _fmt(lat.get(q))] for q in ("p50", "p90", "p99") if q in lat]
+        what = s.get("latency_kind") or "latency per window"      # the simulator's is its wall time, said so
+        rows += [[f"{html.escape(what)}, {q} (ms)", _fmt(lat.get(q))] for q in ("p50", "p90", "p99") if q in lat]
+        if s.get("tag"):
+            rows.append(["Lava process models", html.escape(str(s["tag"]))])
         cam = s.get("camera")
         if isinstance(cam, dict):
             rows.append(["camera", ", ".join(f"{html.escape(str(k))} {_fmt(v)}" for k, v in cam.items()
@@ -169,6 +172,10 @@ class RunReport:
         tr = s.get("bridge_traffic")
         if isinstance(tr, dict):
             rows += [[f"bridge {html.escape(str(k))}", _fmt(v)] for k, v in tr.items() if isinstance(v, (int, float))]
+            per = tr.get("per_window")
+            if isinstance(per, dict):
+                rows += [[f"bridge per window: {html.escape(str(k).replace('_', ' '))}", _fmt(v)]
+                         for k, v in per.items() if isinstance(v, (int, float))]
         e = s.get("errors")
         if isinstance(e, dict):
             rows += [["recall vs ground truth", _fmt(e.get("recall"))],

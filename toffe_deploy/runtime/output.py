@@ -143,6 +143,7 @@ class RunSummary:
     ``camera`` is the run camera's summary line (runtime.run_camera), ``camera_json`` its fields."""
 
     target: str
+    tag: str | None = None          # the Lava process models (fixed_pt / floating_pt) on the Lava targets
     windows: int = 0
     objects: int = 0
     objects_per_bin: dict[int, int] = field(default_factory=dict)
@@ -196,19 +197,25 @@ class RunSummary:
                 "objects_per_bin": {str(k): v for k, v in sorted(self.objects_per_bin.items())},
                 "wall_s": self.wall_s, "startup_s": self.startup_s, "windows_per_s": self.windows_per_s,
                 "realtime_factor": self.realtime_factor,
-                "latency_ms": percentiles_ms(self.latencies_s), "errors": self.errors, "camera": self.camera_json,
+                "latency_ms": percentiles_ms(self.latencies_s), "latency_kind": self.latency_kind, "tag": self.tag,
+                "errors": self.errors, "camera": self.camera_json,
                 "skipped": {"windows": self.skipped_windows, "gaps": self.skipped_gaps,
                             "longest_gap_s": self.longest_gap_us / 1e6},
                 "bridge_traffic": self.traffic.to_json() if self.traffic is not None else None,
                 "live": None if self.live is None else
                 {**self.live, "event_latency_ms": percentiles_ms(self.event_latencies_s)}}
 
+    @property
+    def latency_kind(self) -> str:
+        """What ``latency_ms`` is: on the simulator, host wall time through a pipelined Lava run,
+        not Loihi latency (said in the text, the JSON and the report alike)."""
+        return ("simulator wall time per window (not Loihi 2 latency)" if self.target == "loihi-sim"
+                else "latency per window")
+
     def lines(self) -> list[str]:
         lat = percentiles_ms(self.latencies_s)
         bins = ", ".join(f"bin {k}: {v}" for k, v in sorted(self.objects_per_bin.items())) or "none"
-        # on the simulator this is host wall time through a pipelined Lava run, not Loihi latency
-        what = ("simulator wall time per window (not Loihi 2 latency)" if self.target == "loihi-sim"
-                else "latency per window")
+        what = self.latency_kind
         out = [f"target {self.target}: {self.windows} windows, {self.objects} objects ({bins})",
                f"{self.windows_per_s:.1f} windows/s over {self.wall_s:.2f} s (start-up {self.startup_s:.2f} s"
                + (f"; real-time factor {self.realtime_factor:.3g}" if math.isfinite(self.realtime_factor) else "")
