@@ -107,6 +107,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         if getattr(args, k) < 1:
             ap.error(f"--{k.replace('_', '-')} must be >= 1")
     args.targets = [t.strip() for t in args.targets.split(",") if t.strip()]
+    known = ("cpu", "cuda", "loihi-sim", "loihi2")
+    unknown = [t for t in args.targets if t not in known]
+    if unknown or not args.targets:
+        ap.error(f"--targets: {', '.join(unknown) or 'none given'} (known: {', '.join(known)})")
     return args
 
 

@@ -119,6 +119,14 @@ def test_missing_bundle_is_one_line_error(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+def test_an_unknown_target_is_refused(tmp_path, capsys):
+    harness = _load_harness()
+    with pytest.raises(SystemExit) as e:
+        harness.main(["--quick", "--targets", "cpu,bogus", "--out", str(tmp_path / "o")])
+    assert e.value.code == 2 and "--targets: bogus" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_sensor_size_mismatch_is_one_line_error(tiny_bundle, tmp_path, capsys):
     from toffe_deploy.events.io import write_events_h5
 
