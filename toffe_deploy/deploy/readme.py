@@ -29,7 +29,7 @@ export/
   ofpd_int8.onnx       optional (--variants int8): static int8 QDQ (per-channel weights, activations calibrated on real OFPD inputs, heads fp32)
   ofs.nir              the OFS stages as a NIR graph (nir.read loads it)
   netx/ofs_stage<k>.net  lava-dl netx HDF5, one network per stage (conv + CUBA neuron)
-  parity.json          the five parity checks of this export, with their goals
+  parity.json          the five parity checks of this export, with their goals (not written with --checks none)
   README.md            this file
 ```
 
@@ -155,7 +155,7 @@ legacy value: boxes / fixed / mps / no motion planes / bin from the OFS / join).
 
 `layer/0`: `type = input`, `shape = (C_in, H, W)`; `layer/1`: `type = conv`, `shape = (1, H, W)`,
 `inChannels`, `outChannels = 1`, `kernelSize`, `stride = 1`, `padding = K//2`, `dilation = 1`,
-`groups = 1`, `weight` (1, C_in, K, K) int (the same integers as ofs_loihi.json) and
+`groups = 1`, `weight` (1, C_in, K, K) float32 holding whole numbers (the same integers as ofs_loihi.json; netx reads float weights) and
 `neuron/{type = CUBA, iDecay = 4096, vDecay = dv, vThMant = vth_mant, refDelay = 1}`;
 `simulation/{Ts = 1, tSample = B}`; file attributes `reset_note`, `reset_interval`, `reset_offset`.
 netx's stock CUBA neuron resets to zero after a spike. For a **`reset: zero` bundle the files
@@ -199,9 +199,11 @@ nir <= 1.0.4, which cannot read `v_reset`.
 
 ## parity.json
 
-| key | check | goal |
+Top level: `format`, `format_version`, `windows` (where the held-out windows came from: data set
+or generator, seed, sizes), `all_pass`, and `checks`, holding one entry per check:
+
+| `checks` key | check | goal |
 |---|---|---|
-| `windows` | where the held-out windows came from (data set or generator, seed, sizes) | |
 | `fixed_vs_float` | numpy fixed-point OFS vs float torch OFS, per stage on the full binary windows: spike agreement, precision, recall, F1 (float = reference); `quantization_band` (bound on the float-vs-integer potential difference), `differing_in_band` (differences at pixels whose float potential came that close to the threshold, i.e. explained by 8-bit weights / 17-bit threshold) and `f1_outside_band` | F1 >= 0.99 |
 | `lava_vs_fixed` | Lava simulator (Loihi2SimCfg, fixed_pt; `reset: zero`: stock Conv + LIFReset, else lava_procs) vs numpy fixed point, per stage on small crops (48x32) placed where the reference fires most: differing spikes, spikes compared | 0 |
 | `netx_vs_fixed` | each `netx/ofs_stage<k>.net` (layer shapes set to the crop, same integers) in lava-dl's own `netx.hdf5.Network` with `reset_interval` B, `reset_offset` 1 vs numpy fixed point on the same crops: differing spikes, F1 | 0 for `reset: zero`; `informational` for subtract |
