@@ -106,11 +106,21 @@ def resize_netx(src: str | os.PathLike, dst: str | os.PathLike, height: int, wid
     return dst
 
 
+def netx_network_class():
+    """lava.lib.dl.netx.hdf5.Network, imported without the notices lava-dl's import prints on
+    every run ("No CUDA runtime is found", "Prophesee Dataset Toolbox could not be found"):
+    they are about parts of lava-dl this project does not use, and they broke `export --quiet`."""
+    import contextlib
+    import io
+
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        from lava.lib.dl.netx.hdf5 import Network
+    return Network
+
+
 def load_netx(path: str | os.PathLike):
     """lava.lib.dl.netx.hdf5.Network of a stage file (imports lava-dl, hence torch)."""
-    from lava.lib.dl.netx.hdf5 import Network
-
-    return Network(net_config=str(path))
+    return netx_network_class()(net_config=str(path))
 
 
 def run_netx_stage(path: str | os.PathLike, windows, reset_offset: int = NETX_RESET_OFFSET,
@@ -127,7 +137,7 @@ def run_netx_stage(path: str | os.PathLike, windows, reset_offset: int = NETX_RE
     from ..runtime.loihi import import_lava
 
     import_lava()
-    from lava.lib.dl.netx.hdf5 import Network
+    Network = netx_network_class()
     from lava.magma.core.run_conditions import RunSteps
     from lava.magma.core.run_configs import Loihi2SimCfg
     from lava.proc.io.sink import PyReceiveModelFixed, RingBuffer as Sink
