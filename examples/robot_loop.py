@@ -56,7 +56,8 @@ def loop(a) -> int:
     """The loop of ``main`` over the parsed arguments."""
     bundle = api.load_bundle(a.bundle)
     n_windows, ids = 0, set()
-    with open_events(a.events) as src, api.FlowStream(bundle, a.target, sensor_size=src.sensor_size) as flow:
+    with open_events(a.events) as src, api.FlowStream(bundle, a.target, sensor_size=src.sensor_size,
+                                                      t_start_us=src.t_start_us) as flow:   # run's window grid
         centre = (src.sensor_size[0] / 2.0, src.sensor_size[1] / 2.0)
         t_end = min(src.t_end_us, src.t_start_us + int(a.max_ms * 1000))
         for t in range(src.t_start_us, t_end, a.packet_us):

@@ -49,7 +49,7 @@ def test_feed_window_takes_dense_windows_and_bad_events_are_refused(env):
         x[:, :, 10:20, 10:20] = 1
         res = flow.feed_window(0, x)
         assert res.t0_us == 0 and res.t1_us == cfg.dt_us
-        with pytest.raises(ValueError, match="time order"):
+        with pytest.raises(ValueError, match="timestamps decrease"):
             flow.feed([1, 2], [1, 2], [50, 10], [0, 1])
         with pytest.raises(ValueError, match="outside"):
             flow.feed([w], [0], [100], [1])
@@ -84,3 +84,30 @@ def test_flush_processes_or_drops_the_last_partial_window(env):
             got = flow.feed(cut["x"], cut["y"], cut["t"], cut["p"]) + flow.flush(partial=partial)
             assert flow.flush() == []                   # nothing left buffered either way
         assert [r.t0_us for r in got] == [k * dt for k in range(n)]
+
+
+def test_a_stream_refuses_events_of_windows_it_processed_until_reset(env):
+    """Feeding the recording again after flush() was a silent loss (one empty window for all of
+    it): events in windows already processed are refused, and reset() starts a new recording
+    that gives what the first pass gave."""
+    ev = read_events(env["rec"]).events
+    ev = ev[ev["t"] < 2000]
+    with api.FlowStream(str(env["bundle"].root), "cpu", t_start_us=0) as flow:
+        first = [r.to_json() for r in flow.feed(ev["x"], ev["y"], ev["t"], ev["p"]) + flow.flush()]
+        with pytest.raises(ValueError, match="timestamps decrease|already processed"):
+            flow.feed(ev["x"], ev["y"], ev["t"], ev["p"])
+        with pytest.raises(ValueError, match="negative timestamp"):
+            flow.feed([1], [1], [-5], [1])
+        flow.reset()
+        again = [r.to_json() for r in flow.feed(ev["x"], ev["y"], ev["t"], ev["p"]) + flow.flush()]
+    assert again == first and len(first) == 4
+
+
+def test_a_gap_is_jumped_on_the_window_grid_of_t_start(env):
+    """After a gap longer than skip_empty_after windows the next window starts on the grid from
+    t_start_us (as `run`), not on multiples of dt."""
+    dt = env["bundle"].config.dt_us
+    with api.FlowStream(str(env["bundle"].root), "cpu", t_start_us=50, skip_empty_after=2, track=False) as flow:
+        got = flow.feed([1, 2, 3], [1, 2, 3], [60, 100_000, 100_010], [1, 1, 0]) + flow.flush()
+    starts = [r.t0_us for r in got]
+    assert starts[0] == 50 and all((t - 50) % dt == 0 for t in starts) and starts[-1] == 50 + (100_000 - 50) // dt * dt

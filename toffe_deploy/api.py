@@ -35,6 +35,7 @@ from .deploy.bundle import Bundle, load_bundle
 from .errors import InputError
 from .events.convert import time_us, to_events
 from .events.core import EVENT_DTYPE
+from .events.validate import check_chunk
 from .runtime.pipeline import TARGETS, ObjectFlow, Pipeline, WindowResult
 from .runtime.spikes import SpikeVolume
 from .schema import header, load_schema
@@ -42,6 +43,8 @@ from .tracking import TrackerConfig
 
 __all__ = ["load_bundle", "Bundle", "FlowStream", "Pipeline", "ObjectFlow", "WindowResult", "TrackerConfig",
            "SpeedScale", "TARGETS", "load_schema", "header"]
+
+FEED = "FlowStream.feed"
 
 #: Consecutive empty windows processed before a gap in the events is jumped over (as `run`'s default).
 SKIP_EMPTY_AFTER = 1000
@@ -53,7 +56,9 @@ class FlowStream:
     bundle: a Bundle or its directory; target: cpu, cuda, loihi-sim or loihi2; sensor_size
     (width, height): the camera's (default: the bundle's); speed_scale: the camera for speeds in
     m/s, ``SpeedScale(focal_px, depth_m)`` (default: the bundle's); track: True, a TrackerConfig,
-    or False; t_start_us: the first window's start (default: the first event's, on the dt grid)."""
+    or False; t_start_us: the first window's start, the origin of the window grid (default: the
+    first event's time, as `run` on a live source; a file's own start, as `run` on a file, is
+    ``t_start_us=src.t_start_us``); ofpd_variant: the bundle's OFPD file (fp32, fp16, int8)."""
 
     def __init__(self, bundle: Bundle | str, target: str = "cpu", *, sensor_size: tuple[int, int] | None = None,
                  speed_scale: SpeedScale | None = None, track: bool | TrackerConfig = True,
@@ -64,11 +69,23 @@ class FlowStream:
         cfg = self.bundle.config
         self.dt_us, self.n_bins = int(cfg.dt_us), int(cfg.n_bins)
         self.sensor_size = self.pipeline.sensor_size
-        self.t0 = None if t_start_us is None else int(t_start_us)
+        self.t_start_us = None if t_start_us is None else int(t_start_us)
         self.skip_empty_after = int(skip_empty_after)
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new recording: no buffered events, no tracks, the window grid from
+        ``t_start_us`` (or the next first event) again. Events older than those fed so far are
+        refused without it (they would fall in windows already processed)."""
+        self.t0 = self.t_start_us                  # the next window's start
+        self._origin = self.t_start_us             # the window grid's origin
         self._buf = np.empty(0, EVENT_DTYPE)
         self._empty = 0
+        self._t_last: int | None = None            # the last event fed
+        self._done_until: int | None = None        # the end of the last window processed
+        self._n_fed = 0
         self._last: WindowResult | None = None
+        self.pipeline.reset_tracks()
 
     def __enter__(self) -> "FlowStream":
         self.pipeline.__enter__()
@@ -97,13 +114,17 @@ class FlowStream:
         NaN time, a polarity 7) are a ValueError here too, not silently cast."""
         ev = _checked_events(x, y, t, p)
         if ev.shape[0]:
-            w, h = self.sensor_size
-            if int(ev["x"].max()) >= w or int(ev["y"].max()) >= h:
-                raise ValueError(f"events outside the {w}x{h} sensor")
-            if np.any(np.diff(ev["t"]) < 0) or (self._buf.shape[0] and ev["t"][0] < self._buf["t"][-1]):
-                raise ValueError("events must arrive in time order")
+            try:                                   # sensor, negative times, time order (the readers' check)
+                check_chunk(FEED, ev, self.sensor_size, self._n_fed, self._t_last)
+            except InputError as exc:
+                raise ValueError(str(exc)) from None
+            if self._done_until is not None and int(ev["t"][0]) < self._done_until:
+                raise ValueError(f"{FEED}: an event at t = {int(ev['t'][0])} us falls in a window already processed "
+                                 f"(up to {self._done_until} us): a new recording needs reset() or a new FlowStream")
             if self.t0 is None:
-                self.t0 = int(ev["t"][0]) // self.dt_us * self.dt_us
+                self.t0 = self._origin = int(ev["t"][0])
+            self._t_last = int(ev["t"][-1])
+            self._n_fed += ev.shape[0]
             self._buf = np.concatenate([self._buf, ev]) if self._buf.shape[0] else ev
         return self._drain(final=False)
 
@@ -127,9 +148,10 @@ class FlowStream:
             if cut or self._empty <= self.skip_empty_after:
                 vol = SpikeVolume.from_events(win, self.t0, self.dt_us, self.n_bins, self.sensor_size)
                 out.append(self._run(self.t0, vol))
-                self.t0 = t1
+                self.t0 = self._done_until = t1
             else:                                          # a long gap: jump to the next event's window
-                self.t0 = int(self._buf["t"][0]) // self.dt_us * self.dt_us if self._buf.shape[0] else t1
+                self.t0 = (self._origin + (int(self._buf["t"][0]) - self._origin) // self.dt_us * self.dt_us
+                           if self._buf.shape[0] else t1)  # on the grid from the origin, as `run`
                 self._empty = 0
         return out
 
@@ -149,6 +171,6 @@ def _checked_events(x, y, t, p) -> np.ndarray:
     if any(c.ndim != 1 for c in cols) or len({c.shape[0] for c in cols}) != 1:
         raise ValueError(f"x, y, t, p must be 1-D columns of one length, got shapes {[c.shape for c in cols]}")
     try:
-        return to_events("FlowStream.feed", cols[0], cols[1], time_us("FlowStream.feed", cols[2]), cols[3])
+        return to_events(FEED, cols[0], cols[1], time_us(FEED, cols[2]), cols[3])
     except InputError as exc:
         raise ValueError(str(exc)) from None
