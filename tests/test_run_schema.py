@@ -41,6 +41,7 @@ def test_every_line_of_a_run_validates_and_the_header_comes_first(env, capsys, t
     t = summ["errors"]["tracking"]
     assert t["gt_objects"] == summ["errors"]["n_gt"] and {"mota", "idf1", "id_switches", "motp_px"} <= set(t)
     assert "tracking vs ground truth" in text and f"{t['id_switches']} ID switches" in text
+    assert "confirmed tracks, coasting ones included" in text
 
 
 def test_no_track_run_validates_without_track_fields(env, capsys, tmp_path):

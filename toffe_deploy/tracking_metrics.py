@@ -88,7 +88,7 @@ def tracking_line(t: dict) -> str:
     def f(v):
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.3f}"
 
-    return (f"tracking vs ground truth (within {t['gate_px']:g} px, confirmed tracks): MOTA {f(t['mota'])}, "
-            f"IDF1 {f(t['idf1'])}, MOTP {f(t['motp_px'])} px, {t['id_switches']} ID switches, "
+    return (f"tracking vs ground truth (within {t['gate_px']:g} px, confirmed tracks, coasting ones included): "
+            f"MOTA {f(t['mota'])}, IDF1 {f(t['idf1'])}, MOTP {f(t['motp_px'])} px, {t['id_switches']} ID switches, "
             f"{t['fragmentations']} fragmentations, {t['misses']} misses and {t['false_positives']} false positives "
             f"of {t['gt_objects']} objects ({t['gt_tracks']} true tracks, {t['mostly_tracked']} mostly tracked)")
