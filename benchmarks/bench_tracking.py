@@ -2,7 +2,7 @@
 """Tracking accuracy of the deployed pipeline on whole sequences of a data-set split.
 
     .venv/bin/python benchmarks/bench_tracking.py --bundle export/ --data data/synth --split multi,pairs
-        [--max-windows 200] [--limit N] [--score-gate 20] [--gate 15] [--alpha A] [--beta B] [--confirm K] [--max-misses M] [--tentative-misses T]
+        [--max-windows 200] [--limit N] [--score-gate 20] [--gate 17] [--alpha A] [--beta B] [--confirm K] [--max-misses M] [--tentative-misses T]
         [--hysteresis H] [--gate-growth G] [--birth-gap PX] [--gate-speed K] [--report-misses R]
         [--max-occluded O] [--turn-beta B] [--max-turn RAD] [--merge PX] [--merge-move PX]
         [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R] [--coast-px PX] [--max-coast N]
@@ -306,14 +306,17 @@ def tracker_cost(bundle, events, settings, repeats: int) -> dict:
 
 def main(argv=None) -> int:
     from toffe_deploy.deploy.bundle import load_bundle
+    from toffe_deploy.errors import ToffeError
     from toffe_deploy.evaluate import split_files
     from toffe_deploy.metrics import GATE_PX
     from toffe_deploy.tracking import TrackerConfig
 
     d = TrackerConfig()
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--bundle", default=str(ROOT / "export"))
-    ap.add_argument("--data", default=str(ROOT / "data" / "synth"))
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument("--bundle", default=str(ROOT / "export"), help="deploy bundle (toffe-deploy export ckpt/)")
+    ap.add_argument("--data", default=str(ROOT / "data" / "synth"),
+                    help="data set directory (toffe-deploy dataset synth)")
     ap.add_argument("--split", default="multi,pairs", help="comma-separated splits")
     ap.add_argument("--max-windows", type=int, default=200, help="windows per sequence from its start")
     ap.add_argument("--limit", type=int, default=0, help="first N sequences per split (0: all)")
@@ -398,7 +401,11 @@ def main(argv=None) -> int:
                              reid_growth=a.reid_growth, reid_ratio_missed=a.reid_ratio_missed, hidden_px=a.hidden,
                              handover_px=a.handover, handover_reach=a.handover_reach,
                              handover_windows=a.handover_windows, handover_speed_ratio=a.handover_speed_ratio)
-    bundle = load_bundle(a.bundle)
+    try:
+        bundle = load_bundle(a.bundle)
+    except ToffeError as exc:
+        print(f"bench_tracking: error: {exc}", file=sys.stderr)
+        return 2
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)
         print(f"{c['windows']} windows, {c['objects_per_window']:.2f} objects per window: CPU per window "
