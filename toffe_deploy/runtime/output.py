@@ -229,9 +229,10 @@ class RunSummary:
             out.append(live_line(self.live, self.event_latencies_s))
             late, got = self.live.get("late_events", 0), self.live.get("received_events", 0)
             if late:
-                out.append(f"warning: {late} of {got} events ({100 * late / max(got, 1):.1f} %) came after the "
-                           "clock had closed their window and were dropped: the producer stalled for longer than "
-                           "the grace (--window-grace-ms gives it longer; a file gives every event)")
+                out.append(f"warning: {late} of {got} events ({100 * late / max(got, 1):.1f} %) came after their "
+                           "window had been closed and were dropped: their times went back (events out of order at "
+                           "the source) or the producer stalled for longer than the grace (--window-grace-ms gives it "
+                           "longer; a file gives every event)")
         if self.skipped_windows:
             out.append(f"skipped {self.skipped_windows} empty windows in {self.skipped_gaps} gap(s) without events "
                        f"(longest {self.longest_gap_us / 1e6:.3f} s); no JSON line for them")
