@@ -199,6 +199,14 @@ def test_report_sections_numbers_and_no_urls(tmp_path):
     assert "24" in text and "3.25" in text and "0.012" in text         # summary figures
     assert re.search(r"bin 2\s+6\s+66\.7%\s+1", text) and re.search(r"bin 4\s+3\s+33\.3%\s+1", text)
     assert "#1" in text and "#4" in text and "no track ids" not in text
+    rep3 = RunReport(SENSOR)                 # a tentative track's provisional id is no track of the page
+    for i in range(3):
+        o = _obj(10 + i, 10, 0.0, track_id=7 if i else 9)
+        o["track"] = {"confirmed": bool(i)}
+        rep3.add({"t0_us": 500 * i, "t1_us": 500 * i + 500, "objects": [o]})
+    rep3.write(tmp_path / "t.html", summary)
+    t3 = _parse(tmp_path / "t.html")[1]
+    assert "#7" in t3 and "#9" not in t3 and "no track ids" not in t3
     rep2 = RunReport(SENSOR)
     rep2.add({"t0_us": 0, "t1_us": 500, "objects": [_obj(10, 10, 90.0)]})
     rep2.write(tmp_path / "u.html", summary)

@@ -12,8 +12,9 @@ be mailed or archived as is. Sections (element ids):
   direction) and their paths on the sensor;
 - ``speed``: speed (m/s) over time per track, and a table per track.
 
-Tracks are the objects' ``track_id`` (the tracker); without one, each speed bin is one series
-and the page says so. Memory: one small tuple per detected object (about 100 bytes).
+Tracks are the objects' ``track_id`` of confirmed tracks (the tracker; a tentative track's id
+is provisional and its objects count as detections only); without tracking, each speed bin is
+one series and the page says so. Memory: one small tuple per detected object (about 100 bytes).
 Charts show at most ``MAX_SERIES`` tracks (the longest) and ``MAX_POINTS`` points per series.
 """
 from __future__ import annotations
@@ -116,8 +117,10 @@ class RunReport:
         self.source = source
         self.windows = 0
         self.t_first = self.t_last = None
-        # per object: t0_us, track (None), bin, speed_mps, speed_px_s, x, y, direction_rad, n_events
+        # per object: t0_us, confirmed track id (None: untracked or tentative), bin, speed_mps,
+        # speed_px_s, x, y, direction_rad, n_events
         self.rows: list[tuple] = []
+        self.ids_seen = False            # whether the run tracked (any object carried a track_id)
 
     def add(self, window: dict) -> None:
         """One window's JSON dict ({t0_us, t1_us, objects}); objects may carry ``track_id``."""
@@ -127,6 +130,9 @@ class RunReport:
         self.t_last = t0 if self.t_last is None else max(self.t_last, t0)
         for o in window.get("objects", []):
             tid = o.get("track_id")
+            self.ids_seen |= tid is not None
+            if tid is not None and (o.get("track") or {}).get("confirmed") is False:
+                tid = None               # a tentative track's id is provisional (README): not a track yet
             self.rows.append((t0, None if tid is None else int(tid), int(o["speed_bin"]), o.get("speed_mps"),
                               o.get("speed_px_s"), float(o["x"]), float(o["y"]), float(o["direction_rad"]),
                               o.get("n_events")))
@@ -141,7 +147,7 @@ class RunReport:
 
     def _series(self) -> tuple[dict, bool]:
         """series key -> row indices; keys are track ids, or 'bin k' when no object has one."""
-        tracked = any(r[1] is not None for r in self.rows)
+        tracked = self.ids_seen
         groups: dict = defaultdict(list)
         for i, r in enumerate(self.rows):
             if tracked:
