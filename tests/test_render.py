@@ -91,6 +91,15 @@ def test_frames_draw_trails_by_track_id_and_degrade_without(tmp_path, tracked):
     assert tuple(frame[ev[1], ev[0]]) == draw.THEMES["dark"].on
 
 
+def test_a_tentative_tracks_id_is_not_drawn():
+    from toffe_deploy.render.draw import Mark
+
+    o = _obj(10, 10, 0.0, track_id=5)
+    assert Mark.of(o).label().startswith("#5 ")
+    o["track"] = {"confirmed": False}
+    assert Mark.of(o).track_id is None and not Mark.of(o).label().startswith("#")
+
+
 def test_label_is_beside_the_object_not_over_it_nor_its_arrow():
     centre, tip = (100, 100), (160, 100)          # arrow to the right
     obj_box = (85, 85, 115, 115)

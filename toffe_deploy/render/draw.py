@@ -211,6 +211,9 @@ class Mark:
         """From a JSON object dict of ``run`` (or anything with those attributes)."""
         get = obj.get if isinstance(obj, dict) else (lambda k, d=None: getattr(obj, k, d))
         tid = get("track_id")
+        state = get("track")
+        if tid is not None and state is not None and state.get("confirmed", True) is False:
+            tid = None                   # a tentative track's id is provisional: no label id, no trail
         sp = get("speed_mps")
         return cls(float(get("x")), float(get("y")), float(get("direction_rad")), int(get("speed_bin")),
                    None if sp is None else float(sp), None if tid is None else int(tid))

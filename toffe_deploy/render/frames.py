@@ -4,7 +4,8 @@ Each frame shows the window's events, each object's arrow (hue = direction, leng
 label "#track b<bin> <speed> m/s" beside it and, for objects with a ``track_id`` (the tracker),
 a trail through its last centres; the recording's ground truth, when it has some, as dashed
 outlines with thin arrows; the colour-wheel legend; and a header with the window's time.
-Objects without ``track_id`` are drawn the same without id and trail.
+Objects without ``track_id``, or of a tentative track (its id is provisional), are drawn the
+same without id and trail.
 """
 from __future__ import annotations
 
