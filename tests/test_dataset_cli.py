@@ -130,3 +130,10 @@ def test_synth_records_every_drawn_option(tmp_path):
             assert {"speed_px_ms", "depth_m"} <= set(gt) and np.abs(gt["depth_m"] - 3).max() < 0.5
     assert main(argv) == 0   # reproducible: same digests, nothing rewritten
     assert json.loads((out / "index.json").read_text())["sequences"] == rows
+
+
+def test_sequences_without_events_are_warned_about(tmp_path, capsys):
+    assert main(["dataset", "synth", "--out", str(tmp_path / "d"), "--split", "test", "--limit", "1",
+                 "--duration-s", "0.002", "--sensor-size", "10x10", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "toffe-deploy: warning: 1 sequence(s) without a single event (test_" in err

@@ -272,6 +272,11 @@ def _synth(args) -> int:
     counts = ", ".join(f"{k} {v}" for k, v in index["splits"].items() if v)
     print(f"{args.out}: {len(index['sequences'])} sequences ({counts}), {index['n_events']:,} events, "
           f"{size / 1e6:.1f} MB; index {Path(args.out) / 'index.json'} ({el:.1f} s)")
+    empty = [q["name"] for q in index["sequences"] if not q.get("n_events")]
+    if empty:
+        more = ", ..." if len(empty) > 3 else ""
+        warn(f"{len(empty)} sequence(s) without a single event ({', '.join(empty[:3])}{more}): nothing to train or "
+             "evaluate on (a sensor too small for the scene, or a duration too short?)")
     return 0
 
 
