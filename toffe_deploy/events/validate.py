@@ -45,6 +45,10 @@ def check_sensor_size(path: str | os.PathLike, sensor_size) -> tuple[int, int]:
     return w, h
 
 
+SORT_HINT = ("(events must be time-sorted: 'toffe-deploy events convert --sort IN OUT.h5' writes a sorted copy; "
+             "open_events(sort=True) in Python)")
+
+
 def check_chunk(path: str | os.PathLike, ev: np.ndarray, sensor_size: tuple[int, int], offset: int = 0,
                 prev_t: int | None = None, check_order: bool = True) -> None:
     """Raise InputError for the first bad event of ``ev`` (events ``offset``.. of the file).
@@ -76,14 +80,12 @@ def check_chunk(path: str | os.PathLike, ev: np.ndarray, sensor_size: tuple[int,
         return
     if prev_t is not None and t[0] < prev_t:
         raise InputError(path, f"timestamps decrease at event {offset}: t = {int(t[0])} us after "
-                               f"{int(prev_t)} us (events must be time-sorted: 'toffe-deploy events convert --sort "
-                               "IN OUT.h5' writes a sorted copy; open_events(sort=True) in Python)")
+                               f"{int(prev_t)} us {SORT_HINT}")
     bad = np.flatnonzero(np.diff(t) < 0)
     if bad.size:
         i = int(bad[0]) + 1
         raise InputError(path, f"timestamps decrease at event {offset + i}: t = {int(t[i])} us after "
-                               f"{int(t[i - 1])} us (events must be time-sorted: 'toffe-deploy events convert --sort "
-                               "IN OUT.h5' writes a sorted copy; open_events(sort=True) in Python)")
+                               f"{int(t[i - 1])} us {SORT_HINT}")
 
 
 def coordinates_in_range(path, name: str, values: np.ndarray, offset: int = 0) -> None:

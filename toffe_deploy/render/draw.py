@@ -210,18 +210,23 @@ class Mark:
     def of(cls, obj) -> "Mark":
         """From a JSON object dict of ``run`` (or anything with those attributes)."""
         get = obj.get if isinstance(obj, dict) else (lambda k, d=None: getattr(obj, k, d))
-        tid = get("track_id")
-        state = get("track")
-        if tid is not None and state is not None and state.get("confirmed", True) is False:
-            tid = None                   # a tentative track's id is provisional: no label id, no trail
+        tid = shown_track_id(get("track_id"), get("track"))
         sp = get("speed_mps")
         return cls(float(get("x")), float(get("y")), float(get("direction_rad")), int(get("speed_bin")),
-                   None if sp is None else float(sp), None if tid is None else int(tid))
+                   None if sp is None else float(sp), tid)
 
     def label(self) -> str:
         who = f"#{self.track_id} " if self.track_id is not None else ""
         speed = f" {self.speed_mps:.0f} m/s" if self.speed_mps is not None else ""
         return f"{who}b{self.speed_bin}{speed}"
+
+
+def shown_track_id(track_id, track) -> int | None:
+    """The track id a picture shows for an object (its ``track_id`` and ``track`` state): None
+    without one, and for a tentative track, whose id is provisional (README) and no track yet."""
+    if track_id is None or (track is not None and track.get("confirmed", True) is False):
+        return None
+    return int(track_id)
 
 
 @dataclass

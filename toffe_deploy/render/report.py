@@ -28,7 +28,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 from ..fileio import atomic_path
-from .draw import flow_color, hex_colour
+from .draw import flow_color, hex_colour, shown_track_id
 
 MAX_SERIES = 40
 MAX_POINTS = 1500
@@ -129,11 +129,9 @@ class RunReport:
         self.t_first = t0 if self.t_first is None else min(self.t_first, t0)
         self.t_last = t0 if self.t_last is None else max(self.t_last, t0)
         for o in window.get("objects", []):
-            tid = o.get("track_id")
-            self.ids_seen |= tid is not None
-            if tid is not None and (o.get("track") or {}).get("confirmed") is False:
-                tid = None               # a tentative track's id is provisional (README): not a track yet
-            self.rows.append((t0, None if tid is None else int(tid), int(o["speed_bin"]), o.get("speed_mps"),
+            self.ids_seen |= o.get("track_id") is not None
+            tid = shown_track_id(o.get("track_id"), o.get("track"))
+            self.rows.append((t0, tid, int(o["speed_bin"]), o.get("speed_mps"),
                               o.get("speed_px_s"), float(o["x"]), float(o["y"]), float(o["direction_rad"]),
                               o.get("n_events")))
 
