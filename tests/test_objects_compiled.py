@@ -74,7 +74,8 @@ def blob_objects_reference(stage_pixels, sensor_size, config):
 
 def union_objects_reference(stage_pixels, sensor_size, config):
     """ofpd_io.blob_objects_xy with stages "union" in numpy: blobs_xy on all stages' pixels,
-    merge_blobs once more on its groups, then each group's stage, centre and claims."""
+    merge_blobs once more on its groups (a closed group stays closed, an open one is tested
+    again over all its pixels, specks included), then each group's stage, centre and claims."""
     from toffe_deploy.compiled import merge_blobs
 
     s = ofpd_io.ofpd_settings(config)
@@ -84,10 +85,11 @@ def union_objects_reference(stage_pixels, sensor_size, config):
     stage = np.concatenate([np.full(len(p[0]), i) for i, p in enumerate(stage_pixels)])
     if xs.size == 0:
         return [], np.zeros(0, np.int64), np.zeros(0, np.int64)
-    group, count, gbox, _closed = ofpd_io.blobs_xy(xs, ys, w, config)
+    group, count, gbox, closed = ofpd_io.blobs_xy(xs, ys, w, config)
     inside = group >= 0
+    known = np.where(closed, 1, -1).astype(np.int8)       # closed stays closed; open: over all its pixels
     second = merge_blobs(group[inside], count, gbox, xs[inside], ys[inside], float(s["merge_frac"]),
-                         float(s["edge_merge_frac"]), max(1, -(-need // 4)))[0]
+                         float(s["edge_merge_frac"]), max(1, -(-need // 4)), known)[0]
     final = np.full(xs.size, -1)
     final[inside] = second[group[inside]]
     found = []

@@ -312,6 +312,44 @@ def test_sparse_arcs_of_a_large_slow_object_are_one_object():
     assert len(ofpd_io.group_objects_xy(stages(m), SENSOR, JOIN)[0]) == 1    # (at the first arc's centroid)
 
 
+def star_edges(cx, cy, r_out, r_in, step, rot):
+    """The events of a 5-pointed star (points at r_out, notches at r_in) moving ``step`` px up."""
+    import cv2
+
+    def star(y):
+        a = np.arange(10) * np.pi / 5 + rot
+        r = np.where(np.arange(10) % 2 == 0, r_out, r_in)
+        pts = np.stack([cx + r * np.sin(a), y - r * np.cos(a)], 1).round().astype(np.int32)
+        m = np.zeros(SENSOR[::-1], np.uint8)
+        cv2.fillPoly(m, [pts], 1)
+        return m.astype(bool)
+
+    return star(cy) ^ star(cy - step)
+
+
+def test_a_closed_object_stays_closed_when_a_noise_seed_joins_it():
+    """pairs_b4_001's merge: a spiky object surrounds its centroid, a 4-pixel noise seed 8 px
+    away joins it (within merge_frac) and moves the union's centroid so that ``surrounds`` no
+    longer holds; the group then counted as open edges and took in a neighbour's edge 12 px
+    away (ratio 0.25 < edge_merge_frac). Closed once, closed for good: two objects."""
+    from toffe_deploy.compiled import surrounds
+
+    star = star_edges(200, 180, 24, 6, 3, 0.6)
+    seed = np.zeros_like(star)
+    seed[209:211, 194:196] = True
+    edge = np.zeros_like(star)
+    edge[142:144, 185:215] = True                                   # 12 px above the star's top point
+    assert surrounds(*xy(star)) and not surrounds(*xy(star | seed))
+    objs, claims = ofpd_io.group_objects_xy(stages(star | seed | edge), SENSOR, CFG)
+    assert len(objs) == 2
+    np.testing.assert_allclose(sorted(o[1:] for o in objs), [(199.5, 142.5), (200.0, 178.0)], atol=0.6)
+    xs, ys = xy(star | seed | edge)
+    masks = ofpd_io.object_masks_xy(xs, ys, objs, claims)
+    top = int(np.argmin([o[2] for o in objs]))
+    assert np.array_equal(masks[top], edge[ys, xs])                  # the edge alone; the seed is the star's
+    assert np.array_equal(masks[1 - top], (star | seed)[ys, xs])
+
+
 def test_stage_is_the_fastest_holding_min_events():
     """A few pixels (below min_events) of the object on stage 4 do not make it a stage-4
     object; stage 3's 30 do; the rest of its edges are on stage 1."""

@@ -970,7 +970,11 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count, 
     that ratio is <= frac_open when neither group surrounds its centroid yet (``surrounds``:
     the leading and trailing edges of one object, as far apart as the object is wide) and
     <= frac_closed otherwise: once an object's edges have closed around it, only pieces close
-    to it join, not a neighbour's edges. A smaller component (a speck) joins the first seed it
+    to it join, not a neighbour's edges. A group stays closed once it is (the pieces that join
+    it can move its centroid and widen its extent so that ``surrounds`` no longer holds for the
+    union: a star-shaped object plus a 4-pixel noise seed, which then took a dense neighbour 25
+    px away in as an open edge; pairs split, whole streams: misses 817 -> 767, appearance
+    unchanged). A smaller component (a speck) joins the first seed it
     comes within frac_closed * the seed's extent of; specks never group on their own. Returns
     (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count,
     bbox and whether it surrounds its centroid). known_closed (C,) int8, optional: a seed's
@@ -1026,7 +1030,8 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count, 
         rb = _root(parent, pb[q])
         if ra == rb:
             continue
-        limit = frac_closed if closed[ra] or closed[rb] else frac_open
+        was_closed = closed[ra] or closed[rb]
+        limit = frac_closed if was_closed else frac_open
         if ratio[q] > limit:
             continue
         _union(parent, ra, rb)
@@ -1039,7 +1044,7 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count, 
                 lo[k] = start[c]
                 hi[k] = start[c + 1]
                 k += 1
-        closed[r] = _surrounds_ranges(px, py, lo, hi, k)
+        closed[r] = was_closed or _surrounds_ranges(px, py, lo, hi, k)
     for b in range(n):                       # specks join a seed they come close to
         if count[b] >= min_count:
             continue
@@ -1525,12 +1530,13 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
     count, _sx, _sy, bbox = component_stats(labels, n_comp, xs, ys)
     first, count1, box1, closed1 = merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count)
     # a group without specks is its seeds, whose ``surrounds`` the first pass computed last
-    # (closed1); one with specks gets it computed again over all its pixels
+    # (closed1); an open one with specks gets it computed again over all its pixels (a closed
+    # one stays closed, as in merge_blobs)
     known = np.empty(count1.shape[0], np.int8)
     for q in range(count1.shape[0]):
         known[q] = 1 if closed1[q] else 0
     for c in range(n_comp):
-        if first[c] >= 0 and count[c] < min_count:
+        if first[c] >= 0 and count[c] < min_count and known[first[c]] == 0:
             known[first[c]] = -1
     inside = np.flatnonzero(first[labels] >= 0)                # the same rule once more, on the groups
     second, gcount, _gbox, _gclosed = merge_blobs(first[labels[inside]], count1, box1, xs[inside], ys[inside],
