@@ -376,6 +376,10 @@ def main(argv=None) -> int:
                     help="handover_windows: a lost track can hand its id over for this many windows since its detection")
     ap.add_argument("--handover-speed-ratio", type=float, default=d.handover_speed_ratio,
                     help="handover_speed_ratio: the most the two tracks' speeds may differ by (a factor)")
+    ap.add_argument("--no-parting", dest="parting", action="store_false",
+                    help="no parting re-decision (two tracks out of one blob keep the ids the association gave)")
+    ap.add_argument("--parting-heading", type=float, default=d.parting_heading_px,
+                    help="parting_heading_px: parting cost (px) per radian of direction difference")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--truth-merge", type=float, default=1.0, metavar="F",
@@ -400,7 +404,8 @@ def main(argv=None) -> int:
                              pos_max_rad=a.pos_max_rad, blob_growth=a.blob_growth, heading_cost_px=a.heading_cost,
                              reid_growth=a.reid_growth, reid_ratio_missed=a.reid_ratio_missed, hidden_px=a.hidden,
                              handover_px=a.handover, handover_reach=a.handover_reach,
-                             handover_windows=a.handover_windows, handover_speed_ratio=a.handover_speed_ratio)
+                             handover_windows=a.handover_windows, handover_speed_ratio=a.handover_speed_ratio,
+                             parting=a.parting, parting_heading_px=a.parting_heading)
     try:
         bundle = load_bundle(a.bundle)
     except ToffeError as exc:

@@ -67,6 +67,22 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                fit (distance over that reach) wins. An object hidden in a blob of two for tens
                of windows, turning or passed over, comes back far from any prediction: without
                this its new track has a new id (IDF1 counts the rest of its run as another object)
+    parting    a confirmed track that goes into a blob (occluded, or its detection a blob of two)
+               keeps a copy of its state from the window before (x, y, v, w at t_b; seen or
+               coasting there, in no blob); when two
+               such tracks have their own detections again (neither occluded nor a blob) and
+               their copies' predictions lay within merge_px of each other, the two ids are kept
+               or swapped by the cheaper pairing of
+                   c(i, k) = |P_i(t) - z_k| + parting_heading_px q_k |angle(u_k, R(w_i (t - t_b)) v_i)|
+               (P_i: track i's copy carried to now at constant turn rate; q_k as in associate).
+               Why: in a blob the taker follows the blob's centre, which is neither object's,
+               and a curving object's straight coast drifts, so the association where they part
+               often takes the wrong one (a crossing of our generator: two objects one detection
+               for 25 windows, one of them turning from 45 to 95 deg); the motion before the blob
+               is the evidence neither has spoiled. A swap exchanges every column but x, y between
+               the two rows (the ids and their histories follow the objects; this window's
+               filter update stays with the detection it used). A track whose partner is not
+               free in the same window waits one more window, then drops its copy
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
@@ -159,7 +175,11 @@ class TrackerConfig:
     handover_reach, handover_windows, handover_speed_ratio: the hand-over (module doc; 0 px:
     off): the radius around a lost track's last own detection, its growth in multiples of the
     lost track's travel per window since then, how many windows since its last detection a lost
-    track can hand its id over, and the most the two speeds may differ by (a factor)."""
+    track can hand its id over, and the most the two speeds may differ by (a factor).
+    parting, parting_heading_px: the parting re-decision (module doc): two confirmed tracks that
+    come out of one blob, each with its own detection again, keep or swap their ids by which
+    way round their motion before the blob predicts the two detections (position, plus
+    parting_heading_px per radian of direction difference, weighted as heading_cost_px's q_j)."""
 
     gate_px: float = 17.0
     gate_growth: float = 0.5
@@ -197,6 +217,8 @@ class TrackerConfig:
     handover_reach: float = 4.0
     handover_windows: int = 80
     handover_speed_ratio: float = 2.0
+    parting: bool = True
+    parting_heading_px: float = 40.0
 
     def __post_init__(self):
         for f in fields(self):                  # kinds first: NaN, strings or 2.5 windows fail here
@@ -237,6 +259,8 @@ class TrackerConfig:
             raise ValueError("pos_beta must be in [0, 1], pos_min_px and pos_max_rad >= 0")
         if not min(self.blob_growth, self.heading_cost_px, self.reid_growth, self.hidden_px) >= 0:
             raise ValueError("blob_growth, heading_cost_px, reid_growth and hidden_px must be >= 0")
+        if not self.parting_heading_px >= 0:
+            raise ValueError(f"parting_heading_px must be >= 0, got {self.parting_heading_px}")
         if not (min(self.handover_px, self.handover_reach, self.handover_windows) >= 0
                 and self.handover_speed_ratio >= 1):
             raise ValueError("handover_px, handover_reach and handover_windows must be >= 0 and "
@@ -753,6 +777,46 @@ def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, 
                    int(next_id), lost)
 
 
+@njit(cache=True, nogil=True)
+def _entering_blob(t, last):
+    """(row in t, row in last) of each confirmed track of ``t`` in a blob (occluded, or its
+    detection a blob) that was in no blob in ``last`` (confirmed, neither occluded nor a blob:
+    seen, or coasting on its own prediction): the parting's copies are taken from there."""
+    out = np.empty((t.shape[0], 2), np.int64)
+    m = 0
+    for r in range(t.shape[0]):
+        if t[r, CONF] > 0 and (t[r, OCC] > 0 or t[r, BLB] > 0):
+            for q in range(last.shape[0]):
+                if last[q, ID] == t[r, ID]:
+                    if last[q, CONF] > 0 and last[q, OCC] == 0 and last[q, BLB] == 0:
+                        out[m, 0], out[m, 1] = r, q
+                        m += 1
+                    break
+    return out[:m]
+
+
+def _carried(before: list, t_us: int) -> tuple[float, float, float]:
+    """(x, y, direction) of a track's state from before its blob (its row, t_b) carried to t_us
+    at its constant turn rate: x + int_0^T R(w t) v dt (closed form)."""
+    row, tb = before[0], before[1]
+    T = (t_us - tb) * 1e-6
+    vx, vy, w = row[VX], row[VY], row[W]
+    a = w * T
+    if abs(a) < 1e-9:
+        dx, dy = vx * T, vy * T
+    else:
+        sa, ca = math.sin(a), math.cos(a)
+        dx, dy = (vx * sa + vy * (ca - 1.0)) / w, (vx * (1.0 - ca) + vy * sa) / w
+    return row[X] + dx, row[Y] + dy, math.atan2(vy, vx) + a
+
+
+def _part_cost(p: tuple, zr: np.ndarray, n: int, k: int, per_rad: float, heading_px: float, dt_s: float) -> float:
+    """c(i, k) of the parting re-decision (module doc): p = _carried's (x, y, direction)."""
+    q = min(1.0, zr[3 * n + k] * dt_s / heading_px)
+    turn = abs((zr[2 * n + k] - p[2] + math.pi) % (2.0 * math.pi) - math.pi)
+    return math.hypot(p[0] - zr[k], p[1] - zr[n + k]) + per_rad * q * turn
+
+
 class Tracker:
     """Stateful wrapper of ``step`` for a stream of windows: ``update(objects, t0_us)`` assigns
     every object of the window a ``track_id`` and its track's smoothed ``track`` state (a
@@ -772,6 +836,8 @@ class Tracker:
         self.next_id = 0
         self.t0_last: int | None = None
         self._coasting: list = []
+        self._before: dict = {}              # parting: id -> [its row before its blob, t_us, free windows]
+        self._last = (np.zeros((0, N_COLS), _F), 0)     # the previous window's tracks and t0_us
         # compile (first run on a machine) or load the cached kernels now, not in the first window
         one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
         two = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0], [1.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
@@ -782,6 +848,7 @@ class Tracker:
         out, _info, _nid, _lost, _done = _window(_window(Tracks().a, zr, self._pe, 0, self._lost)[0], zr, self._pe, 1,
                                                  self._lost)
         _listing(out, np.zeros(1, np.int64), self._p)
+        _entering_blob(out, out)
         _detections(zr)
 
     def update(self, objects: list, t0_us: int) -> Tracks:
@@ -833,9 +900,71 @@ class Tracker:
         n, k, info = zr.shape[0] // 5, self.k_mps, info.tolist()
         self._coasting = info[2 * n:]
         rows, ids = info[:n], info[n:2 * n]
+        if self.settings.parting:
+            ids = self._parting(out, zr, rows, ids, t0_us)
         if min(rows, default=0) >= 0:
             return ids, [TrackState(out, r, k) for r in rows]
         return [i if i >= 0 else None for i in ids], [TrackState(out, r, k) if r >= 0 else None for r in rows]
+
+    def _parting(self, out: np.ndarray, zr: np.ndarray, rows: list, ids: list, t0_us: int) -> list:
+        """The parting re-decision (module doc) on this window's tracks ``out`` (swapped rows in
+        place) -> the detections' track ids."""
+        before, (last, t_last) = self._before, self._last
+        self._last = (out, t0_us)
+        entering = _entering_blob(out, last)                 # compiled: the usual window has none
+        if not before and entering.shape[0] == 0:
+            return ids
+        id_now = out[:, ID].astype(np.int64).tolist()
+        live = set(id_now)
+        for tid in [t for t in before if t not in live or t0_us - before[t][1] > self._max_blob_us]:
+            del before[tid]
+        for r, q in entering.tolist():
+            if id_now[r] not in before:
+                before[id_now[r]] = [last[q].copy(), t_last, 0]
+        if len(before) < 2:
+            return ids
+        blob = (out[:, CONF] > 0) & ((out[:, OCC] > 0) | (out[:, BLB] > 0))
+        n = zr.shape[0] // 5
+        det_of = {r: k for k, r in enumerate(rows) if r >= 0}
+        free = [r for r, tid in enumerate(id_now)
+                if tid in before and r in det_of and out[r, MISS] == 0 and not blob[r]]
+        s, dt_s = self.settings, self.dt_us * 1e-6
+        pairs = []
+        for i, r1 in enumerate(free):
+            for r2 in free[i + 1:]:
+                b1, b2 = before[id_now[r1]], before[id_now[r2]]
+                tb = max(b1[1], b2[1])                       # were the two near each other before?
+                q1, q2 = _carried(b1, tb), _carried(b2, tb)
+                if math.hypot(q1[0] - q2[0], q1[1] - q2[1]) > s.merge_px:
+                    continue
+                p1, p2 = _carried(b1, t0_us), _carried(b2, t0_us)
+                k1, k2 = det_of[r1], det_of[r2]
+                c = [[_part_cost(p, zr, n, k, s.parting_heading_px, s.heading_px, dt_s) for k in (k1, k2)]
+                     for p in (p1, p2)]
+                pairs.append((c[0][1] + c[1][0] - c[0][0] - c[1][1], r1, r2))
+        done: set = set()
+        for gain, r1, r2 in sorted(pairs):
+            if r1 in done or r2 in done:
+                continue
+            done.update((r1, r2))
+            del before[id_now[r1]], before[id_now[r2]]
+            if gain < 0.0:                                   # the other way round fits better
+                xy = out[[r1, r2]][:, [X, Y]]
+                out[[r1, r2]] = out[[r2, r1]]
+                out[[r1, r2], X], out[[r1, r2], Y] = xy[:, 0], xy[:, 1]
+                ids = [int(out[r, ID]) if r in (r1, r2) else i for r, i in zip(rows, ids)]
+        for r in free:                                       # a partner still in the blob: wait a window
+            if r not in done:
+                b = before[id_now[r]]
+                b[2] += 1
+                if b[2] > 1:
+                    del before[id_now[r]]
+        return ids
+
+    @property
+    def _max_blob_us(self) -> int:
+        """How long a track's state from before its blob is kept (handover_windows windows)."""
+        return int(self.settings.handover_windows) * self.dt_us
 
     def confirmed(self) -> list[dict]:
         """Every live confirmed track after the last window, seen (``misses`` 0) or coasting:
