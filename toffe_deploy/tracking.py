@@ -67,9 +67,11 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                fit (distance over that reach) wins. An object hidden in a blob of two for tens
                of windows, turning or passed over, comes back far from any prediction: without
                this its new track has a new id (IDF1 counts the rest of its run as another object)
-    parting    a confirmed track that goes into a blob (occluded, or its detection a blob of two)
-               keeps a copy of its state from the window before (x, y, v, w at t_b; seen or
-               coasting there, in no blob); when two
+    parting    a confirmed track that may go into a blob (occluded, its detection a blob of two,
+               or one of two confirmed tracks within merge_px of each other of which one was just
+               missed and the other seen: a blob the association took for one object's
+               detection) keeps a copy of its state from the window before (x, y, v, w at t_b;
+               seen or coasting there, in no blob); when two
                such tracks have their own detections again (neither occluded nor a blob) and
                their copies' predictions lay within merge_px of each other, the two ids are kept
                or swapped by the cheaper pairing of
@@ -778,14 +780,24 @@ def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, 
 
 
 @njit(cache=True, nogil=True)
-def _entering_blob(t, last):
-    """(row in t, row in last) of each confirmed track of ``t`` in a blob (occluded, or its
-    detection a blob) that was in no blob in ``last`` (confirmed, neither occluded nor a blob:
-    seen, or coasting on its own prediction): the parting's copies are taken from there."""
+def _entering_blob(t, last, reach):
+    """(row in t, row in last) of each confirmed track of ``t`` that may be in a blob (occluded,
+    its detection a blob, or one of a pair within ``reach`` px of which one was just missed and
+    the other seen: a blob the association did not see as one) and was in no blob in ``last``
+    (confirmed, neither occluded nor a blob: seen, or coasting on its own prediction): the
+    parting's copies are taken from there."""
     out = np.empty((t.shape[0], 2), np.int64)
     m = 0
+    near = np.zeros(t.shape[0], np.bool_)
     for r in range(t.shape[0]):
-        if t[r, CONF] > 0 and (t[r, OCC] > 0 or t[r, BLB] > 0):
+        if t[r, CONF] > 0 and t[r, MISS] == 1:
+            for r2 in range(t.shape[0]):
+                if r2 != r and t[r2, CONF] > 0 and t[r2, MISS] == 0 and \
+                        math.hypot(t[r, X] - t[r2, X], t[r, Y] - t[r2, Y]) <= reach:
+                    near[r] = True
+                    near[r2] = True
+    for r in range(t.shape[0]):
+        if t[r, CONF] > 0 and (t[r, OCC] > 0 or t[r, BLB] > 0 or near[r]):
             for q in range(last.shape[0]):
                 if last[q, ID] == t[r, ID]:
                     if last[q, CONF] > 0 and last[q, OCC] == 0 and last[q, BLB] == 0:
@@ -848,7 +860,7 @@ class Tracker:
         out, _info, _nid, _lost, _done = _window(_window(Tracks().a, zr, self._pe, 0, self._lost)[0], zr, self._pe, 1,
                                                  self._lost)
         _listing(out, np.zeros(1, np.int64), self._p)
-        _entering_blob(out, out)
+        _entering_blob(out, out, 1.0)
         _detections(zr)
 
     def update(self, objects: list, t0_us: int) -> Tracks:
@@ -911,7 +923,7 @@ class Tracker:
         place) -> the detections' track ids."""
         before, (last, t_last) = self._before, self._last
         self._last = (out, t0_us)
-        entering = _entering_blob(out, last)                 # compiled: the usual window has none
+        entering = _entering_blob(out, last, self.settings.merge_px)   # compiled: the usual window has none
         if not before and entering.shape[0] == 0:
             return ids
         id_now = out[:, ID].astype(np.int64).tolist()
