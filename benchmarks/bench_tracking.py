@@ -8,7 +8,7 @@
         [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R] [--coast-px PX] [--max-coast N]
         [--pos-beta B] [--pos-min PX] [--pos-max-rad RAD] [--blob-growth G] [--heading-cost PX] [--reid-growth G]
         [--no-reid-ratio-missed] [--hidden PX] [--handover PX] [--handover-reach K] [--handover-windows N]
-        [--handover-speed-ratio R]
+        [--handover-speed-ratio R] [--no-parting] [--parting-heading PX]
         [--truth-blobs [--truth-merge F]] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
@@ -304,6 +304,25 @@ def tracker_cost(bundle, events, settings, repeats: int) -> dict:
             "tracker_share_wall": tw / nw - 1.0, "load_average": os.getloadavg()}
 
 
+def _settings(a):
+    """The TrackerConfig of the parsed arguments (ValueError for a bad value)."""
+    from toffe_deploy.tracking import TrackerConfig
+
+    return TrackerConfig(gate_px=a.gate, alpha=a.alpha, beta=a.beta, confirm_hits=a.confirm,
+                         max_misses=a.max_misses, hysteresis=a.hysteresis, gate_growth=a.gate_growth,
+                         birth_gap_px=a.birth_gap, tentative_misses=a.tentative_misses, gate_speed=a.gate_speed,
+                         report_misses=a.report_misses, max_occluded=a.max_occluded,
+                         shared_keeps_motion=a.shared_keeps_motion, turn_beta=a.turn_beta,
+                         max_turn_rad=a.max_turn, merge_px=a.merge, merge_move_px=a.merge_move,
+                         shared_gate_grows=a.shared_gate_grows, reid_px=a.reid, reid_ratio=a.reid_ratio,
+                         coast_px=a.coast_px, max_coast=a.max_coast, pos_beta=a.pos_beta, pos_min_px=a.pos_min,
+                         pos_max_rad=a.pos_max_rad, blob_growth=a.blob_growth, heading_cost_px=a.heading_cost,
+                         reid_growth=a.reid_growth, reid_ratio_missed=a.reid_ratio_missed, hidden_px=a.hidden,
+                         handover_px=a.handover, handover_reach=a.handover_reach,
+                         handover_windows=a.handover_windows, handover_speed_ratio=a.handover_speed_ratio,
+                         parting=a.parting, parting_heading_px=a.parting_heading)
+
+
 def main(argv=None) -> int:
     from toffe_deploy.deploy.bundle import load_bundle
     from toffe_deploy.errors import ToffeError
@@ -393,19 +412,10 @@ def main(argv=None) -> int:
     ap.add_argument("--events", default=str(ROOT / "toffe_deploy" / "samples" / "sample_multi.h5"))
     ap.add_argument("--repeats", type=int, default=5)
     a = ap.parse_args(argv)
-    settings = TrackerConfig(gate_px=a.gate, alpha=a.alpha, beta=a.beta, confirm_hits=a.confirm,
-                             max_misses=a.max_misses, hysteresis=a.hysteresis, gate_growth=a.gate_growth,
-                             birth_gap_px=a.birth_gap, tentative_misses=a.tentative_misses, gate_speed=a.gate_speed,
-                             report_misses=a.report_misses, max_occluded=a.max_occluded,
-                             shared_keeps_motion=a.shared_keeps_motion, turn_beta=a.turn_beta,
-                             max_turn_rad=a.max_turn, merge_px=a.merge, merge_move_px=a.merge_move,
-                             shared_gate_grows=a.shared_gate_grows, reid_px=a.reid, reid_ratio=a.reid_ratio,
-                             coast_px=a.coast_px, max_coast=a.max_coast, pos_beta=a.pos_beta, pos_min_px=a.pos_min,
-                             pos_max_rad=a.pos_max_rad, blob_growth=a.blob_growth, heading_cost_px=a.heading_cost,
-                             reid_growth=a.reid_growth, reid_ratio_missed=a.reid_ratio_missed, hidden_px=a.hidden,
-                             handover_px=a.handover, handover_reach=a.handover_reach,
-                             handover_windows=a.handover_windows, handover_speed_ratio=a.handover_speed_ratio,
-                             parting=a.parting, parting_heading_px=a.parting_heading)
+    try:
+        settings = _settings(a)
+    except ValueError as exc:
+        raise SystemExit(f"bench_tracking.py: {exc}") from None
     try:
         bundle = load_bundle(a.bundle)
     except ToffeError as exc:

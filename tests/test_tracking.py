@@ -654,12 +654,18 @@ def _replay_crossing(settings):
     import json
     from pathlib import Path
 
+    from toffe_deploy.tracking import LX, LY
+
     d = json.loads((Path(__file__).parent / "data" / "crossing_parting.json").read_text())
     tr, out = Tracker(CFG, DT_US, settings), {}
     for w, rows in enumerate(d["windows"]):
         objs = [Obj(x, y, th, sp, b) for x, y, th, sp, b in rows]
-        tr.update(objs, d["t0_us"] + w * DT_US)
+        a = tr.update(objs, d["t0_us"] + w * DT_US).a
         out[60 + w] = [(o.x, o.y, o.track_id) for o in objs]
+        for o in objs:              # each track's filter was updated with its own detection
+            if o.track_id is not None and not o.track["merged"]:
+                row = a[a[:, ID] == o.track_id][0]
+                assert (row[LX], row[LY]) == (o.x, o.y)
     return out
 
 

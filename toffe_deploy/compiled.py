@@ -977,7 +977,7 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count, 
     unchanged). A smaller component (a speck) joins the first seed it
     comes within frac_closed * the seed's extent of; specks never group on their own. Returns
     (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count,
-    bbox and whether it surrounds its centroid). known_closed (C,) int8, optional: a seed's
+    bbox and whether it is closed: it surrounds its centroid, or did before a join). known_closed (C,) int8, optional: a seed's
     ``surrounds`` when the caller knows it (0 / 1), -1 where not (union_objects' second pass)."""
     n = count.shape[0]
     start = np.zeros(n + 1, np.int64)

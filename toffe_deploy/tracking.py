@@ -81,10 +81,11 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                and a curving object's straight coast drifts, so the association where they part
                often takes the wrong one (a crossing of our generator: two objects one detection
                for 25 windows, one of them turning from 45 to 95 deg); the motion before the blob
-               is the evidence neither has spoiled. A swap exchanges every column but x, y between
-               the two rows (the ids and their histories follow the objects; this window's
-               filter update stays with the detection it used). A track whose partner is not
-               free in the same window waits one more window, then drops its copy
+               is the evidence neither has spoiled. A swap redoes this window's update of both
+               tracks with the exchanged detections (their predictions updated again; ids, age
+               and hits go with the track). A track whose partner is not free in the same
+               window waits one more window, then drops its copy; a copy is kept for at most
+               PARTING_MAX_WINDOWS (80) windows
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
@@ -807,6 +808,12 @@ def _entering_blob(t, last, reach):
     return out[:m]
 
 
+#: parting: how long (windows) a track keeps its state from before a blob
+PARTING_MAX_WINDOWS = 80
+#: the columns of a track that an update (_hit) sets: what a parting exchange takes from the redone update
+_FILTER = [X, Y, VX, VY, S, BIN, HX, HY, W, LX, LY, LT, UX, UY]
+
+
 def _carried(before: list, t_us: int) -> tuple[float, float, float]:
     """(x, y, direction) of a track's state from before its blob (its row, t_b) carried to t_us
     at its constant turn rate: x + int_0^T R(w t) v dt (closed form)."""
@@ -913,14 +920,14 @@ class Tracker:
         self._coasting = info[2 * n:]
         rows, ids = info[:n], info[n:2 * n]
         if self.settings.parting:
-            ids = self._parting(out, zr, rows, ids, t0_us)
+            ids = self._parting(t, out, zr, rows, ids, t0_us)
         if min(rows, default=0) >= 0:
             return ids, [TrackState(out, r, k) for r in rows]
         return [i if i >= 0 else None for i in ids], [TrackState(out, r, k) if r >= 0 else None for r in rows]
 
-    def _parting(self, out: np.ndarray, zr: np.ndarray, rows: list, ids: list, t0_us: int) -> list:
-        """The parting re-decision (module doc) on this window's tracks ``out`` (swapped rows in
-        place) -> the detections' track ids."""
+    def _parting(self, t: np.ndarray, out: np.ndarray, zr: np.ndarray, rows: list, ids: list, t0_us: int) -> list:
+        """The parting re-decision (module doc) on this window's tracks ``out`` (from ``t``, the
+        tracks it started from; rows redone in place) -> the detections' track ids."""
         before, (last, t_last) = self._before, self._last
         self._last = (out, t0_us)
         entering = _entering_blob(out, last, self.settings.merge_px)   # compiled: the usual window has none
@@ -928,7 +935,7 @@ class Tracker:
             return ids
         id_now = out[:, ID].astype(np.int64).tolist()
         live = set(id_now)
-        for tid in [t for t in before if t not in live or t0_us - before[t][1] > self._max_blob_us]:
+        for tid in [i for i in before if i not in live or t0_us - before[i][1] > PARTING_MAX_WINDOWS * self.dt_us]:
             del before[tid]
         for r, q in entering.tolist():
             if id_now[r] not in before:
@@ -961,10 +968,8 @@ class Tracker:
             done.update((r1, r2))
             del before[id_now[r1]], before[id_now[r2]]
             if gain < 0.0:                                   # the other way round fits better
-                xy = out[[r1, r2]][:, [X, Y]]
-                out[[r1, r2]] = out[[r2, r1]]
-                out[[r1, r2], X], out[[r1, r2], Y] = xy[:, 0], xy[:, 1]
-                ids = [int(out[r, ID]) if r in (r1, r2) else i for r, i in zip(rows, ids)]
+                if self._exchange(t, out, zr, r1, r2, det_of[r1], det_of[r2]):
+                    ids = [int(out[r, ID]) if r in (r1, r2) else i for r, i in zip(rows, ids)]
         for r in free:                                       # a partner still in the blob: wait a window
             if r not in done:
                 b = before[id_now[r]]
@@ -973,10 +978,26 @@ class Tracker:
                     del before[id_now[r]]
         return ids
 
-    @property
-    def _max_blob_us(self) -> int:
-        """How long a track's state from before its blob is kept (handover_windows windows)."""
-        return int(self.settings.handover_windows) * self.dt_us
+    def _exchange(self, t: np.ndarray, out: np.ndarray, zr: np.ndarray, r1: int, r2: int, k1: int, k2: int) -> bool:
+        """Rows r1 and r2 of ``out`` (tracks i and j, updated with detections k1 and k2) become j
+        updated with k1 and i updated with k2: both tracks' predictions from ``t`` updated again
+        (_hit) with the other detection; ids, age, hits and the other bookkeeping go with the
+        track, the filter state is the new update's. False (nothing changed) where either row
+        is not the same track one window on (a hand-over in this window gave its id to a new one)."""
+        where = {int(v): q for q, v in enumerate(t[:, ID].tolist())}
+        i, j = int(out[r1, ID]), int(out[r2, ID])
+        if i not in where or j not in where or out[r1, AGE] != t[where[i], AGE] + 1 \
+                or out[r2, AGE] != t[where[j], AGE] + 1:
+            return False
+        z = _detections(zr)
+        pred = _predict(t, z, self._p)[0]
+        a = pred[[where[i], where[j]]]
+        _hit(a, 0, z, k2, self._p, self.edges.lo, self.edges.hi, self.edges.inner, False)
+        _hit(a, 1, z, k1, self._p, self.edges.lo, self.edges.hi, self.edges.inner, False)
+        new1, new2 = out[r2].copy(), out[r1].copy()           # j's bookkeeping, i's
+        new1[_FILTER], new2[_FILTER] = a[1, _FILTER], a[0, _FILTER]
+        out[r1], out[r2] = new1, new2
+        return True
 
     def confirmed(self) -> list[dict]:
         """Every live confirmed track after the last window, seen (``misses`` 0) or coasting:
