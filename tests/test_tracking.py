@@ -545,9 +545,10 @@ def test_a_detection_beside_a_missed_track_is_a_blob_and_the_crossing_keeps_its_
     hidden_px (default 40) B, missed within 40 px of it, makes it a blob: A's track follows it
     in position only, keeps its +-20 deg and is reported merged, and both ids come out of the
     crossing on their objects; without (hidden_px 0) A's track takes the blob's motion, and
-    the two ids leave the crossing swapped (the earlier tracker)."""
-    for hidden_px, kept in ((40.0, True), (0.0, False)):
-        tr = Tracker(CFG, DT_US, TrackerConfig(hidden_px=hidden_px))
+    the two ids leave the crossing swapped (the earlier tracker, parting off), unless the
+    parting re-decision, from the two tracks' motion before the blob, puts them back."""
+    for hidden_px, parting, kept in ((40.0, False, True), (0.0, False, False), (0.0, True, True)):
+        tr = Tracker(CFG, DT_US, TrackerConfig(hidden_px=hidden_px, parting=parting))
         ids, blobs = None, 0
         for w in range(60):
             a, b = mover(100, 200, 20, 12000, w - 30), mover(100, 200, -20, 12000, w - 30)

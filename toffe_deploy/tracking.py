@@ -83,8 +83,9 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                for 25 windows, one of them turning from 45 to 95 deg); the motion before the blob
                is the evidence neither has spoiled. A swap redoes this window's update of both
                tracks with the exchanged detections (their predictions updated again; ids, age
-               and hits go with the track). A track whose partner is not free in the same
-               window waits one more window, then drops its copy; a copy is kept for at most
+               and hits go with the track). A track seen again waits up to PARTING_WAIT (10)
+               windows for its partner to be seen too (a fast object that passed over a slow
+               one comes out first), then drops its copy; a copy is kept for at most
                PARTING_MAX_WINDOWS (80) windows
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
@@ -810,6 +811,9 @@ def _entering_blob(t, last, reach):
 
 #: parting: how long (windows) a track keeps its state from before a blob
 PARTING_MAX_WINDOWS = 80
+#: parting: how many windows a track seen again waits for its partner to be seen too (a fast
+#: object that passed over a slow one is seen at once, the slow one some windows later)
+PARTING_WAIT = 10
 #: the columns of a track that an update (_hit) sets: what a parting exchange takes from the redone update
 _FILTER = [X, Y, VX, VY, S, BIN, HX, HY, W, LX, LY, LT, UX, UY]
 
@@ -970,11 +974,11 @@ class Tracker:
             if gain < 0.0:                                   # the other way round fits better
                 if self._exchange(t, out, zr, r1, r2, det_of[r1], det_of[r2]):
                     ids = [int(out[r, ID]) if r in (r1, r2) else i for r, i in zip(rows, ids)]
-        for r in free:                                       # a partner still in the blob: wait a window
+        for r in free:                                       # a partner still hidden: wait for it
             if r not in done:
                 b = before[id_now[r]]
                 b[2] += 1
-                if b[2] > 1:
+                if b[2] > PARTING_WAIT:
                     del before[id_now[r]]
         return ids
 
