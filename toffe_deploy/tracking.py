@@ -762,6 +762,12 @@ def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edge
     return Tracks(out, lost), assigned, int(nid)
 
 
+def _direction_cost(e, speed_px_s, dt_s: float, heading_px: float):
+    """q |e| (e wrapped to [-pi, pi), q = min(1, s dt / heading_px)): the direction term of an
+    association cost per px of heading_cost_px (or parting_heading_px), for scalars or arrays."""
+    return np.minimum(1.0, speed_px_s * dt_s / heading_px) * np.abs((e + np.pi) % (2 * np.pi) - np.pi)
+
+
 def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, next_id: int, lost: np.ndarray):
     """``step`` where a gate holds two candidates: the Hungarian method on the gated distances,
     confirmed tracks first, then tentative ones -> (tracks array, assigned, next id, lost)."""
@@ -770,8 +776,7 @@ def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, 
     cost = d                                 # the gates are on d; the choice among gated pairs weighs direction too
     if p[P_HEADING_COST] > 0:
         e = np.arctan2(z[:, 3], z[:, 2])[None, :] - np.arctan2(a[:, VY], a[:, VX])[:, None]
-        q = np.minimum(1.0, z[:, 4] * p[P_DT] / p[P_HEADING_PX])[None, :]
-        cost = d + p[P_HEADING_COST] * q * np.abs((e + np.pi) % (2 * np.pi) - np.pi)
+        cost = d + p[P_HEADING_COST] * _direction_cost(e, z[None, :, 4], p[P_DT], p[P_HEADING_PX])
     pairs = match_within(cost, ok & conf[:, None])
     taken = np.zeros(z.shape[0], bool)
     taken[[c for _r, c in pairs]] = True
@@ -835,9 +840,8 @@ def _carried(before: list, t_us: int) -> tuple[float, float, float]:
 
 def _part_cost(p: tuple, zr: np.ndarray, n: int, k: int, per_rad: float, heading_px: float, dt_s: float) -> float:
     """c(i, k) of the parting re-decision (module doc): p = _carried's (x, y, direction)."""
-    q = min(1.0, zr[3 * n + k] * dt_s / heading_px)
-    turn = abs((zr[2 * n + k] - p[2] + math.pi) % (2.0 * math.pi) - math.pi)
-    return math.hypot(p[0] - zr[k], p[1] - zr[n + k]) + per_rad * q * turn
+    turn = float(_direction_cost(zr[2 * n + k] - p[2], zr[3 * n + k], dt_s, heading_px))
+    return math.hypot(p[0] - zr[k], p[1] - zr[n + k]) + per_rad * turn
 
 
 class Tracker:
@@ -860,7 +864,6 @@ class Tracker:
         self.t0_last: int | None = None
         self._coasting: list = []
         self._before: dict = {}              # parting: id -> [its row before its blob, t_us, free windows]
-        self._last = (np.zeros((0, N_COLS), _F), 0)     # the previous window's tracks and t0_us
         # compile (first run on a machine) or load the cached kernels now, not in the first window
         one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
         two = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0], [1.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
@@ -931,10 +934,10 @@ class Tracker:
 
     def _parting(self, t: np.ndarray, out: np.ndarray, zr: np.ndarray, rows: list, ids: list, t0_us: int) -> list:
         """The parting re-decision (module doc) on this window's tracks ``out`` (from ``t``, the
-        tracks it started from; rows redone in place) -> the detections' track ids."""
-        before, (last, t_last) = self._before, self._last
-        self._last = (out, t0_us)
-        entering = _entering_blob(out, last, self.settings.merge_px)   # compiled: the usual window has none
+        tracks it started from, as of the window before: t0_us - dt; rows redone in place) -> the
+        detections' track ids."""
+        before, t_last = self._before, t0_us - self.dt_us
+        entering = _entering_blob(out, t, self.settings.merge_px)      # compiled: the usual window has none
         if not before and entering.shape[0] == 0:
             return ids
         id_now = out[:, ID].astype(np.int64).tolist()
@@ -943,7 +946,7 @@ class Tracker:
             del before[tid]
         for r, q in entering.tolist():
             if id_now[r] not in before:
-                before[id_now[r]] = [last[q].copy(), t_last, 0]
+                before[id_now[r]] = [t[q].copy(), t_last, 0]
         if len(before) < 2:
             return ids
         blob = (out[:, CONF] > 0) & ((out[:, OCC] > 0) | (out[:, BLB] > 0))
