@@ -8,7 +8,7 @@
         [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R] [--coast-px PX] [--max-coast N]
         [--pos-beta B] [--pos-min PX] [--pos-max-rad RAD] [--blob-growth G] [--heading-cost PX] [--reid-growth G]
         [--no-reid-ratio-missed] [--hidden PX] [--handover PX] [--handover-reach K] [--handover-windows N]
-        [--handover-speed-ratio R] [--no-parting] [--parting-heading PX]
+        [--handover-speed-ratio R] [--no-parting] [--parting-heading PX] [--parting-events PX]
         [--truth-blobs [--truth-merge F]] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
@@ -320,7 +320,8 @@ def _settings(a):
                          reid_growth=a.reid_growth, reid_ratio_missed=a.reid_ratio_missed, hidden_px=a.hidden,
                          handover_px=a.handover, handover_reach=a.handover_reach,
                          handover_windows=a.handover_windows, handover_speed_ratio=a.handover_speed_ratio,
-                         parting=a.parting, parting_heading_px=a.parting_heading)
+                         parting=a.parting, parting_heading_px=a.parting_heading,
+                         parting_events_px=a.parting_events)
 
 
 def main(argv=None) -> int:
@@ -399,6 +400,8 @@ def main(argv=None) -> int:
                     help="no parting re-decision (two tracks out of one blob keep the ids the association gave)")
     ap.add_argument("--parting-heading", type=float, default=d.parting_heading_px,
                     help="parting_heading_px: parting cost (px) per radian of direction difference")
+    ap.add_argument("--parting-events", type=float, default=d.parting_events_px,
+                    help="parting_events_px: parting cost (px) per unit of ln(event ones) difference (0: off)")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--truth-merge", type=float, default=1.0, metavar="F",

@@ -688,3 +688,60 @@ def test_two_objects_parting_from_a_blob_keep_their_ids_by_their_motion_before_i
         assert one is not None and zero is not None and one != zero
         after = (_id_near(w[150], 414, 227), _id_near(w[150], 480, 197))          # where objects 1 and 0 are then
         assert after == ((one, zero) if parting else (zero, one))
+
+
+@dataclass
+class Counted(Obj):
+    """An Obj with the number of event ones of its detection (ObjectFlow.n_events)."""
+
+    n_events: int = 0
+
+
+def _meet_and_turn_back(events_px):
+    """Two objects on one line head on (2 px a window each), one detection between them while
+    they are under 20 px apart, and both turn back where they meet: the bright one (400 event
+    ones a window) from the left, the faint one (60) from the right. -> (ids of the bright and
+    the faint track before they meet, the ids on the left and the right detection after)."""
+    tr = Tracker(CFG, DT_US, TrackerConfig(parting_events_px=events_px))
+    before = after = None
+    for w in range(60):
+        turn = w >= 30
+        xa = 100 + 2 * w if not turn else 160 - 2 * (w - 30)
+        xb = 220 - 2 * w if not turn else 160 + 2 * (w - 30)
+        a = Counted(xa, 200.0, math.pi if turn else 0.0, 4000.0, n_events=400)
+        b = Counted(xb, 200.0, 0.0 if turn else math.pi, 4000.0, n_events=60)
+        objs = [a, b] if xb - xa >= 20 else [Counted((xa + xb) / 2, 200.0, 0.0, 500.0, n_events=460)]
+        tr.update(objs, w * DT_US)
+        if w == 20:
+            before = (a.track_id, b.track_id)
+        if w == 59:
+            after = (a.track_id, b.track_id)
+    return before, after
+
+
+def test_parting_tells_the_two_apart_by_their_event_counts_where_their_motion_misleads():
+    """Objects that turn back inside the blob: their motion from before it says each went on
+    through, so position and heading alone give each id to the other object; the events term
+    (parting_events_px, ln of the event ones against the track's mean before the blob) keeps
+    the bright one's id on the bright one."""
+    before, after = _meet_and_turn_back(60.0)
+    assert None not in before and before[0] != before[1]
+    assert after == before
+    before, after = _meet_and_turn_back(0.0)           # motion alone: swapped
+    assert after == (before[1], before[0])
+
+
+def test_detections_take_the_event_count_as_a_seventh_column():
+    """raw_detections carries n_events (0: not known) and Detections keeps ln of it; an (n, 6)
+    array (no counts) gets NaN there, which leaves the events term out."""
+    from toffe_deploy.tracking import EV, raw_detections
+
+    d = Detections.of([Counted(1.0, 2.0, 0.0, 100.0, 2, n_events=50), Obj(3.0, 4.0, 0.0, 100.0, 2)])
+    assert d.a.shape == (2, 7) and d.a[0, 6] == pytest.approx(math.log(50)) and math.isnan(d.a[1, 6])
+    assert raw_detections([Counted(1.0, 2.0, 0.0, 100.0, 2, n_events=50)]).tolist() == [1.0, 2.0, 0.0, 100.0, 2.0, 50.0]
+    assert math.isnan(Detections(np.zeros((1, 6))).a[0, 6])
+    tr = Tracker(CFG, DT_US)
+    for w in range(3):
+        tr.update([Counted(10.0 + w, 20.0, 0.0, 2000.0, 2, n_events=100 if w < 2 else 200)], w * DT_US)
+    (row,) = tr.tracks.a
+    assert row[EV] == pytest.approx(math.log(100) + 0.2 * (math.log(200) - math.log(100)))

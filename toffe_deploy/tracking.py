@@ -76,12 +76,19 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                their copies' predictions lay within merge_px of each other, the two ids are kept
                or swapped by the cheaper pairing of
                    c(i, k) = |P_i(t) - z_k| + parting_heading_px q_k |angle(u_k, R(w_i (t - t_b)) v_i)|
-               (P_i: track i's copy carried to now at constant turn rate; q_k as in associate).
+                             + parting_events_px |ln n_k - e_i|
+               (P_i: track i's copy carried to now at constant turn rate; q_k as in associate;
+               n_k the detection's event ones, e_i the copy's mean ln(event ones) of its own
+               detections, EVENTS_BETA; the term is left out where either is not known).
                Why: in a blob the taker follows the blob's centre, which is neither object's,
                and a curving object's straight coast drifts, so the association where they part
                often takes the wrong one (a crossing of our generator: two objects one detection
                for 25 windows, one of them turning from 45 to 95 deg); the motion before the blob
-               is the evidence neither has spoiled. A swap redoes this window's update of both
+               is the evidence neither has spoiled. The event count is the objects' look:
+               size, contrast and speed set it, and two objects that cross rarely share it
+               (generated crossings: the two objects' ln counts, seen apart, differ by a median
+               2.4-6 of their window-to-window spread), so it still tells them apart where they
+               turned or stopped inside the blob and their motion from before misleads. A swap redoes this window's update of both
                tracks with the exchanged detections (their predictions updated again; ids, age
                and hits go with the track). A track seen again waits up to PARTING_WAIT (10)
                windows for its partner to be seen too (a fast object that passed over a slow
@@ -180,10 +187,12 @@ class TrackerConfig:
     off): the radius around a lost track's last own detection, its growth in multiples of the
     lost track's travel per window since then, how many windows since its last detection a lost
     track can hand its id over, and the most the two speeds may differ by (a factor).
-    parting, parting_heading_px: the parting re-decision (module doc): two confirmed tracks that
-    come out of one blob, each with its own detection again, keep or swap their ids by which
-    way round their motion before the blob predicts the two detections (position, plus
-    parting_heading_px per radian of direction difference, weighted as heading_cost_px's q_j)."""
+    parting, parting_heading_px, parting_events_px: the parting re-decision (module doc): two
+    confirmed tracks that come out of one blob, each with its own detection again, keep or swap
+    their ids by which way round their motion and look before the blob fit the two detections
+    (position, plus parting_heading_px per radian of direction difference, weighted as
+    heading_cost_px's q_j, plus parting_events_px per unit of |ln(event ones) - the track's mean
+    ln(event ones) before the blob|; 0: motion alone)."""
 
     gate_px: float = 17.0
     gate_growth: float = 0.5
@@ -223,6 +232,7 @@ class TrackerConfig:
     handover_speed_ratio: float = 2.0
     parting: bool = True
     parting_heading_px: float = 40.0
+    parting_events_px: float = 60.0
 
     def __post_init__(self):
         for f in fields(self):                  # kinds first: NaN, strings or 2.5 windows fail here
@@ -265,6 +275,8 @@ class TrackerConfig:
             raise ValueError("blob_growth, heading_cost_px, reid_growth and hidden_px must be >= 0")
         if not self.parting_heading_px >= 0:
             raise ValueError(f"parting_heading_px must be >= 0, got {self.parting_heading_px}")
+        if not self.parting_events_px >= 0:
+            raise ValueError(f"parting_events_px must be >= 0, got {self.parting_events_px}")
         if not (min(self.handover_px, self.handover_reach, self.handover_windows) >= 0
                 and self.handover_speed_ratio >= 1):
             raise ValueError("handover_px, handover_reach and handover_windows must be >= 0 and "
@@ -274,8 +286,10 @@ class TrackerConfig:
 
 _F = np.float64
 #: columns of Tracks.a
-ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF, OCC, HX, HY, W, LX, LY, LT, UX, UY, BLB = range(22)
-N_COLS = 22
+ID, X, Y, VX, VY, S, BIN, AGE, HITS, STREAK, MISS, CONF, OCC, HX, HY, W, LX, LY, LT, UX, UY, BLB, EV = range(23)
+N_COLS = 23
+#: the gain of a track's mean ln(events per detection) (column EV): about the last 5 windows
+EVENTS_BETA = 0.2
 
 
 @dataclass(frozen=True)
@@ -287,8 +301,9 @@ class Tracks:
     detection), confirmed (0/1), occluded (0/1: missed under another track's detection), heading
     hx, hy (px/s: the reported direction's vector), turn rate w (rad/s, + turns from x towards y),
     its last own detection's position lx, ly (px) and window lt (its age then), the velocity
-    those positions give ux, uy (px/s), and blob b (windows in a row its detection was a blob
-    of two or more tracks' objects); the properties give the columns. ``lost``: the confirmed
+    those positions give ux, uy (px/s), blob b (windows in a row its detection was a blob
+    of two or more tracks' objects) and ev, the mean ln(event ones) of its own detections
+    (EVENTS_BETA; NaN until one told it); the properties give the columns. ``lost``: the confirmed
     tracks that died in the last handover_windows windows (same columns; their id can be handed
     over to a new track)."""
 
@@ -314,11 +329,17 @@ class Tracks:
 
 @dataclass(frozen=True)
 class Detections:
-    """One window's objects as one (n, 6) array ``a``: x, y (px), velocity ux, uy (px/s, from the
-    direction: image plane, y down), speed (px/s) and speed bin (1-based); columns X..S line up
-    with Tracks' (so that one operation updates a track's x, y, vx, vy and speed)."""
+    """One window's objects as one (n, 7) array ``a``: x, y (px), velocity ux, uy (px/s, from the
+    direction: image plane, y down), speed (px/s), speed bin (1-based) and ln(event ones) (NaN:
+    not known; an (n, 6) array gets that column); columns X..S line up with Tracks' (so that
+    one operation updates a track's x, y, vx, vy and speed)."""
 
     a: np.ndarray
+
+    def __post_init__(self):
+        a = np.asarray(self.a, _F)
+        if a.ndim == 2 and a.shape[1] == 6:
+            object.__setattr__(self, "a", np.concatenate([a, np.full((a.shape[0], 1), np.nan)], axis=1))
 
     def __len__(self) -> int:
         return int(self.a.shape[0])
@@ -334,21 +355,24 @@ class Detections:
 
 
 def raw_detections(objects) -> np.ndarray:
-    """The window's detections as ``Tracker.columns`` takes them, one flat (5 n,) float64 array
-    of five columns: the objects' x, then y, direction_rad, speed_px_s and speed_bin (the one
-    pass over the objects' attributes a window needs; one flat list: numpy converts it faster
-    than nested ones)."""
-    flat = [v for o in objects for v in (o.x, o.y, o.direction_rad, o.speed_px_s, o.speed_bin)]
-    return np.array(flat, _F).reshape(-1, 5).T.ravel()
+    """The window's detections as ``Tracker.columns`` takes them, one flat (6 n,) float64 array
+    of six columns: the objects' x, then y, direction_rad, speed_px_s, speed_bin and n_events
+    (0 where an object has none: not known) (the one pass over the objects' attributes a window
+    needs; one flat list: numpy converts it faster than nested ones)."""
+    flat = [v for o in objects for v in (o.x, o.y, o.direction_rad, o.speed_px_s, o.speed_bin,
+                                         getattr(o, "n_events", 0))]
+    return np.array(flat, _F).reshape(-1, 6).T.ravel()
 
 
 @njit(cache=True, nogil=True)
 def _detections(zr):
-    """Detections.a (n, 6) of raw_detections' (5 n,) columns (velocity from direction and speed)."""
-    n = zr.shape[0] // 5
-    z = np.empty((n, 6))
+    """Detections.a (n, 7) of raw_detections' (6 n,) columns (velocity from direction and speed,
+    ln of the event ones; NaN where not known: 0)."""
+    n = zr.shape[0] // 6
+    z = np.empty((n, 7))
     for k in range(n):
         z[k, 0], z[k, 1], z[k, 4], z[k, 5] = zr[k], zr[n + k], zr[3 * n + k], zr[4 * n + k]
+        z[k, 6] = math.log(zr[5 * n + k]) if zr[5 * n + k] > 0 else np.nan
         z[k, 2], z[k, 3] = zr[3 * n + k] * math.cos(zr[2 * n + k]), zr[3 * n + k] * math.sin(zr[2 * n + k])
     return z
 
@@ -507,6 +531,8 @@ def _hit(a, i, z, k, p, lo, hi, inner, shared):
         a[i, X] += p[P_ALPHA] * (z[k, 0] - a[i, X])
         a[i, Y] += p[P_ALPHA] * (z[k, 1] - a[i, Y])
         return
+    if not math.isnan(z[k, 6]):                             # its look: the mean ln(event ones)
+        a[i, EV] = z[k, 6] if math.isnan(a[i, EV]) else a[i, EV] + EVENTS_BETA * (z[k, 6] - a[i, EV])
     if p[P_TURN_BETA] > 0:                                  # turn rate from the direction's innovation
         q = min(1.0, z[k, S - X] * p[P_DT] / p[P_HEADING_PX])
         e = math.atan2(z[k, 3], z[k, 2]) - math.atan2(a[i, VY], a[i, VX])
@@ -682,6 +708,7 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost):
             out[row, HX], out[row, HY], out[row, UX], out[row, UY] = z[k, 2], z[k, 3], z[k, 2], z[k, 3]
             out[row, LX], out[row, LY], out[row, LT] = z[k, 0], z[k, 1], 1.0
             out[row, BIN] = z[k, 5]
+            out[row, EV] = z[k, 6]
             out[row, AGE] = out[row, HITS] = out[row, STREAK] = 1.0
             out[row, CONF] = 1.0 if p[P_CONFIRM] <= 1 else 0.0
             assigned[k] = row
@@ -737,13 +764,16 @@ N_P = P_HANDOVER_RATIO + 1
 def _window(t, zr, pe, next_id, lost):
     """Tracker.update's window in one compiled call when the gates pair tracks and detections
     unambiguously (``_step_simple`` on raw_detections' array): -> (tracks, _listing, next id,
-    lost tracks, done); ``done`` False: the caller runs ``_step_matched`` (the Hungarian
-    method). pe: params then the bin edges lo, hi, inner (one argument: numba's dispatch cost
-    grows with their number)."""
+    lost tracks, done, the parting's _entering_blob rows); ``done`` False: the caller runs
+    ``_step_matched`` (the Hungarian method). pe: params then the bin edges lo, hi, inner (one
+    argument: numba's dispatch cost grows with their number; _entering_blob here, not in a
+    call of its own: ~2 us a window of dispatch)."""
     n = (pe.shape[0] - N_P + 1) // 3
     p, lo, hi, inner = pe[:N_P], pe[N_P:N_P + n], pe[N_P + n:N_P + 2 * n], pe[N_P + 2 * n:]
     out, assigned, nid, lost, done = _step_simple(t, _detections(zr), p, lo, hi, inner, next_id, lost)
-    return out, _listing(out, assigned, p) if done else assigned, nid, lost, done
+    if not done:
+        return out, assigned, nid, lost, done, np.empty((0, 2), np.int64)
+    return out, _listing(out, assigned, p), nid, lost, done, _entering_blob(out, t, p[P_MERGE_PX])
 
 
 def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edges: BinEdges,
@@ -838,10 +868,16 @@ def _carried(before: list, t_us: int) -> tuple[float, float, float]:
     return row[X] + dx, row[Y] + dy, math.atan2(vy, vx) + a
 
 
-def _part_cost(p: tuple, zr: np.ndarray, n: int, k: int, per_rad: float, heading_px: float, dt_s: float) -> float:
-    """c(i, k) of the parting re-decision (module doc): p = _carried's (x, y, direction)."""
+def _part_cost(p: tuple, ev: float, zr: np.ndarray, n: int, k: int, per_rad: float, per_ln: float,
+               heading_px: float, dt_s: float) -> float:
+    """c(i, k) of the parting re-decision (module doc): p = _carried's (x, y, direction), ev the
+    track's mean ln(event ones) before its blob (NaN: not known; then, as where the detection's
+    count is not known, no events term)."""
     turn = float(_direction_cost(zr[2 * n + k] - p[2], zr[3 * n + k], dt_s, heading_px))
-    return math.hypot(p[0] - zr[k], p[1] - zr[n + k]) + per_rad * turn
+    c = math.hypot(p[0] - zr[k], p[1] - zr[n + k]) + per_rad * turn
+    if per_ln > 0 and zr[5 * n + k] > 0 and not math.isnan(ev):
+        c += per_ln * abs(math.log(zr[5 * n + k]) - ev)
+    return c
 
 
 class Tracker:
@@ -870,9 +906,8 @@ class Tracker:
         t1 = step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0]
         step(t1, one, 1e-3, self.settings, self.edges, 1)
         step(t1, two, 1e-3, self.settings, self.edges, 1)   # ambiguous: _step_matched, as columns calls it
-        zr = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
-        out, _info, _nid, _lost, _done = _window(_window(Tracks().a, zr, self._pe, 0, self._lost)[0], zr, self._pe, 1,
-                                                 self._lost)
+        zr = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
+        out = _window(_window(Tracks().a, zr, self._pe, 0, self._lost)[0], zr, self._pe, 1, self._lost)[0]
         _listing(out, np.zeros(1, np.int64), self._p)
         _entering_blob(out, out, 1.0)
         _detections(zr)
@@ -890,7 +925,7 @@ class Tracker:
         return Tracks(self._a, self._lost)
 
     def columns(self, zr: np.ndarray, t0_us: int) -> tuple[list, list]:
-        """``update`` on the window's detections as raw_detections' (5 n,) columns (the pipeline
+        """``update`` on the window's detections as raw_detections' (6 n,) columns (the pipeline
         builds it from the decoder's columns, before the objects exist): -> each detection's
         track id and ``TrackState`` (None and None: a fragment without a track), for the
         objects' constructor (the ids a slice when every detection has a track, the usual
@@ -917,27 +952,29 @@ class Tracker:
             t, lost = a[live], lost[lost[:, MISS] <= s.handover_windows]
         # the usual window in one compiled call, the results handed out from one int array
         # (Python-level work, not the tracking, was most of the cost)
-        out, info, self.next_id, self._lost, done = _window(t, zr, self._pe, self.next_id, lost)
+        out, info, self.next_id, self._lost, done, entering = _window(t, zr, self._pe, self.next_id, lost)
         if not done:
             out, assigned, self.next_id, self._lost = _step_matched(t, _detections(zr), self._p, self.edges,
                                                                     self.next_id, lost)
             info = _listing(out, assigned, self._p)
+            entering = _entering_blob(out, t, self.settings.merge_px)
         self._a = out
-        n, k, info = zr.shape[0] // 5, self.k_mps, info.tolist()
+        n, k, info = zr.shape[0] // 6, self.k_mps, info.tolist()
         self._coasting = info[2 * n:]
         rows, ids = info[:n], info[n:2 * n]
         if self.settings.parting:
-            ids = self._parting(t, out, zr, rows, ids, t0_us)
+            ids = self._parting(t, out, zr, rows, ids, t0_us, entering)
         if min(rows, default=0) >= 0:
             return ids, [TrackState(out, r, k) for r in rows]
         return [i if i >= 0 else None for i in ids], [TrackState(out, r, k) if r >= 0 else None for r in rows]
 
-    def _parting(self, t: np.ndarray, out: np.ndarray, zr: np.ndarray, rows: list, ids: list, t0_us: int) -> list:
+    def _parting(self, t: np.ndarray, out: np.ndarray, zr: np.ndarray, rows: list, ids: list, t0_us: int,
+                 entering: np.ndarray) -> list:
         """The parting re-decision (module doc) on this window's tracks ``out`` (from ``t``, the
         tracks it started from, as of the window before: t0_us - dt; rows redone in place) -> the
-        detections' track ids."""
+        detections' track ids. entering: _entering_blob(out, t, merge_px) (_window's; the usual
+        window has none)."""
         before, t_last = self._before, t0_us - self.dt_us
-        entering = _entering_blob(out, t, self.settings.merge_px)      # compiled: the usual window has none
         if not before and entering.shape[0] == 0:
             return ids
         id_now = out[:, ID].astype(np.int64).tolist()
@@ -950,7 +987,7 @@ class Tracker:
         if len(before) < 2:
             return ids
         blob = (out[:, CONF] > 0) & ((out[:, OCC] > 0) | (out[:, BLB] > 0))
-        n = zr.shape[0] // 5
+        n = zr.shape[0] // 6
         det_of = {r: k for k, r in enumerate(rows) if r >= 0}
         free = [r for r, tid in enumerate(id_now)
                 if tid in before and r in det_of and out[r, MISS] == 0 and not blob[r]]
@@ -965,8 +1002,8 @@ class Tracker:
                     continue
                 p1, p2 = _carried(b1, t0_us), _carried(b2, t0_us)
                 k1, k2 = det_of[r1], det_of[r2]
-                c = [[_part_cost(p, zr, n, k, s.parting_heading_px, s.heading_px, dt_s) for k in (k1, k2)]
-                     for p in (p1, p2)]
+                c = [[_part_cost(p, b[0][EV], zr, n, k, s.parting_heading_px, s.parting_events_px, s.heading_px,
+                                 dt_s) for k in (k1, k2)] for p, b in ((p1, b1), (p2, b2))]
                 pairs.append((c[0][1] + c[1][0] - c[0][0] - c[1][1], r1, r2))
         done: set = set()
         for gain, r1, r2 in sorted(pairs):

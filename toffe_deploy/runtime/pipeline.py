@@ -308,13 +308,16 @@ class Pipeline:
         dec = self.place(self._decode.columns(pose, direction, speed, ks), ones)   # lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         px_s = [v * 1000.0 for v in px_ms]
-        # track_id and track per object; the tracker takes raw_detections' columns: x, y, direction_rad, speed_px_s, bin
+        # track_id and track per object; the tracker takes raw_detections' columns: x, y, direction_rad, speed_px_s,
+        # bin, n_events
+        n_events = n_events.tolist()
         ids, states = ((repeat(None), repeat(None)) if t0_us is None else self.tracker.columns(
-            np.array([*dec["x_px"], *dec["y_px"], *dec["direction_rad"], *px_s, *dec["speed_bin"]], np.float64), t0_us))
+            np.array([*dec["x_px"], *dec["y_px"], *dec["direction_rad"], *px_s, *dec["speed_bin"], *n_events],
+                     np.float64), t0_us))
         return [ObjectFlow(sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st)
                 for sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st in zip(
             dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"], dec["y_px"], dec["direction_rad"],
-            n_events.tolist(), dec["speed_clipped"], ids, states)]
+            n_events, dec["speed_clipped"], ids, states)]
 
     def place(self, dec: dict, ones) -> dict:
         """Decoded columns ``dec`` with slow objects' positions from their outlines over the
