@@ -30,6 +30,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from .assignment import match_pairs, min_cost_pairs
 from .camera import SpeedScale
 
 #: The headline gate: a prediction farther than this from an object's centre does not find it.
@@ -67,42 +68,9 @@ def match_nearest(pred_xy: np.ndarray, true_xy: np.ndarray, max_dist_px: float =
 
 def min_cost_assignment(cost: np.ndarray) -> list[tuple[int, int]]:
     """Exact minimum-cost assignment of a (n, m) matrix: min(n, m) (row, col) pairs, each row and
-    column at most once (Hungarian method with potentials, O(n^2 m); scipy's
-    linear_sum_assignment without scipy, which the lean runtime does not ship)."""
-    cost = np.asarray(cost, dtype=np.float64)
-    flip = cost.shape[0] > cost.shape[1]
-    a = cost.T if flip else cost                      # n <= m
-    n, m = a.shape
-    u, v = np.zeros(n + 1), np.zeros(m + 1)
-    owner = np.zeros(m + 1, dtype=np.int64)           # owner[j] = 1-based row assigned to column j
-    way = np.zeros(m + 1, dtype=np.int64)
-    for i in range(1, n + 1):
-        owner[0], j0 = i, 0
-        minv = np.full(m + 1, np.inf)
-        used = np.zeros(m + 1, dtype=bool)
-        while True:
-            used[j0] = True
-            i0 = owner[j0]
-            free = ~used[1:]
-            red = a[i0 - 1] - u[i0] - v[1:]
-            better = free & (red < minv[1:])
-            minv[1:][better] = red[better]
-            way[1:][better] = j0
-            cand = np.where(free, minv[1:], np.inf)
-            j1 = int(np.argmin(cand)) + 1
-            delta = cand[j1 - 1]
-            u[owner[used]] += delta
-            v[used] -= delta
-            minv[1:][free] -= delta
-            j0 = j1
-            if owner[j0] == 0:
-                break
-        while j0:
-            j1 = way[j0]
-            owner[j0] = owner[j1]
-            j0 = j1
-    pairs = [(int(owner[j]) - 1, j - 1) for j in range(1, m + 1) if owner[j]]
-    return sorted((c, r) for r, c in pairs) if flip else sorted(pairs)
+    column at most once (Hungarian method with potentials; assignment.min_cost_pairs)."""
+    rows, cols = min_cost_pairs(np.ascontiguousarray(cost, dtype=np.float64))
+    return list(zip(rows.tolist(), cols.tolist()))
 
 
 def match_gated(pred_xy: np.ndarray, true_xy: np.ndarray, gate_px: float = GATE_PX) -> list[tuple[int, int]]:
@@ -124,36 +92,9 @@ def match_gated(pred_xy: np.ndarray, true_xy: np.ndarray, gate_px: float = GATE_
 def match_within(d: np.ndarray, ok: np.ndarray) -> list[tuple[int, int]]:
     """``match_gated`` on a (rows, cols) distance matrix ``d`` whose allowed pairs are ``ok``
     (a gate per row or per pair, as the tracker's): (row, col) pairs, the most allowed pairs,
-    then the least total distance."""
-    ti, pj = np.nonzero(ok)
-    n = d.shape[0]
-    parent = list(range(n + d.shape[1]))            # union-find over rows 0..n-1, columns n..
-
-    def root(a):
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    for i, j in zip(ti.tolist(), pj.tolist()):
-        parent[root(i)] = root(n + j)
-    comps: dict[int, list[tuple[int, int]]] = {}
-    for i, j in zip(ti.tolist(), pj.tolist()):
-        comps.setdefault(root(i), []).append((i, j))
-    pairs = []
-    for edges in comps.values():
-        if len(edges) == 1:                           # the common case: one object, one prediction
-            pairs.append(edges[0])
-            continue
-        ri = sorted({i for i, _j in edges})
-        ci = sorted({j for _i, j in edges})
-        if len(ri) == 1 or len(ci) == 1:
-            pairs.append(min(edges, key=lambda e: d[e]))
-            continue
-        sub, sub_ok = d[np.ix_(ri, ci)], ok[np.ix_(ri, ci)]
-        big = float(sub[sub_ok].sum()) + 1.0
-        pairs += [(ri[a], ci[b]) for a, b in min_cost_assignment(np.where(sub_ok, sub, big)) if sub_ok[a, b]]
-    return sorted(pairs)
+    then the least total distance (assignment.match_pairs)."""
+    rows, cols = match_pairs(np.ascontiguousarray(d, dtype=np.float64), np.ascontiguousarray(ok, dtype=np.bool_))
+    return list(zip(rows.tolist(), cols.tolist()))
 
 
 @dataclass

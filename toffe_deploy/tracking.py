@@ -7,7 +7,7 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     predict    v_i' = R(w_i dt) v_i,  p_i' = p_i + R(w_i dt / 2) v_i dt   (constant turn rate w_i;
                R(a) rotates by a; w_i = 0 is constant velocity)
     associate  d_ij = |p_i' - z_j|; pairs within the gate d_ij <= R_i, the most pairs then the
-               least total distance (metrics.match_within: Hungarian on the gated matrix),
+               least total distance (assignment.match_pairs: Hungarian on the gated matrix),
                confirmed tracks first, then tentative ones with the detections left over;
                R_i = gate_px + (gate_speed + gate_growth m_i + blob_growth b_i) s_i dt grows with
                the m_i windows the track has coasted (a turning object leaves its straight-line
@@ -129,7 +129,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 from numba import njit
 
-from .metrics import match_within
+from .assignment import match_pairs
 
 
 @dataclass(frozen=True)
@@ -718,21 +718,59 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost):
 
 
 @njit(cache=True, nogil=True)
-def _step_simple(t, z, p, lo, hi, inner, next_id, lost):
-    """The whole step in one call when the gates pair tracks and detections unambiguously (the
-    usual window; ``done`` False otherwise, and the caller runs the Hungarian method)."""
+def _direction_cost(e, speed_px_s, dt_s, heading_px):
+    """q |e| (e wrapped to [-pi, pi), q = min(1, s dt / heading_px)): the direction term of an
+    association cost per px of heading_cost_px (or parting_heading_px)."""
+    return min(1.0, speed_px_s * dt_s / heading_px) * abs((e + math.pi) % (2.0 * math.pi) - math.pi)
+
+
+@njit(cache=True, nogil=True)
+def _associate(a, d, ok, simple, t, z, p):
+    """(track rows, detection columns) of ``step``'s pairs from the predicted tracks ``a``, their
+    distances ``d`` and gates ``ok`` (_predict): where the gates pair tracks and detections
+    unambiguously (``simple``, the usual window) the gates' pairs; else the Hungarian method on
+    the gated pairs (assignment.match_pairs), confirmed tracks first, then tentative ones, the
+    cost d_ij + H q_j |angle(u_j, v_i')| (the gates are on d; the choice among gated pairs
+    weighs direction too)."""
+    n_t, n_d = ok.shape
+    if simple:
+        r, j = np.empty(n_t, np.int64), np.empty(n_t, np.int64)
+        m = 0
+        for i in range(n_t):                                 # np.nonzero(ok): at most one pair per row
+            for k in range(n_d):
+                if ok[i, k]:
+                    r[m], j[m] = i, k
+                    m += 1
+        return r[:m], j[:m]
+    cost = d.copy()
+    if p[P_HEADING_COST] > 0:
+        for i in range(n_t):
+            heading = math.atan2(a[i, VY], a[i, VX])
+            for k in range(n_d):
+                cost[i, k] = d[i, k] + p[P_HEADING_COST] * _direction_cost(
+                    math.atan2(z[k, 3], z[k, 2]) - heading, z[k, 4], p[P_DT], p[P_HEADING_PX])
+    first = np.zeros((n_t, n_d), np.bool_)
+    for i in range(n_t):
+        if t[i, CONF] > 0:
+            first[i] = ok[i]
+    r1, j1 = match_pairs(cost, first)
+    taken = np.zeros(n_d, np.bool_)
+    taken[j1] = True
+    then = np.zeros((n_t, n_d), np.bool_)
+    for i in range(n_t):
+        if t[i, CONF] <= 0:
+            for k in range(n_d):
+                then[i, k] = ok[i, k] and not taken[k]
+    r2, j2 = match_pairs(cost, then)
+    return np.concatenate((r1, r2)), np.concatenate((j1, j2))
+
+
+@njit(cache=True, nogil=True)
+def _step(t, z, p, lo, hi, inner, next_id, lost):
+    """The whole step in one call: -> (tracks, each detection's row, next id, lost tracks)."""
     a, d, ok, simple = _predict(t, z, p)
-    if not simple:
-        return a, np.full(z.shape[0], -1, np.int64), next_id, lost, False
-    r, j = np.empty(ok.shape[0], np.int64), np.empty(ok.shape[0], np.int64)
-    m = 0
-    for i in range(ok.shape[0]):                             # np.nonzero(ok): at most one pair per row
-        for k in range(ok.shape[1]):
-            if ok[i, k]:
-                r[m], j[m] = i, k
-                m += 1
-    out, assigned, next_id, lost = _update(a, t, z, r[:m], j[:m], d, p, lo, hi, inner, next_id, lost)
-    return out, assigned, next_id, lost, True
+    r, j = _associate(a, d, ok, simple, t, z, p)
+    return _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost)
 
 
 @njit(cache=True, nogil=True)
@@ -762,18 +800,14 @@ N_P = P_HANDOVER_RATIO + 1
 
 @njit(cache=True, nogil=True)
 def _window(t, zr, pe, next_id, lost):
-    """Tracker.update's window in one compiled call when the gates pair tracks and detections
-    unambiguously (``_step_simple`` on raw_detections' array): -> (tracks, _listing, next id,
-    lost tracks, done, the parting's _entering_blob rows); ``done`` False: the caller runs
-    ``_step_matched`` (the Hungarian method). pe: params then the bin edges lo, hi, inner (one
-    argument: numba's dispatch cost grows with their number; _entering_blob here, not in a
-    call of its own: ~2 us a window of dispatch)."""
+    """Tracker.update's window in one compiled call (``_step`` on raw_detections' array): ->
+    (tracks, _listing, next id, lost tracks, the parting's _entering_blob rows). pe: params then
+    the bin edges lo, hi, inner (one argument: numba's dispatch cost grows with their number;
+    _entering_blob here, not in a call of its own: ~2 us a window of dispatch)."""
     n = (pe.shape[0] - N_P + 1) // 3
     p, lo, hi, inner = pe[:N_P], pe[N_P:N_P + n], pe[N_P + n:N_P + 2 * n], pe[N_P + 2 * n:]
-    out, assigned, nid, lost, done = _step_simple(t, _detections(zr), p, lo, hi, inner, next_id, lost)
-    if not done:
-        return out, assigned, nid, lost, done, np.empty((0, 2), np.int64)
-    return out, _listing(out, assigned, p), nid, lost, done, _entering_blob(out, t, p[P_MERGE_PX])
+    out, assigned, nid, lost = _step(t, _detections(zr), p, lo, hi, inner, next_id, lost)
+    return out, _listing(out, assigned, p), nid, lost, _entering_blob(out, t, p[P_MERGE_PX])
 
 
 def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edges: BinEdges,
@@ -783,37 +817,9 @@ def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edge
     are not modified. Compiled loops (numba, as compiled.py): a window has a handful of objects, so
     per-call overhead, not array size, would set the cost of numpy here. p: ``params(cfg,
     dt_s)`` when the caller keeps it."""
-    t, z = tracks.a, dets.a
     p = params(cfg, dt_s) if p is None else p
-    out, assigned, nid, lost, done = _step_simple(t, z, p, edges.lo, edges.hi, edges.inner, int(next_id),
-                                                  tracks.lost)
-    if not done:
-        out, assigned, nid, lost = _step_matched(t, z, p, edges, nid, tracks.lost)
+    out, assigned, nid, lost = _step(tracks.a, dets.a, p, edges.lo, edges.hi, edges.inner, int(next_id), tracks.lost)
     return Tracks(out, lost), assigned, int(nid)
-
-
-def _direction_cost(e, speed_px_s, dt_s: float, heading_px: float):
-    """q |e| (e wrapped to [-pi, pi), q = min(1, s dt / heading_px)): the direction term of an
-    association cost per px of heading_cost_px (or parting_heading_px), for scalars or arrays."""
-    return np.minimum(1.0, speed_px_s * dt_s / heading_px) * np.abs((e + np.pi) % (2 * np.pi) - np.pi)
-
-
-def _step_matched(t: np.ndarray, z: np.ndarray, p: np.ndarray, edges: BinEdges, next_id: int, lost: np.ndarray):
-    """``step`` where a gate holds two candidates: the Hungarian method on the gated distances,
-    confirmed tracks first, then tentative ones -> (tracks array, assigned, next id, lost)."""
-    a, d, ok, _simple = _predict(t, z, p)
-    conf = t[:, CONF] > 0
-    cost = d                                 # the gates are on d; the choice among gated pairs weighs direction too
-    if p[P_HEADING_COST] > 0:
-        e = np.arctan2(z[:, 3], z[:, 2])[None, :] - np.arctan2(a[:, VY], a[:, VX])[:, None]
-        cost = d + p[P_HEADING_COST] * _direction_cost(e, z[None, :, 4], p[P_DT], p[P_HEADING_PX])
-    pairs = match_within(cost, ok & conf[:, None])
-    taken = np.zeros(z.shape[0], bool)
-    taken[[c for _r, c in pairs]] = True
-    pairs += match_within(cost, ok & ~conf[:, None] & ~taken[None, :])
-    r, j = np.array(pairs, dtype=np.int64).reshape(-1, 2).T
-    return _update(a, t, z, np.ascontiguousarray(r), np.ascontiguousarray(j), d, p, edges.lo, edges.hi, edges.inner,
-                   int(next_id), lost)
 
 
 @njit(cache=True, nogil=True)
@@ -901,16 +907,13 @@ class Tracker:
         self._coasting: list = []
         self._before: dict = {}              # parting: id -> [its row before its blob, t_us, free windows]
         # compile (first run on a machine) or load the cached kernels now, not in the first window
-        one = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
-        two = Detections(np.array([[0.0, 0.0, 1.0, 0.0, 1.0, 1.0], [1.0, 0.0, 1.0, 0.0, 1.0, 1.0]]))
-        t1 = step(Tracks(), one, 1e-3, self.settings, self.edges, 0)[0]
-        step(t1, one, 1e-3, self.settings, self.edges, 1)
-        step(t1, two, 1e-3, self.settings, self.edges, 1)   # ambiguous: _step_matched, as columns calls it
+        # (_window for every window; _predict, _hit, _detections and _direction_cost for a parting)
         zr = np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0])
         out = _window(_window(Tracks().a, zr, self._pe, 0, self._lost)[0], zr, self._pe, 1, self._lost)[0]
-        _listing(out, np.zeros(1, np.int64), self._p)
-        _entering_blob(out, out, 1.0)
-        _detections(zr)
+        z = _detections(zr)
+        a = _predict(out, z, self._p)[0]
+        _hit(a, 0, z, 0, self._p, self.edges.lo, self.edges.hi, self.edges.inner, False)
+        _direction_cost(0.0, 1.0, 1e-3, 1.0)
 
     def update(self, objects: list, t0_us: int) -> Tracks:
         """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin;
@@ -952,12 +955,7 @@ class Tracker:
             t, lost = a[live], lost[lost[:, MISS] <= s.handover_windows]
         # the usual window in one compiled call, the results handed out from one int array
         # (Python-level work, not the tracking, was most of the cost)
-        out, info, self.next_id, self._lost, done, entering = _window(t, zr, self._pe, self.next_id, lost)
-        if not done:
-            out, assigned, self.next_id, self._lost = _step_matched(t, _detections(zr), self._p, self.edges,
-                                                                    self.next_id, lost)
-            info = _listing(out, assigned, self._p)
-            entering = _entering_blob(out, t, self.settings.merge_px)
+        out, info, self.next_id, self._lost, entering = _window(t, zr, self._pe, self.next_id, lost)
         self._a = out
         n, k, info = zr.shape[0] // 6, self.k_mps, info.tolist()
         self._coasting = info[2 * n:]
