@@ -632,6 +632,7 @@ def test_settings_reject_nonsense_nan_and_wrong_kinds_with_a_value_error():
                 dict(handover_windows=2.5), dict(confirm_hits=1.5), dict(max_misses=True), dict(gate_growth=-1),
                 dict(birth_gap_px=math.nan), dict(handover_px="40"), dict(reid_ratio_missed=1),
                 dict(hidden_px=math.inf), dict(parting_heading_px=-1), dict(parting_heading_px=math.nan),
+                dict(parting_events_px=-1), dict(parting_events_px=math.nan), dict(parting_events_px=math.inf),
                 dict(parting=1)):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)

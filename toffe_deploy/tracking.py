@@ -205,7 +205,7 @@ class TrackerConfig:
     hysteresis: float = 0.1
     gate_speed: float = 0.0
     report_misses: int = 5
-    max_occluded: int = 20
+    max_occluded: int = 80
     heading_px: float = 5.0
     heading_beta: float = 0.15
     shared_keeps_motion: bool = True
