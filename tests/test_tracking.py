@@ -147,7 +147,7 @@ def test_bin_hysteresis_stops_flicker_at_a_bin_edge_and_follows_a_real_change(rn
 def test_step_is_pure_and_a_gap_counts_as_missed_windows():
     t0 = Tracks()
     d = Detections(np.array([[10.0, 20.0, 2000.0, 0.0, 2000.0, 2.0]]))
-    s = TrackerConfig(confirm_hits=1, max_misses=3)
+    s = TrackerConfig(confirm_hits=1, max_misses=3, coast_px=0.0)     # no slow-coast extension: max_misses rules
     t1, assigned, nid = step(t0, d, 5e-4, s, BinEdges.of(CFG), 0)
     x_before = t1.x.copy()
     t2, _, _ = step(t1, d, 5e-4, s, BinEdges.of(CFG), nid)
@@ -156,6 +156,12 @@ def test_step_is_pure_and_a_gap_counts_as_missed_windows():
     tr.update([Obj(10, 20, 0.0, 2000, 2)], 0)
     tr.update([], 10 * DT_US)                          # 9 windows never seen + this one: > max_misses
     assert len(tr.tracks) == 0
+    for gap in (True, False):                           # with coast_px a slow track (1 px a window) lives
+        tr = Tracker(CFG, DT_US, TrackerConfig(confirm_hits=1, max_misses=3))
+        tr.update([Obj(10, 20, 0.0, 2000, 2)], 0)
+        for w in ([10] if gap else range(1, 11)):          # 10 misses as a gap, or as windows seen empty
+            tr.update([], w * DT_US)
+        assert len(tr.tracks) == 1
 
 
 def test_tracker_config_rejects_nonsense():
@@ -746,3 +752,44 @@ def test_detections_take_the_event_count_as_a_seventh_column():
         tr.update([Counted(10.0 + w, 20.0, 0.0, 2000.0, 2, n_events=100 if w < 2 else 200)], w * DT_US)
     (row,) = tr.tracks.a
     assert row[EV] == pytest.approx(math.log(100) + 0.2 * (math.log(200) - math.log(100)))
+
+
+def test_an_occluded_track_lives_through_a_skipped_window_as_through_a_seen_one():
+    """The gap rule (Tracker.update with windows skipped) keeps whom _update keeps: a confirmed
+    track hidden under its neighbour's detection for 38 windows (occluded: under max_occluded
+    80, over max_misses 20) survives a skipped window too, and keeps its id when it comes back."""
+    out = {}
+    for skip in (False, True):
+        tr = Tracker(CFG, DT_US)
+        for w in range(60):
+            if skip and w == 30:
+                continue
+            a, b = mover(100, 200, 0, 2000, w), mover(100, 210, 0, 2000, w)
+            objs = [a, b] if w < 10 or w >= 48 else [b]
+            tr.update(objs, w * DT_US)
+        out[skip] = (a.track_id, b.track_id)
+    assert out[False][0] is not None and out[False][0] != out[False][1]
+    assert out[True] == out[False]
+
+
+def test_bad_detection_shapes_are_a_value_error_not_a_silent_misread():
+    with pytest.raises(ValueError):
+        Detections(np.zeros((2, 5)))
+    with pytest.raises(ValueError):
+        Tracker(CFG, DT_US).columns(np.zeros(10), 0)               # two objects of the old 5 columns
+    assert len(Detections([[1.0, 2.0, 0.0, 0.0, 0.0, 1.0]])) == 1
+
+
+def test_nan_costs_do_not_hang_the_matching():
+    """A NaN direction (a broken detector) makes no cost NaN for the Hungarian method, and
+    metrics' assignment takes inf / NaN as forbidden pairs (both once looped forever)."""
+    from toffe_deploy.metrics import min_cost_assignment
+
+    assert min_cost_assignment(np.array([[1.0, np.inf], [np.inf, np.inf]])) == [(0, 0), (1, 1)]
+    assert len(min_cost_assignment(np.full((3, 3), np.nan))) == 3
+    tr = Tracker(CFG, DT_US)
+    for w in range(6):                                           # two tracks side by side
+        tr.update([Obj(100.0 + 2 * w, 200.0, 0.0, 4000.0), Obj(100.0 + 2 * w, 212.0, 0.0, 4000.0)], w * DT_US)
+    objs = [Obj(112.0, 205.0, math.nan, 4000.0), Obj(113.0, 207.0, math.nan, 4000.0)]   # both in both gates
+    tr.update(objs, 6 * DT_US)
+    assert all(o.track_id is not None for o in objs)

@@ -28,7 +28,9 @@ from .compiled import _root
 
 @njit(cache=True, nogil=True)
 def min_cost_pairs(cost):
-    """(rows, cols) of the minimum-cost assignment of ``cost`` (n, m) float64 (module doc)."""
+    """(rows, cols) of the minimum-cost assignment of ``cost`` (n, m) float64 (module doc); finite
+    costs (metrics.min_cost_assignment makes them so: a NaN or inf entry there costs more than
+    all the finite ones together)."""
     flip = cost.shape[0] > cost.shape[1]
     a = cost.T if flip else cost                 # n <= m
     n, m = a.shape
@@ -54,11 +56,10 @@ def min_cost_pairs(cost):
                         way[j] = j0
             j1 = 0
             delta = np.inf
-            for j in range(1, m + 1):                # the first free column of least minv
-                c = np.inf if used[j] else minv[j]
-                if j1 == 0 or c < delta:
+            for j in range(1, m + 1):                # the first free column of least minv (one is
+                if not used[j] and (j1 == 0 or minv[j] < delta):   # free: n <= m; so the loop ends)
                     j1 = j
-                    delta = c
+                    delta = minv[j]
             for j in range(m + 1):
                 if used[j]:
                     u[owner[j]] += delta

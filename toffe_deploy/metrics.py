@@ -68,8 +68,13 @@ def match_nearest(pred_xy: np.ndarray, true_xy: np.ndarray, max_dist_px: float =
 
 def min_cost_assignment(cost: np.ndarray) -> list[tuple[int, int]]:
     """Exact minimum-cost assignment of a (n, m) matrix: min(n, m) (row, col) pairs, each row and
-    column at most once (Hungarian method with potentials; assignment.min_cost_pairs)."""
-    rows, cols = min_cost_pairs(np.ascontiguousarray(cost, dtype=np.float64))
+    column at most once (Hungarian method with potentials; assignment.min_cost_pairs). A NaN or
+    inf entry (a forbidden pair) costs more than all the finite ones together."""
+    cost = np.array(cost, dtype=np.float64)
+    bad = ~np.isfinite(cost)
+    if bad.any():
+        cost[bad] = float(np.abs(cost[~bad]).sum()) + 1.0
+    rows, cols = min_cost_pairs(cost)
     return list(zip(rows.tolist(), cols.tolist()))
 
 
@@ -92,8 +97,11 @@ def match_gated(pred_xy: np.ndarray, true_xy: np.ndarray, gate_px: float = GATE_
 def match_within(d: np.ndarray, ok: np.ndarray) -> list[tuple[int, int]]:
     """``match_gated`` on a (rows, cols) distance matrix ``d`` whose allowed pairs are ``ok``
     (a gate per row or per pair, as the tracker's): (row, col) pairs, the most allowed pairs,
-    then the least total distance (assignment.match_pairs)."""
-    rows, cols = match_pairs(np.ascontiguousarray(d, dtype=np.float64), np.ascontiguousarray(ok, dtype=np.bool_))
+    then the least total distance (assignment.match_pairs). A pair whose distance is NaN or inf
+    is not allowed."""
+    d = np.ascontiguousarray(d, dtype=np.float64)
+    ok = np.ascontiguousarray(ok, dtype=np.bool_) & np.isfinite(d)
+    rows, cols = match_pairs(d, ok)
     return list(zip(rows.tolist(), cols.tolist()))
 
 

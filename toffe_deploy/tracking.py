@@ -76,9 +76,9 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                their copies' predictions lay within merge_px of each other, the two ids are kept
                or swapped by the cheaper pairing of
                    c(i, k) = |P_i(t) - z_k| + parting_heading_px q_k |angle(u_k, R(w_i (t - t_b)) v_i)|
-                             + parting_events_px |ln n_k - e_i|
+                             + parting_events_px |ln n_k - a_i|
                (P_i: track i's copy carried to now at constant turn rate; q_k as in associate;
-               n_k the detection's event ones, e_i the copy's mean ln(event ones) of its own
+               n_k the detection's event ones, a_i the copy's mean ln(event ones) of its own
                detections, EVENTS_BETA; the term is left out where either is not known).
                Why: in a blob the taker follows the blob's centre, which is neither object's,
                and a curving object's straight coast drifts, so the association where they part
@@ -88,9 +88,10 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                size, contrast and speed set it, and two objects that cross rarely share it
                (generated crossings: the two objects' ln counts, seen apart, differ by a median
                2.4-6 of their window-to-window spread), so it still tells them apart where they
-               turned or stopped inside the blob and their motion from before misleads. A swap redoes this window's update of both
-               tracks with the exchanged detections (their predictions updated again; ids, age
-               and hits go with the track). A track seen again waits up to PARTING_WAIT (10)
+               turned or stopped inside the blob and their motion from before misleads. A swap
+               redoes this window's update of both tracks with the exchanged detections (their
+               predictions updated again, their mean counts too; ids, age and hits go with the
+               track). A track seen again waits up to PARTING_WAIT (10)
                windows for its partner to be seen too (a fast object that passed over a slow
                one comes out first), then drops its copy; a copy is kept for at most
                PARTING_MAX_WINDOWS (80) windows
@@ -338,8 +339,11 @@ class Detections:
 
     def __post_init__(self):
         a = np.asarray(self.a, _F)
-        if a.ndim == 2 and a.shape[1] == 6:
-            object.__setattr__(self, "a", np.concatenate([a, np.full((a.shape[0], 1), np.nan)], axis=1))
+        if a.ndim != 2 or a.shape[1] not in (6, 7):
+            raise ValueError(f"detections must be an (n, 6) or (n, 7) array, got shape {a.shape}")
+        if a.shape[1] == 6:
+            a = np.concatenate([a, np.full((a.shape[0], 1), np.nan)], axis=1)
+        object.__setattr__(self, "a", np.ascontiguousarray(a))
 
     def __len__(self) -> int:
         return int(self.a.shape[0])
@@ -372,7 +376,7 @@ def _detections(zr):
     z = np.empty((n, 7))
     for k in range(n):
         z[k, 0], z[k, 1], z[k, 4], z[k, 5] = zr[k], zr[n + k], zr[3 * n + k], zr[4 * n + k]
-        z[k, 6] = math.log(zr[5 * n + k]) if zr[5 * n + k] > 0 else np.nan
+        z[k, 6] = math.log(zr[5 * n + k]) if 0 < zr[5 * n + k] < np.inf else np.nan
         z[k, 2], z[k, 3] = zr[3 * n + k] * math.cos(zr[2 * n + k]), zr[3 * n + k] * math.sin(zr[2 * n + k])
     return z
 
@@ -747,12 +751,13 @@ def _associate(a, d, ok, simple, t, z, p):
         for i in range(n_t):
             heading = math.atan2(a[i, VY], a[i, VX])
             for k in range(n_d):
-                cost[i, k] = d[i, k] + p[P_HEADING_COST] * _direction_cost(
-                    math.atan2(z[k, 3], z[k, 2]) - heading, z[k, 4], p[P_DT], p[P_HEADING_PX])
+                h = _direction_cost(math.atan2(z[k, 3], z[k, 2]) - heading, z[k, 4], p[P_DT], p[P_HEADING_PX])
+                cost[i, k] = d[i, k] + p[P_HEADING_COST] * (h if math.isfinite(h) else 0.0)
     first = np.zeros((n_t, n_d), np.bool_)
     for i in range(n_t):
         if t[i, CONF] > 0:
-            first[i] = ok[i]
+            for k in range(n_d):
+                first[i, k] = ok[i, k] and math.isfinite(cost[i, k])
     r1, j1 = match_pairs(cost, first)
     taken = np.zeros(n_d, np.bool_)
     taken[j1] = True
@@ -760,7 +765,7 @@ def _associate(a, d, ok, simple, t, z, p):
     for i in range(n_t):
         if t[i, CONF] <= 0:
             for k in range(n_d):
-                then[i, k] = ok[i, k] and not taken[k]
+                then[i, k] = ok[i, k] and not taken[k] and math.isfinite(cost[i, k])
     r2, j2 = match_pairs(cost, then)
     return np.concatenate((r1, r2)), np.concatenate((j1, j2))
 
@@ -856,7 +861,7 @@ PARTING_MAX_WINDOWS = 80
 #: object that passed over a slow one is seen at once, the slow one some windows later)
 PARTING_WAIT = 10
 #: the columns of a track that an update (_hit) sets: what a parting exchange takes from the redone update
-_FILTER = [X, Y, VX, VY, S, BIN, HX, HY, W, LX, LY, LT, UX, UY]
+_FILTER = [X, Y, VX, VY, S, BIN, HX, HY, W, LX, LY, LT, UX, UY, EV]
 
 
 def _carried(before: list, t_us: int) -> tuple[float, float, float]:
@@ -881,7 +886,7 @@ def _part_cost(p: tuple, ev: float, zr: np.ndarray, n: int, k: int, per_rad: flo
     count is not known, no events term)."""
     turn = float(_direction_cost(zr[2 * n + k] - p[2], zr[3 * n + k], dt_s, heading_px))
     c = math.hypot(p[0] - zr[k], p[1] - zr[n + k]) + per_rad * turn
-    if per_ln > 0 and zr[5 * n + k] > 0 and not math.isnan(ev):
+    if per_ln > 0 and 0 < zr[5 * n + k] < math.inf and not math.isnan(ev):
         c += per_ln * abs(math.log(zr[5 * n + k]) - ev)
     return c
 
@@ -934,6 +939,8 @@ class Tracker:
         objects' constructor (the ids a slice when every detection has a track, the usual
         window: Python work costs microseconds on the cold cache the pipeline's other kernels
         leave)."""
+        if zr.ndim != 1 or zr.shape[0] % 6:
+            raise ValueError(f"detections must be raw_detections' flat (6 n,) columns, got shape {zr.shape}")
         last, t0_us = self.t0_last, int(t0_us)
         self.t0_last = t0_us
         t, lost = self._a, self._lost
@@ -946,7 +953,12 @@ class Tracker:
             a[:, MISS] += n_win - 1
             a[:, STREAK] = 0
             s = self.settings
-            live = a[:, MISS] <= np.where(a[:, CONF] > 0, s.max_misses, s.tentative_misses)
+            # who lives through the gap: _update's rule (an occluded track up to max_occluded, a
+            # slow one while its coast stays within coast_px)
+            conf = a[:, CONF] > 0
+            live = a[:, MISS] <= np.where(conf, np.maximum(s.max_misses, s.max_occluded * (a[:, OCC] > 0)),
+                                          s.tentative_misses)
+            live |= conf & (a[:, MISS] * a[:, S] * self.dt_us * 1e-6 <= s.coast_px) & (a[:, MISS] <= s.max_coast)
             lost = lost.copy()
             lost[:, AGE] += n_win - 1
             lost[:, MISS] += n_win - 1
