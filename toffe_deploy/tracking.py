@@ -921,8 +921,9 @@ class Tracker:
         _direction_cost(0.0, 1.0, 1e-3, 1.0)
 
     def update(self, objects: list, t0_us: int) -> Tracks:
-        """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin;
-        each gets ``track_id`` and ``track``); returns the live tracks."""
+        """Track one window's objects (objects with x, y, direction_rad, speed_px_s, speed_bin and,
+        for the parting's events term, n_events (optional); each gets ``track_id`` and ``track``);
+        returns the live tracks."""
         for o, tid, state in zip(objects, *self.columns(raw_detections(objects), t0_us)):
             o.track_id, o.track = tid, state
         return self.tracks
