@@ -117,7 +117,7 @@ object moving heading_px or more per window is reported in the direction it was 
 moving (no lag on a curve: v_i's beta lagged 12 deg behind bin-4 objects), a slow one (bin 1,
 0.05-1 px per window, 40-75 deg per-window errors) in an average over its last ~1 / heading_beta
 windows (causal: past and current windows only); v_i, what the prediction uses, keeps beta
-(a slower v_i cost MOTA on curves: README's tracking section). The per-window loops are numba-compiled like
+(a slower v_i cost MOTA on curves: docs/tracking-log.md). The per-window loops are numba-compiled like
 compiled.py's (a window has a handful of objects, where numpy's per-call overhead dominates: 11
 us per window against 94 us in numpy); torch- and Lava-free, so it runs on every target.
 """
@@ -137,8 +137,8 @@ from .assignment import match_pairs
 class TrackerConfig:
     """Settings of ``step`` (equations in the module doc). gate_px: association radius around a
     track's predicted centre (tighter than eval's 20 px scoring gate: a detection 15-20 px off a
-    prediction was more often a merged blob or another object than the track's own; README's
-    tracking section has the measurements); gate_speed: how much of one window's travel s_i dt
+    prediction was more often a merged blob or another object than the track's own;
+    docs/tracking-log.md has the measurements); gate_speed: how much of one window's travel s_i dt
     widens every gate (fast objects' predictions err more); alpha, beta: position and
     velocity / speed gains of the alpha-beta filter (1 = trust the detection only);
     confirm_hits: hits before a track is confirmed (reported with ``confirmed`` true and counted
@@ -183,7 +183,7 @@ class TrackerConfig:
     within this distance of a confirmed track's prediction that is missed in the window and
     converging on the track the detection goes to is a blob of both (its taker keeps its
     motion, as for shared_keeps_motion; 0: off; objects up to ~50 px across hide each other
-    from ~40 px apart, and 35-50 measured alike: README's tracking section). handover_px,
+    from ~40 px apart, and 35-50 measured alike: docs/tracking-log.md). handover_px,
     handover_reach, handover_windows, handover_speed_ratio: the hand-over (module doc; 0 px:
     off): the radius around a lost track's last own detection, its growth in multiples of the
     lost track's travel per window since then, how many windows since its last detection a lost
