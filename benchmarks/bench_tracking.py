@@ -156,7 +156,8 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
             own.new_sequence()
             with contextlib.ExitStack() as stack:
                 if saved is None:
-                    pipe = stack.enter_context(Pipeline(bundle, "cpu", sensor_size=sensor, track=settings))
+                    pipe = stack.enter_context(Pipeline(bundle, "cpu", sensor_size=sensor, track=settings,
+                                                        speed_scale=cfg.speed_scale))   # as replay() and flow
                     results = pipe.process_stream(windows())
                 else:
                     results = replay(fi)

@@ -111,3 +111,68 @@ def test_a_gap_is_jumped_on_the_window_grid_of_t_start(env):
         got = flow.feed([1, 2, 3], [1, 2, 3], [60, 100_000, 100_010], [1, 1, 0]) + flow.flush()
     starts = [r.t0_us for r in got]
     assert starts[0] == 50 and all((t - 50) % dt == 0 for t in starts) and starts[-1] == 50 + (100_000 - 50) // dt * dt
+
+
+def test_speeds_in_mps_on_another_sensor_are_runs(env, capsys, tmp_path):
+    """On a sensor wider than the bundle's (no camera in the file), the API's m/s are `run`'s:
+    the bundle's field of view over the sensor's width (run_camera.resolve_camera), not the
+    bundle's focal length as it is (that reported 84.7 m/s where `run` reported 156.6)."""
+    from toffe_deploy.events.io import open_events, write_events_npz
+    from toffe_deploy.runtime.run_camera import resolve_camera
+
+    cfg = env["bundle"].config
+    ev = read_events(env["rec"]).events
+    wide = (2 * cfg.sensor_size[0], cfg.sensor_size[1])
+    write_events_npz(tmp_path / "wide.npz", ev, wide)
+    assert main(["run", str(env["bundle"].root), "--events", str(tmp_path / "wide.npz"), "--out",
+                 str(tmp_path / "o.jsonl"), "--summary-json", str(tmp_path / "s.json"), "--no-progress"]) == 0
+    capsys.readouterr()
+    camera = json.loads((tmp_path / "s.json").read_text())["camera"]
+    assert camera["focal_px"] == pytest.approx(2 * cfg.focal_px)
+    want = [json.loads(s) for s in (tmp_path / "o.jsonl").read_text().splitlines()[1:]]
+    with open_events(tmp_path / "wide.npz") as src:             # the file's own start, as `run` (README)
+        start = src.t_start_us
+    with api.FlowStream(env["bundle"], "cpu", sensor_size=wide, t_start_us=start) as flow:
+        assert flow.pipeline.speed_scale == resolve_camera(cfg, wide).scale
+        got = [r.to_json() for r in flow.feed(ev["x"], ev["y"], ev["t"], ev["p"]) + flow.flush()]
+    assert any(w["objects"] for w in want) and got[:len(want)] == want[:len(got)] and len(got) >= len(want) - 1
+    with pytest.raises(ValueError, match="width, height"):
+        api.FlowStream(env["bundle"], "cpu", sensor_size=(64,))
+
+
+def test_feed_window_keeps_time_order_and_feed_goes_on_after_it(env):
+    """feed_window refuses a window before the last one's end or at a negative t0 (it ran them
+    through the tracker, and t0 < 0 broke the schema), and feed() then starts at its end (it
+    processed window 0 a second time)."""
+    b = env["bundle"]
+    cfg = b.config
+    w, h = cfg.sensor_size
+    dt = cfg.dt_us
+    z = np.zeros((cfg.n_bins, 2, h, w), np.uint8)
+    with api.FlowStream(b, "cpu") as flow:
+        flow.feed_window(2 * dt, z)
+        for t0, msg in ((dt, "before the end"), (2 * dt, "before the end"), (-dt, ">= 0"), (0.5, "whole number")):
+            with pytest.raises(ValueError, match=msg):
+                flow.feed_window(t0, z)
+        assert flow.feed_window(3 * dt, z).t0_us == 3 * dt
+        flow.feed([1], [1], [4 * dt + 10], [1])
+        with pytest.raises(ValueError, match="flush"):
+            flow.feed_window(10 * dt, z)
+    ev = read_events(env["rec"]).events
+    ev = ev[ev["t"] >= dt]
+    with api.FlowStream(b, "cpu", t_start_us=0) as flow:
+        flow.feed_window(0, z)
+        starts = [r.t0_us for r in flow.feed(ev["x"], ev["y"], ev["t"], ev["p"])]
+    assert starts[:2] == [dt, 2 * dt]
+
+
+def test_skip_empty_after_zero_never_skips_as_in_run(env):
+    """skip_empty_after 0 (or None) processes every empty window, as `run --skip-empty-after 0`
+    (it skipped every one at once); a negative count is refused."""
+    dt = env["bundle"].config.dt_us
+    for skip in (0, None):
+        with api.FlowStream(env["bundle"], "cpu", t_start_us=0, skip_empty_after=skip, track=False) as flow:
+            got = flow.feed([1, 2], [1, 2], [10, 20 * dt + 5], [1, 1]) + flow.flush()
+        assert [r.t0_us for r in got] == [k * dt for k in range(21)]
+    with pytest.raises(ValueError, match="skip_empty_after"):
+        api.FlowStream(env["bundle"], "cpu", skip_empty_after=-1)

@@ -62,6 +62,23 @@ def test_a_raw_file_whose_times_start_at_zero_keeps_its_first_events(events, tmp
     np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("version, t0", [("evt2", 0x25 << 6), ("evt3", (0x25 << 12) + 100)])
+def test_a_raw_file_whose_first_data_byte_is_a_percent_sign_reads_back(events, tmp_path, version, t0):
+    """faery writes no '% end': its first data word follows the header lines, and when that
+    word's first byte is '%' (EVT 2.0: (t >> 6) & 0xFF = 0x25, 1 start time in 256; EVT 3.0: a
+    first time high whose low byte is 0x25) it was read as a header line and the file refused
+    as corrupt."""
+    ev = events[:500].copy()
+    ev["t"] += t0 - ev["t"][0]
+    path = _faery_file(tmp_path / "pct.raw", ev, version=version)
+    data = path.read_bytes()
+    start = 0
+    while data.startswith(b"% ", start):                    # faery's header lines
+        start = data.index(b"\n", start) + 1
+    assert data[start:start + 1] == b"%"                    # the case: its data starts with 0x25
+    np.testing.assert_array_equal(read_events(path).events, ev)
+
+
 @pytest.fixture(scope="module")
 def prophesee_files(tmp_path_factory, events):
     root = tmp_path_factory.mktemp("prophesee")
@@ -240,6 +257,29 @@ def test_metavision_hdf5(events, tmp_path, capsys, compression):
     np.testing.assert_array_equal(read_events(path).events, events)
     assert _info(capsys, path)["events"] == len(events)
     _convert_round_trip(tmp_path, path, events)
+
+
+@pytest.mark.parametrize("where", ["first", "last"])
+@pytest.mark.parametrize("kind", ["metavision", "npy"])
+def test_time_going_back_at_either_end_is_refused_not_dropped(events, tmp_path, capsys, where, kind):
+    """A file whose time goes back at its second event or at its last: the search for the
+    file's range skipped those events, so `events info` counted 2 fewer and `events convert`
+    wrote a copy without them, exit 0. Now the whole file is read and the decrease named."""
+    ev = events[:400].copy()
+    if where == "first":
+        ev["t"][1] = ev["t"][0] - 1
+    else:
+        ev["t"][-1] = ev["t"][-2] - 100
+    path = (_metavision_h5(tmp_path / "back.hdf5", ev) if kind == "metavision"
+            else tmp_path / "back.npy")
+    if kind == "npy":
+        np.save(path, ev)
+    at = 1 if where == "first" else len(ev) - 1
+    assert f"timestamps decrease at event {at}" in _cli_error(capsys, path)
+    with pytest.raises(InputError, match="timestamps decrease"):
+        read_events(path)
+    assert main(["events", "convert", str(path), str(tmp_path / "out.h5")]) == 2
+    assert not (tmp_path / "out.h5").exists()
 
 
 def test_metavision_ecf_without_the_plugin_names_the_filter(events, tmp_path, capsys):

@@ -397,6 +397,34 @@ def test_fifo_as_events_is_refused_not_waited_on(env, capsys, tmp_path):
         os.close(fd)
 
 
+def test_out_into_a_fifo_streams_into_it_and_whole_file_outputs_refuse_it(env, capsys, tmp_path):
+    """`--out FIFO` (or /dev/null, bash's >(...)) replaced the pipe with a regular file, exit 0,
+    and its reader got nothing (as root, `--out /dev/null` replaced /dev/null). Now the lines go
+    into the pipe; outputs written whole and renamed into place (--summary-json, events convert)
+    refuse a pipe, one line, and it stays a pipe."""
+    import stat
+    import threading
+
+    fifo = tmp_path / "lines.fifo"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(open(fifo, "rb").read()), daemon=True)
+    reader.start()
+    rc, _out, err = cli(capsys, *run_args(env), "--max-windows", "4", "--out", fifo)
+    reader.join(timeout=60)
+    assert rc == 0, err
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    lines = got[0].decode().splitlines()
+    assert len(lines) == 5 and json.loads(lines[0])["type"] == "header" and json.loads(lines[-1])["t0_us"] >= 0
+    one_line_error(*cli(capsys, *run_args(env), "--max-windows", "1", "--summary-json", fifo)[::2],
+                   "--summary-json", "not a file")
+    conv = tmp_path / "conv.h5"
+    os.mkfifo(conv)
+    one_line_error(*cli(capsys, "events", "convert", "--force", env["rec"], conv)[::2], "not a file")
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode) and stat.S_ISFIFO(os.stat(conv).st_mode)
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
 # ------------------------------------------------------------------ 10. validation gaps
 
 def test_nan_coordinate_in_float_hdf5_column(env, capsys, tmp_path):

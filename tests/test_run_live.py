@@ -298,6 +298,22 @@ def test_a_producer_slower_than_real_time_loses_no_event(env):
         assert np.array_equal(got, ev[(ev["t"] >= t0) & (ev["t"] < t0 + 500)])
 
 
+def test_the_window_grid_is_the_first_event_as_it_came_however_the_pipe_cuts_it(env):
+    """An event stamped earlier than the first one, in the first chunk: the first chunk was
+    sorted before the grid was fixed, so the grid started at that event when it came in the
+    same write and at the first event when it came in the next: two outputs for one byte
+    stream. Now the first event as it came fixes the grid and the earlier one is late either way."""
+    ev = events_of(env).copy()
+    ev["t"][len(ev) // 2] = 5                                      # the producer's glitch, far before the first event
+    assert int(ev["t"][0]) > 5
+    got = []
+    for pieces in (1, 2):
+        wins, stats = _paced_stdin(ev, pieces=pieces, pause_s=0.05)
+        assert stats.late_events == 1 and stats.received_events == len(ev)
+        got.append([(t0, w.tobytes()) for t0, w in wins])
+    assert got[0] == got[1] and got[0][0][0] == int(ev["t"][0])
+
+
 def test_a_stalled_producer_has_its_late_events_counted_and_the_summary_warns(env):
     """Half the recording at once, a 1 s stall, the rest: the stall's windows close on time (as a
     quiet camera's), the events that come after it are late, dropped and counted; `run`'s

@@ -13,12 +13,13 @@
         for win in flow.flush():                              # the last, partial window
             ...
 
-Windows: [t0, t0 + dt) on a grid from ``t_start_us`` (default: the first event's time rounded
-down to a multiple of dt); a window is processed once an event at or after its end arrives
+Windows: [t0, t0 + dt) on a grid from ``t_start_us`` (default: the first event's time, as
+`run` on a live source); a window is processed once an event at or after its end arrives
 (``flush`` ends the last one). Empty windows in between are processed too (the tracks coast
-through them), up to ``skip_empty_after`` in a row; a longer gap is jumped over, as `run` does.
-``feed_window(t0_us, window)`` takes a ready window instead: a dense (B, 2, H, W) array or a
-runtime.spikes.SpikeVolume. Results are pipeline.WindowResult (``objects``: ObjectFlow;
+through them), up to ``skip_empty_after`` in a row (0 or None: always); a longer gap is jumped
+over, as `run --skip-empty-after N` does. ``feed_window(t0_us, window)`` takes a ready window
+instead: a dense (B, 2, H, W) array or a runtime.spikes.SpikeVolume; windows fed either way go
+in time order, and ``feed`` after ``feed_window`` goes on from the end of that window. Results are pipeline.WindowResult (``objects``: ObjectFlow;
 ``coasting``: tracks not seen in the window; ``to_json()``: the JSON line of `run` as a dict, schema.py).
 
 Conventions (as the JSON lines, README "JSON lines"): x, y in sensor pixels from the top-left
@@ -58,11 +59,20 @@ class FlowStream:
     m/s, ``SpeedScale(focal_px, depth_m)`` (default: the bundle's); track: True, a TrackerConfig,
     or False; t_start_us: the first window's start, the origin of the window grid (default: the
     first event's time, as `run` on a live source; a file's own start, as `run` on a file, is
-    ``t_start_us=src.t_start_us``); ofpd_variant: the bundle's OFPD file (fp32, fp16, int8)."""
+    ``t_start_us=src.t_start_us``); skip_empty_after: empty windows in a row processed before
+    a gap is jumped over (0 or None: never jump, as `run --skip-empty-after 0`); ofpd_variant:
+    the bundle's OFPD file (fp32, fp16, int8). speed_scale's default and every other setting
+    are `run`'s (Pipeline), so the same events give `run`'s lines."""
 
     def __init__(self, bundle: Bundle | str, target: str = "cpu", *, sensor_size: tuple[int, int] | None = None,
                  speed_scale: SpeedScale | None = None, track: bool | TrackerConfig = True,
-                 t_start_us: int | None = None, skip_empty_after: int = SKIP_EMPTY_AFTER, ofpd_variant: str = "fp32"):
+                 t_start_us: int | None = None, skip_empty_after: int | None = SKIP_EMPTY_AFTER,
+                 ofpd_variant: str = "fp32"):
+        if skip_empty_after is not None and (isinstance(skip_empty_after, bool) or int(skip_empty_after) != skip_empty_after
+                                             or skip_empty_after < 0):
+            raise ValueError(f"skip_empty_after must be a whole number >= 0 (0 or None: never skip), got {skip_empty_after!r}")
+        if t_start_us is not None and int(t_start_us) < 0:
+            raise ValueError(f"t_start_us must be >= 0, got {t_start_us}")
         self.bundle = load_bundle(bundle) if not isinstance(bundle, Bundle) else bundle
         self.pipeline = Pipeline(self.bundle, target, ofpd_variant=ofpd_variant, sensor_size=sensor_size,
                                  speed_scale=speed_scale, track=track)
@@ -70,7 +80,7 @@ class FlowStream:
         self.dt_us, self.n_bins = int(cfg.dt_us), int(cfg.n_bins)
         self.sensor_size = self.pipeline.sensor_size
         self.t_start_us = None if t_start_us is None else int(t_start_us)
-        self.skip_empty_after = int(skip_empty_after)
+        self.skip_empty_after = int(skip_empty_after) if skip_empty_after else None    # None: never skip
         self.reset()
 
     def reset(self) -> None:
@@ -104,8 +114,22 @@ class FlowStream:
 
     def feed_window(self, t0_us: int, window) -> WindowResult:
         """Object flow of one ready window [t0_us, t0_us + dt): a (B, 2, H, W) array (nonzero =
-        event) or a SpikeVolume. Windows must come in time order."""
-        return self._run(t0_us, window)
+        event) or a SpikeVolume. Windows come in time order: t0_us >= 0 and at or after the end of
+        the last window processed (ValueError otherwise); a later ``feed`` goes on from its end."""
+        t0 = int(t0_us)
+        if t0 != t0_us or t0 < 0:
+            raise ValueError(f"FlowStream.feed_window: t0_us must be a whole number of us >= 0, got {t0_us!r}")
+        if self._done_until is not None and t0 < self._done_until:
+            raise ValueError(f"FlowStream.feed_window: the window at t0 = {t0} us starts before the end of the last "
+                             f"window processed ({self._done_until} us): windows go in time order (reset() starts again)")
+        if self._buf.shape[0]:
+            raise ValueError("FlowStream.feed_window: events fed with feed() wait in the buffer; flush() them first")
+        res = self._run(t0, window)
+        self.t0 = self._done_until = t0 + self.dt_us
+        if self._origin is None:
+            self._origin = t0
+        self._empty = 0
+        return res
 
     def feed(self, x, y, t, p) -> list[WindowResult]:
         """Add a packet of time-sorted events (columns of one length: x, y whole px, t whole us,
@@ -145,7 +169,7 @@ class FlowStream:
             cut = int(np.searchsorted(self._buf["t"], t1, side="left"))
             win, self._buf = self._buf[:cut], self._buf[cut:]
             self._empty = 0 if cut else self._empty + 1
-            if cut or self._empty <= self.skip_empty_after:
+            if cut or self.skip_empty_after is None or self._empty <= self.skip_empty_after:
                 vol = SpikeVolume.from_events(win, self.t0, self.dt_us, self.n_bins, self.sensor_size)
                 out.append(self._run(self.t0, vol))
                 self.t0 = self._done_until = t1

@@ -12,6 +12,7 @@ import json
 import math
 import os
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
@@ -41,15 +42,38 @@ def write_errors(path: str | os.PathLike) -> Iterator[None]:
         raise InputError(path, f"cannot write: {os.strerror(exc.errno)}") from None
 
 
+def special_file(path: str | os.PathLike) -> bool:
+    """Whether ``path`` names an existing device, pipe (FIFO, /dev/fd/N) or socket: something a
+    rename over it would destroy (a file written beside it and renamed to /dev/null replaces
+    /dev/null with a regular file), not a regular file or a directory."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False
+    return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
+
+
+#: why an output written whole (atomic_path) cannot go to a special_file
+SPECIAL_WHY = "is a device, pipe or socket, not a file: this output is written whole and renamed into place; name a file"
+
+
+def refuse_special(path: str | os.PathLike, name: str = "") -> None:
+    """InputError for an output that must be written whole (atomic_path) named at a device or pipe."""
+    if special_file(path):
+        raise InputError(path, f"{name}: {SPECIAL_WHY}" if name else SPECIAL_WHY)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds.
 
     The caller writes the file at the yielded path (any library). On an exception the
     temporary file is removed and ``path`` is untouched; a refused write (WRITE_ERRNOS) is
-    reported as InputError naming ``path``.
+    reported as InputError naming ``path``, and so is a ``path`` that names a device or pipe
+    (refuse_special: the rename would replace it).
     """
     path = Path(path)
+    refuse_special(path)
     with write_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or ".tmp", dir=path.parent)
@@ -168,7 +192,8 @@ def _probe_writable(out: Path, is_dir: bool) -> None:
 
 def check_outputs(files: Sequence[tuple[str, str | os.PathLike | None]] = (),
                   dirs: Sequence[tuple[str, str | os.PathLike | None]] = (),
-                  inputs: Sequence[tuple[str, str | os.PathLike | None]] = ()) -> None:
+                  inputs: Sequence[tuple[str, str | os.PathLike | None]] = (),
+                  streamed: Sequence[str] = ()) -> None:
     """Refuse, before any work, output paths that would destroy an input or each other.
 
     files / dirs: (option name, path) of the file / directory outputs (None = not given).
@@ -177,8 +202,10 @@ def check_outputs(files: Sequence[tuple[str, str | os.PathLike | None]] = (),
     (same inode or same resolved path: symlinks and hard links count). Two outputs may not
     resolve to the same path, a file output may not be an existing directory (nor a directory
     output a file), and every output's directory must accept a new file (read-only, full or
-    forbidden destinations fail here, before the work). Each problem is an InputError naming
-    the output: one line, exit 2.
+    forbidden destinations fail here, before the work). A file output at a device or pipe
+    (special_file) is refused too, unless its option is in ``streamed`` (written line by line
+    into it, runtime.output.LineFile). Each problem is an InputError naming the output: one
+    line, exit 2.
     """
     outs = [(n, Path(p), False) for n, p in files if p is not None] + \
            [(n, Path(p), True) for n, p in dirs if p is not None]
@@ -195,4 +222,8 @@ def check_outputs(files: Sequence[tuple[str, str | os.PathLike | None]] = (),
         if real in seen:
             raise InputError(out, f"given as both {seen[real]} and {name}; choose different outputs")
         seen[real] = name
+        if not is_dir and special_file(out):
+            if name not in streamed:
+                refuse_special(out, name)
+            continue                               # written into as it is: nothing to probe beside it
         _probe_writable(out, is_dir)

@@ -211,7 +211,7 @@ def check_run_outputs(args, bundle) -> None:
     inputs += [("bundle file", p) for p in bundle.ofpd_variants.values()]
     check_outputs(files=[("--out", args.out), ("--summary-json", args.summary_json),
                          ("--dump-spikes", args.dump_spikes), ("--report", args.report)],
-                  dirs=[("--render", args.render)], inputs=inputs)
+                  dirs=[("--render", args.render)], inputs=inputs, streamed=("--out",))
 
 
 def open_source(args, bundle_sensor: tuple[int, int]):

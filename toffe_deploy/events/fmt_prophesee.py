@@ -47,14 +47,28 @@ CHUNK_BYTES = 1 << 22
 MAX_HEADER_BYTES = 1 << 20
 
 
+def _header_line(line: bytes) -> bool:
+    """Whether ``line`` is a ``% ...`` header line: '%', then printable ASCII text (not empty),
+    ending at a newline. A file without ``% end`` (faery writes none) goes straight from its
+    last header line to binary data, whose first byte may be '%' (0x25): an EVT 2.0 file whose
+    first time stamp has (t >> 6) & 0xFF = 0x25, about 1 in 256; that word is data."""
+    if not (line.startswith(b"%") and line.endswith(b"\n")):
+        return False
+    text = line[1:].rstrip(b"\r\n")
+    return bool(text.strip()) and all(32 <= c < 127 or c == 9 for c in text)
+
+
 def read_header(path, fh) -> tuple[dict[str, str], int]:
-    """The ``% key value`` header lines (keys lower-cased) and the byte offset where data starts."""
+    """The ``% key value`` header lines (keys lower-cased) and the byte offset where data starts
+    (the first line that is not a header line, _header_line, or the one after ``% end``)."""
     fields: dict[str, str] = {}
     pos = 0
     fh.seek(0)
     while True:
         line = fh.readline(MAX_HEADER_BYTES)
-        if not line.startswith(b"%"):
+        if not _header_line(line):
+            if line.startswith(b"%") and len(line) >= MAX_HEADER_BYTES:
+                raise InputError(path, "header of '%' lines longer than 1 MiB: not a Prophesee file")
             break
         pos += len(line)
         if pos > MAX_HEADER_BYTES:

@@ -279,13 +279,16 @@ class LiveSource(abc.ABC):
         self.start()
         buf = np.empty(0, EVENT_DTYPE)
         exhausted = False
+        t0 = None if t_start is None else int(t_start)
         while not buf.shape[0]:                      # the first event fixes the window grid
             item = self._next(_POLL_S)
             if item is _END:
                 return
-            if item is not None:
-                buf = self._append(buf, item, 0)     # sorted, should the source's chunk not be
-        t0 = int(buf["t"][0]) if t_start is None else int(t_start)
+            if item is not None and item.shape[0]:
+                # the first event as it came, not the chunk's earliest: the grid must not depend on
+                # how the producer's writes were cut into chunks; earlier events in it are late
+                t0 = int(item["t"][0]) if t0 is None else t0
+                buf = self._append(buf, item, t0)    # sorted, should the source's chunk not be
         n_empty, seen_drops, jump_to = 0, self.stats.dropped_chunks, None
         while True:
             if skip_empty_after is not None and n_empty >= skip_empty_after and buf.shape[0]:

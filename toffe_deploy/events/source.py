@@ -112,11 +112,17 @@ class EventSource(abc.ABC):
         return self.read_index(i0, i1)
 
     def iter_chunks(self, t_start: int | None = None, t_end: int | None = None) -> Iterator[np.ndarray]:
-        """Validated, time-ordered chunks of at most ``chunk_events`` events in [t_start, t_end)."""
+        """Validated, time-ordered chunks of at most ``chunk_events`` events in [t_start, t_end).
+
+        A range from the file's first event or to its last one reads from index 0 or to the end
+        instead of searching: the search assumes sorted times, and on a file whose time goes
+        back near either end it skipped events that then never reached the order check (a
+        converted copy silently lacked them)."""
         t_start = self.t_start_us if t_start is None else int(t_start)
         t_end = self.t_end_us if t_end is None else int(t_end)
-        i = self._index_of_time(t_start)
-        i_end = self._index_of_time(t_end)
+        i, i_end = self._index_of_time(t_start), self._index_of_time(t_end)   # (a seek index is checked here)
+        i = 0 if t_start <= self.t_start_us else i
+        i_end = self.num_events if t_end >= self.t_end_us else i_end
         prev_t = None
         while i < i_end:
             j = min(i + self.chunk_events, i_end)

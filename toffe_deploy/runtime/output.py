@@ -32,7 +32,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import InputError
-from ..fileio import atomic_path, json_text
+from ..fileio import atomic_path, json_text, special_file
 from .pipeline import WindowResult
 from .traffic import Traffic
 
@@ -46,10 +46,20 @@ class LineFile:
     The lines go to a temp file beside ``path`` (missing directories are made) that replaces
     ``path`` with the first line written, so a run that fails before it has a line to write (bad
     events in its first window, a live source that never sends) leaves an existing file as it
-    was and no new one; ``close`` then removes the temp file."""
+    was and no new one; ``close`` then removes the temp file. A ``path`` that names a device or
+    a pipe (/dev/null, a FIFO, bash's ``>(...)``: fileio.special_file) is written into directly,
+    as a shell redirection would (a rename would replace the device or pipe with a file)."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
+        self.size = 0
+        if special_file(self.path):
+            try:                                   # a FIFO's open waits for its reader, as `> fifo` does
+                self.fd, self.tmp, self.placed, self.regular = os.open(self.path, os.O_WRONLY), None, True, False
+            except OSError as exc:
+                raise InputError(path, f"cannot write: {exc.strerror or exc}") from None
+            return
+        self.regular = True
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
@@ -60,7 +70,6 @@ class LineFile:
         mask = os.umask(0)
         os.umask(mask)
         os.fchmod(fd, 0o644 & ~mask)           # what open(path, "w") gives, not mkstemp's 0600
-        self.size = 0
 
     def write(self, text: str) -> None:
         data = text.encode("utf-8")
@@ -69,7 +78,7 @@ class LineFile:
             while done < len(data):
                 done += os.write(self.fd, data[done:])
         except OSError as exc:
-            if done:
+            if done and self.regular:
                 os.ftruncate(self.fd, self.size)
             raise InputError(self.path, f"cannot write: {exc.strerror or exc}") from None
         self.size += done

@@ -52,6 +52,7 @@ from ..compiled import warm_up
 from ..events.frontend import slots_for
 from .cpu import CpuCascade
 from .ofpd_runner import OFPDRunner
+from .run_camera import resolve_camera
 from .spikes import SpikeVolume
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
@@ -186,7 +187,9 @@ class Pipeline:
     runtime for loihi targets); leaving stops it, also on errors and Ctrl-C.
 
     ``sensor_size`` (width, height): the recording's sensor (default: the bundle's); ``speed_scale``:
-    the camera the reported m/s assume (default: the bundle's, ``config.speed_scale``).
+    the camera the reported m/s assume (default: `run`'s rule, run_camera.resolve_camera: the
+    bundle's ``config.speed_scale`` on a sensor as wide as the bundle's, else the bundle's
+    horizontal field of view spread over the sensor's width, at the bundle's depth).
     ``track``: follow objects over the windows (toffe_deploy.tracking; True: default settings, a
     TrackerConfig, or False): each ObjectFlow gets ``track_id`` and ``track``; the tracks live as
     long as the Pipeline, over every ``process_stream`` call (``reset_tracks`` starts afresh)."""
@@ -209,10 +212,16 @@ class Pipeline:
         self.ofpd = OFPDRunner(ofpd_model(bundle, ofpd_variant), "cuda" if target == "cuda" else "cpu",
                                threads=ofpd_threads)
         size = self.config.sensor_size if sensor_size is None else sensor_size
-        self.sensor_size = (int(size[0]), int(size[1]))
+        try:
+            w, h = (int(v) for v in size)
+        except (TypeError, ValueError):
+            raise ValueError(f"sensor size must be (width, height), got {sensor_size!r}") from None
+        self.sensor_size = (w, h)
         if min(self.sensor_size) < 1:
             raise ValueError(f"sensor size must be positive, got {self.sensor_size}")
-        self.speed_scale = self.config.speed_scale if speed_scale is None else speed_scale
+        # run's camera rule (run_camera.resolve_camera): the bundle's focal length on a sensor as
+        # wide as the bundle's, else the bundle's field of view over this sensor's width
+        self.speed_scale = resolve_camera(self.config, self.sensor_size).scale if speed_scale is None else speed_scale
         self.cascade = _make_cascade(bundle, target, tag, self.config.ofs_grid(self.sensor_size))
         self.keep_stages = bool(keep_stages)
         self._decode = Decoder(self.config)          # ofpd_io.decode, set up once
