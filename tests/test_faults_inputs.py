@@ -425,6 +425,20 @@ def test_out_into_a_fifo_streams_into_it_and_whole_file_outputs_refuse_it(env, c
     assert not list(tmp_path.glob(".*.tmp"))
 
 
+def test_out_naming_stdout_is_out_dash(env, tmp_path):
+    """`--out /proc/self/fd/1` (as /dev/stdout) is `--out -`: the lines on stdout, the summary on
+    stderr (it went through a temp file renamed over the link, or, written through it, under
+    the summary's own writes). /proc/self/fd/1 rather than /dev/stdout: a regression fails to
+    rename there instead of replacing the container's /dev/stdout."""
+    out = tmp_path / "stdout.txt"
+    with open(out, "wb") as fh:
+        r = subprocess.run([sys.executable, "-m", "toffe_deploy.cli", *map(str, run_args(env)), "--max-windows", "3",
+                            "--out", "/proc/self/fd/1"], stdout=fh, stderr=subprocess.PIPE, timeout=300)
+    assert r.returncode == 0, r.stderr
+    lines = out.read_text().splitlines()
+    assert len(lines) == 4 and all(ln.startswith("{") for ln in lines) and b"windows" in r.stderr
+
+
 # ------------------------------------------------------------------ 10. validation gaps
 
 def test_nan_coordinate_in_float_hdf5_column(env, capsys, tmp_path):

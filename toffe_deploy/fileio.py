@@ -43,13 +43,17 @@ def write_errors(path: str | os.PathLike) -> Iterator[None]:
 
 
 def special_file(path: str | os.PathLike) -> bool:
-    """Whether ``path`` names an existing device, pipe (FIFO, /dev/fd/N) or socket: something a
-    rename over it would destroy (a file written beside it and renamed to /dev/null replaces
-    /dev/null with a regular file), not a regular file or a directory."""
+    """Whether ``path`` names an existing device, pipe (FIFO, /dev/fd/N) or socket, or anything
+    named under /dev or /proc (/dev/stdout, a link to whatever fd 1 is): something a rename over
+    it would destroy (a file written beside /dev/null and renamed to it replaces /dev/null with
+    a regular file; one renamed to /dev/stdout replaces the link), not a file or directory of
+    the user's."""
     try:
         mode = os.stat(path).st_mode
     except OSError:
         return False
+    if os.path.abspath(path).startswith(("/dev/", "/proc/")):
+        return not stat.S_ISDIR(mode)
     return not (stat.S_ISREG(mode) or stat.S_ISDIR(mode))
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -214,6 +215,17 @@ def check_run_outputs(args, bundle) -> None:
                   dirs=[("--render", args.render)], inputs=inputs, streamed=("--out",))
 
 
+def _is_stdout(path) -> bool:
+    """Whether ``path`` (/dev/stdout, /dev/fd/1, /proc/self/fd/1) names this process's stdout:
+    `--out /dev/stdout` is `--out -`, so that the summary goes to stderr, not into the lines."""
+    if path is None:
+        return False
+    try:
+        return os.path.samestat(os.stat(path), os.fstat(sys.stdout.fileno()))
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
 def open_source(args, bundle_sensor: tuple[int, int]):
     """The recording: its own sensor size (``--sensor-size`` overrides it), whatever the bundle's."""
     from ..events.io import open_events
@@ -274,8 +286,8 @@ def run_command(args) -> int:
         raise ToffeError("--video needs --render DIR")
     if args.fps is not None and not args.video:
         raise ToffeError("--fps sets the --video file's frame rate: add --render DIR --video")
-    if args.out == "-":
-        args.out = None                              # stdout, as --events - is stdin
+    if args.out == "-" or _is_stdout(args.out):
+        args.out = None                              # stdout, as --events - is stdin (the summary goes to stderr)
     if args.tag != "fixed_pt" and args.target in ("cpu", "cuda"):
         raise ToffeError(f"--tag {args.tag} selects Lava process models: it applies to --target loihi-sim or loihi2; "
                          f"the {args.target} target runs the fixed-point OFS")

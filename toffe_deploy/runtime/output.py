@@ -55,7 +55,8 @@ class LineFile:
         self.size = 0
         if special_file(self.path):
             try:                                   # a FIFO's open waits for its reader, as `> fifo` does
-                self.fd, self.tmp, self.placed, self.regular = os.open(self.path, os.O_WRONLY), None, True, False
+                self.fd, self.tmp, self.placed, self.regular = (os.open(self.path, os.O_WRONLY | os.O_APPEND), None,
+                                                                True, False)
             except OSError as exc:
                 raise InputError(path, f"cannot write: {exc.strerror or exc}") from None
             return
