@@ -58,6 +58,35 @@ def test_train_rejects_missing_data_in_one_line(tmp_path, capsys):
     assert err.count("\n") == 0 and "data directory does not exist" in err
 
 
+def test_train_out_naming_a_file_or_the_data_is_refused_before_training(data, tmp_path, capsys):
+    """--out at an existing file trained a stage, then moved the file aside to a hidden name,
+    left a half-trained checkpoint in its place (which export took) and failed: now one line,
+    before any training, the file as it was; --out at the data set is refused too."""
+    f = tmp_path / "notes.txt"
+    f.write_text("mine")
+    for out, needle in ((f, "not a directory"), (data, "would overwrite the data set")):
+        assert main(["train", "--data", str(data), "--out", str(out), "--ofs-epochs", "1", "--epochs", "1",
+                     "--windows-per-seq", "1", "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and needle in err, err
+    assert f.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+    assert (data / "index.json").is_file()
+
+
+def test_training_on_data_without_some_speed_bins_warns(tmp_path, capsys):
+    """One training sequence holds one speed bin: the other stages trained on nothing, silently
+    (their loss curves alike, export's parity a pass on no spikes); now a warning names them."""
+    d = tmp_path / "one"
+    assert main(["dataset", "synth", "--out", str(d), "--split", "train", "--limit", "1", "--duration-s", "0.01",
+                 "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["train", "--data", str(d), "--out", str(tmp_path / "ck"), "--stage", "ofs", "--ofs-epochs", "1",
+                 "--windows-per-seq", "2", "--no-progress"]) == 0
+    log = json.loads((tmp_path / "ck" / "train_log.json").read_text())["windows_per_bin"]
+    empty = [k for k, n in log.items() if n == 0]
+    assert empty and f"no training window of speed bin {', '.join(empty)}" in capsys.readouterr().err
+
+
 def test_stage_ofpd_needs_trained_ofs(data, tmp_path, capsys):
     assert main(["train", "--data", str(data), "--out", str(tmp_path / "empty"), "--stage", "ofpd"]) == 2
     assert "--stage ofpd needs a checkpoint" in capsys.readouterr().err

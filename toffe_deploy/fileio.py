@@ -98,9 +98,13 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a fresh temporary directory beside ``path``; on success it replaces ``path``.
 
     An existing ``path`` is moved aside first and deleted only after the rename succeeded.
-    A refused write (WRITE_ERRNOS) is reported as InputError naming ``path``.
+    A refused write (WRITE_ERRNOS) is reported as InputError naming ``path``, and so is a
+    ``path`` that exists and is not a directory (nothing is written: a file there was moved
+    aside, never deleted, and the next save into the new directory failed).
     """
     path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(path, "exists and is not a directory: a directory is written here; name a new one")
     with write_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))

@@ -101,6 +101,9 @@ def run(args) -> int:
     for name in ("dt", "ofs_epochs", "epochs", "windows_per_seq"):
         if getattr(args, name) < (0 if "epochs" in name else 1):
             raise ToffeError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
+    from ..fileio import check_outputs
+
+    check_outputs(dirs=[("--out", args.out)], inputs=[("the data set", args.data)])   # before any training
     import torch
 
     if args.device not in ("auto", "cpu") and not args.device.startswith("cuda"):

@@ -51,7 +51,7 @@ from tqdm import tqdm
 from ..camera import REFERENCE_FOCAL_PX
 from ..checkpoint import (CONFIG_FILE, load_checkpoint, random_ofpd_state, save_checkpoint, dotie_ofs)
 from ..config import ToffeConfig
-from ..errors import InputError, ToffeError
+from ..errors import InputError, ToffeError, warn
 from ..events.frontend import apply_dense
 from ..events.support import event_pixels, history_counts, support_dense
 from ..fileio import atomic_path
@@ -592,6 +592,11 @@ def train(opts: TrainOptions) -> Path:
         log.update({k: v for k, v in old.items() if k.startswith("ofs_")} if isinstance(old, dict) else {})
     log["train_windows"] = len(windows)
     log["windows_per_bin"] = {str(k): int(np.sum(windows.speed_bin == k)) for k in range(1, config.n_speed_bins + 1)}
+    empty = [k for k, n in log["windows_per_bin"].items() if n == 0]
+    if empty and opts.stage in ("ofs", "all"):
+        warn(f"{opts.data}: no training window of speed bin {', '.join(empty)}: OFS stage {', '.join(empty)} learns "
+             f"nothing to fire on (it keeps its initial weights' behaviour); generate more sequences (dataset synth "
+             f"--split train without --limit)")
 
     if opts.stage in ("ofs", "all"):
         done = set(state.get("ofs_done", []))
