@@ -214,6 +214,30 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
     return out, events, desc
 
 
+def host_state(pipe, i: int, windows, events, args):
+    """(ones history, recent) of window i as the deployed host holds them when its OFPD step runs
+    (untimed): the plane fit's ring with window i's front-end ones pushed (args.ones[i] is the
+    ring before it) and the front end's history after window i (args.supports[i] is before it);
+    None for what the config does not use."""
+    import copy
+
+    from toffe_deploy.events.binning import bin_window
+    from toffe_deploy.events.support import front_end
+    from toffe_deploy.ofpd_io import ofpd_settings
+    from toffe_deploy.runtime.spikes import SpikeVolume
+
+    cfg, t0 = pipe.config, windows[i][0]
+    ring = recent = None
+    if args.ones:
+        ring = copy.deepcopy(args.ones[i])
+        vol = SpikeVolume.from_dense(windows[i][1] > 0)
+        ring.push(t0, vol.idx, (vol.bc, vol.pix))
+    if args.supports and ofpd_settings(cfg).get("recent_events") is not None:
+        recent = copy.deepcopy(args.supports[i])
+        front_end(bin_window(events[i], t0, cfg.dt_us, cfg.n_bins, pipe.sensor_size), cfg, recent, int(t0))
+    return ring, recent
+
+
 def pipeline_objects(pipe, i: int, windows, events, args) -> list:
     """The objects the Pipeline reports for window i (untimed). With input_support it gets the raw
     window and the windows before it (load_windows' args.supports): its front end is not
@@ -327,6 +351,13 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
     machine = describe_machine(disc.describe())
     p = DotieParams()
     rows: list[dict] = []
+    from toffe_deploy.events.binning import bin_window
+
+    def dotie_window(i):
+        """Window i as DOTIE gets it: (B, 2, H, W) counts of the window's own events (no front end:
+        DOTIE's code bins the raw events, as its timed and scored runs do, baselines/registry.py;
+        windows[i][1] is TOFFE's input after its front end, which DOTIE never sees)."""
+        return bin_window(events[i], windows[i][0], cfg.dt_us, cfg.n_bins, tuple(cfg.sensor_size))
 
     def energy_fields(run_one, model_mj: float, label: str) -> dict:
         """Headline energy: a counter measurement when there is a counter, else the model."""
@@ -376,12 +407,13 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
                   disable=not show_progress(args)):
         binned = windows[i][1]
         # OFPD rows = the objects the deployed pipeline reports for this window (untimed run)
-        rows_i = len(pipeline_objects(host_pipe, i, windows, events, args)) if host_pipe is not None else None
+        objs_i = pipeline_objects(host_pipe, i, windows, events, args) if host_pipe is not None else None
         res, mc = count_toffe(binned, list(bundle.ofs), cfg, macs["macs"], in_elems, macs["params"],
-                              macs["activations"], ofpd_rows=rows_i)
+                              macs["activations"], ofpd_rows=None if objs_i is None else len(objs_i),
+                              raw=dotie_window(i), objects=objs_i)   # the raw window: binning and front end
         toffe_counts.append(mc)
         cascades.append(res)
-        plain, clus, window, spikes = count_dotie(binned, p)
+        plain, clus, window, spikes = count_dotie(dotie_window(i), p)
         dotie_counts.append(plain)
         dotie_cl_counts.append(clus)
         dotie_win_counts.append(window)
@@ -475,7 +507,9 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
     if "loihi-sim" in args.targets:
         log("loihi-sim: modelled Loihi 2 figures from counted activity; host part timed on this CPU")
         rows.extend(loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts, dotie_counts,
-                               dotie_cl_counts, host_pipe, loihi_model, host_model, p))
+                               dotie_cl_counts, host_pipe, loihi_model, host_model, p,
+                               lambda i: dotie_frames(events[i], t0s[i], dt, nb, size),
+                               lambda i: host_state(host_pipe, i, windows, events, args)))
     if "loihi2" in args.targets:
         rows.extend(loihi2_rows(bundle))
 
@@ -640,10 +674,12 @@ def _json_default(o):
 
 
 def loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts, dotie_counts, dotie_cl_counts,
-               cpu_pipe, loihi_model, host_model, p):
+               cpu_pipe, loihi_model, host_model, p, dotie_x, state_of):
     """Rows of the hybrid column: Loihi 2 side modelled, host side measured (latency) and
-    modelled (energy) on this machine, and the Lava simulator's wall time where it runs."""
-    from toffe_deploy.baselines.dotie import dotie_cluster_steps, dotie_input, dotie_postprocess
+    modelled (energy) on this machine, and the Lava simulator's wall time where it runs.
+    dotie_x(i): window i's (B, H, W) count frames from its own events, DOTIE's input;
+    state_of(i): (ones history, recent) the host part of window i reads (host_state)."""
+    from toffe_deploy.baselines.dotie import dotie_cluster_steps, dotie_postprocess
     from toffe_deploy.energy import cost_model as cm
     from toffe_deploy.energy.measure import latency_percentiles
     from toffe_deploy.runtime.spikes import SpikeVolume
@@ -672,8 +708,9 @@ def loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts,
         for i, res in enumerate(cascades):
             vol = SpikeVolume.from_dense(windows[i][1] > 0)          # the host streams these to Loihi anyway
             spike_pix = [np.flatnonzero(sp.any(axis=0)) for sp in res.spikes]   # Loihi's output, per stage
+            ring, recent = state_of(i)        # the windows before it, as the deployed host keeps them
 
-            def host_part(vol=vol, spike_pix=spike_pix):
+            def host_part(vol=vol, spike_pix=spike_pix, ring=ring, recent=recent):
                 pix = vol.pix
                 if pool > 1:                                 # each sensor one reads its grid cell (Up_p)
                     ys, xs = np.divmod(pix, w)
@@ -684,7 +721,8 @@ def loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts,
                     inside = CompactClosing(spike_pix[k - 1], hg, wg, cfg.mask_kernel).at(pix)
                     frames[k - 1] = alive & inside
                     alive &= ~inside
-                cpu_pipe.objects_of(vol, frames)
+                cpu_pipe.ones_history = ring
+                cpu_pipe.objects_of(vol, frames, recent=recent)
                 return frames
             # the host part must rebuild exactly the cascade's frames (else the timing is of the wrong work)
             for k, f in enumerate(host_part()):
@@ -724,7 +762,7 @@ def loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts,
                            "(no Lava process for DOTIE's graded input)", f"host post-processing would add {post_mj:.3g} mJ (modelled)"]})
     cl_lat = []
     for i in range(n_count):
-        x = dotie_input(windows[i][1])
+        x = dotie_x(i)
         spikes = dotie_spikes[i]
         cl_lat.append(timed(lambda x=x, spikes=spikes: dotie_cluster_steps(dotie_postprocess(x, spikes, p), p)))
     _, cl_mj = host_model(dotie_cl_counts, "host_hybrid")

@@ -82,6 +82,10 @@ def test_quick_run_writes_table_json_and_png(tiny_bundle, tiny_events, tmp_path,
         assert r["E_kind"].startswith("modelled") and r["E_mj"] > 0    # no counter: modelled, and says so
         assert rows[(m, "loihi-sim")]["L_kind"].startswith("modelled")
         assert rows[(m, "loihi2")]["status"] == "unavailable" and rows[(m, "loihi2")]["reason"]
+    # like for like: both counted on the same raw events (DOTIE was counted on TOFFE's front-ended input)
+    raw_toffe = rows[("toffe", "cpu")]["extra"]["raw_events"]
+    assert rows[("dotie", "cpu")]["extra"]["raw_events"] == rows[("dotie_cluster", "cpu")]["extra"]["raw_events"] \
+        == pytest.approx(raw_toffe) and raw_toffe >= rows[("toffe", "cpu")]["extra"]["input_events"] > 0
     win, per_step = rows[("dotie_cluster_window", "cpu")], rows[("dotie_cluster", "cpu")]
     assert win["status"] == "ok" and win["extra"]["dbscan_runs"] <= 1          # one DBSCAN per window at most
     assert per_step["extra"]["dbscan_runs"] >= win["extra"]["dbscan_runs"]      # DOTIE's code: one per step
@@ -173,11 +177,18 @@ def test_quick_run_with_the_plane_fit_history(make_bundle, tiny_events, tmp_path
     bundle = make_bundle(tmp_path / "b", sensor=SIZE, ofpd=ofpd, input_min_cluster=4, input_support=(3, 1, 3, 1))
     out = tmp_path / "results"
     rc = _load_harness().main(["--quick", "--bundle", str(bundle.root), "--events", str(tiny_events), "--out", str(out),
-                               "--targets", "cpu", "--sysfs-root", str(tmp_path / "no-sysfs")])
+                               "--targets", "cpu,loihi-sim", "--sim-windows", "0", "--sysfs-root", str(tmp_path / "no-sysfs")])
     assert rc == 0
     res = json.loads((out / "energy_latency.json").read_text())
     assert {r["key"] for r in res["like_for_like"]["rows"]} >= {"toffe@reference", "toffe@optimised"}
+    # the Loihi row's host part runs the OFPD step with the windows before it (it raised without them)
+    loihi = next(r for r in res["rows"] if r["model"] == "toffe" and r["target"] == "loihi-sim")
+    assert loihi["status"] == "ok" and loihi["host"]["latency_ms"] > 0
     assert any(r["model"] == "toffe" and r["status"] == "ok" for r in res["rows"])
+    rows = {(r["model"], r["target"]): r for r in res["rows"]}
+    toffe, dotie = rows[("toffe", "cpu")]["extra"], rows[("dotie_cluster", "cpu")]["extra"]
+    # DOTIE counted on the raw events it runs on, as TOFFE's binning: not on TOFFE's front-ended input
+    assert dotie["raw_events"] == pytest.approx(toffe["raw_events"]) and toffe["raw_events"] > toffe["input_events"]
 
 
 def test_lava_simulation_is_checked_against_the_counted_cascade_on_the_pooled_grid(tmp_path):

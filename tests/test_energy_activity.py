@@ -66,3 +66,36 @@ def test_toffe_input_cost_follows_the_events_not_the_sensor():
     _r, a = count_toffe(small, params, ToffeConfig(sensor_size=(32, 24)), ofpd_macs=0, ofpd_in_elems=0)
     _r, b = count_toffe(big, params, ToffeConfig(sensor_size=(128, 96)), ofpd_macs=0, ofpd_in_elems=0)
     assert a.host_all.sram_bytes == b.host_all.sram_bytes and a.host_all.add_int32 == b.host_all.add_int32
+
+
+def test_toffe_is_counted_on_its_raw_window_with_front_end_and_plane_fit(rng):
+    """Like for like with DOTIE, whose count frames are counted on every event: TOFFE's binning
+    on every event of the raw window (not on what its front end keeps), its front end, and the
+    plane fit and outline bounds of the objects it reports."""
+    from types import SimpleNamespace
+
+    from toffe_deploy.energy.activity import front_end_ops, plane_fit_ops
+
+    cfg = ToffeConfig(sensor_size=(32, 24), input_support=(4, 2, 5, 2),
+                      ofpd={"plane_fit_history": [10, 20, 3], "outline_centre": [10, 4, 1.0, 0.1]})
+    params = _params()
+    raw = _window(rng)
+    kept = raw.copy()
+    kept[:, :, 12:, :] = 0                                 # what a front end could drop
+    _r, bare = count_toffe(kept, params, cfg, ofpd_macs=0, ofpd_in_elems=0)
+    objs = [SimpleNamespace(n_events=40, speed_px_s=300.0), SimpleNamespace(n_events=40, speed_px_s=9000.0)]
+    _r, full = count_toffe(kept, params, cfg, ofpd_macs=0, ofpd_in_elems=0, raw=raw, objects=objs)
+    assert full.extra["raw_events"] == int(raw.sum()) > bare.extra["raw_events"] == int(kept.sum())
+    assert full.work.input_events == int(raw.sum())
+    pixels = int(np.count_nonzero((raw > 0).any(axis=(0, 1))))
+    fe = front_end_ops(int(raw.sum()), int(np.count_nonzero(raw)), pixels, 2)
+    pf = plane_fit_ops([40, 40], [20, 1], True)            # 10 px at 0.15 px/window: K_max; at 4.5: 3 windows
+    assert pf.add_fp32 > plane_fit_ops([40, 40], [3, 1], True).add_fp32 > plane_fit_ops([40, 40], [3, 1], False).add_fp32
+    extra = full.host_hybrid.energy_j() - bare.host_hybrid.energy_j()          # the host's own work on Loihi too
+    assert extra >= fe.energy_j() > 0 and full.host_all.energy_j() > bare.host_all.energy_j() + extra * 0.99
+
+
+def test_dotie_count_names_the_events_it_counted(rng):
+    raw = _window(rng)
+    plain, cl, _w, _s = count_dotie(raw)
+    assert plain.extra["raw_events"] == cl.extra["raw_events"] == int(raw.sum()) == plain.work.input_events

@@ -146,6 +146,10 @@ def test_end_to_end_matches_float_pipeline(setup):
     res = parity.check_end_to_end(bundle, models, model, held)
     assert res["status"] == "pass", res
     assert res["deployed_errors"]["n_matched"] > 0 and res["float_errors"]["n_matched"] > 0
+    # the deployed side's predictions carry px/ms as the float side's do (its speedE_px_ms was null)
+    dep, flt = parity._predictions_runtime(bundle, held), parity._predictions_float(held, models, model, CFG)
+    assert any(dep) and all(np.isfinite(p.speed_px_ms) for w in dep + flt for p in w)
+    assert np.isfinite(res["deployed_errors"]["speedE_px_ms"]) == np.isfinite(res["float_errors"]["speedE_px_ms"])
     assert all(v <= 0.02 for v in res["relative_difference"].values())
     assert res["agreement"]["matched"] == res["agreement"]["objects_float"] > 0
 

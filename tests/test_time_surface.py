@@ -115,6 +115,21 @@ def test_bad_history_settings_are_one_line_errors(bad):
     assert history_settings(ToffeConfig()) is None
 
 
+def test_an_object_whose_box_is_empty_over_its_windows_has_no_fit_not_an_error():
+    """A history that lacks the object's window (the energy benchmark's Loihi host part called
+    Pipeline.objects_of on a stale one) left its surface empty: the plane step was 0 and the
+    compiled range() raised. Now that object has no fit (NaN), the others theirs."""
+    wins = disc_windows(12, 1.0, 0)
+    hist = OnesHistory(12, SENSOR, B, DT)
+    for t0, idx in wins:
+        hist.push(t0, idx)
+    obj, xs, ys = box_ones(wins[-1][1])
+    far = (np.ones(3, np.int64), np.array([1, 2, 3]), np.array([45, 45, 46]))   # object 1: a corner with no ones
+    ones = tuple(np.concatenate([a, b]) for a, b in zip((obj, xs, ys), far))
+    f = history_flow(hist, ones, 2, [True, True], [12, 12], 0)
+    assert np.isfinite(f[0]).all() and np.isnan(f[1]).all()
+
+
 def test_fusion_keeps_the_ofpd_speed_until_the_history_holds_k_windows():
     """At a stream's start an object that wants more windows than the ring holds takes the fit's
     direction but keeps the OFPD's speed; once the ring holds them, both come from the fit."""

@@ -119,6 +119,9 @@ def _surface_flow(ring_ptr, ring_xs, ring_bs, slot_win, now, n_bins, height, box
                         grid[p, y - y0 + 1, x - x0 + 1] = t_rel + ring_bs[s, e]
                         vx[n], vy[n], vp[n] = x - x0 + 1, y - y0 + 1, p
                         n += 1
+        if n == 0:
+            continue                            # no ones in its box over the K windows (a history without
+                                                # this window): no surface, NaN (the step below would be 0)
         m = _grid_planes(vx, vy, vp, n, (n + MAX_PLANES - 1) // MAX_PLANES, grid, planes, table)
         out[j, 0], out[j, 1] = _solve(planes, m)
         for i in range(n):

@@ -447,7 +447,8 @@ def _predictions_runtime(bundle: Bundle, held: HeldOut, variant: str = "fp32") -
 
         for r in results():
             preds.append([Prediction(int(o.speed_bin), float(o.x), float(o.y), float(o.direction_rad),
-                                     float(o.speed_mps), float(o.speed_bin_mps)) for o in r.objects])
+                                     float(o.speed_mps), float(o.speed_bin_mps), float(o.speed_px_s) / 1000.0)
+                          for o in r.objects])     # px/ms too: speedE_px_ms was null for the deployed pipeline
     if len(preds) != len(held.windows):
         raise RuntimeError(f"cpu pipeline returned {len(preds)} windows for {len(held.windows)}")
     return preds

@@ -194,8 +194,10 @@ Norse 1.1 by `benchmarks/nir_check.py`); **NIR cannot express reset by subtracti
 network instead. `metadata` also holds the integer parameters and the cascade rule (stage N
 first, closing with mask_kernel, inversion), which NIR cannot express. Readers that open the
 file: snnTorch 1.0 (`snntorch.import_nir.import_from_nir`, one stage per subgraph is practical
-at 640x480) and Norse 1.1 (`norse.torch.from_nir(graph, dt=...)`); sinabs and Rockpool pin
-nir <= 1.0.4, which cannot read `v_reset`.
+at 640x480) and Norse 1.1 (`norse.torch.from_nir(graph, dt=...)`, also one stage per subgraph:
+given the whole four-branch graph it loads without complaint but returns a single output
+tensor, one stage's, not four; `benchmarks/nir_check.py` shows the subgraph import); sinabs and
+Rockpool pin nir <= 1.0.4, which cannot read `v_reset`.
 
 ## parity.json
 

@@ -57,13 +57,54 @@ def counted_ofs_stage(inp: np.ndarray, p: LoihiOFSParams, act: LoihiActivity) ->
     return out, host_updates
 
 
+def front_end_ops(raw_events: int, raw_ones: int, pixels: int, support_radius: int | None) -> HostOps:
+    """The host's input front end on a window, an upper bound of what events/support.py's one
+    pass does: per raw one the first-spike test (a compare and a write); per event pixel the
+    cluster filter's 8 neighbour reads and union-find (~10 int ops), and with temporal support
+    the (2r + 1)^2 box sum of the history counts (as if every pixel were a dropped one) and the
+    history update (add this window, subtract the one that leaves). ``raw_events`` only sets the
+    binning, counted by the caller."""
+    box = (2 * int(support_radius) + 1) ** 2 + 2 if support_radius is not None else 0
+    return HostOps(add_int32=2 * raw_ones + (10 + box) * pixels,
+                   sram_bytes=16 * raw_ones + (8 * 9 + 2 * box) * pixels)
+
+
+#: the plane fit's and outline's bounds per object (time_surface.MAX_PLANES, plane_fit.IRLS_PASSES)
+PLANES_MAX, IRLS_PASSES_COUNTED = 256, 4
+
+
+def plane_fit_ops(objects_ones: list[int], objects_k: list[int], outline: bool) -> HostOps:
+    """Upper bound of the plane fit over each object's K latest windows (time_surface.fuse_history)
+    and of the position from its outline (outline_centre), per object with n ones this window
+    and K windows: the surface filled from K x n ring entries (a compare and a write each, the
+    window's n as the size of each), at most PLANES_MAX planes (9 reads, ~12 int and 6 float
+    ops each), the IRLS's IRLS_PASSES_COUNTED weighted passes over them (~10 float ops per plane
+    and pass) and, with the outline, one distance test per entry (~8 float ops)."""
+    ops = HostOps()
+    for n, k in zip(objects_ones, objects_k):
+        scanned = int(k) * int(n)
+        planes = min(PLANES_MAX, scanned)
+        ops = ops + HostOps(add_int32=2 * scanned + 12 * planes, add_fp32=6 * planes + 10 * IRLS_PASSES_COUNTED * planes
+                            + (8 * scanned if outline else 0),
+                            sram_bytes=8 * scanned + 9 * 4 * planes + 16 * IRLS_PASSES_COUNTED * planes)
+    return ops
+
+
 def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeConfig,
                 ofpd_macs: int, ofpd_in_elems: int, ofpd_params: int = 0,
-                ofpd_activations: int = 0, ofpd_rows: int | None = None) -> tuple[CascadeResult, ModelCount]:
+                ofpd_activations: int = 0, ofpd_rows: int | None = None,
+                raw: np.ndarray | None = None, objects: list | None = None) -> tuple[CascadeResult, ModelCount]:
     """Counts of one TOFFE inference: the cascade (recorded), masks, and one OFPD row (``ofpd_macs``
     MACs, weights read once, ``ofpd_activations`` outputs written and read, ``ofpd_in_elems``
     inputs) per object: ``ofpd_rows`` when the caller knows it (the objects the deployed pipeline
-    reported for this window), else one per stage frame that ``ofpd_io.has_object`` accepts."""
+    reported for this window), else one per stage frame that ``ofpd_io.has_object`` accepts.
+
+    ``raw``: the window's (B, 2, H, W) counts before the front end (``binned`` is after it): the
+    binning is then counted on every event, as SpikeVolume.from_events bins them, and the front
+    end on every one and pixel (front_end_ops), as DOTIE's count frames are counted on every
+    event. ``objects``: the deployed pipeline's objects of this window (ObjectFlow: n_events,
+    speed_px_s): the plane fit over their windows before and the outline positions, when the
+    config has them, are counted as plane_fit_ops' bound."""
     mask_kernel = config.mask_kernel
     b, ch, h_s, w_s = binned.shape
     w, h = config.ofs_grid((w_s, h_s))             # the stages' grid (ofs_pool)
@@ -102,8 +143,24 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
     ofpd = (ann_ops(ofpd_macs, ofpd_params, ofpd_activations) + HostOps(sram_bytes=8 * ofpd_in_elems)).scaled(ofpd_calls)
     # the cpu target builds its window from the events (SpikeVolume.from_events: index, then
     # its sorted unique values), never scanning a dense volume
-    n_raw = int(np.asarray(binned).sum())
+    n_raw = int(np.asarray(binned if raw is None else raw).sum())
     binarize = event_index_ops(n_raw) + sort_unique_ops(n_raw)
+    extras = HostOps()                             # the host's own work on every target (Loihi's too)
+    if raw is not None:                            # the front end
+        raw_ones = np.asarray(raw) > 0
+        support = config.input_support
+        extras = extras + front_end_ops(n_raw, int(np.count_nonzero(raw_ones)),
+                                            int(np.count_nonzero(raw_ones.any(axis=(0, 1)))),
+                                            None if support is None else support[1])
+    if objects:
+        from ..outline_centre import outline_settings
+        from ..plane_fit import history_settings
+        from ..time_surface import history_windows
+
+        hist = history_settings(config)
+        if hist is not None:
+            ks = history_windows([o.speed_px_s / 1000.0 for o in objects], hist[0], hist[1], config.dt_us)
+            extras = extras + plane_fit_ops([o.n_events for o in objects], ks, outline_settings(config) is not None)
     ofs_host = HostOps()
     for k in range(n):
         ofs_host = ofs_host + event_conv_ops(sum(acts[k].synops)) + fixed_lif_ops(host_updates[k])
@@ -111,9 +168,10 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
                 layers=[LayerWork(h * w, b, ch, params[k].kernel_size, float(sum(acts[k].synops)), float(host_updates[k]))
                         for k in range(n)],
                 morph=morph, mask_event=mask_event, mask_dense=float(2 * n * b * ch * h * w),
-                post=ofpd + sort_unique_ops(n_raw))
-    mc = ModelCount(loihi=acts, host_all=binarize + ofs_host + masks + ofpd, host_hybrid=masks + ofpd,
-                    extra={"ofpd_calls": ofpd_calls, "input_events": int(np.count_nonzero(binned))}, work=work)
+                post=ofpd + sort_unique_ops(n_raw) + extras)
+    mc = ModelCount(loihi=acts, host_all=binarize + extras + ofs_host + masks + ofpd, host_hybrid=masks + ofpd + extras,
+                    extra={"ofpd_calls": ofpd_calls, "input_events": int(np.count_nonzero(binned)), "raw_events": n_raw},
+                    work=work)
     return res, mc
 
 
@@ -152,7 +210,7 @@ def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()
     work = Work(frame_px=h * w, steps=b, channels=1, input_events=n_raw, layers=[layer], morph=morph,
                 mask_event=mask_event, mask_dense=float(4 * b * h * w))
     plain = ModelCount(loihi=[act], host_all=host_layer + post, host_hybrid=post,
-                       extra={"separated_px": int(out.sum())}, work=work)
+                       extra={"separated_px": int(out.sum()), "raw_events": n_raw}, work=work)
     cl = HostOps()
     totals = {"dbscan_points": 0, "dbscan_runs": 0, "dbscan_neighbour_pairs": 0, "boxes": 0}
     for t in range(b):
@@ -161,7 +219,7 @@ def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()
         for k, v in stats.items():
             totals[k] += v
     cluster = ModelCount(loihi=[act], host_all=plain.host_all + cl, host_hybrid=post + cl,
-                         extra={"separated_px": int(out.sum()), **totals},
+                         extra={"separated_px": int(out.sum()), "raw_events": n_raw, **totals},
                          work=dataclasses.replace(work, post=work.post + cl))
     window_ops, window_stats = count_clustering(out.any(axis=0), p)
     window = ModelCount(loihi=[act], host_all=plain.host_all + HostOps(op_int8=out.size) + window_ops,
