@@ -432,6 +432,8 @@ def test_bag_errors_are_one_line(events, tmp_path, capsys):
                     broken)
     next(broken.glob("*.db3")).write_bytes(b"not sqlite" * 10)
     assert "ROS bag" in _cli_error(capsys, broken)
+    empty = _write_bag(tmp_path / "empty.bag", "dvs_msgs/msg/EventArray", [], True)   # the topic, no message
+    assert "has no messages" in _cli_error(capsys, empty)
 
 
 def test_input_error_names_the_file(prophesee_files, tmp_path):

@@ -425,6 +425,12 @@ def test_out_into_a_fifo_streams_into_it_and_whole_file_outputs_refuse_it(env, c
     assert not list(tmp_path.glob(".*.tmp"))
 
 
+def test_live_source_options_on_a_file_are_refused(env, capsys):
+    """--queue-events 0 on a file was silently ignored (as --fps without --video is refused)."""
+    for opt, val in (("--queue-events", "0"), ("--idle-timeout", "2"), ("--window-grace-ms", "1")):
+        one_line_error(*cli(capsys, *run_args(env), opt, val)[::2], opt, "live sources")
+
+
 def test_out_naming_stdout_is_out_dash(env, tmp_path):
     """`--out /proc/self/fd/1` (as /dev/stdout) is `--out -`: the lines on stdout, the summary on
     stderr (it went through a temp file renamed over the link, or, written through it, under

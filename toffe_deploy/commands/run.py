@@ -77,13 +77,13 @@ def register(sub) -> None:
                                                        "stdout): it replaces an existing file with its first line "
                                                        "(the header), then each window's line is appended whole "
                                                        "as soon as the window is done")
-    p.add_argument("--queue-events", type=int, default=QUEUE_EVENTS, metavar="N",
+    p.add_argument("--queue-events", type=int, default=None, metavar="N",
                    help=f"live sources: at most N events wait between the reader and the run; when more "
                         f"arrive the oldest chunks are dropped and counted (default: {QUEUE_EVENTS})")
-    p.add_argument("--idle-timeout", type=float, default=0.0, metavar="S",
+    p.add_argument("--idle-timeout", type=float, default=None, metavar="S",
                    help="live sources: end the run after S seconds without an event (default: 0, never; "
                         "stdin ends at end of file, dv:// when the sender stops, every source on Ctrl-C)")
-    p.add_argument("--window-grace-ms", type=float, default=GRACE_S * 1e3, metavar="MS",
+    p.add_argument("--window-grace-ms", type=float, default=None, metavar="MS",
                    help=f"live sources: how long past a window's end (in host time, the source's clock mapped "
                         f"at its first event) the run waits for late events when nothing newer came; events "
                         f"that come later are dropped and counted (default: {GRACE_S * 1e3:g})")
@@ -279,6 +279,14 @@ def run_command(args) -> int:
                          "dv-camera[:SERIAL] or - for stdin; anything else is a file path)")
     if is_live(args.events) and args.start_us is not None:
         raise ToffeError("--start-us applies to files: a live source starts at its first event")
+    live_only = [f"--{n.replace('_', '-')}" for n in ("queue_events", "idle_timeout", "window_grace_ms")
+                 if getattr(args, n) is not None]
+    if live_only and not is_live(args.events):
+        raise ToffeError(f"{', '.join(live_only)} appl{'ies' if len(live_only) == 1 else 'y'} to live sources "
+                         f"(--events -, udp://, dv://, dv-camera); a file is read at its own pace")
+    args.queue_events = QUEUE_EVENTS if args.queue_events is None else args.queue_events
+    args.idle_timeout = 0.0 if args.idle_timeout is None else args.idle_timeout
+    args.window_grace_ms = GRACE_S * 1e3 if args.window_grace_ms is None else args.window_grace_ms
     if not all(math.isfinite(v) and v >= 0 for v in (args.idle_timeout, args.window_grace_ms)):
         raise ToffeError(f"--idle-timeout and --window-grace-ms must be finite and >= 0, got {args.idle_timeout}, "
                          f"{args.window_grace_ms}")

@@ -211,8 +211,9 @@ class RosbagSource(SequentialSource):
                 own = (int(msg.width), int(msg.height))
                 self._encoding = msg.encoding if self._msgtype in PACKET_TYPES else None
         if sensor_size is None and 0 in own:
-            raise InputError(path, f"{self._topic}: messages give no sensor size (width x height "
-                                   f"{own[0]}x{own[1]}); pass --sensor-size W H")
+            what = (f"has no messages, so nothing gives the sensor size" if first is None else
+                    f"messages give no sensor size (width x height {own[0]}x{own[1]})")
+            raise InputError(path, f"{self._topic}: {what}; pass --sensor-size W H")
         super().__init__(path, check_sensor_size(path, sensor_size or own))
 
     def _open(self):
