@@ -19,8 +19,9 @@ Windows: [t0, t0 + dt) on a grid from ``t_start_us`` (default: the first event's
 through them), up to ``skip_empty_after`` in a row (0 or None: always); a longer gap is jumped
 over, as `run --skip-empty-after N` does. ``feed_window(t0_us, window)`` takes a ready window
 instead: a dense (B, 2, H, W) array or a runtime.spikes.SpikeVolume; windows fed either way go
-in time order, and ``feed`` after ``feed_window`` goes on from the end of that window. Results are pipeline.WindowResult (``objects``: ObjectFlow;
-``coasting``: tracks not seen in the window; ``to_json()``: the JSON line of `run` as a dict, schema.py).
+in time order, and ``feed`` after ``feed_window`` goes on from the end of that window. Results
+are pipeline.WindowResult (``objects``: ObjectFlow; ``coasting``: tracks not seen in the window;
+``to_json()``: the JSON line of `run` as a dict, schema.py).
 
 Conventions (as the JSON lines, README "JSON lines"): x, y in sensor pixels from the top-left
 pixel (0, 0), y down; direction atan2(dy, dx) in the image plane (0 = moving right, +90 deg =
