@@ -425,6 +425,26 @@ def test_out_into_a_fifo_streams_into_it_and_whole_file_outputs_refuse_it(env, c
     assert not list(tmp_path.glob(".*.tmp"))
 
 
+def test_a_reader_closing_stdout_at_the_summary_costs_no_output_file(env, tmp_path):
+    """The summary was printed before --summary-json and --report were written: a reader that
+    went away then (`| (sleep; exit)`) left the old summary file in place and no report, exit 0
+    (or, buffered, exit 120 with 'Exception ignored ... BrokenPipeError'). Now the files come
+    first and the closed pipe is a quiet exit 0."""
+    summary, report = tmp_path / "s.json", tmp_path / "r.html"
+    summary.write_text('{"old": true}')
+    for unbuffered in ("1", ""):
+        p = subprocess.Popen([sys.executable, "-m", "toffe_deploy.cli", *map(str, run_args(env)), "--max-windows", "3",
+                              "--out", tmp_path / "o.jsonl", "--summary-json", summary, "--report", report],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             env=dict(os.environ, PYTHONUNBUFFERED=unbuffered))
+        p.stdout.close()                                   # the reader is gone before the summary
+        err = p.stderr.read().decode()
+        assert p.wait(timeout=300) == 0 and "Traceback" not in err and "Exception ignored" not in err, err
+        assert json.loads(summary.read_text()).get("windows") == 3 and report.stat().st_size > 0
+        summary.write_text('{"old": true}')
+        report.unlink()
+
+
 def test_live_source_options_on_a_file_are_refused(env, capsys):
     """--queue-events 0 on a file was silently ignored (as --fps without --video is refused)."""
     for opt, val in (("--queue-events", "0"), ("--idle-timeout", "2"), ("--window-grace-ms", "1")):

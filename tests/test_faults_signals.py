@@ -283,3 +283,70 @@ def test_ctrl_c_ends_a_live_loihi_run_with_its_lines_and_summary_and_stops_lava(
     while (fs.run_pids(p.pid) or fs._run_shm({}, p.pid, t_start, False)) and time.monotonic() < settle:
         time.sleep(0.1)
     assert fs.run_pids(p.pid) == [] and fs._run_shm({}, p.pid, t_start, False) == {}
+
+
+# ------------------------------------------------------------------------- the API without `with`
+def test_a_signal_swallowed_by_an_at_fork_hook_is_sent_again_in_library_use():
+    """Without the CLI's handlers (the Python API) a Ctrl-C raised inside an at-fork hook (here a
+    __del__, where Python swallows it too) was lost during a Lava start-up: the script ran on.
+    redeliver_swallowed (LavaCascade.start) sends it again."""
+    from toffe_deploy.signals import redeliver_swallowed
+
+    class Swallowed:
+        def __del__(self):
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        with redeliver_swallowed():
+            Swallowed()                               # the exception goes to sys.unraisablehook
+            time.sleep(2)
+
+
+def _api_script(tmp_path, body):
+    path = tmp_path / "api_script.py"
+    path.write_text("import gc, sys, time\nfrom toffe_deploy.deploy.bundle import load_bundle\n"
+                    "from toffe_deploy.runtime.pipeline import Pipeline\n"
+                    "b = load_bundle(sys.argv[1])\n" + body)
+    return path
+
+
+def test_an_api_pipeline_never_closed_is_stopped_at_exit_and_when_dropped(env, tmp_path):
+    """A script that entered a loihi-sim Pipeline and ended (or dropped it) without closing it
+    left Lava's processes running, and the interpreter's exit waited on them forever. Now the
+    network is stopped when its object goes and at exit: the script ends at once, nothing left."""
+    script = _api_script(tmp_path, "p = Pipeline(b, 'loihi-sim'); p.__enter__()\n"
+                                   "if sys.argv[2] == 'drop':\n"
+                                   "    del p; gc.collect(); time.sleep(1)\n"
+                                   "    import multiprocessing as mp; print(len(mp.active_children()))\n")
+    for how in ("exit", "drop"):
+        r = subprocess.run([sys.executable, str(script), str(env["bundle"]), how], capture_output=True, text=True,
+                           timeout=240, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+        assert r.returncode == 0, r.stderr
+        if how == "drop":
+            assert r.stdout.split() == ["0"], r.stdout           # no Lava child alive after the drop
+
+
+def test_process_stream_twice_without_with_on_loihi_sim(env):
+    """Each process_stream outside a `with` starts and stops its own network; the second one
+    waited for a record the fresh network owed later (the period count was not reset): 2 x the
+    timeout, then an error."""
+    import numpy as np
+
+    from toffe_deploy.deploy.bundle import load_bundle
+    from toffe_deploy.events.io import read_events
+    from toffe_deploy.runtime.pipeline import Pipeline
+    from toffe_deploy.runtime.spikes import SpikeVolume
+
+    b = load_bundle(env["bundle"])
+    cfg = b.config
+    ev = read_events(env["rec"]).events
+    wins = [(t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size)) for t0 in (0, 500, 1000)]
+    lava = Pipeline(b, "loihi-sim", track=False)
+    lava.cascade.timeout_s = 30
+    t = time.monotonic()
+    first = [r.to_json() for r in lava.process_stream(wins)]
+    second = [r.to_json() for r in lava.process_stream(wins)]
+    assert first == second and len(first) == 3 and time.monotonic() - t < 60
+    with Pipeline(b, "cpu", track=False) as cpu:
+        assert [r.to_json() for r in cpu.process_stream(wins)] == first
+    np.testing.assert_equal(lava.cascade._runtime, None)

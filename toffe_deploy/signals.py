@@ -78,7 +78,7 @@ def exceptions_on_signals() -> Iterator[None]:
 
     prev_hook = sys.unraisablehook
 
-    def unraisable(info):
+    def unraisable(info):           # (marked: redeliver_swallowed leaves a swallowed signal to it)
         if raised and info.exc_value is raised[-1]:        # swallowed: deliver the signal again
             signum = fired.pop()
             raised.clear()
@@ -92,6 +92,7 @@ def exceptions_on_signals() -> Iterator[None]:
     for sig in HANDLED:
         if signal.getsignal(sig) is not signal.SIG_IGN:
             old[sig] = signal.signal(sig, handler)
+    unraisable.redelivers_signals = True
     sys.unraisablehook = unraisable
     try:
         yield
@@ -100,6 +101,38 @@ def exceptions_on_signals() -> Iterator[None]:
         sys.unraisablehook = prev_hook
         for sig, prev in old.items():
             signal.signal(sig, prev)
+
+
+@contextlib.contextmanager
+def redeliver_swallowed() -> Iterator[None]:
+    """For library use without exceptions_on_signals (the Python API around a Lava start-up):
+    Python's own SIGINT handler (KeyboardInterrupt) and the runtime's SIGTERM one (SystemExit
+    143) raise wherever the main thread is, also inside an at-fork hook (logging's: Lava forks a
+    dozen times at start-up), where Python swallows the exception (sys.unraisablehook) and the
+    signal is lost: the script ran on to the end, exit 0. Within this block such an exception
+    sends its signal again 10 ms later, as exceptions_on_signals does (which, when active,
+    handles it itself)."""
+    prev = sys.unraisablehook
+    if threading.current_thread() is not threading.main_thread() or getattr(prev, "redelivers_signals", False):
+        yield
+        return
+
+    def hook(info):
+        exc = info.exc_value
+        sig = (signal.SIGINT if isinstance(exc, KeyboardInterrupt) else exc.signum if isinstance(exc, Terminated)
+               else signal.SIGTERM if isinstance(exc, SystemExit) and exc.code == 128 + signal.SIGTERM else None)
+        if sig is None:
+            prev(info)
+            return
+        timer = threading.Timer(0.01, os.kill, (os.getpid(), sig))
+        timer.daemon = True
+        timer.start()
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = prev
 
 
 def signal_behind(exc: BaseException | None) -> BaseException | None:

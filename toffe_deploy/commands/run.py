@@ -444,18 +444,17 @@ def run_command(args) -> int:
         summary.errors = errors.summary()
         if tracking is not None:
             summary.errors["tracking"] = tracking.summary()
-    out = sys.stderr if stream_out else sys.stdout
-    for line in summary.lines():
-        print(line, file=out)
-    if args.summary_json:
-        import json
-
-        from ..fileio import atomic_path, json_text
+    if args.summary_json:                  # the files first: a reader closing stdout during the printed
+        from ..fileio import atomic_path, json_text   # summary below must not cost them
 
         with atomic_path(args.summary_json) as tmp:
             tmp.write_text(json_text(summary.to_json(), indent=2) + "\n", encoding="utf-8")
     if report is not None:
         report.write(args.report, summary.to_json())
+    out = sys.stderr if stream_out else sys.stdout
+    for line in summary.lines():
+        print(line, file=out)
+    out.flush()                            # a closed pipe is a BrokenPipeError here (cli: quiet exit 0), not at exit
     if interrupted:
         print("toffe-deploy: interrupted", file=sys.stderr)
         return 130

@@ -34,11 +34,13 @@ has its processes killed and its shared memory unlinked.
 """
 from __future__ import annotations
 
+import atexit
 import contextlib
 import queue
 import signal
 import threading
 import time
+import weakref
 from typing import Any, Iterable, Iterator, Sequence
 
 import numpy as np
@@ -46,6 +48,7 @@ import numpy as np
 from ..cascade import CascadeResult
 from ..errors import ToffeError
 from ..fixed_point import LoihiOFSParams
+from ..signals import redeliver_swallowed
 from . import lava_host
 
 TAGS = ("fixed_pt", "floating_pt")
@@ -152,6 +155,21 @@ def run_config(tag: str = "fixed_pt", hardware: bool = False, stock: bool = Fals
 
 
 DEFERRED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+#: networks started and not yet closed (weakly held): _close_live stops them at interpreter exit
+_LIVE: "weakref.WeakSet" = weakref.WeakSet()
+_EXIT_HOOK = False
+
+
+def _close_live() -> None:
+    """atexit: close every network still running. multiprocessing's own exit hook joins Lava's
+    (non-daemon) children, which run until told to stop: a script that ended without closing its
+    Pipeline hung there forever. Registered at the first start, after multiprocessing's hook, so
+    it runs before it."""
+    for cascade in list(_LIVE):
+        with contextlib.suppress(BaseException):
+            cascade.close()
 
 
 @contextlib.contextmanager
@@ -262,6 +280,7 @@ class LavaCascade:
         self._old_sigterm: Any = None
         self._period = 0                     # windows fed so far (pipeline periods)
         self._inflight: list[int] | None = None   # stages whose record the running period owes
+        self._failed = False                 # a period timed out or lost a process: close() kills at once
 
     # ----------------------------------------------------------------- life cycle
     def __enter__(self) -> "LavaCascade":
@@ -287,13 +306,27 @@ class LavaCascade:
         if self._runtime is not None:
             return
         t0 = time.perf_counter()
+        self._period, self._inflight, self._failed = 0, None, False   # a fresh network: periods from 0 again
         self._catch_sigterm()                # before anything is forked
         try:
-            self._start()
+            with redeliver_swallowed():      # a signal swallowed by an at-fork hook is sent again
+                self._start()
         except BaseException:
             self._restore_sigterm()
             raise
         self.startup_s = time.perf_counter() - t0
+        _LIVE.add(self)                      # stopped at interpreter exit if its user does not (_close_live)
+        global _EXIT_HOOK
+        if not _EXIT_HOOK:                   # registered after multiprocessing's: runs before it joins the children
+            atexit.register(_close_live)
+            _EXIT_HOOK = True
+
+    def __del__(self):
+        """A network its user dropped without close() is stopped (it outlived its object: the
+        children and their shared memory ran on, and the interpreter's exit waited on them forever)."""
+        if getattr(self, "_runtime", None) is not None:
+            with contextlib.suppress(BaseException):
+                self.close()
 
     def _start(self) -> None:
         import multiprocessing as mp
@@ -410,6 +443,9 @@ class LavaCascade:
         if rt is None:
             return
         try:
+            if self._failed:
+                self._force_stop()
+                return
             with _signals_deferred():
                 if self._inflight is not None:
                     self._end_period()
@@ -420,6 +456,7 @@ class LavaCascade:
         finally:
             self._runtime = None
             self._inflight = None
+            _LIVE.discard(self)
             if self.shm_prefix:               # a manager that died cannot unlink its segments
                 lava_host.unlink_prefix(self.shm_prefix)
             self._restore_sigterm()
@@ -495,13 +532,19 @@ class LavaCascade:
         self._period += 1
 
     def _end_period(self) -> list[tuple[int, np.ndarray]]:
-        """Collect the records the running period owes, then wait for its last step."""
+        """Collect the records the running period owes, then wait for its last step. The period
+        is over either way: after a timeout close() does not wait for it a second time."""
         out = []
         with _signals_deferred():
-            for k in sorted(self._inflight, reverse=True):
-                out.append((k, self._recv(self._record_ports[k - 1], f"stage {k}")))
-            self._wait_done()
-            self._inflight = None
+            try:
+                for k in sorted(self._inflight, reverse=True):
+                    out.append((k, self._recv(self._record_ports[k - 1], f"stage {k}")))
+                self._wait_done()
+            except BaseException:
+                self._failed = True          # close() kills it at once: no graceful stop of a network that
+                raise                        # timed out or lost a process (that cost another timeout)
+            finally:
+                self._inflight = None
         return out
 
     def _check_alive(self, what: str) -> None:
