@@ -88,7 +88,7 @@ def test_toffe_is_counted_on_its_raw_window_with_front_end_and_plane_fit(rng):
     assert full.extra["raw_events"] == int(raw.sum()) > bare.extra["raw_events"] == int(kept.sum())
     assert full.work.input_events == int(raw.sum())
     pixels = int(np.count_nonzero((raw > 0).any(axis=(0, 1))))
-    fe = front_end_ops(int(raw.sum()), int(np.count_nonzero(raw)), pixels, 2)
+    fe = front_end_ops(int(np.count_nonzero(raw)), pixels, 2)
     pf = plane_fit_ops([40, 40], [20, 1], True)            # 10 px at 0.15 px/window: K_max; at 4.5: 3 windows
     assert pf.add_fp32 > plane_fit_ops([40, 40], [3, 1], True).add_fp32 > plane_fit_ops([40, 40], [3, 1], False).add_fp32
     extra = full.host_hybrid.energy_j() - bare.host_hybrid.energy_j()          # the host's own work on Loihi too

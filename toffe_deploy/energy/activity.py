@@ -57,13 +57,13 @@ def counted_ofs_stage(inp: np.ndarray, p: LoihiOFSParams, act: LoihiActivity) ->
     return out, host_updates
 
 
-def front_end_ops(raw_events: int, raw_ones: int, pixels: int, support_radius: int | None) -> HostOps:
+def front_end_ops(raw_ones: int, pixels: int, support_radius: int | None) -> HostOps:
     """The host's input front end on a window, an upper bound of what events/support.py's one
     pass does: per raw one the first-spike test (a compare and a write); per event pixel the
     cluster filter's 8 neighbour reads and union-find (~10 int ops), and with temporal support
     the (2r + 1)^2 box sum of the history counts (as if every pixel were a dropped one) and the
-    history update (add this window, subtract the one that leaves). ``raw_events`` only sets the
-    binning, counted by the caller."""
+    history update (add this window, subtract the one that leaves). The binning before it is
+    counted apart (event_index_ops, sort_unique_ops)."""
     box = (2 * int(support_radius) + 1) ** 2 + 2 if support_radius is not None else 0
     return HostOps(add_int32=2 * raw_ones + (10 + box) * pixels,
                    sram_bytes=16 * raw_ones + (8 * 9 + 2 * box) * pixels)
@@ -149,9 +149,8 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
     if raw is not None:                            # the front end
         raw_ones = np.asarray(raw) > 0
         support = config.input_support
-        extras = extras + front_end_ops(n_raw, int(np.count_nonzero(raw_ones)),
-                                            int(np.count_nonzero(raw_ones.any(axis=(0, 1)))),
-                                            None if support is None else support[1])
+        extras = extras + front_end_ops(int(np.count_nonzero(raw_ones)), int(np.count_nonzero(raw_ones.any(axis=(0, 1)))),
+                                        None if support is None else support[1])
     if objects:
         from ..outline_centre import outline_settings
         from ..plane_fit import history_settings
