@@ -118,7 +118,7 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
     import numpy as np
 
     from toffe_deploy.events.io import open_events
-    from toffe_deploy.metrics import FlowErrors, Prediction, match_gated
+    from toffe_deploy.metrics import FlowErrors, match_gated, predictions_of
     from toffe_deploy.runtime.pipeline import ObjectFlow, Pipeline, WindowResult
     from toffe_deploy.runtime.spikes import SpikeVolume
     from toffe_deploy.runtime.truth import TruthIndex, sequence_focal_px
@@ -165,8 +165,7 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                     if keep is not None:
                         keep.append((fi, res.t0_us, res.objects))
                     gt = truth.window(res.t0_us, cfg.dt_us)
-                    flow.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps, o.speed_bin_mps,
-                                                o.speed_px_s / 1000.0) for o in res.objects], gt, focal)
+                    flow.add_window(predictions_of(res.objects), gt, focal)
                     track.add_result(res, gt)
                     own.add_result(res, gt)
                     for i, j in match_gated([(o.x, o.y) for o in res.objects], [(t.x, t.y) for t in gt], gate):

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import copy
 import datetime as _dt
 import json
 import os
@@ -214,30 +215,6 @@ def load_windows(args, config) -> tuple[list[tuple[int, np.ndarray]], list[np.nd
     return out, events, desc
 
 
-def host_state(pipe, i: int, windows, events, args):
-    """(ones history, recent) of window i as the deployed host holds them when its OFPD step runs
-    (untimed): the plane fit's ring with window i's front-end ones pushed (args.ones[i] is the
-    ring before it) and the front end's history after window i (args.supports[i] is before it);
-    None for what the config does not use."""
-    import copy
-
-    from toffe_deploy.events.binning import bin_window
-    from toffe_deploy.events.support import front_end
-    from toffe_deploy.ofpd_io import ofpd_settings
-    from toffe_deploy.runtime.spikes import SpikeVolume
-
-    cfg, t0 = pipe.config, windows[i][0]
-    ring = recent = None
-    if args.ones:
-        ring = copy.deepcopy(args.ones[i])
-        vol = SpikeVolume.from_dense(windows[i][1] > 0)
-        ring.push(t0, vol.idx, (vol.bc, vol.pix))
-    if args.supports and ofpd_settings(cfg).get("recent_events") is not None:
-        recent = copy.deepcopy(args.supports[i])
-        front_end(bin_window(events[i], t0, cfg.dt_us, cfg.n_bins, pipe.sensor_size), cfg, recent, int(t0))
-    return ring, recent
-
-
 def pipeline_objects(pipe, i: int, windows, events, args) -> list:
     """The objects the Pipeline reports for window i (untimed). With input_support it gets the raw
     window and the windows before it (load_windows' args.supports): its front end is not
@@ -353,10 +330,10 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
     rows: list[dict] = []
     from toffe_deploy.events.binning import bin_window
 
-    def dotie_window(i):
-        """Window i as DOTIE gets it: (B, 2, H, W) counts of the window's own events (no front end:
-        DOTIE's code bins the raw events, as its timed and scored runs do, baselines/registry.py;
-        windows[i][1] is TOFFE's input after its front end, which DOTIE never sees)."""
+    def raw_window(i):
+        """Window i's (B, 2, H, W) counts of its own events, before any front end: what DOTIE's
+        code bins (as its timed and scored runs do, baselines/registry.py) and what TOFFE's binning
+        and front end start from (windows[i][1] is TOFFE's input after its front end)."""
         return bin_window(events[i], windows[i][0], cfg.dt_us, cfg.n_bins, tuple(cfg.sensor_size))
 
     def energy_fields(run_one, model_mj: float, label: str) -> dict:
@@ -403,17 +380,21 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         raise ToffeError(f"{bundle.ofpd_onnx}: cannot count OFPD MACs ({exc})") from None
     in_elems = int(np.prod(input_shape(cfg)))
     toffe_counts, dotie_counts, dotie_cl_counts, dotie_win_counts, cascades, dotie_spikes = [], [], [], [], [], []
+    host_states = []          # (ones history, front-end history) after window i: what the Loihi row's host part reads
     for i in tqdm(range(n_count), desc="counting operations", file=sys.stderr, leave=False,
                   disable=not show_progress(args)):
         binned = windows[i][1]
         # OFPD rows = the objects the deployed pipeline reports for this window (untimed run)
         objs_i = pipeline_objects(host_pipe, i, windows, events, args) if host_pipe is not None else None
+        if host_pipe is not None:
+            host_states.append((copy.deepcopy(host_pipe.ones_history), copy.deepcopy(host_pipe.support)))
+        raw = raw_window(i)
         res, mc = count_toffe(binned, list(bundle.ofs), cfg, macs["macs"], in_elems, macs["params"],
                               macs["activations"], ofpd_rows=None if objs_i is None else len(objs_i),
-                              raw=dotie_window(i), objects=objs_i)   # the raw window: binning and front end
+                              raw=raw, objects=objs_i)   # the raw window: binning and front end
         toffe_counts.append(mc)
         cascades.append(res)
-        plain, clus, window, spikes = count_dotie(dotie_window(i), p)
+        plain, clus, window, spikes = count_dotie(raw, p)
         dotie_counts.append(plain)
         dotie_cl_counts.append(clus)
         dotie_win_counts.append(window)
@@ -508,8 +489,7 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
         log("loihi-sim: modelled Loihi 2 figures from counted activity; host part timed on this CPU")
         rows.extend(loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts, dotie_counts,
                                dotie_cl_counts, host_pipe, loihi_model, host_model, p,
-                               lambda i: dotie_frames(events[i], t0s[i], dt, nb, size),
-                               lambda i: host_state(host_pipe, i, windows, events, args)))
+                               lambda i: dotie_frames(events[i], t0s[i], dt, nb, size), host_states))
     if "loihi2" in args.targets:
         rows.extend(loihi2_rows(bundle))
 
@@ -674,11 +654,12 @@ def _json_default(o):
 
 
 def loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts, dotie_counts, dotie_cl_counts,
-               cpu_pipe, loihi_model, host_model, p, dotie_x, state_of):
+               cpu_pipe, loihi_model, host_model, p, dotie_x, host_states):
     """Rows of the hybrid column: Loihi 2 side modelled, host side measured (latency) and
     modelled (energy) on this machine, and the Lava simulator's wall time where it runs.
     dotie_x(i): window i's (B, H, W) count frames from its own events, DOTIE's input;
-    state_of(i): (ones history, recent) the host part of window i reads (host_state)."""
+    host_states[i]: (ones history, front-end history) after window i, as the deployed host holds
+    them when its OFPD step runs (kept from the counting pass's Pipeline)."""
     from toffe_deploy.baselines.dotie import dotie_cluster_steps, dotie_postprocess
     from toffe_deploy.energy import cost_model as cm
     from toffe_deploy.energy.measure import latency_percentiles
@@ -708,7 +689,7 @@ def loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts,
         for i, res in enumerate(cascades):
             vol = SpikeVolume.from_dense(windows[i][1] > 0)          # the host streams these to Loihi anyway
             spike_pix = [np.flatnonzero(sp.any(axis=0)) for sp in res.spikes]   # Loihi's output, per stage
-            ring, recent = state_of(i)        # the windows before it, as the deployed host keeps them
+            ring, recent = host_states[i]     # the windows before it, as the deployed host keeps them
 
             def host_part(vol=vol, spike_pix=spike_pix, ring=ring, recent=recent):
                 pix = vol.pix

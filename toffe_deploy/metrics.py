@@ -119,6 +119,14 @@ class Prediction:
     speed_px_ms: float = math.nan
 
 
+def predictions_of(objects) -> list[Prediction]:
+    """The Predictions of a pipeline's reported objects (runtime.pipeline.ObjectFlow: speed_bin, x,
+    y, direction_rad, speed_mps, speed_bin_mps, speed_px_s), px/ms included: what `run`'s
+    summary, parity.json, the benchmarks and eval score."""
+    return [Prediction(int(o.speed_bin), float(o.x), float(o.y), float(o.direction_rad), float(o.speed_mps),
+                       float(o.speed_bin_mps), float(o.speed_px_s) / 1000.0) for o in objects]
+
+
 def _or_nan(v) -> float:
     """An optional ground-truth number (None where the file lacks the column) as a float."""
     return math.nan if v is None else float(v)

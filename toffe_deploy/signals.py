@@ -56,6 +56,14 @@ def signals_deferred() -> Iterator[None]:
         raise exc
 
 
+def _send_again(signum: int) -> None:
+    """Send ``signum`` to this process 10 ms from now, from a timer thread: a signal whose
+    exception Python swallowed lands again, in ordinary code this time."""
+    timer = threading.Timer(0.01, os.kill, (os.getpid(), signum))
+    timer.daemon = True
+    timer.start()
+
+
 @contextlib.contextmanager
 def exceptions_on_signals() -> Iterator[None]:
     """Within this block (main thread only), SIGINT, SIGTERM and SIGHUP raise once, then are ignored."""
@@ -82,9 +90,7 @@ def exceptions_on_signals() -> Iterator[None]:
         if raised and info.exc_value is raised[-1]:        # swallowed: deliver the signal again
             signum = fired.pop()
             raised.clear()
-            timer = threading.Timer(0.01, os.kill, (os.getpid(), signum))
-            timer.daemon = True
-            timer.start()
+            _send_again(signum)
             return
         prev_hook(info)
 
@@ -124,9 +130,7 @@ def redeliver_swallowed() -> Iterator[None]:
         if sig is None:
             prev(info)
             return
-        timer = threading.Timer(0.01, os.kill, (os.getpid(), sig))
-        timer.daemon = True
-        timer.start()
+        _send_again(sig)
 
     sys.unraisablehook = hook
     try:

@@ -20,7 +20,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..metrics import Prediction
+from ..metrics import Prediction, predictions_of
 from .dotie import Detection, DotieParams, dotie_detect_x, dotie_frames, dotie_separate_x
 
 LEVELS = ("reference", "optimised")
@@ -115,9 +115,7 @@ def dotie_models(ctx: BenchContext) -> list[BenchModel]:
     ]
 
 
-def toffe_predictions(objects) -> list[Prediction]:
-    return [Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps, o.speed_bin_mps, o.speed_px_s / 1000.0)
-            for o in objects]
+toffe_predictions = predictions_of          # TOFFE's reported objects, scored (metrics.predictions_of)
 
 
 def toffe_models(ctx: BenchContext) -> list[BenchModel]:

@@ -327,7 +327,7 @@ def run_command(args) -> int:
         truth = src.ground_truth
         errors = None
         if truth:
-            from ..metrics import FlowErrors, Prediction
+            from ..metrics import FlowErrors, predictions_of
             from ..runtime.truth import TruthIndex, sequence_focal_px
 
             truth = TruthIndex(truth)
@@ -411,10 +411,8 @@ def run_command(args) -> int:
                             if t_newest is not None:
                                 summary.event_latencies_s.append(time.perf_counter() - src.host_time(t_newest))
                             if errors is not None:
-                                errors.add_window([Prediction(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps,
-                                                              o.speed_bin_mps, o.speed_px_s / 1000.0)
-                                                   for o in res.objects],
-                                                  truth.window(res.t0_us, cfg.dt_us), focal_px)
+                                errors.add_window(predictions_of(res.objects), truth.window(res.t0_us, cfg.dt_us),
+                                                  focal_px)
                             if tracking is not None:
                                 tracking.add_result(res, truth.window(res.t0_us, cfg.dt_us))
                             if renderer is not None or report is not None:

@@ -426,7 +426,7 @@ def _predictions_fixed_reference(bundle: Bundle, held: HeldOut) -> list[list]:
 def _predictions_runtime(bundle: Bundle, held: HeldOut, variant: str = "fp32") -> list[list] | None:
     """The runtime's cpu Pipeline on the bundle (what `toffe-deploy run --target cpu` computes)
     with OFPD ``variant``; None when the runtime is not importable."""
-    from ..metrics import Prediction
+    from ..metrics import predictions_of
 
     try:
         from ..runtime.pipeline import Pipeline
@@ -446,9 +446,7 @@ def _predictions_runtime(bundle: Bundle, held: HeldOut, variant: str = "fp32") -
                 yield from p.process_stream([(t0, raw)])
 
         for r in results():
-            preds.append([Prediction(int(o.speed_bin), float(o.x), float(o.y), float(o.direction_rad),
-                                     float(o.speed_mps), float(o.speed_bin_mps), float(o.speed_px_s) / 1000.0)
-                          for o in r.objects])     # px/ms too: speedE_px_ms was null for the deployed pipeline
+            preds.append(predictions_of(r.objects))   # px/ms too: speedE_px_ms was null for the deployed pipeline
     if len(preds) != len(held.windows):
         raise RuntimeError(f"cpu pipeline returned {len(preds)} windows for {len(held.windows)}")
     return preds
