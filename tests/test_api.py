@@ -127,8 +127,11 @@ def test_speeds_in_mps_on_another_sensor_are_runs(env, capsys, tmp_path):
     assert main(["run", str(env["bundle"].root), "--events", str(tmp_path / "wide.npz"), "--out",
                  str(tmp_path / "o.jsonl"), "--summary-json", str(tmp_path / "s.json"), "--no-progress"]) == 0
     capsys.readouterr()
-    camera = json.loads((tmp_path / "s.json").read_text())["camera"]
+    summary = json.loads((tmp_path / "s.json").read_text())
+    camera = summary["camera"]
     assert camera["focal_px"] == pytest.approx(2 * cfg.focal_px)
+    head = json.loads((tmp_path / "o.jsonl").read_text().splitlines()[0])
+    assert summary["tag"] == head["tag"] == "fixed_pt"           # one answer in both files (null in the summary)
     want = [json.loads(s) for s in (tmp_path / "o.jsonl").read_text().splitlines()[1:]]
     with open_events(tmp_path / "wide.npz") as src:             # the file's own start, as `run` (README)
         start = src.t_start_us

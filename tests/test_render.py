@@ -275,3 +275,20 @@ def test_fps_without_video_is_refused(tmp_path, make_bundle, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "--fps sets the --video file's frame rate" in err and err.count("\n") == 1
     assert not (tmp_path / "v").exists()
+
+
+def test_untracked_report_counts_windows_not_detections_and_names_its_series(tmp_path):
+    rep = RunReport(SENSOR)
+    for i in range(3):                       # two bin-2 objects a window: 6 detections in 3 windows
+        rep.add({"t0_us": 500 * i, "t1_us": 500 * i + 500,
+                 "objects": [_obj(10 + i, 10, 0.0, speed_bin=2), _obj(40 + i, 30, 0.0, speed_bin=2)]})
+    rep.write(tmp_path / "u.html", {"target": "cpu", "windows": 3, "objects": 6})
+    text = _parse(tmp_path / "u.html")[1]
+    assert re.search(r"bin 2\s+0\.0\s+1\.0\s+3\s+bin 2", text)       # series, first, last (ms), windows 3, not 6
+    assert "Speed per speed bin" in text and "Speed per track" not in text
+
+
+@pytest.mark.parametrize("size, scale", [((640, 480), 1), ((346, 260), 2), ((320, 240), 2), ((64, 48), 8),
+                                         ((1280, 720), 1)])
+def test_small_sensors_are_drawn_at_least_360_px_on_the_shorter_side(size, scale):
+    assert draw.frame_scale(size) == scale and min(size) * scale >= min(360, min(size))

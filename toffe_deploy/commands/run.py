@@ -367,7 +367,7 @@ def run_command(args) -> int:
                 pending.append((t0, vol, time.perf_counter(), int(ev["t"][-1]) if live and ev.shape[0] else None))
                 yield t0, vol
 
-        summary = RunSummary(target=args.target, tag=args.tag if args.target in ("loihi-sim", "loihi2") else None,
+        summary = RunSummary(target=args.target, tag=args.tag,          # as the header: cpu and cuda run fixed_pt's arithmetic
                              camera=camera.describe(cfg), camera_json=camera.to_json(cfg),
                              dt_us=cfg.dt_us)
         t_setup = time.perf_counter()

@@ -96,8 +96,9 @@ def colour_wheel(radius: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def frame_scale(sensor_size: tuple[int, int]) -> int:
-    """Integer upscale of a W x H sensor so the shorter side reaches MIN_SIDE_PX (1 for >= 360 px)."""
-    return int(min(MAX_SCALE, max(1, round(MIN_SIDE_PX / max(1, min(sensor_size))))))
+    """Integer upscale of a W x H sensor so the shorter side reaches MIN_SIDE_PX (1 for >= 360 px):
+    the smallest factor that does (rounding gave a DAVIS346's 260 px x1)."""
+    return int(min(MAX_SCALE, max(1, -(-MIN_SIDE_PX // max(1, min(sensor_size))))))
 
 
 def font_scale(img: np.ndarray) -> float:

@@ -6,11 +6,13 @@ be mailed or archived as is. Sections (element ids):
 
 - ``summary``: the summary figures (windows, objects, throughput, real-time factor, latency
   percentiles, start-up, camera, skipped windows, bridge traffic, accuracy vs ground truth);
-- ``bins``: per speed bin: detections, their share, tracks, mean and max speed (m/s), median
+- ``bins``: per speed bin: detections, their share, tracks (that had a detection in the bin: a
+  track that changed bin counts in each), mean and max speed (m/s), median
   image-plane speed (px/s), mean events per object (and the confusion matrix with ground truth);
 - ``tracks``: tracks over time (one lane per track, a dot per window it was seen, hue = its
   direction) and their paths on the sensor;
-- ``speed``: speed (m/s) over time per track, and a table per track.
+- ``speed``: speed (m/s) over time per track, and a table per track (its windows: those it was
+  detected in; a bin series holds several objects a window, so its windows are counted once).
 
 Tracks are the objects' ``track_id`` of confirmed tracks (the tracker; a tentative track's id
 is provisional and its objects count as detections only); without tracking, each speed bin is
@@ -265,7 +267,8 @@ class RunReport:
         return out + "</section>"
 
     def _speed(self, c: dict, series: dict, tracked: bool) -> str:
-        out = '<section id="speed"><h2>Speed per track</h2>'
+        what = "track" if tracked else "speed bin"
+        out = f'<section id="speed"><h2>Speed per {what}</h2>'
         if not series:
             return out + '<p class="note">Nothing to show: no object was detected.</p></section>'
         keys = sorted(series, key=lambda k: -len(series[k]))
@@ -286,7 +289,7 @@ class RunReport:
                 body.append(f'<polyline points="{pts}" fill="none" stroke="{series_colour(i)}" stroke-width="1.5"/>')
                 body.append(f'<text x="{min(u[-1] + 3, ax.w - 40):.1f}" y="{v[-1] - 3:.1f}" '
                             f'style="fill:{series_colour(i)}">{"#" if tracked else ""}{html.escape(str(k))}</text>')
-        out += _svg(900, 300, "".join(body), "speed per track")
+        out += _svg(900, 300, "".join(body), f"speed per {what}")
         rows = []
         for k in keys[:MAX_TABLE_ROWS]:
             idx = series[k]
@@ -295,7 +298,7 @@ class RunReport:
             d = c["dir"][idx]
             mean_dir = math.degrees(math.atan2(np.sin(d).mean(), np.cos(d).mean())) % 360
             rows.append([(f"#{k}" if tracked else html.escape(str(k))), f"{c['t_ms'][idx].min():.1f}",
-                         f"{c['t_ms'][idx].max():.1f}", _fmt(int(idx.size)), f"bin {bins}",
+                         f"{c['t_ms'][idx].max():.1f}", _fmt(int(np.unique(c["t_ms"][idx]).size)), f"bin {bins}",
                          _fmt(float(np.nanmean(sp))) if np.isfinite(sp).any() else "-",
                          _fmt(float(np.nanmax(sp))) if np.isfinite(sp).any() else "-", f"{mean_dir:.0f}"])
         if len(keys) > MAX_TABLE_ROWS:

@@ -153,7 +153,8 @@ class RunSummary:
     ``camera`` is the run camera's summary line (runtime.run_camera), ``camera_json`` its fields."""
 
     target: str
-    tag: str | None = None          # the Lava process models (fixed_pt / floating_pt) on the Lava targets
+    tag: str | None = None          # the OFS arithmetic: the Lava process models (fixed_pt / floating_pt) on the
+                                    # Lava targets; cpu and cuda run fixed_pt's, bit for bit (the header's tag)
     windows: int = 0
     objects: int = 0
     objects_per_bin: dict[int, int] = field(default_factory=dict)
