@@ -107,6 +107,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     for k in ("windows", "repeats", "count_windows", "block", "blocks"):
         if getattr(args, k) < 1:
             ap.error(f"--{k.replace('_', '-')} must be >= 1")
+    if args.sim_windows < 0:
+        ap.error("--sim-windows must be >= 0")
+    if args.power_w is not None and not 0 < args.power_w < float("inf"):     # NaN made the JSON invalid
+        ap.error(f"--power-w must be a positive number of watts, got {args.power_w}")
+    if args.synthetic is not None and args.synthetic < 0:
+        ap.error(f"--synthetic must be a seed >= 0, got {args.synthetic}")
     args.targets = [t.strip() for t in args.targets.split(",") if t.strip()]
     known = ("cpu", "cuda", "loihi-sim", "loihi2")
     unknown = [t for t in args.targets if t not in known]

@@ -582,3 +582,103 @@ def test_run_on_a_truncated_raw_file_is_one_line(env, capsys, tmp_path, cut):
         one_line_error(*cli(capsys, *run_args(env, "--out", tmp_path / "o.jsonl", events=path))[::2],
                        str(path), "truncated")
     assert not (tmp_path / "o.jsonl").exists()
+
+
+# ------------------------------------------- a 2026-11-24 fault sweep: no traceback, no lost output
+
+def _npy(path, t):
+    ev = np.zeros(len(t), [("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "u1")])
+    ev["x"], ev["y"], ev["t"], ev["p"] = np.arange(len(t)) % 64, np.arange(len(t)) % 48, t, np.arange(len(t)) % 2
+    np.save(path, ev)
+    return path
+
+
+@pytest.mark.parametrize("where", ["last", "first"])
+def test_time_going_back_at_an_end_is_refused_and_keeps_the_old_output(env, capsys, tmp_path, where):
+    """The span came from the first and last event: a last before the first made it empty, and
+    run read 0 windows, exit 0, over the old --out and --summary-json."""
+    t = 100 + 10 * np.arange(2000)
+    t[-1 if where == "last" else 0] = 0 if where == "last" else 10 ** 9
+    path = _npy(tmp_path / "back.npy", t)
+    out, summ = tmp_path / "flow.jsonl", tmp_path / "s.json"
+    out.write_text("old\n")
+    summ.write_text("old\n")
+    with unchanged(path, out, summ):
+        one_line_error(*cli(capsys, *run_args(env, "--out", out, "--summary-json", summ, events=path))[::2],
+                       "back.npy", "timestamps decrease", "before the first")
+
+
+def test_a_recorded_span_shorter_than_the_events_is_refused(env, capsys, tmp_path):
+    path = tmp_path / "short.h5"
+    shutil.copy(env["rec"], path)
+    with h5py.File(path, "r+") as f:
+        f.attrs["t_end_us"] = int(f.attrs["t_start_us"]) + 100
+    for cmd in (["events", "info", path], ["events", "convert", path, tmp_path / "c.h5"], run_args(env, events=path)):
+        one_line_error(*cli(capsys, *cmd)[::2], "short.h5", "does not hold its events")
+    assert not (tmp_path / "c.h5").exists()
+
+
+def test_malformed_files_are_one_line_errors(env, capsys, tmp_path):
+    """h5py's and numpy's own errors on a corrupt structure or a column of the wrong kind."""
+    bad_heap = tmp_path / "heap.h5"
+    with h5py.File(bad_heap, "w") as f:
+        for n, d in (("x", "u2"), ("y", "u2"), ("t", "i8"), ("p", "u1")):
+            f[f"events/{n}"] = np.arange(100).astype(d) % 2
+    raw = bytearray(bad_heap.read_bytes())
+    i = raw.find(b"HEAP")
+    raw[i + 16:i + 24] = b"\xff" * 8
+    bad_heap.write_bytes(bytes(raw))
+    attr = tmp_path / "attr.h5"
+    shutil.copy(env["rec"], attr)
+    with h5py.File(attr, "r+") as f:
+        f.attrs["format_version"] = "abc"
+    sub = tmp_path / "sub.npy"
+    np.save(sub, np.zeros(10, [("x", "<u2", (2,)), ("y", "<u2"), ("t", "<i8"), ("p", "u1")]))
+    zero_d = tmp_path / "size.npz"
+    z = np.zeros(5, int)
+    np.savez(zero_d, x=z, y=z, t=np.arange(5), p=z, sensor_size=np.array(64))
+    for path, needle in ((bad_heap, "malformed or corrupt"), (attr, "malformed or corrupt"),
+                         (sub, "column x has shape (10, 2)"), (zero_d, "malformed or corrupt")):
+        one_line_error(*cli(capsys, "events", "info", path)[::2], path.name, needle)
+
+
+def _edit_config(env, tmp_path, fn):
+    b = copy_bundle(env, tmp_path)
+    c = json.loads((b / "config.json").read_text())
+    fn(c)
+    (b / "config.json").write_text(json.dumps(c))
+    rehash(b, "config.json")
+    edit_manifest(b, lambda m: m.__setitem__("config", c) if "config" in m else None)
+    return b
+
+
+@pytest.mark.parametrize("edit, needle", [
+    (lambda c: c["ofpd"].__setitem__("crop_px", 0), "ofpd.crop_px must be a whole number"),   # hung, deaf to SIGTERM
+    (lambda c: c["ofpd"].__setitem__("pool", 0), "ofpd.pool must be a whole number"),         # ZeroDivisionError
+    (lambda c: c.__setitem__("mask_kernel", 100001), "mask_kernel must be 1..255"),           # tens of GiB
+    (lambda c: c.__setitem__("input_min_cluster", 10 ** 30), "input_min_cluster must be"),    # OverflowError
+    (lambda c: c.__setitem__("n_bins", 4), "do not belong together"),                         # onnxruntime's error
+])
+def test_edited_bundle_configs_are_one_line_errors(env, capsys, tmp_path, edit, needle):
+    b = _edit_config(env, tmp_path, edit)
+    rc, _out, err = cli(capsys, *run_args(env, "--max-windows", "2", bundle=b))
+    one_line_error(rc, err, needle)
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["--sensor-size", "65535x65535"], "larger than toffe-deploy runs"),
+    (["--depth-m", "1e308"], "--depth-m must be in"),
+    (["--focal-px", "5e-324"], "--focal-px must be in"),
+])
+def test_sizes_beyond_any_camera_are_refused(env, capsys, tmp_path, extra, needle):
+    ev = _npy(tmp_path / "ok.npy", 100 + 10 * np.arange(200))
+    out = tmp_path / "o.jsonl"
+    one_line_error(*cli(capsys, *run_args(env, "--out", out, *extra, events=ev))[::2], needle)
+    assert not out.exists() and not list(tmp_path.glob(".o.jsonl*"))
+
+
+@pytest.mark.parametrize("spec, needle", [("multi:2,seed=-1", "seed must be >= 0"),
+                                          ("multi:2,sensor=65535x65535", "larger than toffe-deploy runs")])
+def test_bad_synthetic_seeds_and_sizes(env, capsys, spec, needle):
+    one_line_error(*cli(capsys, "run", env["bundle"], "--synthetic", spec, "--max-windows", "1", "--no-progress")[::2],
+                   needle)

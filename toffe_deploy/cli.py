@@ -90,6 +90,13 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"toffe-deploy: {sig}", file=sys.stderr)
                 return sig.exit_code
             raise
+        except MemoryError as exc:
+            # numpy's "Unable to allocate 16.0 GiB for an array ...": a size in the input (a
+            # sensor, a kernel, a noise rate, a frame count) beyond this machine
+            line = (str(exc).splitlines() or [""])[0]
+            print(f"toffe-deploy: error: out of memory{': ' + line if line else ''} (a size in the input or the "
+                  "options larger than this machine holds?)", file=sys.stderr)
+            return 2
         except BrokenPipeError:
             # the reader of our stdout went away (`| head`): stop quietly, and point stdout at
             # /dev/null so the interpreter's final flush does not report the closed pipe

@@ -31,6 +31,29 @@ RESETS = ("subtract", "zero")
 
 
 
+
+#: the largest sensor the runtime takes (4096 x 4096 px): its per-pixel buffers (a scratch of
+#: int64 per pixel, the front end's counts, the closings) grow with W x H, and a 65535 x 65535
+#: sensor (what uint16 coordinates allow) asked for tens of GiB and was killed for memory
+MAX_SENSOR_PIXELS = 4096 * 4096
+#: the largest closing kernel (OFS-grid cells); 100,001 asked for 9 GiB in training
+MAX_MASK_KERNEL = 255
+
+
+def whole_number(name: str, v) -> int:
+    """``v`` as an int when it is a whole number (an int, or a float like 640.0); ValueError for
+    640.7, true or "640", which int() would have turned silently into 640, 1 or 640."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not float(v).is_integer():
+        raise ValueError(f"{name} must be a whole number, got {v!r}")
+    return int(v)
+
+
+def sensor_too_large(sensor_size) -> str:
+    """The one-line reason a W x H sensor is refused (MAX_SENSOR_PIXELS)."""
+    w, h = (int(v) for v in sensor_size)
+    return (f"sensor {w}x{h} ({w * h / 1e6:,.1f} M pixels) is larger than toffe-deploy runs "
+            f"(at most {MAX_SENSOR_PIXELS / 1e6:.1f} M pixels, e.g. 4096x4096)")
+
 @dataclass(frozen=True)
 class ToffeConfig:
     """Everything a trained TOFFE needs besides its weights.
@@ -121,7 +144,7 @@ class ToffeConfig:
         try:
             kw = dict(d)
             if "sensor_size" in kw:
-                kw["sensor_size"] = tuple(int(v) for v in kw["sensor_size"])
+                kw["sensor_size"] = tuple(whole_number("sensor_size", v) for v in kw["sensor_size"])
             if "speed_bins" in kw:
                 kw["speed_bins"] = tuple((float(a), float(b)) for a, b in kw["speed_bins"])
             if "representative_speeds" in kw:
@@ -129,7 +152,7 @@ class ToffeConfig:
             for k in ("n_bins", "dt_us", "ofs_kernel", "ofs_in_channels", "mask_kernel", "format_version",
                       "input_min_cluster", "ofs_pool"):
                 if k in kw:
-                    kw[k] = int(kw[k])
+                    kw[k] = whole_number(k, kw[k])
             for k in ("focal_px", "depth_m"):
                 if k in kw:
                     kw[k] = float(kw[k])
@@ -149,6 +172,8 @@ class ToffeConfig:
             bad(f"config format_version {self.format_version} is not supported (expected {CONFIG_FORMAT_VERSION})")
         if len(self.sensor_size) != 2 or min(self.sensor_size) <= 0:
             bad(f"sensor_size must be [width, height] > 0, got {list(self.sensor_size)}")
+        if self.sensor_size[0] * self.sensor_size[1] > MAX_SENSOR_PIXELS:
+            bad(sensor_too_large(self.sensor_size))
         if self.n_bins < 1:
             bad(f"n_bins must be >= 1, got {self.n_bins}")
         if self.dt_us < self.n_bins:
@@ -164,8 +189,8 @@ class ToffeConfig:
             bad("representative_speeds must have one entry per speed bin")
         if self.ofs_kernel % 2 != 1 or self.ofs_kernel < 1:
             bad(f"ofs_kernel must be odd, got {self.ofs_kernel}")
-        if self.mask_kernel < 1:
-            bad(f"mask_kernel must be >= 1, got {self.mask_kernel}")
+        if not 1 <= self.mask_kernel <= MAX_MASK_KERNEL:
+            bad(f"mask_kernel must be 1..{MAX_MASK_KERNEL}, got {self.mask_kernel}")
         if self.ofs_pool < 1 or self.ofs_pool > 16:
             bad(f"ofs_pool must be an integer 1..16, got {self.ofs_pool}")
         if not (self.focal_px > 0 and math.isfinite(self.focal_px)):
@@ -176,8 +201,8 @@ class ToffeConfig:
             bad(f"reset must be one of {', '.join(RESETS)}, got {self.reset!r}")
         if self.input_norm not in INPUT_NORMS:
             bad(f"input_norm must be one of {', '.join(INPUT_NORMS)}, got {self.input_norm!r}")
-        if self.input_min_cluster < 1:
-            bad(f"input_min_cluster must be >= 1, got {self.input_min_cluster}")
+        if not 1 <= self.input_min_cluster <= 2 ** 31 - 1:
+            bad(f"input_min_cluster must be 1..2**31 - 1, got {self.input_min_cluster}")
         if self.input_support is not None:
             try:
                 check_support(self.input_support)

@@ -135,6 +135,9 @@ def _ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
     if given:
         s.update({k: v for k, v in LEGACY_LAYOUT.items() if k not in given})
     s.update(given)
+    for key in ("crop_px", "pool"):
+        if not (isinstance(s[key], int) and not isinstance(s[key], bool) and 1 <= s[key] <= 4096):
+            raise ValueError(f"ofpd.{key} must be a whole number 1..4096, got {s[key]!r}")
     if s["crop_px"] % s["pool"] != 0:
         raise ValueError(f"ofpd.crop_px {s['crop_px']} must be a multiple of ofpd.pool {s['pool']}")
     for key, choices in LAYOUT_CHOICES.items():

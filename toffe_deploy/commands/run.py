@@ -22,6 +22,7 @@ import sys
 import time
 from pathlib import Path
 
+from ..config import MAX_SENSOR_PIXELS, sensor_too_large
 from ..errors import InputError, ToffeError, warn
 from ..events.live import GRACE_S, QUEUE_EVENTS, is_live
 from ..signals import signal_behind, signals_deferred
@@ -164,6 +165,10 @@ def parse_synthetic(spec: str) -> dict:
         out["sensor"] = None if out["sensor"] is None else parse_size(out["sensor"])
     except ValueError as exc:
         raise ToffeError(f"--synthetic {spec!r}: {exc}") from None
+    if out["seed"] < 0:
+        raise ToffeError(f"--synthetic {spec!r}: seed must be >= 0, got {out['seed']}")
+    if out["sensor"] is not None and out["sensor"][0] * out["sensor"][1] > MAX_SENSOR_PIXELS:
+        raise ToffeError(f"--synthetic {spec!r}: {sensor_too_large(out['sensor'])}")
     if out["split"] not in ("train", "test", "multi"):
         raise ToffeError(f"--synthetic {spec!r}: split must be train, test or multi, got {out['split']!r}")
     if out["duration"] is not None and not 0 < out["duration"] <= MAX_SYNTH_DURATION_S:
@@ -311,6 +316,8 @@ def run_command(args) -> int:
             print(f"toffe-deploy: reading {args.events} ({where}); events sent before this line are lost",
                   file=sys.stderr, flush=True)
         sensor = tuple(src.sensor_size)
+        if sensor[0] * sensor[1] > MAX_SENSOR_PIXELS:
+            raise ToffeError(f"{args.events or 'the recording'}: {sensor_too_large(sensor)}")
         camera = resolve_camera(cfg, sensor, depth_m=args.depth_m, focal_px=args.focal_px, hfov_deg=args.hfov_deg,
                                 synthetic_focal_px=src.attrs.get("focal_px") if args.synthetic else None,
                                 sensor_from=sensor_origin(args, src))

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..config import MAX_MASK_KERNEL
 from . import add_progress_flag, show_progress
 
 
@@ -92,8 +93,10 @@ def run(args) -> int:
             raise ToffeError(f"--input-support: {exc}") from None
     if args.ofs_pool is not None and not 1 <= args.ofs_pool <= 16:
         raise ToffeError(f"--ofs-pool must be 1..16, got {args.ofs_pool}")
-    if args.mask_kernel is not None and args.mask_kernel < 1:
-        raise ToffeError(f"--mask-kernel must be >= 1, got {args.mask_kernel}")
+    if args.mask_kernel is not None and not 1 <= args.mask_kernel <= MAX_MASK_KERNEL:
+        raise ToffeError(f"--mask-kernel must be 1..{MAX_MASK_KERNEL}, got {args.mask_kernel}")
+    if args.seed < 0:
+        raise ToffeError(f"--seed must be >= 0, got {args.seed}")
     if args.ofs_kernel < 1 or args.ofs_kernel % 2 == 0:
         raise ToffeError(f"--ofs-kernel must be an odd positive size, got {args.ofs_kernel}")
     if not args.speed_edge_weight >= 0:

@@ -55,6 +55,13 @@ def time_us(path, t: np.ndarray, offset: int = 0, scale: float = 1.0, what: str 
 
 def to_events(path, x, y, t_us: np.ndarray, p, offset: int = 0) -> np.ndarray:
     """An EVENT_DTYPE array from columns; coordinates must be whole numbers in 0..65535."""
+    n = np.asarray(t_us).shape[0]
+    for name, col in (("x", x), ("y", y), ("p", p)):
+        a = np.asarray(col)
+        if a.shape != (n,):
+            raise InputError(path, f"column {name} has shape {a.shape}, expected ({n},): one number per event")
+        if not (np.issubdtype(a.dtype, np.number) or a.dtype == np.bool_):
+            raise InputError(path, f"column {name} has dtype {a.dtype}, expected numbers")
     coordinates_in_range(path, "x", x, offset)
     coordinates_in_range(path, "y", y, offset)
     out = np.empty(np.asarray(t_us).shape[0], EVENT_DTYPE)

@@ -31,8 +31,19 @@ import numpy as np
 from ..errors import InputError
 from .core import Events
 from .fmt_toffe import FORMAT_NAME, ToffeH5Source, write_events_h5
+from .sequential import SequentialSource
 from .source import ArraySource, EventSource
-from .validate import check_time_span
+from .validate import check_event_ends, check_time_span
+
+#: what h5py and numpy raise on a file whose structure or attributes are not what its layout
+#: says (a corrupt heap, an attribute of the wrong type, a dataset of the wrong kind): bad input
+_MALFORMED = (RuntimeError, OSError, KeyError, ValueError, TypeError, IndexError, AttributeError)
+
+
+def _malformed(path: Path, exc: BaseException) -> InputError:
+    """The one-line error for a file whose reader failed on its content (_MALFORMED)."""
+    line = (str(exc).splitlines() or [type(exc).__name__])[0]
+    return InputError(path, f"malformed or corrupt file ({type(exc).__name__}: {line})")
 
 __all__ = ["open_events", "read_events", "write_events_h5", "write_events_npz", "EventSource",
            "detect_format", "FORMATS"]
@@ -98,6 +109,10 @@ def detect_format(path: str | os.PathLike) -> str:
         h5 = _open_h5(path)
         try:
             return _h5_kind(path, h5)
+        except InputError:
+            raise
+        except _MALFORMED as exc:
+            raise _malformed(path, exc) from None
         finally:
             h5.close()
     if head.startswith(NPY_MAGIC):
@@ -155,12 +170,23 @@ def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = N
             else:
                 from .fmt_mvsec import MvsecSource
                 src = MvsecSource(path, h5, sensor_size)
+        except InputError:
+            h5.close()
+            raise
+        except _MALFORMED as exc:
+            h5.close()
+            raise _malformed(path, exc) from None
         except BaseException:
             h5.close()
             raise
     elif kind in ("npz", "npy"):
         from .fmt_numpy import open_numpy
-        src = open_numpy(path, kind, sensor_size)
+        try:
+            src = open_numpy(path, kind, sensor_size)
+        except InputError:
+            raise
+        except _MALFORMED as exc:                # a dtype or array of the wrong kind inside
+            raise _malformed(path, exc) from None
     elif kind in ("raw", "dat"):
         from .fmt_prophesee import PropheseeDatSource, PropheseeRawSource
         src = (PropheseeRawSource if kind == "raw" else PropheseeDatSource)(path, sensor_size)
@@ -173,7 +199,15 @@ def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = N
     if sort:
         src = _sorted_source(src)
     try:
+        if not sort and not isinstance(src, SequentialSource):
+            check_event_ends(path, src)          # a sequential one checks its order as it reads
         check_time_span(path, src.t_start_us, src.t_end_us)
+    except InputError:
+        src.close()
+        raise
+    except _MALFORMED as exc:
+        src.close()
+        raise _malformed(path, exc) from None
     except BaseException:
         src.close()
         raise

@@ -34,12 +34,42 @@ def check_time_span(path: str | os.PathLike, t_start_us: int, t_end_us: int) -> 
                                "toffe-deploy accepts (a corrupt timestamp?)")
 
 
+def check_event_ends(path: str | os.PathLike, src) -> None:
+    """For a source with random access (``src._t_at``): its last event is not before its first,
+    and the span it reports covers both. Why: a reader reads the windows of [t_start_us,
+    t_end_us), and time order is otherwise checked as the chunks are read; a last event before
+    the first made that span empty (a .npy read as 0 windows, exit 0), and a span recorded in
+    the file's attrs shorter than its events dropped the rest silently."""
+    n = int(src.num_events)
+    if n == 0:
+        return
+    first, last = int(src._t_at(0)), int(src._t_at(n - 1))
+    if last < first:
+        raise InputError(path, f"timestamps decrease: the last event (t = {last} us) is before the first "
+                               f"(t = {first} us) {SORT_HINT}")
+    t0, t1 = int(src.t_start_us), int(src.t_end_us)
+    if not (t0 <= first and last < t1):
+        raise InputError(path, f"its recorded time span [{t0}, {t1}) us does not hold its events "
+                               f"(t = {first} .. {last} us): t_start_us / t_end_us are wrong")
+
+
+def _whole_size(v) -> int:
+    """One side of a sensor size as an int: whole numbers only (64.7 was read as 64)."""
+    if isinstance(v, (bool, np.bool_)):
+        raise ValueError(v)
+    if isinstance(v, (float, np.floating)):
+        if not float(v).is_integer():
+            raise ValueError(v)
+        return int(v)
+    return int(v)
+
+
 def check_sensor_size(path: str | os.PathLike, sensor_size) -> tuple[int, int]:
     """A (width, height) pair of positive ints that fit EVENT_DTYPE's uint16 coordinates."""
     try:
-        w, h = (int(v) for v in sensor_size)
+        w, h = (_whole_size(v) for v in sensor_size)
     except (TypeError, ValueError):
-        raise InputError(path, f"sensor size must be (width, height), got {sensor_size!r}") from None
+        raise InputError(path, f"sensor size must be (width, height) in whole pixels, got {sensor_size!r}") from None
     if not (0 < w <= 65535 and 0 < h <= 65535):
         raise InputError(path, f"sensor size {w}x{h} is not in 1..65535 x 1..65535")
     return w, h

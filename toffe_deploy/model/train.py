@@ -414,8 +414,21 @@ def _state_path(out: Path) -> Path:
 
 
 def _load_state(out: Path) -> dict:
+    """The progress --resume continues from (empty without one); InputError when it is unreadable."""
     p = _state_path(out) / "state.json"
-    return json.loads(p.read_text()) if p.is_file() else {}
+    if not p.is_file():
+        return {}
+    try:
+        state = json.loads(p.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(p, f"cannot read the training progress ({exc}); delete {STATE_DIR}/ to start over") from None
+    done, epoch = state.get("ofs_done", []) if isinstance(state, dict) else None, \
+        state.get("ofpd_epoch", 0) if isinstance(state, dict) else None
+    if not (isinstance(done, list) and all(isinstance(k, int) and k >= 1 for k in done)
+            and isinstance(epoch, int) and epoch >= 0):
+        raise InputError(p, f"malformed training progress (ofs_done {done!r}, ofpd_epoch {epoch!r}); "
+                            f"delete {STATE_DIR}/ to start over")
+    return state
 
 
 def _save_state(out: Path, state: dict, ofpd_model=None, opt=None) -> None:
@@ -633,9 +646,14 @@ def train(opts: TrainOptions) -> Path:
         ep0 = 0
         partial = _state_path(out) / "ofpd_partial.pt"
         if opts.resume and state.get("ofpd_epoch") and partial.is_file():
-            blob = torch.load(partial, map_location=device, weights_only=True)
-            model.load_state_dict(blob["model"])
-            opt.load_state_dict(blob["opt"])
+            try:
+                blob = torch.load(partial, map_location=device, weights_only=True)
+                model.load_state_dict(blob["model"])
+                opt.load_state_dict(blob["opt"])
+            except Exception as exc:               # torch's unpickler and load_state_dict raise their own kinds
+                raise InputError(partial, f"cannot resume from it ({type(exc).__name__}: "
+                                          f"{(str(exc).splitlines() or [''])[0][:200]}); delete {STATE_DIR}/ "
+                                          "to start over") from None
             ep0 = int(state["ofpd_epoch"])
         rng = np.random.default_rng(opts.seed + ep0)
         state["ofpd_settings"] = ofpd_io.ofpd_settings(config)      # what a --resume must go on with

@@ -36,11 +36,11 @@ from typing import Any, Iterable, Iterator, Union
 import numpy as np
 
 from ..camera import SpeedScale
-from ..config import ToffeConfig
+from ..config import MAX_SENSOR_PIXELS, ToffeConfig, sensor_too_large
 from ..errors import InputError
 from ..events.support import SupportHistory, front_end
 from ..events.support import warm_up as support_warm_up
-from ..ofpd_io import Decoder, ofpd_settings
+from ..ofpd_io import Decoder, input_shape, ofpd_settings
 from ..plane_fit import PlaneFusion, object_planes_flow
 from ..outline_centre import outline_positions, outline_settings
 from ..outline_centre import warm_up as outline_warm_up
@@ -219,6 +219,12 @@ class Pipeline:
         self.sensor_size = (w, h)
         if min(self.sensor_size) < 1:
             raise ValueError(f"sensor size must be positive, got {self.sensor_size}")
+        if w * h > MAX_SENSOR_PIXELS:
+            raise ValueError(sensor_too_large(self.sensor_size))
+        want = input_shape(self.config)
+        if tuple(self.ofpd.input_shape) != tuple(want):     # n_bins, motion planes or crop edited apart from the model
+            raise InputError(self.ofpd.path, f"the OFPD takes input {tuple(self.ofpd.input_shape)} (C, h, w) but the "
+                                             f"bundle's config.json makes {tuple(want)}: they do not belong together")
         # run's camera rule (run_camera.resolve_camera): the bundle's focal length on a sensor as
         # wide as the bundle's, else the bundle's field of view over this sensor's width
         self.speed_scale = resolve_camera(self.config, self.sensor_size).scale if speed_scale is None else speed_scale

@@ -47,9 +47,19 @@ class RunCamera:
                 "speed_bins_mps": [[self.scale.to_mps(lo), self.scale.to_mps(hi)] for lo, hi in config.speed_bins_px_ms]}
 
 
+#: what --depth-m (m) and --focal-px (px) may be: any camera's, with room (a depth of 1e308 m
+#: made every m/s factor 0 and a division by it fail)
+OPTION_RANGE = {"--depth-m": (1e-3, 1e6), "--focal-px": (1e-2, 1e7)}
+
+
 def _positive(name: str, v: float | None) -> None:
-    if v is not None and not (v > 0 and v < float("inf")):
+    if v is None:
+        return
+    lo, hi = OPTION_RANGE[name]
+    if not (v > 0 and v < float("inf")):
         raise ToffeError(f"{name} must be a positive number, got {v:g}")
+    if not lo <= v <= hi:
+        raise ToffeError(f"{name} must be in [{lo:g}, {hi:g}], got {v:g}")
 
 
 def resolve_camera(config: ToffeConfig, sensor_size: tuple[int, int], *, depth_m: float | None = None,
