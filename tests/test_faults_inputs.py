@@ -682,3 +682,23 @@ def test_sizes_beyond_any_camera_are_refused(env, capsys, tmp_path, extra, needl
 def test_bad_synthetic_seeds_and_sizes(env, capsys, spec, needle):
     one_line_error(*cli(capsys, "run", env["bundle"], "--synthetic", spec, "--max-windows", "1", "--no-progress")[::2],
                    needle)
+
+
+@pytest.mark.parametrize("col, value, needle", [("direction", np.inf, "not a finite number"),
+                                                ("speed_bin", 9, "speed bin 9, but the bundle has 4"),
+                                                ("visible", 7, "expected whole numbers 0..1")])
+def test_ground_truth_values_are_checked(env, capsys, tmp_path, col, value, needle):
+    """A NaN / inf direction gave dirE nan with exit 0 and an IndexError in dataset show."""
+    path = tmp_path / "gt.h5"
+    shutil.copy(env["rec"], path)
+    with h5py.File(path, "r+") as f:
+        g = f["ground_truth"]
+        v = np.array(g[col][()])
+        v = v.astype({"direction": np.float32, "visible": np.int8}.get(col, v.dtype))
+        v[0] = value
+        del g[col]
+        g[col] = v
+    one_line_error(*cli(capsys, *run_args(env, events=path))[::2], "gt.h5", needle)
+    if col != "speed_bin":                   # a bin the file's format holds: dataset show draws it
+        one_line_error(*cli(capsys, "dataset", "show", path, "--out", tmp_path / "g.png")[::2],
+                       f"/ground_truth/{col}", needle)

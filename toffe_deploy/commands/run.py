@@ -333,6 +333,9 @@ def run_command(args) -> int:
                 n_total = min(n_total, args.max_windows)
         truth = src.ground_truth
         errors = None
+        if truth and len(truth["speed_bin"]) and int(truth["speed_bin"].max()) > cfg.n_speed_bins:
+            raise ToffeError(f"{args.events}: its ground truth holds speed bin {int(truth['speed_bin'].max())}, but the "
+                             f"bundle has {cfg.n_speed_bins} speed bins (scores against it would be wrong)")
         if truth:
             from ..metrics import FlowErrors, predictions_of
             from ..runtime.truth import TruthIndex, sequence_focal_px

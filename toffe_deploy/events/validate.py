@@ -145,4 +145,23 @@ def check_ground_truth(path, gt: dict, required=()) -> dict:
     if any(len(s) != 1 for s in shapes.values()) or len({s[0] for s in shapes.values()}) > 1:
         desc = ", ".join(f"{k} {list(s)}" for k, s in shapes.items())
         raise InputError(path, f"/ground_truth columns must be 1-D and of one length, got {desc}")
+    for k, v in gt.items():                     # numbers, finite where they are set (a NaN or inf direction
+        a = np.asarray(v)                       # gave dirE nan with exit 0, and dataset show an IndexError)
+        if not (np.issubdtype(a.dtype, np.number) or a.dtype == np.bool_):
+            raise InputError(path, f"/ground_truth/{k} has dtype {a.dtype}, expected numbers")
+        if k in _GT_FINITE and np.issubdtype(a.dtype, np.floating) and not np.isfinite(a).all():
+            i = int(np.flatnonzero(~np.isfinite(a))[0])
+            raise InputError(path, f"/ground_truth/{k} = {a[i]!r} at row {i} is not a finite number")
+    for k, lo, hi in (("speed_bin", 0, 127), ("visible", 0, 1)):
+        a = np.asarray(gt.get(k, []))
+        if a.size and (a.min() < lo or a.max() > hi or (np.issubdtype(a.dtype, np.floating) and (a != np.round(a)).any())):
+            bad = a[(a < lo) | (a > hi) | (a != np.round(a))][0]
+            raise InputError(path, f"/ground_truth/{k} holds {bad!r}: expected whole numbers {lo}..{hi}")
+    d = np.asarray(gt.get("depth_m", []))
+    if d.size and (np.isfinite(d) & (d <= 0)).any():
+        raise InputError(path, f"/ground_truth/depth_m holds {d[np.isfinite(d) & (d <= 0)][0]!r}: a depth is > 0")
     return gt
+
+
+#: ground-truth columns that must be finite (speed_px_ms and depth_m may be NaN: not known)
+_GT_FINITE = ("t", "object_id", "x", "y", "direction", "speed")
