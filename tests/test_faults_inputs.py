@@ -702,3 +702,18 @@ def test_ground_truth_values_are_checked(env, capsys, tmp_path, col, value, need
     if col != "speed_bin":                   # a bin the file's format holds: dataset show draws it
         one_line_error(*cli(capsys, "dataset", "show", path, "--out", tmp_path / "g.png")[::2],
                        f"/ground_truth/{col}", needle)
+
+
+@pytest.mark.parametrize("kind", ["float", "uint64"])
+def test_times_beyond_int64s_range_are_named_not_wrapped(capsys, tmp_path, kind):
+    """1e30 (float) and 2**64 - 1 (uint64) were reported as 'negative timestamp t = -9223372036854775808'."""
+    if kind == "float":
+        a = np.zeros((5, 4))
+        a[:, 2] = np.arange(5)
+        a[4, 2] = 1e30
+    else:
+        a = np.zeros(5, [("x", "<u2"), ("y", "<u2"), ("t", "<u8"), ("p", "u1")])
+        a["t"] = np.arange(5)
+        a["t"][4] = 2 ** 64 - 1
+    np.save(tmp_path / "t.npy", a)
+    one_line_error(*cli(capsys, "events", "info", tmp_path / "t.npy")[::2], "beyond 2**53 us", "at event 4")

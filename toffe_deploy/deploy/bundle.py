@@ -169,7 +169,7 @@ def ofs_from_json(d: Any, path: str | os.PathLike, expect_channels: int | None =
     if not isinstance(d, dict) or d.get("format") != OFS_FORMAT:
         raise InputError(path, f"not a quantized OFS file (format is not {OFS_FORMAT!r})")
     if d.get("format_version") != OFS_FORMAT_VERSION:
-        raise InputError(path, f"OFS format_version {d.get('format_version')} is not supported "
+        raise InputError(path, f"OFS format_version {d.get('format_version')!r} is not supported "
                                f"(expected {OFS_FORMAT_VERSION})")
     if d.get("state_shift", STATE_SHIFT) != STATE_SHIFT:
         raise InputError(path, f"state_shift = {d.get('state_shift')!r} is not supported: every runtime "
@@ -373,7 +373,7 @@ def read_manifest(root: str | os.PathLike) -> dict:
     if not isinstance(m, dict) or m.get("format") != BUNDLE_FORMAT:
         raise InputError(mpath, f"not a toffe-deploy bundle manifest (format is not {BUNDLE_FORMAT!r})")
     if m.get("format_version") != BUNDLE_FORMAT_VERSION:
-        raise InputError(mpath, f"bundle format_version {m.get('format_version')} is not supported "
+        raise InputError(mpath, f"bundle format_version {m.get('format_version')!r} is not supported "
                                 f"(expected {BUNDLE_FORMAT_VERSION}); re-export with this toffe-deploy")
     if not isinstance(m.get("files"), dict):
         raise InputError(mpath, "manifest has no 'files' table")

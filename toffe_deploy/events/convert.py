@@ -39,6 +39,10 @@ def time_us(path, t: np.ndarray, offset: int = 0, scale: float = 1.0, what: str 
         if not np.isfinite(t).all():
             i = int(np.flatnonzero(~np.isfinite(t))[0])
             raise InputError(path, f"{what} = {t[i]!r} at event {offset + i} is not a finite time")
+        big = np.flatnonzero(np.abs(t) * scale > 2.0 ** 53)      # int64's cast wrapped these to -2**63
+        if big.size:
+            i = int(big[0])
+            raise InputError(path, f"{what} = {t[i]!r} at event {offset + i} is beyond 2**53 us (corrupt?)")
         if scale == 1.0:
             frac = np.flatnonzero(t != np.round(t))
             if frac.size:
@@ -49,6 +53,9 @@ def time_us(path, t: np.ndarray, offset: int = 0, scale: float = 1.0, what: str 
         return np.round(t * scale).astype(np.int64)
     if not (np.issubdtype(t.dtype, np.integer) or t.dtype == np.bool_):
         raise InputError(path, f"{what} has dtype {t.dtype}, expected integer or float times")
+    if t.dtype == np.uint64 and t.size and int(t.max()) > 2 ** 53:     # read as int64 it went negative
+        i = int(np.argmax(t > 2 ** 53))
+        raise InputError(path, f"{what} = {int(t[i])} at event {offset + i} is beyond 2**53 us (corrupt?)")
     t = t.astype(np.int64)
     return t * int(scale) if scale != 1.0 else t
 

@@ -129,7 +129,7 @@ def find_sequences(data: str | os.PathLike, split: str) -> list[Path]:
 
     root = Path(data)
     if not root.is_dir():
-        raise InputError(root, "data directory does not exist")
+        raise InputError(root, "is a file, not a data-set directory" if root.exists() else "data directory does not exist")
     files = list(iter_split_files(root, split))
     if not files:
         raise InputError(root / "index.json", f"lists no '{split}' sequences")
