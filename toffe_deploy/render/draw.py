@@ -335,16 +335,17 @@ def draw_marks(img: np.ndarray, marks: Sequence[Mark], scale: int, unit: float, 
         taken.append((x0, y0, x0 + tw, y0 + th + base))
 
 
-def draw_legend(img: np.ndarray, theme: Theme) -> None:
+def draw_legend(img: np.ndarray, theme: Theme) -> tuple[int, int, int, int] | None:
     """Colour-wheel legend in the bottom-right corner: the wheel with its angles 0 / 90 / 180 /
-    270 (deg, y down: 90 = moving down) on a translucent panel; omitted when the frame is too small."""
+    270 (deg, y down: 90 = moving down) on a translucent panel; omitted when the frame is too small.
+    Returns its box (x0, y0, x1, y1), or None."""
     h, w = img.shape[:2]
     fs = font_scale(img) * 0.85
     rad = int(np.clip(min(h, w) / 16, 12, 36))
     (tw, th), _ = cv2.getTextSize("180", FONT, fs, 1)
     pw, ph = 2 * rad + 2 * tw + 16, 2 * rad + 2 * th + 18
     if pw + 4 > w or ph + 4 > h:
-        return
+        return None
     x0, y0 = w - pw - 4, h - ph - 4
     roi = img[y0:y0 + ph, x0:x0 + pw]
     roi[:] = (0.3 * roi + 0.7 * np.array(theme.bg)).astype(np.uint8)
@@ -358,19 +359,22 @@ def draw_legend(img: np.ndarray, theme: Theme) -> None:
         px = cx + dx * (rad + 4) + (0 if dx > 0 else -sw if dx < 0 else -sw // 2)
         py = cy + dy * (rad + 4) + (sh if dy > 0 else 0 if dy < 0 else sh // 2)
         text(img, s, (int(px), int(py)), theme.fg, theme.text_halo, fs)
+    return x0, y0, x0 + pw, y0 + ph
 
 
 def compose(img: np.ndarray, marks: Sequence[Mark] = (), truths: Sequence[TruthMark] = (), *, scale: int,
             unit: float, theme: Theme, header: str | None = None,
             trails: dict[int, list[tuple[float, float, float]]] | None = None, truth_labels: bool = False,
             legend: bool = True) -> np.ndarray:
-    """Draw a whole frame onto an event image in place: ground truth under the detections, then
-    detections with labels, the legend and a header line; returns ``img``."""
+    """Draw a whole frame onto an event image in place: the legend first (objects and arrows are
+    drawn over it, labels are placed off it: drawn last, it covered an object in its corner),
+    ground truth under the detections, then detections with labels and a header line; returns ``img``."""
     taken: list = []
+    box = draw_legend(img, theme) if legend else None
+    if box is not None:
+        taken.append(box)
     draw_truth(img, truths, scale, unit, theme, truth_labels, taken)
     draw_marks(img, marks, scale, unit, theme, trails, taken)
-    if legend:
-        draw_legend(img, theme)
     if header:
         fs = font_scale(img)
         (_tw, th), _ = cv2.getTextSize(header, FONT, fs, 1)
