@@ -22,6 +22,7 @@ the whole file and sorts it by time (stable) instead of rejecting decreasing tim
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import stat
 from pathlib import Path
@@ -107,14 +108,10 @@ def detect_format(path: str | os.PathLike) -> str:
     head = _sniff(path)
     if head.startswith(HDF5_MAGIC) or (path.suffix.lower() in (".h5", ".hdf5", ".hdf") and _is_h5(path)):
         h5 = _open_h5(path)
-        try:
-            return _h5_kind(path, h5)
-        except InputError:
-            raise
-        except _MALFORMED as exc:
-            raise _malformed(path, exc) from None
-        finally:
-            h5.close()
+        with _reading(path, h5.close):
+            kind = _h5_kind(path, h5)
+        h5.close()
+        return kind
     if head.startswith(NPY_MAGIC):
         return "npy"
     if head.startswith(ZIP_MAGIC):
@@ -147,6 +144,20 @@ def _is_h5(path: Path) -> bool:
         return False
 
 
+@contextlib.contextmanager
+def _reading(path: Path, on_error=None):
+    """Reading a user's file: what its reader raised on the content (_MALFORMED) becomes a
+    one-line InputError naming the file; ``on_error`` (a close) runs on any exception."""
+    try:
+        yield
+    except BaseException as exc:
+        if on_error is not None:
+            on_error()
+        if isinstance(exc, _MALFORMED) and not isinstance(exc, InputError):
+            raise _malformed(path, exc) from None
+        raise
+
+
 def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = None,
                 sort: bool = False) -> EventSource:
     """Open an event file of any supported format for chunked reading (see module docstring).
@@ -158,7 +169,7 @@ def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = N
     kind = detect_format(path)
     if kind in (FORMAT_NAME, "dsec", "mvsec", "metavision"):
         h5 = _open_h5(path)
-        try:
+        with _reading(path, h5.close):
             if kind == FORMAT_NAME:
                 src = ToffeH5Source(path, h5, sensor_size)
             elif kind == "dsec":
@@ -170,23 +181,10 @@ def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = N
             else:
                 from .fmt_mvsec import MvsecSource
                 src = MvsecSource(path, h5, sensor_size)
-        except InputError:
-            h5.close()
-            raise
-        except _MALFORMED as exc:
-            h5.close()
-            raise _malformed(path, exc) from None
-        except BaseException:
-            h5.close()
-            raise
     elif kind in ("npz", "npy"):
         from .fmt_numpy import open_numpy
-        try:
+        with _reading(path):                     # a dtype or array of the wrong kind inside
             src = open_numpy(path, kind, sensor_size)
-        except InputError:
-            raise
-        except _MALFORMED as exc:                # a dtype or array of the wrong kind inside
-            raise _malformed(path, exc) from None
     elif kind in ("raw", "dat"):
         from .fmt_prophesee import PropheseeDatSource, PropheseeRawSource
         src = (PropheseeRawSource if kind == "raw" else PropheseeDatSource)(path, sensor_size)
@@ -198,19 +196,10 @@ def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = N
         src = AedatSource(path, sensor_size)
     if sort:
         src = _sorted_source(src)
-    try:
+    with _reading(path, src.close):
         if not sort and not isinstance(src, SequentialSource):
             check_event_ends(path, src)          # a sequential one checks its order as it reads
         check_time_span(path, src.t_start_us, src.t_end_us)
-    except InputError:
-        src.close()
-        raise
-    except _MALFORMED as exc:
-        src.close()
-        raise _malformed(path, exc) from None
-    except BaseException:
-        src.close()
-        raise
     return src
 
 
