@@ -88,3 +88,16 @@ def test_a_scene_without_crossing_paths_is_redrawn_not_an_error():
     specs = split_specs("crossing", seed=3)
     assert len(specs) == CROSSING_COUNT
     assert all(s.meta["crossings"] for s in specs)
+
+
+def test_a_short_sequence_still_draws_a_crossing():
+    """Slow objects cannot part in 30 ms: `dataset synth --duration-s 0.03` failed after 2 min
+    ('no layout of the objects found in 100 scenes') once the start-and-end rule came in; under
+    the split's 0.1 s the layout that comes nearest is taken."""
+    from toffe_deploy.dataset import splits
+
+    rng = np.random.default_rng(sequence_seed(0, "crossing_000"))
+    (cam, _dvs, _tex, _bg, objs), meta = splits._random_crossing(rng, RANDOM, 3, True, 0.01)
+    assert len(meta["crossings"]) == 2 and all(0.2 * 0.01 < c["t_s"] < 0.8 * 0.01 for c in meta["crossings"])
+    sizes = [cam.f * o.size_m / o.trajectory.depth_m for o in objs]
+    assert splits._apart_at_ends(cam, objs, sizes, 0.01) < 1.0          # the nearest layout, not a redraw

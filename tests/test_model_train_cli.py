@@ -246,3 +246,19 @@ def test_init_from_takes_the_camera_of_the_data_it_trains_on(tmp_path):
     np.testing.assert_allclose(got.speed_bins_px_ms, start.speed_bins_px_ms)
     assert got.speed_bins[0][1] == pytest.approx(start.speed_bins[0][1] * start.focal_px / 140.0)
     assert got.dataset["init_from"] == str(tmp_path / "src") and got.dataset["train_seed"] == 5
+
+
+def test_init_from_starts_the_ofpd_from_that_checkpoints(data, tmp_path, capsys):
+    """--init-from CKPT (--stage all) fine-tunes CKPT's OFPD: it trained a new one from random
+    weights (with --epochs 0 the written OFPD was not CKPT's)."""
+    from toffe_deploy.checkpoint import init_checkpoint
+    from toffe_deploy.config import ToffeConfig
+
+    src = tmp_path / "src"
+    init_checkpoint(src, ToffeConfig(sensor_size=(640, 480)), seed=1)
+    ck = tmp_path / "ck"
+    assert main(["train", "--data", str(data), "--out", str(ck), "--init-from", str(src), "--ofs-epochs", "1",
+                 "--epochs", "0", "--windows-per-seq", "2", "--no-progress"]) == 0
+    capsys.readouterr()
+    want, got = load_checkpoint(src).ofpd_state, load_checkpoint(ck).ofpd_state
+    assert set(got) == set(want) and all(np.array_equal(np.asarray(got[k]), np.asarray(want[k])) for k in want)

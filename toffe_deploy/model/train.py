@@ -641,6 +641,16 @@ def train(opts: TrainOptions) -> Path:
         log["ofpd_samples"] = int(ds.planes.shape[0])
         torch.manual_seed(opts.seed)             # before the init: the same OFPD for a seed, however we got here
         model = OFPD.from_config(config).to(device)
+        if opts.init_from is not None and not fresh:
+            # fine-tuning starts from the other checkpoint's OFPD (it trained a random one: README "Your
+            # camera" promises its OFPD), unless today's layout gives the OFPD another shape
+            have = {k: torch.as_tensor(np.asarray(v)) for k, v in ofpd_state.items()}
+            want = model.state_dict()
+            if set(have) == set(want) and all(have[k].shape == want[k].shape for k in want):
+                model.load_state_dict(have)
+            else:
+                warn(f"--init-from {opts.init_from}: its OFPD has another input or layer shape than this "
+                     "training's; the OFPD starts from random weights")
         opt = torch.optim.Adam(model.parameters(), lr=2e-3)
         sched_total = max(opts.ofpd_epochs, 1)
         ep0 = 0
