@@ -717,3 +717,17 @@ def test_times_beyond_int64s_range_are_named_not_wrapped(capsys, tmp_path, kind)
         a["t"][4] = 2 ** 64 - 1
     np.save(tmp_path / "t.npy", a)
     one_line_error(*cli(capsys, "events", "info", tmp_path / "t.npy")[::2], "beyond 2**53 us", "at event 4")
+
+
+def test_small_option_slips_are_refused(env, capsys, tmp_path):
+    """dataset show past the end drew blank frames (exit 0) and --frames 5000 ran out of memory;
+    export --checks '' ran no check."""
+    one_line_error(*cli(capsys, "dataset", "show", env["rec"], "--out", tmp_path / "s.png",
+                        "--t0-us", "999999999999")[::2], "outside the recording")
+    with pytest.raises(SystemExit) as exc:                  # argparse's usage error
+        main(["dataset", "show", str(env["rec"]), "--out", str(tmp_path / "s.png"), "--frames", "5000"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and "1..64" in err and "Traceback" not in err
+    assert not (tmp_path / "s.png").exists()
+    one_line_error(*cli(capsys, "export", env["ckpt"], "-o", tmp_path / "b", "--checks", "")[::2], "--checks is empty")
+    assert not (tmp_path / "b").exists()

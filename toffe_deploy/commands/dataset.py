@@ -72,6 +72,14 @@ def _fraction(text: str) -> float:
 _positive_float = _number(float, 0, strict=True)
 _nonneg_float = _number(float, 0, strict=False)
 _positive_int = _number(int, 1, strict=False)
+MAX_FRAMES = 64          # panels of one PNG (5,000 ran out of memory)
+
+
+def _frames(text: str) -> int:
+    v = _positive_int(text)
+    if v > MAX_FRAMES:
+        raise argparse.ArgumentTypeError(f"must be 1..{MAX_FRAMES}, got {text}")
+    return v
 _nonneg_int = _number(int, 0, strict=False)
 
 
@@ -167,7 +175,7 @@ def register(sub) -> None:
                    help="start of the first window in microseconds (default: the file's start)")
     w.add_argument("--dt-us", type=_positive_int, default=5000,
                    help="window length in microseconds (default: 5000)")
-    w.add_argument("--frames", type=_positive_int, default=4, help="number of windows (default: 4)")
+    w.add_argument("--frames", type=_frames, default=4, help=f"number of windows, 1..{MAX_FRAMES} (default: 4)")
     w.add_argument("--stride-us", type=_positive_int, default=None,
                    help="time between window starts (default: spread the frames over the file)")
     w.add_argument("--cols", type=_positive_int, default=2, help="panels per row (default: 2)")

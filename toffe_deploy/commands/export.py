@@ -70,6 +70,8 @@ def run(args) -> int:
     from ..deploy.parity import summary_lines
 
     checks = [] if args.checks.strip().lower() == "none" else _list(args.checks)
+    if not checks and args.checks.strip().lower() != "none":          # '' ran no check, silently
+        raise ToffeError("--checks is empty: give parity checks by name, or none")
     bad = [c for c in checks if c not in CHECK_NAMES]
     if bad:
         raise ToffeError(f"unknown parity check(s) {', '.join(bad)} (choose from {', '.join(CHECK_NAMES)} or none)")

@@ -47,6 +47,9 @@ def show_file(path: str | os.PathLike, out: str | os.PathLike, t0_us: int | None
         shapes = TruthShapes(src.attrs)
         w, h = src.sensor_size
         scale, unit = draw.frame_scale((w, h)), draw.unit_px((w, h))
+        if t0_us is not None and not src.t_start_us <= t0_us < src.t_end_us:    # it drew blank frames, exit 0
+            raise InputError(path, f"--t0-us {t0_us} is outside the recording: it spans "
+                                   f"[{src.t_start_us}, {src.t_end_us}) us")
         starts = window_starts(src.t_start_us, src.t_end_us, dt_us, n_frames, t0_us, stride_us)
         panels, n_obj = [], 0
         for t0 in starts:
