@@ -731,3 +731,16 @@ def test_small_option_slips_are_refused(env, capsys, tmp_path):
     assert not (tmp_path / "s.png").exists()
     one_line_error(*cli(capsys, "export", env["ckpt"], "-o", tmp_path / "b", "--checks", "")[::2], "--checks is empty")
     assert not (tmp_path / "b").exists()
+
+
+def test_a_fractional_sensor_size_is_refused_not_truncated(env, capsys, tmp_path):
+    """sensor_width 64.7 in our HDF5, or [64.7, 48.2] in an .npz, was read as 64 x 48."""
+    h5 = tmp_path / "w.h5"
+    shutil.copy(env["rec"], h5)
+    with h5py.File(h5, "r+") as f:
+        f.attrs["sensor_width"] = 64.7
+    z = np.zeros(5, int)
+    npz = tmp_path / "w.npz"
+    np.savez(npz, x=z, y=z, t=np.arange(5), p=z, sensor_size=np.array([64.7, 48.2]))
+    for path in (h5, npz):
+        one_line_error(*cli(capsys, "events", "info", path)[::2], path.name, "in whole pixels")

@@ -17,6 +17,7 @@ from typing import Any
 from .camera import REFERENCE_DEPTH_M, REFERENCE_FOCAL_PX, SpeedScale
 from .errors import InputError
 from .events.frontend import INPUT_NORMS, check_support
+from .events.validate import whole_number
 from .fileio import read_json
 
 #: Keys a config.json on disk (checkpoint or bundle) must state: a trained network is only valid
@@ -38,14 +39,6 @@ RESETS = ("subtract", "zero")
 MAX_SENSOR_PIXELS = 4096 * 4096
 #: the largest closing kernel (OFS-grid cells); 100,001 asked for 9 GiB in training
 MAX_MASK_KERNEL = 255
-
-
-def whole_number(name: str, v) -> int:
-    """``v`` as an int when it is a whole number (an int, or a float like 640.0); ValueError for
-    640.7, true or "640", which int() would have turned silently into 640, 1 or 640."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not float(v).is_integer():
-        raise ValueError(f"{name} must be a whole number, got {v!r}")
-    return int(v)
 
 
 def sensor_too_large(sensor_size) -> str:

@@ -171,7 +171,7 @@ class ToffeH5Source(EventSource):
             raise InputError(path, f"{FORMAT_NAME} format version {version} is newer than this "
                                    f"toffe-deploy reads ({FORMAT_VERSION}); upgrade toffe-deploy")
         try:
-            own = (int(a["sensor_width"]), int(a["sensor_height"]))
+            own = (a["sensor_width"], a["sensor_height"])      # check_sensor_size: whole numbers only
         except KeyError as exc:
             raise InputError(path, f"missing root attribute {exc.args[0]!r}") from None
         super().__init__(path, check_sensor_size(path, sensor_size or own))

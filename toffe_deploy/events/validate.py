@@ -53,21 +53,20 @@ def check_event_ends(path: str | os.PathLike, src) -> None:
                                f"(t = {first} .. {last} us): t_start_us / t_end_us are wrong")
 
 
-def _whole_size(v) -> int:
-    """One side of a sensor size as an int: whole numbers only (64.7 was read as 64)."""
-    if isinstance(v, (bool, np.bool_)):
-        raise ValueError(v)
-    if isinstance(v, (float, np.floating)):
-        if not float(v).is_integer():
-            raise ValueError(v)
-        return int(v)
+def whole_number(name: str, v) -> int:
+    """``v`` as an int when it is a whole number (a Python or numpy int, or a float like 640.0);
+    ValueError for 640.7, true or "640", which int() turned silently into 640, 1 or 640
+    (sensor sizes in files, integers in config.json)."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) \
+            or not float(v).is_integer():
+        raise ValueError(f"{name} must be a whole number, got {v!r}")
     return int(v)
 
 
 def check_sensor_size(path: str | os.PathLike, sensor_size) -> tuple[int, int]:
     """A (width, height) pair of positive ints that fit EVENT_DTYPE's uint16 coordinates."""
     try:
-        w, h = (_whole_size(v) for v in sensor_size)
+        w, h = (whole_number("sensor size", v) for v in sensor_size)
     except (TypeError, ValueError):
         raise InputError(path, f"sensor size must be (width, height) in whole pixels, got {sensor_size!r}") from None
     if not (0 < w <= 65535 and 0 < h <= 65535):
