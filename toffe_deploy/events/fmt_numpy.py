@@ -95,7 +95,7 @@ def open_numpy(path, kind: str, sensor_size=None) -> EventSource:
                 lengths = {n: c.shape for n, c in cols.items()}
                 if any(len(s) != 1 for s in lengths.values()) or len({s[0] for s in lengths.values()}) != 1:
                     raise InputError(path, f"arrays x, y, t, p differ in shape: {lengths}")
-            own = tuple(int(v) for v in z["sensor_size"]) if "sensor_size" in names else None
+            own = tuple(z["sensor_size"].tolist()) if "sensor_size" in names else None   # check_sensor_size
     except InputError:
         raise
     except (ValueError, OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
