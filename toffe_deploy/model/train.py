@@ -422,8 +422,9 @@ def _load_state(out: Path) -> dict:
         state = json.loads(p.read_text())
     except (OSError, ValueError) as exc:
         raise InputError(p, f"cannot read the training progress ({exc}); delete {STATE_DIR}/ to start over") from None
-    done, epoch = state.get("ofs_done", []) if isinstance(state, dict) else None, \
-        state.get("ofpd_epoch", 0) if isinstance(state, dict) else None
+    if not isinstance(state, dict):
+        state = {"ofs_done": None}                   # reported below as malformed
+    done, epoch = state.get("ofs_done", []), state.get("ofpd_epoch", 0)
     if not (isinstance(done, list) and all(isinstance(k, int) and k >= 1 for k in done)
             and isinstance(epoch, int) and epoch >= 0):
         raise InputError(p, f"malformed training progress (ofs_done {done!r}, ofpd_epoch {epoch!r}); "
