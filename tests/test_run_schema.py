@@ -57,3 +57,32 @@ def test_schema_rejects_a_line_missing_a_field():
     v = jsonschema.Draft202012Validator(load_schema())
     bad = {"t0_us": 0, "t1_us": 500, "objects": [{"speed_bin": 1, "x": 1.0}]}
     assert not v.is_valid(bad) and v.is_valid({"t0_us": 0, "t1_us": 500, "objects": []})
+
+
+def test_an_objects_json_keeps_its_field_order_rounding_and_a_copy_of_its_track():
+    """ObjectFlow.to_json (built field by field): the dataclass fields in order, direction_deg
+    after n_events, floats to 4 decimals, speed_clipped / track_id / track only when set, and
+    the track a new dict (editing the line leaves the tracker's state as it was)."""
+    import math
+
+    import numpy as np
+
+    from toffe_deploy.config import ToffeConfig
+    from toffe_deploy.runtime.pipeline import ObjectFlow, WindowResult
+    from toffe_deploy.tracking import Tracker
+
+    plain = ObjectFlow(2, 3, 30.123456, 30.0, 3000.987654, 10.000049, 20.5, math.pi / 3, 17).to_json()
+    assert list(plain) == ["speed_bin", "ofs_bin", "speed_mps", "speed_bin_mps", "speed_px_s", "x", "y",
+                           "direction_rad", "n_events", "direction_deg", "speed_clipped"]
+    assert plain["speed_mps"] == 30.1235 and plain["x"] == 10.0 and plain["direction_deg"] == 60.0
+    assert plain["speed_clipped"] is False and plain["n_events"] == 17
+    tr = Tracker(ToffeConfig(), 500)
+    o = ObjectFlow(2, 2, 30.0, 30.0, 3000.0, 100.0, 50.0, 0.0, 9)
+    tr.update([o], 0)
+    line = WindowResult(0, 500, [o], coasting=tr.coasting()).to_json()["objects"][0]
+    assert list(line)[-2:] == ["track_id", "track"] and line["track_id"] == 0
+    assert line["track"] == dict(o.track) and line["track"] is not o.track.to_dict()
+    line["track"]["x"] = -1.0
+    assert o.track["x"] == 100.0 and isinstance(o.track.to_dict()["x"], float)
+    unset = ObjectFlow(1, 1, np.float64(1.23456), 1.0, 1.0, 1.0, 1.0, 0.0, 1, None).to_json()
+    assert unset["speed_mps"] == 1.2346 and "speed_clipped" not in unset

@@ -420,15 +420,15 @@ def run_command(args) -> int:
                             write_window(sink, res)
                             if t_newest is not None:
                                 summary.event_latencies_s.append(time.perf_counter() - src.host_time(t_newest))
+                            gt = truth.window(res.t0_us, cfg.dt_us) if truth else ()   # once: ~0.1 ms a window
                             if errors is not None:
-                                errors.add_window(predictions_of(res.objects), truth.window(res.t0_us, cfg.dt_us),
-                                                  focal_px)
+                                errors.add_window(predictions_of(res.objects), gt, focal_px)
                             if tracking is not None:
-                                tracking.add_result(res, truth.window(res.t0_us, cfg.dt_us))
+                                tracking.add_result(res, gt)
                             if renderer is not None or report is not None:
                                 win = res.to_json()
                                 if renderer is not None:
-                                    renderer.add(vol, win, truth.window(res.t0_us, cfg.dt_us) if truth else ())
+                                    renderer.add(vol, win, gt)
                                 if report is not None:
                                     report.add(win)
                             if dump is not None:
