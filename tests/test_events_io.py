@@ -207,3 +207,19 @@ def test_empty_file_is_valid(tmp_path):
         windows = list(src.iter_windows(500))
     assert [t0 for t0, _ in windows] == [0, 500, 1000, 1500]
     assert all(w.shape == (0,) for _, w in windows)
+
+
+def test_count_before_is_searchsorted_on_the_times_for_any_buffer_and_time():
+    """events.core.count_before (the windows' cut: a growing prefix, not a copy of the whole
+    unaligned time column) = np.searchsorted(events["t"], t, "left") on small, large, empty and
+    duplicate-time buffers, times before, inside, on and after them."""
+    import numpy as np
+
+    from toffe_deploy.events.core import count_before, make_events
+
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 5, 4095, 4096, 4097, 20000, 70000):
+        t = np.sort(rng.integers(0, 1000, n)) * 7
+        ev = make_events(np.zeros(n), np.zeros(n), t, np.zeros(n))
+        for q in (-1, 0, 3, 7, 3500, 6993, 6999, 7000, 10**9, *(t[rng.integers(0, n, 5)] if n else ())):
+            assert count_before(ev, int(q)) == int(np.searchsorted(t, q, side="left")), (n, q)

@@ -36,7 +36,7 @@ from .camera import SpeedScale
 from .deploy.bundle import Bundle, load_bundle
 from .errors import InputError
 from .events.convert import time_us, to_events
-from .events.core import EVENT_DTYPE
+from .events.core import EVENT_DTYPE, count_before
 from .events.validate import check_chunk
 from .runtime.pipeline import TARGETS, ObjectFlow, Pipeline, WindowResult
 from .runtime.spikes import SpikeVolume
@@ -167,7 +167,7 @@ class FlowStream:
             t1 = self.t0 + self.dt_us
             if final and not partial and int(self._buf["t"][-1]) < t1:
                 break                                      # the last, partial window: dropped
-            cut = int(np.searchsorted(self._buf["t"], t1, side="left"))
+            cut = count_before(self._buf, t1)
             win, self._buf = self._buf[:cut], self._buf[cut:]
             self._empty = 0 if cut else self._empty + 1
             if cut or self.skip_empty_after is None or self._empty <= self.skip_empty_after:

@@ -43,3 +43,18 @@ def make_events(x, y, t, p) -> np.ndarray:
     out["t"] = t
     out["p"] = p
     return out
+
+
+def count_before(events: np.ndarray, t: int) -> int:
+    """How many of the time-sorted ``events`` come before time t: np.searchsorted on
+    events["t"], left side. Why not that call itself: the field is a strided, unaligned view
+    (13-byte records), which searchsorted copies whole before searching; cutting the next
+    window off a 0.4 M-event buffer cost ~0.2 ms a window. Here it searches a prefix that grows
+    4x until it holds t, so a window's cut copies a few windows' times at most."""
+    times = events["t"]
+    n = times.shape[0]
+    hi = min(n, 4096)
+    while hi < n and times[hi - 1] < t:
+        hi = min(n, hi * 4)
+    return int(np.searchsorted(np.ascontiguousarray(times[:hi]), t, side="left"))
+

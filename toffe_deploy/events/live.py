@@ -50,7 +50,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import InputError
-from .core import EVENT_DTYPE
+from .core import EVENT_DTYPE, count_before
 from .validate import check_chunk, check_sensor_size
 
 #: Default bound of the live queue, in events (about 1 s of a busy 1 Mev/s camera, 13 MB).
@@ -321,7 +321,7 @@ class LiveSource(abc.ABC):
                     t1, waiting, n_empty = t0 + dt_us, False, 0
             if exhausted and not buf.shape[0]:
                 return
-            cut = int(np.searchsorted(buf["t"], t1, side="left"))
+            cut = count_before(buf, t1)
             yield t0, buf[:cut].copy()
             buf = buf[cut:]
             n_empty = 0 if cut else n_empty + 1

@@ -21,7 +21,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .core import EVENT_DTYPE, Events
+from .core import EVENT_DTYPE, Events, count_before
 from .validate import check_chunk
 
 #: Events read per chunk while streaming: 1 Mi events = 15 MiB in EVENT_DTYPE.
@@ -151,23 +151,20 @@ class EventSource(abc.ABC):
         n_windows = -(-(t_end - t_start) // dt_us)
         chunks = self.iter_chunks(t_start, t_start + n_windows * dt_us)
         buf = np.empty(0, EVENT_DTYPE)
-        t_col = buf["t"].copy()     # buf's times, contiguous: np.searchsorted on the strided field buf["t"]
-                                    # copies all of it, every window (~0.2 ms a window on a 0.4 M-event buffer)
         exhausted = False
         w = n_empty = 0
         while w < n_windows:
             t0 = t_start + w * dt_us
             t1 = t0 + dt_us
-            while not exhausted and (buf.shape[0] == 0 or t_col[-1] < t1):
+            while not exhausted and (buf.shape[0] == 0 or buf["t"][-1] < t1):
                 nxt = next(chunks, None)
                 if nxt is None:
                     exhausted = True
                 else:
                     buf = np.concatenate([buf, nxt]) if buf.shape[0] else nxt
-                    t_col = np.ascontiguousarray(buf["t"])       # once per chunk
-            cut = int(np.searchsorted(t_col, t1, side="left"))
+            cut = count_before(buf, t1)
             yield t0, buf[:cut].copy()
-            buf, t_col = buf[cut:], t_col[cut:]
+            buf = buf[cut:]
             w += 1
             n_empty = 0 if cut else n_empty + 1
             if skip_empty_after is not None and n_empty >= skip_empty_after:
