@@ -312,9 +312,11 @@ def run_command(args) -> int:
     with src:
         if live:        # read from now on, into the bounded queue: not into a socket buffer that
             src.start()  # overflows while the pipeline starts, nor with a clock anchored late
-            where = f"udp port {src.port}" if hasattr(src, "port") else "stdin" if args.events == "-" else src.path
-            print(f"toffe-deploy: reading {args.events} ({where}); events sent before this line are lost",
-                  file=sys.stderr, flush=True)
+            udp = hasattr(src, "port")
+            where = f"udp port {src.port}" if udp else "stdin" if args.events == "-" else src.path
+            # a datagram sent before the socket is open is gone; a pipe keeps what was written early
+            print(f"toffe-deploy: reading {args.events} ({where})"
+                  + ("; events sent before this line are lost" if udp else ""), file=sys.stderr, flush=True)
         sensor = tuple(src.sensor_size)
         if sensor[0] * sensor[1] > MAX_SENSOR_PIXELS:
             raise ToffeError(f"{args.events or 'the recording'}: {sensor_too_large(sensor)}")
