@@ -9,12 +9,16 @@ a speed-up): dump one version's full output, then compare two dumps.
 A dump holds, per window: every object's fields as ``Pipeline`` reports them, at full float
 precision (repr of the float64, not the 4 decimals of the JSON lines), track ids included, and a
 SHA-256 of the window's cascade result (each stage's input, spikes and frame masks) and of the
-OFPD input batch. ``compare`` prints the first differing window and exits 1, else 0. The code
-compared is the ``toffe_deploy`` on PYTHONPATH (this script adds nothing to sys.path).
+OFPD input batch (as ``Pipeline.objects_of`` makes it: with the front end's windows before,
+``ofpd.recent_events``). ``compare`` prints the first differing window.
+
+Exit codes: 0 identical (compare) or written (dump); 1 the dumps differ; 2 bad input (a bad
+option, a missing bundle or recording, a dump file that is missing, not JSON or not a dump),
+one line on stderr. The code compared is the ``toffe_deploy`` on PYTHONPATH (this script adds
+only benchmarks/ to sys.path, for its argument helpers).
 """
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import sys
@@ -23,6 +27,11 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT / "benchmarks") not in sys.path:
+    sys.path.insert(0, str(ROOT / "benchmarks"))   # _args only: toffe_deploy comes from PYTHONPATH
+
+from _args import OneLineParser, guarded, json_output, positive_int  # noqa: E402
+EXIT_SAME, EXIT_DIFFERS, EXIT_BAD_INPUT = 0, 1, 2
 
 
 def _digest(*arrays) -> str:
@@ -62,7 +71,8 @@ def dump(bundle_dir: str, events: str | None, limit: int | None) -> dict:
             spikes = np.zeros((len(res.spikes),) + res.volume.shape[:1] + (res.volume.n_pixels,), bool)
             for k, s in enumerate(res.spikes):
                 spikes[k][:, res.window.active] = s
-            ks, x, n_ev, _ones = ofpd_input.batch(fe, frames, cfg, pipe._scratch)
+            # as Pipeline.objects_of: recent = the front end's windows before, after this window
+            ks, x, n_ev, _ones = ofpd_input.batch(fe, frames, cfg, pipe._scratch, hist, pipe._batch)
             wr = next(pipe.process_stream([(t0, vol)]))
             objs = []
             for o in wr.objects:
@@ -75,46 +85,58 @@ def dump(bundle_dir: str, events: str | None, limit: int | None) -> dict:
     return {"recording": str(path), "windows": out}
 
 
+def load_dump(path: str) -> dict:
+    """A dump file's content; InputError (exit 2) for a missing, malformed or foreign file."""
+    from toffe_deploy.errors import InputError
+    from toffe_deploy.fileio import read_json
+
+    d = read_json(path)
+    if not (isinstance(d, dict) and isinstance(d.get("windows"), list) and "recording" in d
+            and all(isinstance(w, dict) and "t0_us" in w and "objects" in w for w in d["windows"])):
+        raise InputError(path, "not a bench_exact.py dump (no 'recording' and 'windows' of t0_us / objects)")
+    return d
+
+
 def compare(a: dict, b: dict) -> int:
     wa, wb = a["windows"], b["windows"]
     if len(wa) != len(wb):
         print(f"different window counts: {len(wa)} vs {len(wb)}")
-        return 1
+        return EXIT_DIFFERS
     n_obj = 0
     for i, (x, y) in enumerate(zip(wa, wb)):
         if x != y:
             print(f"window {i} (t0 {x['t0_us']} us) differs:\n  {json.dumps(x)[:2000]}\n  {json.dumps(y)[:2000]}")
-            return 1
+            return EXIT_DIFFERS
         n_obj += len(x["objects"])
     print(f"identical: {len(wa)} windows, {n_obj} objects ({a['recording']})")
-    return 0
+    return EXIT_SAME
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description="Bit-exactness check of the cpu target between two code versions.")
+    ap = OneLineParser(prog="bench_exact.py", description="Bit-exactness check of the cpu target between two code "
+                       "versions. Exit 0: identical / written, 1: the dumps differ, 2: bad input.")
     sub = ap.add_subparsers(dest="cmd", required=True)
     d = sub.add_parser("dump", help="run the cpu pipeline and write its full output")
     d.add_argument("--bundle", default=str(ROOT / "export"))
     d.add_argument("--events", default=None, help="recording (default: the shipped sample)")
-    d.add_argument("--max-windows", type=int, default=None)
-    d.add_argument("-o", "--out", required=True)
+    d.add_argument("--max-windows", type=positive_int, default=None)
+    d.add_argument("-o", "--out", type=json_output, required=True)
     c = sub.add_parser("compare", help="compare two dumps")
     c.add_argument("a")
     c.add_argument("b")
     args = ap.parse_args(argv)
-    from toffe_deploy.errors import ToffeError        # from PYTHONPATH: the version under test
-    from toffe_deploy.fileio import atomic_path
+    return guarded("bench_exact", _run, args)
 
-    try:
-        if args.cmd == "dump":
-            out = dump(args.bundle, args.events, args.max_windows)
-            with atomic_path(args.out) as tmp:
-                tmp.write_text(json.dumps(out))
-            return 0
-        return compare(json.loads(Path(args.a).read_text()), json.loads(Path(args.b).read_text()))
-    except ToffeError as exc:
-        print(f"bench_exact: {exc}", file=sys.stderr)
-        return 2
+
+def _run(args) -> int:
+    from toffe_deploy.fileio import atomic_path       # from PYTHONPATH: the version under test
+
+    if args.cmd == "dump":
+        out = dump(args.bundle, args.events, args.max_windows)
+        with atomic_path(args.out) as tmp:
+            tmp.write_text(json.dumps(out))
+        return EXIT_SAME
+    return compare(load_dump(args.a), load_dump(args.b))
 
 
 if __name__ == "__main__":

@@ -9,7 +9,11 @@ Streams synthetic windows (a few square objects at different speeds, sensor nois
   * peak memory: PSS of the host and every Lava process plus the /dev/shm segments of Lava's
     channels (every page counted once, sampled every 0.1 s),
   * bit-exactness: every ``--check-every``-th window is compared with the numpy reference
-    ``run_cascade(..., run_ofs_fixed)`` after the timed loop.
+    ``run_cascade(..., run_ofs_fixed)`` after the timed loop; ``mismatched_bytes``: the bytes
+    of the bit-packed arrays (8 cells each) that differ (0: bit-exact),
+  * device: this machine (CPU model and cores, as bench_run.py describes it) and the simulator.
+
+Memory figures are MiB (2**20 bytes).
 
 Simulator wall time is not Loihi latency. Example (the figures in the report):
 
@@ -17,7 +21,6 @@ Simulator wall time is not Loihi latency. Example (the figures in the report):
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -31,13 +34,16 @@ from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from toffe_deploy.cascade import run_cascade  # noqa: E402
 from toffe_deploy.commands import add_progress_flag, show_progress  # noqa: E402
 from toffe_deploy.fileio import atomic_path  # noqa: E402
 from toffe_deploy.fixed_point import quantize_ofs, run_ofs_fixed  # noqa: E402
 from toffe_deploy.runtime.loihi import LavaCascade  # noqa: E402
-from peak_memory import pss_without_shm  # noqa: E402  (benchmarks/ is sys.path[0])
+from _args import OneLineParser, guarded, int_in, json_output, nonneg_int, positive_int  # noqa: E402
+from bench_run import machine  # noqa: E402
+from peak_memory import pss_without_shm  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -131,21 +137,28 @@ class MemorySampler(threading.Thread):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--width", type=int, default=640, help="sensor width in pixels (default 640)")
-    ap.add_argument("--height", type=int, default=480, help="sensor height in pixels (default 480)")
-    ap.add_argument("--bins", type=int, default=5, help="time bins per window, the paper's B (default 5)")
-    ap.add_argument("--stages", type=int, default=4, help="OFS stages = speed bins N (default 4)")
-    ap.add_argument("--windows", type=int, default=200, help="windows to stream (default 200)")
-    ap.add_argument("--distinct", type=int, default=50, help="distinct synthetic windows, cycled (default 50)")
+    ap = OneLineParser(prog="bench_lava.py", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--width", type=int_in(16, 4096), default=640, help="sensor width in pixels (default 640)")
+    ap.add_argument("--height", type=int_in(16, 4096), default=480, help="sensor height in pixels (default 480)")
+    ap.add_argument("--bins", type=positive_int, default=5, help="time bins per window, the paper's B (default 5)")
+    ap.add_argument("--stages", type=positive_int, default=4, help="OFS stages = speed bins N (default 4)")
+    ap.add_argument("--windows", type=positive_int, default=200, help="windows to stream (default 200)")
+    ap.add_argument("--distinct", type=positive_int, default=50, help="distinct synthetic windows, cycled (default 50)")
     ap.add_argument("--tag", default="fixed_pt", choices=["fixed_pt", "floating_pt"], help="Lava model tag")
     ap.add_argument("--dense", action="store_true", help="feed dense (B, 2, H, W) arrays instead of sparse volumes")
-    ap.add_argument("--check-every", type=int, default=10,
+    ap.add_argument("--check-every", type=nonneg_int, default=10,
                     help="compare every n-th window with the numpy reference (0: never; default 10)")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "lava.json",
+    ap.add_argument("--out", type=json_output, default=ROOT / "benchmarks" / "results" / "lava.json",
                     help="JSON results file (default benchmarks/results/lava.json)")
     add_progress_flag(ap)
     args = ap.parse_args(argv)
+    return guarded("bench_lava", run, args)
+
+
+def run(args) -> int:
+    from toffe_deploy.fileio import check_outputs
+
+    check_outputs(files=[("--out", args.out)])
 
     distinct = synthetic_windows(min(args.distinct, args.windows), args.width, args.height, args.bins)
     params = dotie_params(args.stages)
@@ -180,14 +193,15 @@ def main(argv=None) -> int:
     n = len(times)
     steady = np.array(times[args.stages:]) if n > args.stages else np.array(times)
     spikes = [int(s.sum()) for s in res.spikes]
-    mismatches = 0
+    mismatches = 0            # differing bytes of the bit-packed arrays
     for i, res in checked.items():
         x = distinct[i % len(distinct)].to_dense()
         ref = run_cascade(x, lambda k, inp: run_ofs_fixed(inp, params[k - 1]), args.stages, 5)
         for f in ("inputs", "spikes", "closed", "frames"):
             mismatches += sum(int(np.count_nonzero(np.packbits(a) != b)) for a, b in zip(getattr(ref, f), res[f]))
+    m = machine()
     result = {
-        "device": "2-core VM, Lava simulator (Loihi2SimCfg)", "tag": args.tag,
+        "device": f"{m['cpu']}, {m['cores']} cores, Lava simulator (Loihi2SimCfg)", "tag": args.tag,
         "sensor_size": [args.width, args.height], "n_bins": args.bins, "n_stages": args.stages,
         "windows": n, "input": "dense" if args.dense else "sparse",
         "events_per_window_mean": float(np.mean([len(w.idx) for w in distinct])),
@@ -197,7 +211,7 @@ def main(argv=None) -> int:
         "window_ms_p50_p90_p99": [round(float(np.percentile(steady, q)) * 1e3, 2) for q in (50, 90, 99)],
         "peak_memory_mb": round(mem.peak / 2**20, 1), "peak_shm_mb": round(mem.peak_shm / 2**20, 1),
         "shm_allocated_mb": round(lc.shm_bytes / 2**20, 1),
-        "checked_windows": len(checked), "bit_mismatches": mismatches,
+        "checked_windows": len(checked), "mismatched_bytes": mismatches,
         "last_window_spikes_per_stage": spikes,
     }
     with atomic_path(args.out) as tmp:

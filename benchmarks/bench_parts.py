@@ -19,11 +19,11 @@ took from it, so parts compare across runs on a busy machine better than wall ti
              (ofpd.outline_centre: Pipeline.place) and pipeline.speeds_of
 
 Prints one JSON line: the median of each part over windows and repeats (us), the median and
-mean of their sum, the number of windows and the 1-minute load average when it ended.
+mean of their sum, ``windows``: the number of timed windows (the recording's windows times
+--repeats), ``recording_windows`` and ``repeats`` apart, and the 1-minute load average when it ended.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -36,16 +36,24 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from _args import OneLineParser, cpu_core, existing_file, guarded, positive_int  # noqa: E402
+
 PARTS = ("bin", "front", "cascade", "batch", "ort", "decode")
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description="CPU time per window of the cpu target, by part.")
+    ap = OneLineParser(prog="bench_parts.py", description="CPU time per window of the cpu target, by part.")
     ap.add_argument("--bundle", default=str(ROOT / "export"), help="deploy bundle (toffe-deploy export ckpt/)")
-    ap.add_argument("--events", default=None, help="recording (default: the shipped sample)")
-    ap.add_argument("--core", type=int, default=1, help="CPU core to pin to")
-    ap.add_argument("--repeats", type=int, default=5, help="passes over the recording")
+    ap.add_argument("--events", type=existing_file, default=None, help="recording (default: the shipped sample)")
+    ap.add_argument("--core", type=cpu_core, default=str(min(1, max(os.sched_getaffinity(0)))),
+                    help="CPU core to pin to (default 1, or 0 on a one-core machine)")
+    ap.add_argument("--repeats", type=positive_int, default=5, help="passes over the recording")
     args = ap.parse_args(argv)
+    return guarded("bench_parts", run, args)
+
+
+def run(args) -> int:
+    from toffe_deploy.errors import InputError
 
     from bench_run import load_windows, pin_one_core
     from toffe_deploy.commands.run import SAMPLE
@@ -57,7 +65,10 @@ def main(argv=None) -> int:
 
     bundle = load_bundle(args.bundle)
     cfg = bundle.config
-    windows = load_windows(Path(args.events) if args.events else SAMPLE, cfg)
+    path = Path(args.events) if args.events else SAMPLE
+    windows = load_windows(path, cfg)
+    if not windows:
+        raise InputError(path, f"no whole window of {cfg.dt_us} us: nothing to time")
     pin_one_core(args.core)
     clock = time.thread_time_ns
     parts: dict[str, list[float]] = {p: [] for p in PARTS}
@@ -90,7 +101,7 @@ def main(argv=None) -> int:
                 total.append((t[-1] - t[0]) / 1e3)
     res = {name: round(float(np.median(v)), 1) for name, v in parts.items()}
     res.update(sum_median_us=round(float(np.median(total)), 1), sum_mean_us=round(float(np.mean(total)), 1),
-               windows=len(total), load_1min=round(os.getloadavg()[0], 2))
+               windows=len(total), recording_windows=len(windows), repeats=args.repeats, load_1min=round(os.getloadavg()[0], 2))
     print(json.dumps(res))
     return 0
 

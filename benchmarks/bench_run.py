@@ -35,6 +35,31 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from _args import (OneLineParser, comma_list, cpu_core, existing_file, guarded, json_output,  # noqa: E402
+                   positive_float, positive_int)
+
+TARGETS = ("cpu", "loihi-sim")
+
+
+def machine() -> dict:
+    """This machine in words: CPU model (/proc/cpuinfo, else platform), cores, Python version."""
+    out = {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+           "python": platform.python_version()}
+    try:
+        with open("/proc/cpuinfo") as f:
+            out["cpu"] = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return out
+
+
+def target(text: str) -> str:
+    """An argparse type: one of TARGETS."""
+    if text not in TARGETS:
+        raise argparse.ArgumentTypeError(f"unknown target {text!r} (known: {', '.join(TARGETS)})")
+    return text
 
 
 def pct(seconds) -> dict:
@@ -188,54 +213,54 @@ def bench_lava(bundle, windows, n: int) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description="Benchmark toffe-deploy run (latency, throughput, memory).")
+    ap = OneLineParser(prog="bench_run.py", description="Benchmark toffe-deploy run (latency, throughput, memory).")
     ap.add_argument("--bundle", default=str(ROOT / "export"), help="deploy bundle (toffe-deploy export ckpt/)")
-    ap.add_argument("--events", default=None, help="recording (default: the shipped sample)")
-    ap.add_argument("--targets", default="cpu", help="comma list of cpu, loihi-sim")
-    ap.add_argument("--core", type=int, default=0, help="CPU core to pin the cpu measurements to")
-    ap.add_argument("--repeats", type=int, default=3, help="passes over the recording for cpu latency")
-    ap.add_argument("--dense-windows", type=int, default=40, help="windows for the dense 'before' measurement")
-    ap.add_argument("--lava-windows", type=int, default=40, help="windows for loihi-sim")
-    ap.add_argument("--long-seconds", type=float, default=10.0, help="length of the memory-test recording")
+    ap.add_argument("--events", type=existing_file, default=None, help="recording (default: the shipped sample)")
+    ap.add_argument("--targets", type=comma_list(target), default="cpu",
+                    help=f"comma list of {', '.join(TARGETS)}")
+    ap.add_argument("--core", type=cpu_core, default=0, help="CPU core to pin the cpu measurements to")
+    ap.add_argument("--repeats", type=positive_int, default=3, help="passes over the recording for cpu latency")
+    ap.add_argument("--dense-windows", type=positive_int, default=40, help="windows for the dense 'before' measurement")
+    ap.add_argument("--lava-windows", type=positive_int, default=40, help="windows for loihi-sim")
+    ap.add_argument("--long-seconds", type=positive_float, default=10.0, help="length of the memory-test recording")
     ap.add_argument("--skip-memory", action="store_true", help="skip the peak-memory runs")
     ap.add_argument("--no-track", action="store_true", help="cpu latency without the tracker (its cost: compare)")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "bench_run.json"))
+    ap.add_argument("--out", type=json_output, default=str(ROOT / "benchmarks" / "results" / "bench_run.json"))
     args = ap.parse_args(argv)
+    return guarded("bench_run", run, args)
 
+
+def run(args) -> int:
     from toffe_deploy.commands.run import SAMPLE
     from toffe_deploy.deploy.bundle import load_bundle
-    from toffe_deploy.errors import ToffeError
+    from toffe_deploy.errors import InputError, ToffeError
+    from toffe_deploy.fileio import atomic_path, check_outputs
 
     try:
         bundle = load_bundle(args.bundle)
     except ToffeError as exc:
-        print(f"bench_run: {exc} (run `toffe-deploy export ckpt/` first)", file=sys.stderr)
-        return 2
+        raise ToffeError(f"{exc} (run `toffe-deploy export ckpt/` first)") from None
     cfg = bundle.config
     sample = Path(args.events) if args.events else SAMPLE
+    check_outputs(files=[("--out", args.out)], inputs=[("the recording", sample)])
     windows = load_windows(sample, cfg)
-    targets = [t.strip() for t in args.targets.split(",") if t.strip()]
-    out = {"machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-                       "python": platform.python_version()},
+    if not windows:
+        raise InputError(sample, f"no whole window of {cfg.dt_us} us: nothing to time")
+    targets = args.targets
+    out = {"machine": machine(),
            "bundle": str(args.bundle), "recording": str(sample), "sensor_size": list(cfg.sensor_size),
            "n_bins": cfg.n_bins, "n_speed_bins": cfg.n_speed_bins, "dt_us": cfg.dt_us, "windows": len(windows)}
-    try:
-        out["machine"]["cpu"] = next(l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
     if "cpu" in targets:
+        allowed = os.sched_getaffinity(0)
         pin_one_core(args.core)
         out["cpu"] = bench_cpu(bundle, windows, args.repeats, warmup=20, track=not args.no_track)
         out["cpu_dense_before"] = bench_dense(bundle, windows[: args.dense_windows + 1])
         out["cpu_speedup_p50"] = out["cpu_dense_before"]["events_to_flow"]["p50_ms"] / out["cpu"]["events_to_flow"]["p50_ms"]
-        os.sched_setaffinity(0, range(os.cpu_count()))
+        os.sched_setaffinity(0, allowed)
         if not args.skip_memory:
             out["cpu_memory"] = bench_memory(Path(args.bundle), sample, args.long_seconds)
     if "loihi-sim" in targets:
         out["loihi-sim"] = bench_lava(bundle, windows, args.lava_windows)
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    from toffe_deploy.fileio import atomic_path
-
     with atomic_path(args.out) as tmp:
         tmp.write_text(json.dumps(out, indent=2) + "\n")
     print(f"# bench_run ({cfg.sensor_size[0]}x{cfg.sensor_size[1]}, B={cfg.n_bins}, N={cfg.n_speed_bins}, "

@@ -7,7 +7,6 @@ and ground truth in memory); the HDF5 write is timed separately.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -17,19 +16,25 @@ from pathlib import Path
 
 import numpy as np
 
-from toffe_deploy.dataset.splits import DEPTH_AMP_M, PROGRAMMED_SPEEDS, SCALE_M, SIZE_M
-from toffe_deploy.dataset.synth import ObjectSpec, SequenceSpec, generate_sequence
-from toffe_deploy.dataset.trajectories import Trajectory, lap_time_for_speeds
-from toffe_deploy.events.io import write_events_h5
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _args import OneLineParser, json_output, positive_float  # noqa: E402
+from toffe_deploy.dataset.shapes import SHAPES  # noqa: E402
+from toffe_deploy.dataset.splits import DEPTH_AMP_M, PROGRAMMED_SPEEDS, SCALE_M, SIZE_M  # noqa: E402
+from toffe_deploy.dataset.synth import ObjectSpec, SequenceSpec, generate_sequence  # noqa: E402
+from toffe_deploy.dataset.trajectories import CURVES, Trajectory, lap_time_for_speeds  # noqa: E402
+from toffe_deploy.events.io import write_events_h5  # noqa: E402
+from toffe_deploy.fileio import atomic_path  # noqa: E402
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--duration-s", type=float, default=1.0, help="sensor time per run (default 1 s)")
-    ap.add_argument("--bins", type=int, nargs="+", default=[1, 2, 3, 4], help="speed bins to time")
-    ap.add_argument("--shape", default="square", help="object shape (default square)")
-    ap.add_argument("--curve", default="lemniscate", help="trajectory (default lemniscate)")
-    ap.add_argument("--json", type=Path, default=None, help="also write the results as JSON here")
+    ap = OneLineParser(prog="bench_synth.py", description=__doc__.splitlines()[0])
+    ap.add_argument("--duration-s", type=positive_float, default=1.0, help="sensor time per run (default 1 s)")
+    ap.add_argument("--bins", type=int, nargs="+", default=[1, 2, 3, 4], choices=sorted(PROGRAMMED_SPEEDS),
+                    metavar="BIN", help=f"speed bins to time ({', '.join(map(str, sorted(PROGRAMMED_SPEEDS)))})")
+    ap.add_argument("--shape", default="square", choices=SHAPES, help="object shape (default square)")
+    ap.add_argument("--curve", default="lemniscate", choices=sorted(CURVES), help="trajectory (default lemniscate)")
+    ap.add_argument("--json", type=json_output, default=None, help="also write the results as JSON here")
     args = ap.parse_args(argv)
     rows = []
     print(f"{'bin':>3} {'speed m/s':>13} {'events':>10} {'gen s':>7} {'write s':>8} {'MB':>6}  (1 object, "
@@ -59,8 +64,8 @@ def main(argv=None) -> int:
     worst = max(r["generate_s"] / r["duration_s"] for r in rows)
     print(f"slowest: {worst:.2f} s per second of sensor time (target < 10 s)")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"cpu_count": os.cpu_count(), "rows": rows}, indent=1) + "\n")
+        with atomic_path(args.json) as tmp:
+            tmp.write_text(json.dumps({"cpu_count": os.cpu_count(), "rows": rows}, indent=1) + "\n")
     return 0 if worst < 10 else 1
 
 

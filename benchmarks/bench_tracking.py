@@ -23,10 +23,12 @@ a direction table; the JSON holds every figure and the settings, and each sequen
 misses and false positives (per_sequence).
 
 ``--save-detections DIR``: also write each split's per-window detections (the pipeline's
-objects, before tracking) to DIR/SPLIT.jsonl (JSON lines: a header {"split", "files", "fields"},
-then one {"seq", "t0_us", "objects": [[fields...]]} per window); ``--detections DIR``: replay
-them into the tracker instead of running the OFS and OFPD (the same figures in seconds; the
-sequences must be the ones saved: same --data, --split, --limit), to compare tracker settings.
+objects, before tracking) to DIR/SPLIT.jsonl (JSON lines: a header {"split", "files", "fields",
+"max_windows"}, then one {"seq", "t0_us", "objects": [[fields...]]} per window); ``--detections
+DIR``: replay them into the tracker instead of running the OFS and OFPD (the same figures in
+seconds; the sequences must be the ones saved: same --data, --split, --limit, and --max-windows
+at most the one saved, else it is refused). A file saved before the header had "max_windows"
+is replayed as it is, with a warning: its window count cannot be checked.
 
 ``--truth-blobs``: the tracker alone, on detections made from the ground truth (each object's
 centre, direction and image-plane speed, every window), except that objects whose discs
@@ -56,6 +58,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from _args import (OneLineParser, existing_dir, existing_file, guarded, json_output, nonneg_float,  # noqa: E402
+                   nonneg_int, positive_float, positive_int)
 
 
 def bin_flicker(rows) -> int:
@@ -82,30 +88,49 @@ DET_FIELDS = ("speed_bin", "ofs_bin", "speed_mps", "speed_bin_mps", "speed_px_s"
               "n_events", "speed_clipped")
 
 
-def save_detections(path: Path, split: str, files, windows: list) -> None:
+def save_detections(path: Path, split: str, files, windows: list, max_windows: int) -> None:
     """The pipeline's detections of a split, one JSON line per window ({"seq": file index, "t0_us",
-    "objects": [[DET_FIELDS...], ...]}) after a header line ({"split", "files", "fields"}): what
-    ``--detections`` replays into the tracker. windows: (file index, t0_us, objects) per window."""
+    "objects": [[DET_FIELDS...], ...]}) after a header line ({"split", "files", "fields",
+    "max_windows"}): what ``--detections`` replays into the tracker. windows: (file index, t0_us,
+    objects) per window; max_windows: the --max-windows they were run with."""
     from toffe_deploy.fileio import atomic_path
 
     with atomic_path(path) as tmp, open(tmp, "w") as f:
-        f.write(json.dumps({"split": split, "files": [str(p) for p in files], "fields": DET_FIELDS}) + "\n")
+        f.write(json.dumps({"split": split, "files": [str(p) for p in files], "fields": DET_FIELDS,
+                            "max_windows": int(max_windows)}) + "\n")
         for fi, t0, objs in windows:
             f.write(json.dumps({"seq": fi, "t0_us": int(t0),
                                 "objects": [[getattr(o, k) for k in DET_FIELDS] for o in objs]}) + "\n")
 
 
-def load_detections(path: Path, files) -> dict:
+def load_detections(path: Path, files, max_windows: int | None = None) -> dict:
     """{file index: [(t0_us, [field tuples])]} from a ``save_detections`` file, which must be of
-    the same sequences (SystemExit otherwise)."""
-    with open(path) as f:
-        head = json.loads(f.readline())
-        if head["files"] != [str(p) for p in files] or tuple(head["fields"]) != DET_FIELDS:
-            raise SystemExit(f"{path}: saved for other sequences or fields (--data, --split, --limit)")
-        out: dict = {i: [] for i in range(len(files))}
-        for line in f:
-            r = json.loads(line)
-            out[r["seq"]].append((r["t0_us"], r["objects"]))
+    the same sequences and, when its header says, saved with at least ``max_windows`` windows per
+    sequence (InputError otherwise; a header without "max_windows": a warning, replayed as it is)."""
+    from toffe_deploy.errors import InputError, warn
+
+    try:
+        with open(path) as f:
+            head = json.loads(f.readline())
+            if not isinstance(head, dict) or not {"files", "fields"} <= set(head):
+                raise InputError(path, "not a --save-detections file (its first line is no header)")
+            if head["files"] != [str(p) for p in files] or tuple(head["fields"]) != DET_FIELDS:
+                raise InputError(path, "saved for other sequences or fields (--data, --split, --limit)")
+            saved = head.get("max_windows")
+            if saved is None:
+                warn(f"{path}: saved without its --max-windows (an older file): replayed as it is, a sequence "
+                     "may have fewer windows than --max-windows asks")
+            elif max_windows is not None and max_windows > saved:
+                raise InputError(path, f"saved with --max-windows {saved}, fewer than the {max_windows} asked: "
+                                       f"replay with --max-windows {saved} or save again")
+            out: dict = {i: [] for i in range(len(files))}
+            for line in f:
+                r = json.loads(line)
+                out[r["seq"]].append((r["t0_us"], r["objects"]))
+    except FileNotFoundError:
+        raise InputError(path, "missing file (--detections DIR needs DIR/SPLIT.jsonl from --save-detections)") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, IndexError) as exc:
+        raise InputError(path, f"not a --save-detections file ({type(exc).__name__}: {exc})") from None
     return out
 
 
@@ -219,6 +244,7 @@ def truth_blobs(truths, size_px, speed_bin_of, merge: float = 1.0) -> list:
 
 def run_split_truth_blobs(config, files, settings, max_windows, gate, merge: float = 1.0) -> dict:
     """CLEAR MOT / IDF1 of the tracker alone on truth_blobs detections (``--truth-blobs``)."""
+    from toffe_deploy.errors import InputError
     from toffe_deploy.events.io import open_events
     from toffe_deploy.runtime.pipeline import WindowResult
     from toffe_deploy.runtime.truth import TruthIndex
@@ -231,7 +257,7 @@ def run_split_truth_blobs(config, files, settings, max_windows, gate, merge: flo
         with open_events(path) as src:
             objs = (src.attrs.get("appearance") or {}).get("objects")
             if not objs:
-                raise SystemExit(f"{path}: no appearance.objects[].size_px in its attrs (generated by dataset synth?)")
+                raise InputError(path, "no appearance.objects[].size_px in its attrs (generated by dataset synth?)")
             size_px = [float(o["size_px"]) for o in objs]
             truth, t_start = TruthIndex(src.ground_truth), int(src.t_start_us)
             n = min(max_windows, (int(src.t_end_us) - t_start) // dt)
@@ -266,6 +292,10 @@ def tracker_cost(bundle, events, settings, repeats: int) -> dict:
     with open_events(events) as src:
         sensor = tuple(src.sensor_size)
         raw = list(src.iter_windows(cfg.dt_us))
+    if not raw:
+        from toffe_deploy.errors import InputError
+
+        raise InputError(events, f"no whole window of {cfg.dt_us} us: nothing to time")
     wins = [(t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor)) for t0, ev in raw]
     pipes = {"track": Pipeline(bundle, "cpu", sensor_size=sensor, track=settings),
              "no_track": Pipeline(bundle, "cpu", sensor_size=sensor, track=False)}
@@ -325,23 +355,20 @@ def _settings(a):
 
 
 def main(argv=None) -> int:
-    from toffe_deploy.deploy.bundle import load_bundle
-    from toffe_deploy.errors import ToffeError
-    from toffe_deploy.evaluate import split_files
     from toffe_deploy.metrics import GATE_PX
     from toffe_deploy.tracking import TrackerConfig
 
     d = TrackerConfig()
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap = OneLineParser(prog="bench_tracking.py", description=__doc__.split("\n\n")[0],
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("--bundle", default=str(ROOT / "export"), help="deploy bundle (toffe-deploy export ckpt/)")
-    ap.add_argument("--data", default=str(ROOT / "data" / "synth"),
+    ap.add_argument("--data", type=existing_dir, default=str(ROOT / "data" / "synth"),
                     help="data set directory (toffe-deploy dataset synth)")
     ap.add_argument("--split", default="multi,pairs", help="comma-separated splits")
-    ap.add_argument("--max-windows", type=int, default=200, help="windows per sequence from its start")
-    ap.add_argument("--limit", type=int, default=0, help="first N sequences per split (0: all)")
+    ap.add_argument("--max-windows", type=positive_int, default=200, help="windows per sequence from its start")
+    ap.add_argument("--limit", type=nonneg_int, default=0, help="first N sequences per split (0: all)")
     ap.add_argument("--gate", type=float, default=d.gate_px, help="the tracker's association gate (px)")
-    ap.add_argument("--score-gate", type=float, default=GATE_PX,
+    ap.add_argument("--score-gate", type=positive_float, default=GATE_PX,
                     help="the scoring gate: a hypothesis within it of an object matches (px; eval's, default 20)")
     ap.add_argument("--alpha", type=float, default=d.alpha)
     ap.add_argument("--beta", type=float, default=d.beta)
@@ -404,26 +431,39 @@ def main(argv=None) -> int:
                     help="parting_events_px: parting cost (px) per unit of ln(event ones) difference (0: off)")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
-    ap.add_argument("--truth-merge", type=float, default=1.0, metavar="F",
+    ap.add_argument("--truth-merge", type=nonneg_float, default=1.0, metavar="F",
                     help="--truth-blobs: merge objects closer than F mean diameters (default 1: touching discs)")
     ap.add_argument("--save-detections", type=Path, metavar="DIR",
                     help="also write each split's per-window detections to DIR/SPLIT.jsonl")
     ap.add_argument("--detections", type=Path, metavar="DIR",
                     help="replay DIR/SPLIT.jsonl (--save-detections) into the tracker instead of running the pipeline")
-    ap.add_argument("--json", type=Path)
+    ap.add_argument("--json", type=json_output)
     ap.add_argument("--cost", action="store_true", help="measure the tracker's CPU time per window instead")
-    ap.add_argument("--events", default=str(ROOT / "toffe_deploy" / "samples" / "sample_multi.h5"))
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--events", type=existing_file, default=str(ROOT / "toffe_deploy" / "samples" / "sample_multi.h5"))
+    ap.add_argument("--repeats", type=positive_int, default=5)
     a = ap.parse_args(argv)
     try:
         settings = _settings(a)
     except ValueError as exc:
-        raise SystemExit(f"bench_tracking.py: {exc}") from None
-    try:
-        bundle = load_bundle(a.bundle)
-    except ToffeError as exc:
-        print(f"bench_tracking: error: {exc}", file=sys.stderr)
-        return 2
+        ap.error(str(exc))
+    if a.detections is not None and a.truth_blobs:
+        ap.error("--detections replays the pipeline's detections; --truth-blobs makes its own: give one")
+    return guarded("bench_tracking", run, a, settings)
+
+
+def run(a, settings) -> int:
+    """bench_tracking.py with parsed arguments: every input and output checked before any output."""
+    from toffe_deploy.deploy.bundle import load_bundle
+    from toffe_deploy.errors import InputError
+    from toffe_deploy.evaluate import split_files
+    from toffe_deploy.fileio import atomic_path, check_outputs, json_text
+
+    def write_json(obj) -> None:
+        with atomic_path(a.json) as tmp:
+            tmp.write_text(json_text(obj, indent=1) + "\n")
+
+    bundle = load_bundle(a.bundle)
+    check_outputs(files=[("--json", a.json)], dirs=[("--save-detections", a.save_detections)])
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)
         print(f"{c['windows']} windows, {c['objects_per_window']:.2f} objects per window: CPU per window "
@@ -435,8 +475,20 @@ def main(argv=None) -> int:
               f"the whole window from its events (binning {c['cpu_ms_per_window_binning']:.3f} ms included, as `run` "
               "and bench_run.py time it)")
         if a.json:
-            a.json.write_text(json.dumps({"settings": dataclasses.asdict(settings), **c}, indent=1) + "\n")
+            write_json({"settings": dataclasses.asdict(settings), **c})
         return 0
+    splits = [s.strip() for s in a.split.split(",") if s.strip()]
+    if not splits:
+        raise InputError(a.data, f"--split names no split: {a.split!r}")
+    files_of = {}
+    for split in splits:                                 # every split, and its saved detections, before any output
+        files = split_files(Path(a.data), split)
+        files_of[split] = files[:a.limit] if a.limit else files
+        if a.detections is not None and not (a.detections / f"{split}.jsonl").is_file():
+            raise InputError(a.detections / f"{split}.jsonl", "missing file (--detections DIR needs DIR/SPLIT.jsonl "
+                                                              "from --save-detections)")
+        if a.save_detections is not None:
+            check_outputs(files=[("--save-detections", a.save_detections / f"{split}.jsonl")])
     out = {"bundle": a.bundle, "settings": dataclasses.asdict(settings), "max_windows": a.max_windows,
            "score_gate_px": a.score_gate, "splits": {}}
     if a.truth_blobs:
@@ -444,9 +496,8 @@ def main(argv=None) -> int:
         out["truth_merge"] = a.truth_merge
         print("| split | sequences | windows | windows with a blob | MOTA | IDF1 | ID switches | frag. | misses | FP |\n"
               "|---|---|---|---|---|---|---|---|---|---|")
-        for split in a.split.split(","):
-            files = split_files(Path(a.data), split)
-            r = run_split_truth_blobs(bundle.config, files[:a.limit] if a.limit else files, settings,
+        for split in splits:
+            r = run_split_truth_blobs(bundle.config, files_of[split], settings,
                                       a.max_windows, a.score_gate, a.truth_merge)
             out["splits"][split] = r
             m = r["tracking"]
@@ -454,20 +505,20 @@ def main(argv=None) -> int:
                   f"| {m['idf1']:.3f} | {m['id_switches']} | {m['fragmentations']} | {m['misses']} "
                   f"| {m['false_positives']} |", flush=True)
         if a.json:
-            a.json.write_text(json.dumps(out, indent=1) + "\n")
+            write_json(out)
         return 0
+    saved_of = {split: None if a.detections is None else
+                load_detections(a.detections / f"{split}.jsonl", files_of[split], a.max_windows) for split in splits}
     print("| split | sequences | windows | recall | MOTA | IDF1 | MOTP (px) | ID switches | frag. | misses | FP "
           "| bin changes det. / track |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for split in a.split.split(","):
-        files = split_files(Path(a.data), split)
-        files = files[:a.limit] if a.limit else files
+    for split in splits:
+        files = files_of[split]
         t = time.perf_counter()
-        saved = None if a.detections is None else load_detections(a.detections / f"{split}.jsonl", files)
         keep = [] if a.save_detections else None
-        r = run_split(bundle, files, settings, a.max_windows, a.score_gate, saved, keep)
+        r = run_split(bundle, files, settings, a.max_windows, a.score_gate, saved_of[split], keep)
         if keep is not None:
             a.save_detections.mkdir(parents=True, exist_ok=True)
-            save_detections(a.save_detections / f"{split}.jsonl", split, files, keep)
+            save_detections(a.save_detections / f"{split}.jsonl", split, files, keep, a.max_windows)
         r["wall_s"] = time.perf_counter() - t
         out["splits"][split] = r
         m = r["tracking"]
@@ -485,7 +536,7 @@ def main(argv=None) -> int:
     for split, r in out["splits"].items():
         print(f"| {split} | " + " | ".join(cell(r["direction_error_deg"].get(k)) for k in bins) + " |")
     if a.json:
-        a.json.write_text(json.dumps(out, indent=1) + "\n")
+        write_json(out)
     return 0
 
 

@@ -44,7 +44,6 @@ Prints the tables as markdown; ``--json`` writes the rows and the tables.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -57,29 +56,80 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from toffe_deploy import ofpd_io  # noqa: E402
 from toffe_deploy.compiled import min_gap, surrounds  # noqa: E402
+from toffe_deploy.errors import InputError, ToffeError  # noqa: E402
 from toffe_deploy.metrics import GATE_PX, match_gated  # noqa: E402
+from _args import OneLineParser, existing_dir, existing_file, guarded, json_output, positive_int  # noqa: E402
 
+#: config.ofpd keys read outside ofpd_io's defaults (plane_fit.py, outline_centre.py)
+FUSION_KEYS = ("plane_fit_weight", "plane_fit_min_px_ms", "plane_fit_dir_weight", "plane_fit_history",
+               "plane_fit_refits", "outline_centre")
 NEAR_PAD = 8.0        # R = size / 2 + NEAR_PAD around a true object
 FP_PAD = 10.0
 
 
 def parse_args(argv=None):
-    ap = argparse.ArgumentParser(prog="detect_diagnose.py", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--ckpt", default=str(ROOT / "ckpt"))
-    ap.add_argument("--data", default=str(ROOT / "data" / "synth"))
+    ap = OneLineParser(prog="detect_diagnose.py", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--ckpt", type=existing_dir, default=str(ROOT / "ckpt"))
+    ap.add_argument("--data", type=existing_dir, default=str(ROOT / "data" / "synth"))
     ap.add_argument("--split", default="appearance")
-    ap.add_argument("--dt", type=int, default=500)
-    ap.add_argument("--max-windows", type=int, default=6)
+    ap.add_argument("--dt", type=positive_int, default=500, help="window length, us (default 500)")
+    ap.add_argument("--max-windows", type=positive_int, default=6)
     ap.add_argument("--ofpd", action="append", default=[], metavar="KEY=VALUE",
                     help="override a config.ofpd key (JSON value), e.g. merge_frac=0.3")
     ap.add_argument("--config", action="append", default=[], metavar="KEY=VALUE",
                     help="override a top-level config key (JSON value), e.g. input_min_cluster=2")
-    ap.add_argument("--json", help="write rows and tables here")
-    ap.add_argument("--render", metavar="JSON", help="only print the tables of a --json file written earlier")
-    return ap.parse_args(argv)
+    ap.add_argument("--json", type=json_output, help="write rows and tables here")
+    ap.add_argument("--render", type=existing_file, metavar="JSON",
+                    help="only print the tables of a --json file written earlier")
+    a = ap.parse_args(argv)
+    try:
+        a.ofpd = [_key_value(kv, "--ofpd") for kv in a.ofpd]
+        a.config = [_key_value(kv, "--config") for kv in a.config]
+    except ValueError as exc:
+        ap.error(str(exc))
+    return a
+
+
+def _key_value(text: str, option: str) -> tuple[str, object]:
+    """(KEY, JSON value) of ``KEY=VALUE``; ValueError naming the option otherwise."""
+    k, eq, v = text.partition("=")
+    if not eq or not k.strip():
+        raise ValueError(f"argument {option}: expected KEY=VALUE (VALUE in JSON), got {text!r}")
+    try:
+        return k.strip(), json.loads(v)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"argument {option}: {k.strip()}: the value is not JSON ({exc.msg}): {v!r}") from None
+
+
+def apply_overrides(cfg, ofpd: list, top: list):
+    """cfg with the --ofpd and --config overrides, checked as a config.json is
+    (ToffeConfig.from_dict: one-line errors); an unknown key is refused, listing the valid ones."""
+    import dataclasses
+
+    from toffe_deploy.plane_fit import refit_settings
+
+    if not (ofpd or top):
+        return cfg
+    valid_ofpd = sorted(set(ofpd_io.OFPD_DEFAULTS) | set(FUSION_KEYS) | set(cfg.ofpd or {}))
+    valid_top = sorted(f.name for f in dataclasses.fields(cfg) if f.name != "ofpd")
+    for option, pairs, valid in (("--ofpd", ofpd, valid_ofpd), ("--config", top, valid_top)):
+        unknown = [k for k, _ in pairs if k not in valid]
+        if unknown:
+            raise ToffeError(f"{option}: unknown key(s) {', '.join(unknown)} (valid: {', '.join(valid)})")
+    d = {**cfg.to_dict(), **dict(top)}
+    if ofpd:
+        d["ofpd"] = {**(cfg.ofpd or {}), **dict(ofpd)}
+    out = type(cfg).from_dict(d, path="the --ofpd / --config overrides")
+    try:
+        refit_settings(out)                              # what from_dict's validate does not read
+        ofpd_io.blob_settings(ofpd_io.ofpd_settings(out))  # the grouping's numbers (merge_frac, link_px, ...)
+    except (TypeError, ValueError) as exc:
+        raise ToffeError(f"--ofpd: {exc}") from None
+    return out
 
 
 def _sorted_x(xs, ys):
@@ -260,35 +310,41 @@ def tables(misses, fps, n_windows, n_gt) -> str:
 
 
 def rerender(path: str) -> str:
-    """The tables of a --json file written earlier."""
-    d = json.loads(Path(path).read_text())
-    return tables(d["misses"], d["fps"], d["n_windows"], d["n_gt"])
+    """The tables of a --json file written earlier (InputError for a missing or foreign file)."""
+    from toffe_deploy.fileio import read_json
+
+    d = read_json(path)
+    if not (isinstance(d, dict) and isinstance(d.get("misses"), list) and isinstance(d.get("fps"), list)
+            and isinstance(d.get("n_windows"), int) and isinstance(d.get("n_gt"), int)):
+        raise InputError(path, "not a detect_diagnose.py --json file (no misses, fps, n_windows, n_gt)")
+    try:
+        return tables(d["misses"], d["fps"], d["n_windows"], d["n_gt"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(path, f"not a detect_diagnose.py --json file ({type(exc).__name__}: {exc})") from None
 
 
 def main(argv=None) -> int:
     a = parse_args(argv)
     if a.render:
-        print(rerender(a.render))
-        return 0
+        return guarded("detect_diagnose", lambda: print(rerender(a.render)))
+    return guarded("detect_diagnose", run, a)
+
+
+def run(a) -> int:
     from toffe_deploy.dataset.groundtruth import window_truth
     from toffe_deploy.evaluate import _sample_starts, reference_models, split_files
     from toffe_deploy.events.io import open_events
     from toffe_deploy.events.support import sampled_window_history
+    from toffe_deploy.fileio import atomic_path, check_outputs, json_text
     from toffe_deploy.runtime.truth import sequence_focal_px
 
+    files = split_files(Path(a.data), a.split)
+    check_outputs(files=[("--json", a.json)])
     cfg, run_stage, ofpd = reference_models(Path(a.ckpt), "fixed")
-    if a.ofpd:
-        extra = dict(cfg.ofpd or {})
-        for kv in a.ofpd:
-            k, _, v = kv.partition("=")
-            extra[k.strip()] = json.loads(v)
-        cfg = replace(cfg, ofpd=extra)
-    for kv in a.config:
-        k, _, v = kv.partition("=")
-        cfg = replace(cfg, **{k.strip(): json.loads(v)})
+    cfg = apply_overrides(cfg, a.ofpd, a.config)
     misses, fps = [], []
     n_windows = n_gt = n_pred = 0
-    for path in split_files(Path(a.data), a.split):
+    for path in files:
         with open_events(path) as src:
             gt, attrs = src.ground_truth, src.attrs
             focal = sequence_focal_px(attrs)
@@ -306,13 +362,18 @@ def main(argv=None) -> int:
                 n_windows += 1
                 n_gt += len(truth)
                 n_pred += n
+    if n_windows == 0:
+        raise InputError(Path(a.data) / a.split, f"no window of --dt {a.dt} us in its recordings: nothing to "
+                                                 "diagnose (a --dt longer than the recordings?)")
     md = tables(misses, fps, n_windows, n_gt)
+    overrides = [f"{k}={json.dumps(v)}" for k, v in a.ofpd + a.config]
     if a.json:
-        Path(a.json).write_text(json.dumps({"split": a.split, "overrides": a.ofpd + a.config, "n_windows": n_windows,
-                                            "n_gt": n_gt, "n_pred": n_pred, "misses": misses, "fps": fps,
-                                            "markdown": md}, indent=1, default=float))
+        with atomic_path(a.json) as tmp:
+            tmp.write_text(json_text({"split": a.split, "overrides": overrides, "n_windows": n_windows,
+                                      "n_gt": n_gt, "n_pred": n_pred, "misses": misses, "fps": fps,
+                                      "markdown": md}, indent=1, default=float))
     print(f"split {a.split}, recall {1 - len(misses) / max(n_gt, 1):.3f}, FP / window {len(fps) / max(n_windows, 1):.3f}"
-          + (f", overrides {a.ofpd + a.config}" if a.ofpd or a.config else ""))
+          + (f", overrides {overrides}" if overrides else ""))
     print(md)
     return 0
 

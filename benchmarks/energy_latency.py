@@ -46,7 +46,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:          # runnable from a fresh clone without installing
     sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from _args import nonneg_float, nonneg_int, positive_float  # noqa: E402
 from toffe_deploy.commands import add_progress_flag, show_progress  # noqa: E402
 from toffe_deploy.errors import InputError, ToffeError  # noqa: E402
 
@@ -74,7 +76,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--quick", action="store_true",
                     help="small run for CI: few windows, short energy runs, no Lava simulation unless --sim-windows")
     ap.add_argument("--windows", type=int, help=f"distinct input windows timed (default {FULL['windows']}, quick {QUICK['windows']})")
-    ap.add_argument("--warmup", type=int, help=f"untimed warm-up inferences per model and target (default {FULL['warmup']})")
+    ap.add_argument("--warmup", type=nonneg_int, help=f"untimed warm-up inferences per model and target (default {FULL['warmup']})")
     ap.add_argument("--repeats", type=int, help=f"timed passes over the windows (default {FULL['repeats']})")
     ap.add_argument("--block", type=int, default=10,
                     help="models are timed in turn in blocks of this many consecutive windows (default 10; "
@@ -83,8 +85,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                     help=f"windows whose operations are counted for the models (default {FULL['count_windows']})")
     ap.add_argument("--sim-windows", type=int,
                     help=f"windows run through the Lava simulator for its wall time (default {FULL['sim_windows']}, quick 0)")
-    ap.add_argument("--energy-s", type=float, help="minimum run length (s) of each counter measurement (default 3)")
-    ap.add_argument("--idle-s", type=float, help="idle time (s) measured around each counter measurement (default 2)")
+    ap.add_argument("--energy-s", type=positive_float, help="minimum run length (s) of each counter measurement (default 3)")
+    ap.add_argument("--idle-s", type=nonneg_float, help="idle time (s) measured around each counter measurement (default 2)")
     ap.add_argument("--blocks", type=int, default=5,
                     help="like-for-like timing: interleaved blocks, each a pass of every model over the windows "
                          "(default 5; median and min-max over blocks are reported)")
@@ -94,7 +96,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--power-w", type=float, default=None,
                     help="stated power (W) for the time x power energy (default 42.6 W, the power implied by "
                          "the paper's i9 TOFFE row)")
-    ap.add_argument("--min-events", type=int, default=1, help="skip windows with fewer events (default 1)")
+    ap.add_argument("--min-events", type=nonneg_int, default=1, help="skip windows with fewer events (default 1)")
     ap.add_argument("--sysfs-root", default="/sys", help="where to look for RAPL/INA3221 counters (default /sys)")
     ap.add_argument("--out", help="output directory (default benchmarks/results/, quick: benchmarks/results/quick/)")
     args = ap.parse_args(argv)

@@ -13,6 +13,12 @@ Everything left is removed afterwards (the sweep's own processes and segments on
     python benchmarks/fault_sweep.py                  # the full matrix, a table on stdout
     python benchmarks/fault_sweep.py --pythonpath /work/main --only run-loihi   # another checkout
 
+Exit status: 0 when every scenario run left nothing behind and its host exited; 1 when one
+hung (did not exit within its wait) or left processes, /dev/shm segments or temp files (the
+table says which); 2 for bad options (an unknown --only group, a --pythonpath without
+toffe_deploy/, a --match that selects nothing). The exit codes of the killed runs themselves
+are reported, not judged.
+
 The tests (tests/test_faults_signals.py) run a few of these scenarios with the same helpers.
 """
 from __future__ import annotations
@@ -34,6 +40,7 @@ from typing import Callable
 
 ROOT = Path(__file__).resolve().parents[1]
 SHM = "/dev/shm"
+GROUPS = ("run-loihi", "run-cpu", "export")       # matrix()'s groups, for --only
 
 
 # ----------------------------------------------------------------------------- /proc observation
@@ -361,13 +368,28 @@ def matrix(e: dict, pythonpath: str, out: Path):
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pythonpath", default=str(ROOT), help="checkout whose toffe_deploy runs (default: this one)")
-    ap.add_argument("--only", default="", help="comma-separated groups: run-loihi, run-cpu, export")
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from _args import OneLineParser, comma_list, existing_dir, nonneg_float
+
+    def group(text: str) -> str:
+        if text not in GROUPS:
+            raise argparse.ArgumentTypeError(f"unknown group {text!r} (groups: {', '.join(GROUPS)})")
+        return text
+
+    ap = OneLineParser(prog="fault_sweep.py", description=__doc__.splitlines()[0] + " Exit 1 when a scenario "
+                       "hung or left processes, /dev/shm segments or temp files; 2 for bad options.")
+    ap.add_argument("--pythonpath", type=existing_dir, default=str(ROOT),
+                    help="checkout whose toffe_deploy runs (default: this one)")
+    ap.add_argument("--only", type=comma_list(group), default=[], help=f"comma-separated groups: {', '.join(GROUPS)}")
     ap.add_argument("--match", default="", help="only scenarios whose name contains this text")
-    ap.add_argument("--settle", type=float, default=10.0, help="seconds to wait for leftovers to go (default: 10)")
+    ap.add_argument("--settle", type=nonneg_float, default=10.0,
+                    help="seconds to wait for leftovers to go (default: 10)")
     a = ap.parse_args(argv)
-    groups = {g for g in a.only.split(",") if g}
+    if not (a.pythonpath / "toffe_deploy" / "__init__.py").is_file():
+        ap.error(f"argument --pythonpath: {a.pythonpath}: no toffe_deploy/ package in it")
+    a.pythonpath = str(a.pythonpath)
+    groups = set(a.only)
+    failed = ran = 0
     with tempfile.TemporaryDirectory(prefix="fault-sweep-") as tmp:
         e = make_env(Path(tmp))
         out = Path(tmp) / "out"
@@ -375,15 +397,25 @@ def main(argv: list[str] | None = None) -> int:
         print(f"code: {a.pythonpath}")
         print(f"{'group':10} {'scenario':34} {'rc':>5} {'exit s':>7} {'procs':>5} {'shm seg':>7} {'shm bytes':>10} temp")
         named = (Path(a.pythonpath) / "toffe_deploy" / "runtime" / "lava_host.py").is_file()
-        for group, name, args, env, trig, act, globs, wait in matrix(e, a.pythonpath, out):
-            if (groups and group not in groups) or a.match not in name:
+        for group_name, name, args, env, trig, act, globs, wait in matrix(e, a.pythonpath, out):
+            if (groups and group_name not in groups) or a.match not in name:
                 continue
+            ran += 1
             o = run_scenario(name, args, trig, act, globs, env=env, settle_s=a.settle, exit_wait_s=wait,
                              count_psm=not named)
             rc = "hung" if o.rc is None else str(o.rc)
-            note = "" if o.triggered else "  (ended before the stage)"
-            print(f"{group:10} {name:34} {rc:>5} {o.exit_s:7.2f} {o.procs_left:5d} {o.shm_segments_left:7d} "
+            bad = o.rc is None or o.procs_left or o.shm_segments_left or o.temp_left
+            failed += bool(bad)
+            note = ("" if o.triggered else "  (ended before the stage)") + ("  FAILED" if bad else "")
+            print(f"{group_name:10} {name:34} {rc:>5} {o.exit_s:7.2f} {o.procs_left:5d} {o.shm_segments_left:7d} "
                   f"{o.shm_bytes_left:10d} {len(o.temp_left)}{note}", flush=True)
+    if not ran:
+        print(f"fault_sweep.py: error: no scenario matches --only {','.join(a.only) or '(all)'} --match {a.match!r}",
+              file=sys.stderr)
+        return 2
+    if failed:
+        print(f"fault_sweep.py: {failed} of {ran} scenarios hung or left something behind", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -12,7 +12,8 @@ Runs the checkpoint as eval does (OFS in fixed point, OFPD in torch) on ``--max-
 windows of each sequence of ``--split``, matches the objects to the ground truth (one to one,
 20 px), and keeps for each matched object the OFPD's regressed speed and direction, its
 plane-fit velocity and the true image-plane speed (px/ms) and direction. Then two grid
-searches: speed weight w in 0.1 .. 1.0 (step 0.1) and threshold 2 .. 8 px/ms (step 0.5),
+searches: speed weight w in 0.1 .. 1.0 (step 0.1) and threshold 0 (no threshold) or 2 .. 8 px/ms
+(step 0.5),
 minimising the mean |fused - true| px/ms; direction weight 0 .. 1 (step 0.1), minimising the
 mean direction error. Prints the OFPD's errors, the fused ones and bin accuracy for the fit
 split and each ``--check`` split (read-only: shown, never used to choose), and with
@@ -41,6 +42,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from toffe_deploy.errors import InputError, ToffeError  # noqa: E402
+from toffe_deploy.fileio import json_text  # noqa: E402
+from _args import (OneLineParser, comma_list, existing_dir, guarded, int_in, json_output,  # noqa: E402
+                   positive_float, positive_int)
 
 WEIGHTS = np.round(np.arange(0.1, 1.01, 0.1), 2)
 THRESHOLDS = np.concatenate([[0.0], np.arange(2.0, 8.01, 0.5)])
@@ -164,42 +171,49 @@ def score_bins(rows: dict, weight: float, threshold: float, dir_weight: float, d
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--ckpt", default=str(ROOT / "ckpt"))
-    ap.add_argument("--data", default=str(ROOT / "data" / "synth"))
+    ap = OneLineParser(prog="fit_plane_fit.py", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--ckpt", type=existing_dir, default=str(ROOT / "ckpt"))
+    ap.add_argument("--data", type=existing_dir, default=str(ROOT / "data" / "synth"))
     ap.add_argument("--split", default="train")
-    ap.add_argument("--max-windows", type=int, default=3)
-    ap.add_argument("--limit", type=int, default=None, help="first N sequences of each split only")
+    ap.add_argument("--max-windows", type=positive_int, default=3)
+    ap.add_argument("--limit", type=positive_int, default=None, help="first N sequences of each split only")
     ap.add_argument("--check", default="", help="comma-separated splits to report (never used to fit)")
     ap.add_argument("--write", action="store_true", help="set the fitted keys in CKPT/config.json")
-    ap.add_argument("--json", default=None)
-    ap.add_argument("--history", default="", help="comma-separated distances D (px) to try with plane_fit_history")
-    ap.add_argument("--history-windows", default="20",
-                    help="comma-separated K_max of plane_fit_history to try with each D and refits")
-    ap.add_argument("--history-margin", type=int, default=3, help="box margin (px) of plane_fit_history")
-    ap.add_argument("--refits", default="0", help="comma-separated plane_fit_refits to try with each D")
+    ap.add_argument("--json", type=json_output, default=None)
+    ap.add_argument("--history", type=comma_list(positive_float), default=[],
+                    help="comma-separated distances D (px) to try with plane_fit_history")
+    ap.add_argument("--history-windows", type=comma_list(int_in(1, 1000)), default=[20],
+                    help="comma-separated K_max (1-1000) of plane_fit_history to try with each D and refits")
+    ap.add_argument("--history-margin", type=int_in(0, 64), default=3, help="box margin (px, 0-64) of plane_fit_history")
+    ap.add_argument("--refits", type=comma_list(int_in(0, 4)), default=[0],
+                    help="comma-separated plane_fit_refits (0-4) to try with each D")
     ap.add_argument("--per-bin", action="store_true", help="each candidate's errors per true speed bin too")
     ap.add_argument("--no-progress", dest="progress", action="store_false")
     a = ap.parse_args(argv)
-    distances = [float(v) for v in a.history.split(",") if v]
-    refit_list = [int(v) for v in a.refits.split(",") if v] or [0]
-    windows = [int(v) for v in a.history_windows.split(",") if v] or [20]
+    return guarded("fit_plane_fit", run, a)
+
+
+def run(a) -> int:
+    from toffe_deploy.evaluate import split_files
+    from toffe_deploy.fileio import atomic_path, check_outputs
+
+    distances = a.history
+    refit_list = a.refits
+    windows = a.history_windows
     triples = [(d, r, k) for k in windows for d in distances for r in refit_list]
     candidates = [(d, r) for d, r, _k in triples]
     k_of = [k for _d, _r, k in triples]
     history = (candidates, k_of, a.history_margin) if candidates else ()
-    from toffe_deploy.errors import ToffeError
-    from toffe_deploy.fileio import atomic_path
-
     ckpt = Path(a.ckpt)
-    try:
-        fit = collect(ckpt, Path(a.data), a.split, a.max_windows, a.limit, a.progress and sys.stderr.isatty(), history)
-    except ToffeError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    if not (ckpt / "config.json").is_file():
+        raise InputError(ckpt, "no config.json here: not a checkpoint directory (--ckpt)")
+    checks = [s for s in a.check.split(",") if s.strip()]
+    for split in [a.split] + checks:            # every split exists before the work (InputError naming the splits)
+        split_files(Path(a.data), split)
+    check_outputs(files=[("--json", a.json)] + ([("--write", ckpt / "config.json")] if a.write else []))
+    fit = collect(ckpt, Path(a.data), a.split, a.max_windows, a.limit, a.progress and sys.stderr.isatty(), history)
     if fit["true"].size == 0:
-        print(f"error: no matched objects in {a.data}/{a.split}", file=sys.stderr)
-        return 2
+        raise ToffeError(f"no matched objects in {a.data}/{a.split}: nothing to fit")
     best = None
     for di in range(len(candidates)) if candidates else [None]:
         _err, w, t = min((score(fit, w, t, 0.0, di)["fused_err_px_ms"], float(w), float(t))
@@ -223,7 +237,7 @@ def main(argv=None) -> int:
         keys["plane_fit_history"] = [candidates[di][0], k_of[di], a.history_margin]
         keys["plane_fit_refits"] = candidates[di][1]
     report = {"fit_split": a.split, **keys, "splits": {a.split: score(fit, w, t, wd, di)}}
-    for split in [s for s in a.check.split(",") if s]:
+    for split in checks:
         report["splits"][split] = score(collect(ckpt, Path(a.data), split, a.max_windows, a.limit,
                                                 a.progress and sys.stderr.isatty(),
                                                 ([candidates[di]], k_of[di], a.history_margin)
@@ -238,7 +252,7 @@ def main(argv=None) -> int:
                   f"{r['ofpd_dir_err_deg']:.2f} -> {r['fused_dir_err_deg']:.2f} |")
     if a.json:
         with atomic_path(a.json) as tmp:
-            tmp.write_text(json.dumps(report, indent=2))
+            tmp.write_text(json_text(report, indent=2))
     if a.write:
         cfg_path = ckpt / "config.json"
         cfg = json.loads(cfg_path.read_text())

@@ -14,7 +14,6 @@ of a run that keeps up, when the machine cannot do 2000 windows/s.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import socket
@@ -28,9 +27,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from toffe_deploy.events.io import read_events  # noqa: E402
 from toffe_deploy.events.live import aer_words  # noqa: E402
+from _args import (OneLineParser, comma_list, existing_file, guarded, json_output, nonneg_float,  # noqa: E402
+                   positive_float, positive_int, share)
 
 SAMPLE = ROOT / "toffe_deploy" / "samples" / "sample_multi.h5"
 PACKET_EVENTS = 8000                  # 64 kB datagrams (8 bytes per timestamped event)
@@ -103,18 +105,32 @@ def measure(bundle: str, ev: np.ndarray, sensor, seconds: float, target: str, qu
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = OneLineParser(prog="live_latency.py", description=__doc__.splitlines()[0])
     ap.add_argument("--bundle", default=str(ROOT / "export"))
-    ap.add_argument("--events", default=str(SAMPLE))
+    ap.add_argument("--events", type=existing_file, default=str(SAMPLE))
     ap.add_argument("--target", default="cpu")
-    ap.add_argument("--seconds", type=float, default=5.0)
-    ap.add_argument("--fractions", default="0.05,0.25,1", help="share of the recording's events sent")
-    ap.add_argument("--queue-events", type=int, default=None)
-    ap.add_argument("--window-grace-ms", type=float, default=None)
-    ap.add_argument("--period-ms", type=float, default=0.0, help="bursty source: one 500 us slice every P ms")
-    ap.add_argument("--json", help="also write the rows here")
+    ap.add_argument("--seconds", type=positive_float, default=5.0)
+    ap.add_argument("--fractions", type=comma_list(share), default="0.05,0.25,1",
+                    help="shares of the recording's events sent, each in (0, 1]")
+    ap.add_argument("--queue-events", type=positive_int, default=None)
+    ap.add_argument("--window-grace-ms", type=nonneg_float, default=None)
+    ap.add_argument("--period-ms", type=nonneg_float, default=0.0,
+                    help="bursty source: one 500 us slice every P ms (0: off)")
+    ap.add_argument("--json", type=json_output, help="also write the rows here")
     a = ap.parse_args(argv)
+    return guarded("live_latency", run, a)
+
+
+def run(a) -> int:
+    from toffe_deploy.deploy.bundle import load_bundle
+    from toffe_deploy.errors import InputError
+    from toffe_deploy.fileio import atomic_path, check_outputs
+
+    load_bundle(a.bundle)                       # a missing or broken bundle: one line, before the sender starts
+    check_outputs(files=[("--json", a.json)])
     rec = read_events(a.events)
+    if len(rec) == 0:
+        raise InputError(a.events, "no events to send")
     if a.period_ms:
         e = rec.events
         span = int(e["t"][-1]) + 1 - int(e["t"][0])           # tile to one period at least
@@ -124,7 +140,7 @@ def main(argv=None) -> int:
         rec.events = tiled[(tiled["t"] % int(a.period_ms * 1000)) < 500]
     rng = np.random.default_rng(0)
     rows = []
-    for f in (float(x) for x in a.fractions.split(",")):
+    for f in a.fractions:
         ev = rec.events[rng.random(len(rec)) < f] if f < 1 else rec.events
         row = {"fraction": f, "period_ms": a.period_ms,
                **measure(a.bundle, ev, rec.sensor_size, a.seconds, a.target, a.queue_events,
@@ -136,7 +152,8 @@ def main(argv=None) -> int:
               f"{row['socket_drops']}, peak queue {row['peak_queue_events']}; latency p50 "
               f"{row['latency_p50_ms']:.1f} ms, p99 {row['latency_p99_ms']:.1f} ms", flush=True)
     if a.json:
-        Path(a.json).write_text(json.dumps(rows, indent=2) + "\n")
+        with atomic_path(a.json) as tmp:
+            tmp.write_text(json.dumps(rows, indent=2) + "\n")
     return 0
 
 

@@ -11,11 +11,13 @@ resets to v_reset) and the F1 says by how much.
     PYTHONPATH=.:/tmp/nirpkgs python benchmarks/nir_check.py export/ --windows 4 [--data data/synth]
 
 Readers that are not importable are reported as such. Prints one line per stage and reader and
-writes ``--json`` when given.
+writes ``--json`` when given. Exit status: 0 when at least one reader ran and, on a reset "zero"
+bundle, every stage agrees with the fixed point (F1 >= 0.999); 1 when no reader could be
+imported or a "zero" bundle's stage falls below that F1 ("subtract" bundles are reported, not
+judged: they cannot agree); 2 for bad input (bundle, --data, options), one line on stderr.
 """
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import json
@@ -25,10 +27,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+F1_ZERO_RESET = 0.999        # what a reset "zero" bundle must reach against the fixed point
 
 from toffe_deploy.deploy.bundle import load_bundle  # noqa: E402
 from toffe_deploy.deploy.nir_graph import simulate_nir_stage  # noqa: E402
 from toffe_deploy.fixed_point import run_ofs_fixed  # noqa: E402
+from _args import OneLineParser, existing_dir, guarded, json_output, positive_int  # noqa: E402
 
 
 def stage_graph(graph, k: int):
@@ -86,17 +92,27 @@ def f1(a: list[np.ndarray], b: list[np.ndarray]) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = OneLineParser(prog="nir_check.py", description=__doc__.split("\n\n")[0])
     ap.add_argument("bundle", type=Path)
-    ap.add_argument("--windows", type=int, default=4, help="held-out windows (default 4)")
-    ap.add_argument("--data", type=Path, default=None, help="data set whose test split gives the windows")
-    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--windows", type=positive_int, default=4, help="held-out windows (default 4)")
+    ap.add_argument("--data", type=existing_dir, default=None, help="data set whose test split gives the windows")
+    ap.add_argument("--json", type=json_output, default=None)
     args = ap.parse_args(argv)
+    return guarded("nir_check", run, args)
+
+
+def run(args) -> int:
     import nir
+
+    from toffe_deploy.errors import InputError
+    from toffe_deploy.fileio import atomic_path, check_outputs
 
     from toffe_deploy.deploy.windows import heldout_windows
 
     bundle = load_bundle(args.bundle)
+    check_outputs(files=[("--json", args.json)])
+    if not (bundle.root / "ofs.nir").is_file():
+        raise InputError(bundle.root / "ofs.nir", "missing file (export the bundle with its NIR graph)")
     graph = nir.read(str(bundle.root / "ofs.nir"))
     dt = float(graph.metadata["time_step_s"])
     held = heldout_windows(bundle.config, data=args.data, n_windows=args.windows, progress=False)
@@ -105,6 +121,8 @@ def main(argv=None) -> int:
     wins = [pool_any(w, bundle.config.ofs_pool) for w in held.windows]      # the OFS grid the graph's input is
     report = {"bundle": str(args.bundle), "reset": bundle.config.reset, "time_step_s": dt, "windows": len(wins),
               "readers": {}}
+    ran, below = 0, []
+    judge = bundle.config.reset == "zero"
     for name, load in readers(dt).items():
         if isinstance(load, str):
             report["readers"][name] = load
@@ -119,12 +137,22 @@ def main(argv=None) -> int:
             sim = [simulate_nir_stage(graph, k, w) for w in wins]
             row = {"stage": k, "vs_fixed_point": f1(got, ref), "vs_nir_semantics": f1(got, sim)}
             stages.append(row)
+            if judge and row["vs_fixed_point"]["f1"] < F1_ZERO_RESET:
+                below.append(f"{name} stage {k}")
             print(f"{name} stage {k}: F1 {row['vs_fixed_point']['f1']:.4f} vs the bundle's fixed point "
                   f"({row['vs_fixed_point']['differing']} differing of {row['vs_fixed_point']['spikes_reference']} "
                   f"spikes), F1 {row['vs_nir_semantics']['f1']:.4f} vs NIR semantics in numpy")
         report["readers"][name] = stages
+        ran += 1
     if args.json:
-        args.json.write_text(json.dumps(report, indent=1) + "\n")
+        with atomic_path(args.json) as tmp:
+            tmp.write_text(json.dumps(report, indent=1) + "\n")
+    if not ran:
+        print("nir_check: no NIR reader could be imported: nothing checked", file=sys.stderr)
+        return 1
+    if below:
+        print(f"nir_check: F1 below {F1_ZERO_RESET} on a reset \"zero\" bundle: {', '.join(below)}", file=sys.stderr)
+        return 1
     return 0
 
 

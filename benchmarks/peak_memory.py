@@ -6,7 +6,11 @@
 Samples every 0.2 s: the proportional set size (PSS, each shared page counted once) of every
 process in the command's tree, without their /dev/shm pages, plus the growth of /dev/shm's use
 since the start (Lava's channel rings). Prints the peak and what /dev/shm still holds after the
-command ended (leaked segments would show there). Linux only (reads /proc).
+command ended (leaked segments would show there), in MiB (2**20 bytes, as the other benchmarks).
+Linux only (reads /proc).
+
+Exit status: the command's own; 128 + N when a signal N ended it (as a shell reports it); 2
+when the command cannot be started (not found, not executable), with one line on stderr.
 """
 from __future__ import annotations
 
@@ -14,6 +18,8 @@ import os
 import subprocess
 import sys
 import time
+
+MIB = 2 ** 20
 
 
 def process_tree(pid: int) -> list[int]:
@@ -61,17 +67,23 @@ def main(argv: list[str]) -> int:
         return 0 if argv else 2
     base = shm_used()
     t0 = time.time()
-    proc = subprocess.Popen(argv)
+    try:
+        proc = subprocess.Popen(argv)
+    except OSError as exc:               # not found, not executable, ...
+        print(f"peak_memory: error: {argv[0]}: cannot run it: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     peak = peak_shm = 0
     while proc.poll() is None:
         shm = max(shm_used() - base, 0)
         peak = max(peak, sum(pss_without_shm(p) for p in process_tree(proc.pid)) + shm)
         peak_shm = max(peak_shm, shm)
         time.sleep(0.2)
-    print(f"exit {proc.returncode}, {time.time() - t0:.0f} s; peak memory {peak / 1e6:.0f} MB "
-          f"(PSS of the process tree + /dev/shm), of which /dev/shm {peak_shm / 1e6:.0f} MB; "
-          f"/dev/shm still used after the end: {max(shm_used() - base, 0) / 1e6:.1f} MB", file=sys.stderr)
-    return proc.returncode
+    rc = proc.returncode
+    how = f"exit {rc}" if rc >= 0 else f"killed by signal {-rc}"
+    print(f"{how}, {time.time() - t0:.0f} s; peak memory {peak / MIB:.0f} MiB "
+          f"(PSS of the process tree + /dev/shm), of which /dev/shm {peak_shm / MIB:.0f} MiB; "
+          f"/dev/shm still used after the end: {max(shm_used() - base, 0) / MIB:.1f} MiB", file=sys.stderr)
+    return rc if rc >= 0 else 128 - rc
 
 
 if __name__ == "__main__":

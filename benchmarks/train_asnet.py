@@ -27,7 +27,6 @@ train_log.json, eval_test.json, cost.json.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -38,31 +37,32 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from toffe_deploy.baselines.registry import ASNET_DIR as DEFAULT_OUT  # noqa: E402  (where the benchmark looks)
 from toffe_deploy.commands import add_progress_flag, show_progress  # noqa: E402
-from toffe_deploy.errors import ToffeError  # noqa: E402
+from _args import OneLineParser, existing_dir, guarded, nonneg_int, positive_float, positive_int  # noqa: E402
 
 
 def parse_args(argv=None):
-    ap = argparse.ArgumentParser(prog="train_asnet.py", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", default=str(ROOT / "data" / "synth"), help="data set directory (default data/synth)")
-    ap.add_argument("--ckpt", default=str(ROOT / "ckpt"), help="TOFFE checkpoint whose config (sensor, bins, "
+    ap = OneLineParser(prog="train_asnet.py", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", type=existing_dir, default=str(ROOT / "data" / "synth"), help="data set directory (default data/synth)")
+    ap.add_argument("--ckpt", type=existing_dir, default=str(ROOT / "ckpt"), help="TOFFE checkpoint whose config (sensor, bins, "
                                                                "grouping) the baseline shares (default ckpt/)")
     ap.add_argument("--out", default=str(DEFAULT_OUT), help="output directory (default ckpt/baselines/adaptive_spikenet/)")
-    ap.add_argument("--minutes", type=float, default=35.0, help="training wall-time budget (default 35)")
-    ap.add_argument("--per-seq", type=int, default=12, help="training windows per train sequence (default 12)")
-    ap.add_argument("--downsample", type=int, default=4, help="sensor pixels summed per network pixel, per side (default 4)")
-    ap.add_argument("--batch", type=int, default=16)
-    ap.add_argument("--lr", type=float, default=2e-3)
-    ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1: on a shared 2-core machine 2 threads ran 10x slower)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--eval-windows", type=int, default=6, help="test windows per sequence (default 6, as ckpt/eval_test.json)")
+    ap.add_argument("--minutes", type=positive_float, default=35.0, help="training wall-time budget (default 35)")
+    ap.add_argument("--per-seq", type=positive_int, default=12, help="training windows per train sequence (default 12)")
+    ap.add_argument("--downsample", type=positive_int, default=4, help="sensor pixels summed per network pixel, per side (default 4)")
+    ap.add_argument("--batch", type=positive_int, default=16)
+    ap.add_argument("--lr", type=positive_float, default=2e-3)
+    ap.add_argument("--threads", type=positive_int, default=1, help="torch threads (default 1: on a shared 2-core machine 2 threads ran 10x slower)")
+    ap.add_argument("--seed", type=nonneg_int, default=0)
+    ap.add_argument("--eval-windows", type=positive_int, default=6, help="test windows per sequence (default 6, as ckpt/eval_test.json)")
     add_progress_flag(ap)
     ap.add_argument("--eval-only", action="store_true", help="evaluate the weights in --out, no training")
-    ap.add_argument("--limit", type=int, help="use only this many sequences per split (quick runs)")
+    ap.add_argument("--limit", type=positive_int, help="use only this many sequences per split (quick runs)")
     ap.add_argument("--cost-only", action="store_true", help="only count operations and time inference (cost.json)")
-    ap.add_argument("--cost-windows", type=int, default=16, help="test windows for the cost figures (default 16)")
+    ap.add_argument("--cost-windows", type=positive_int, default=16, help="test windows for the cost figures (default 16)")
     return ap.parse_args(argv)
 
 
@@ -284,43 +284,40 @@ def cost(args, config, files) -> dict:
 
 
 def main(argv=None) -> int:
-    args = parse_args(argv)
-    try:
-        import torch
+    return guarded("train_asnet", run, parse_args(argv))
 
-        from toffe_deploy.baselines.adaptive_spikenet import ASNetConfig
-        from toffe_deploy.checkpoint import load_checkpoint
-        from toffe_deploy.evaluate import split_files
-        from toffe_deploy.fileio import atomic_path
 
-        torch.set_num_threads(args.threads)
-        config = load_checkpoint(args.ckpt).config
-        cfg = ASNetConfig(downsample=args.downsample, n_bins=config.n_bins, dt_us=config.dt_us)
-        out = Path(args.out)
-        if not (args.eval_only or args.cost_only):
-            files = split_files(Path(args.data), "train")[:args.limit]
-            tl = train(args, config, cfg, files)
-            with atomic_path(out / "train_log.json", suffix=".json") as tmp:
-                tmp.write_text(json.dumps(tl, indent=1) + "\n")
-        test = split_files(Path(args.data), "test")[:args.limit]
-        if args.cost_only:
-            c = cost(args, config, test)
-            with atomic_path(out / "cost.json", suffix=".json") as tmp:
-                tmp.write_text(json.dumps(c, indent=1) + "\n")
-            return 0
-        res = evaluate(args, config, test)
-        with atomic_path(out / "eval_test.json", suffix=".json") as tmp:
-            tmp.write_text(json.dumps(res, indent=1) + "\n")
-        a = res["all"]
-        print(json.dumps({k: a[k] for k in ("recall", "fp_per_window", "pixE", "dirE", "speedE", "speedE_px_ms",
-                                            "bin_accuracy")}, indent=1))
+def run(args) -> int:
+    import torch
+
+    from toffe_deploy.baselines.adaptive_spikenet import ASNetConfig
+    from toffe_deploy.checkpoint import load_checkpoint
+    from toffe_deploy.evaluate import split_files
+    from toffe_deploy.fileio import atomic_path, check_outputs
+
+    torch.set_num_threads(args.threads)
+    config = load_checkpoint(args.ckpt).config
+    cfg = ASNetConfig(downsample=args.downsample, n_bins=config.n_bins, dt_us=config.dt_us)
+    out = Path(args.out)
+    check_outputs(dirs=[("--out", out)])
+    test = split_files(Path(args.data), "test")[:args.limit]        # before training: a missing split fails now
+    if not (args.eval_only or args.cost_only):
+        files = split_files(Path(args.data), "train")[:args.limit]
+        tl = train(args, config, cfg, files)
+        with atomic_path(out / "train_log.json", suffix=".json") as tmp:
+            tmp.write_text(json.dumps(tl, indent=1) + "\n")
+    if args.cost_only:
+        c = cost(args, config, test)
+        with atomic_path(out / "cost.json", suffix=".json") as tmp:
+            tmp.write_text(json.dumps(c, indent=1) + "\n")
         return 0
-    except ToffeError as exc:
-        print(f"train_asnet: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("train_asnet: interrupted", file=sys.stderr)
-        return 130
+    res = evaluate(args, config, test)
+    with atomic_path(out / "eval_test.json", suffix=".json") as tmp:
+        tmp.write_text(json.dumps(res, indent=1) + "\n")
+    a = res["all"]
+    print(json.dumps({k: a[k] for k in ("recall", "fp_per_window", "pixE", "dirE", "speedE", "speedE_px_ms",
+                                        "bin_accuracy")}, indent=1))
+    return 0
 
 
 if __name__ == "__main__":
