@@ -262,3 +262,36 @@ def test_init_from_starts_the_ofpd_from_that_checkpoints(data, tmp_path, capsys)
     capsys.readouterr()
     want, got = load_checkpoint(src).ofpd_state, load_checkpoint(ck).ofpd_state
     assert set(got) == set(want) and all(np.array_equal(np.asarray(got[k]), np.asarray(want[k])) for k in want)
+
+
+def test_an_interrupted_run_leaves_the_checkpoint_as_it_was_and_resume_finishes_it(data, tmp_path, capsys,
+                                                                                     monkeypatch):
+    """Training into an existing checkpoint, stopped after its OFS stages (Ctrl-C while the OFPD's
+    set is built): --out keeps the old checkpoint byte for byte (no new OFS stages beside an OFPD
+    trained for the old ones); the finished stages wait in .train_state/checkpoint, and --resume
+    continues from them and writes them, with the OFPD, into --out."""
+    import toffe_deploy.model.train as tr
+
+    ck = tmp_path / "ck"
+    args = ["train", "--data", str(data), "--out", str(ck), "--ofs-epochs", "1", "--windows-per-seq", "5",
+            "--no-progress", "--epochs", "1"]
+    assert main(args + ["--seed", "3"]) == 0
+    files = ("config.json", "ofs.safetensors", "ofpd.safetensors")
+    before = {f: (ck / f).read_bytes() for f in files}
+
+    def stop(*a, **k):
+        raise KeyboardInterrupt
+    with monkeypatch.context() as m:
+        m.setattr(tr, "build_ofpd_set", stop)
+        assert main(args + ["--seed", "4"]) == 130
+    assert {f: (ck / f).read_bytes() for f in files} == before
+    pending = load_checkpoint(ck / ".train_state" / "checkpoint")
+    old = load_checkpoint(ck)
+    assert any(not np.array_equal(a["weight"], b["weight"]) for a, b in zip(pending.ofs, old.ofs))
+    capsys.readouterr()
+
+    assert main(args + ["--seed", "4", "--resume"]) == 0
+    new = load_checkpoint(ck)
+    for a, b in zip(pending.ofs, new.ofs):
+        np.testing.assert_array_equal(a["weight"], b["weight"])
+    assert not (ck / ".train_state" / "checkpoint").exists()

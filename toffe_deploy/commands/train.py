@@ -12,7 +12,9 @@ def register(sub) -> None:
         "train", help="train OFS (per speed bin) and OFPD into a checkpoint directory",
         description="Train TOFFE on the 'train' split of a data set made by `toffe-deploy dataset synth`. "
         "Writes a checkpoint directory (config.json, ofs.safetensors, ofpd.safetensors, train_log.json); "
-        "progress is saved after each OFS stage and each OFPD epoch, so --resume continues an interrupted run.")
+        "The checkpoint in --out is written when the run's stages are done: an interrupted or failed run leaves it "
+        "as it was. Progress is saved after each OFS stage and each OFPD epoch (in --out/.train_state/), so --resume "
+        "continues an interrupted run.")
     p.add_argument("--data", required=True, type=Path, help="data-set directory (holds index.json)")
     p.add_argument("--out", required=True, type=Path, help="checkpoint directory to write (e.g. ckpt/)")
     p.add_argument("--stage", choices=("ofs", "ofpd", "all"), default="all",

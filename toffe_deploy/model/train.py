@@ -39,6 +39,7 @@ import dataclasses
 import json
 import math
 import os
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -413,6 +414,14 @@ def _state_path(out: Path) -> Path:
     return out / STATE_DIR
 
 
+def _pending_path(out: Path) -> Path:
+    """The run's checkpoint while it trains (in the state directory): each finished OFS stage is
+    saved here, and --out gets the checkpoint only when the run's stages are all done, so an
+    interrupted or failed run leaves --out as it was, never new OFS stages beside old ones and an
+    OFPD trained for those (--resume continues from here)."""
+    return _state_path(out) / "checkpoint"
+
+
 def _load_state(out: Path) -> dict:
     """The progress --resume continues from (empty without one); InputError when it is unreadable."""
     p = _state_path(out) / "state.json"
@@ -547,7 +556,13 @@ def train(opts: TrainOptions) -> Path:
     out = Path(opts.out)
     files = find_sequences(opts.data, "train")
     state = _load_state(out) if opts.resume else {}
-    have_ckpt = (out / CONFIG_FILE).is_file()
+    pending = _pending_path(out)
+    start = out              # --resume: the interrupted run's own checkpoint, unless --stage ofpd would then
+    if opts.resume and (pending / CONFIG_FILE).is_file():    # train an OFPD on OFS stages it had not finished
+        n_bins = load_checkpoint(pending).config.n_speed_bins
+        if opts.stage != "ofpd" or set(state.get("ofs_done", [])) >= set(range(1, n_bins + 1)):
+            start = pending
+    have_ckpt = (start / CONFIG_FILE).is_file()
     init_ofs = None                  # OFS stages the OFS training starts from (--init-from), else DOTIE's
     if opts.init_from is not None:
         if opts.stage == "ofpd":
@@ -555,7 +570,7 @@ def train(opts: TrainOptions) -> Path:
         init = load_checkpoint(opts.init_from)
         init_ofs = [dict(p) for p in init.ofs]
     if have_ckpt and (opts.resume or opts.stage == "ofpd"):
-        ck = load_checkpoint(out)
+        ck = load_checkpoint(start)
         config, ofs_params, ofpd_state = ck.config, ck.ofs, ck.ofpd_state
         if opts.reset is not None and opts.reset != config.reset and opts.stage == "ofpd":
             raise InputError(out, f"its OFS stages were trained with reset {config.reset!r}; --reset {opts.reset} "
@@ -630,10 +645,13 @@ def train(opts: TrainOptions) -> Path:
                                     "threshold": cal["threshold"], "leak": r["leak"], "calibration": curve}
             done.add(k)
             state["ofs_done"] = sorted(done)
-            save_checkpoint(out, config, ofs_params, ofpd_state)
+            pending.parent.mkdir(parents=True, exist_ok=True)
+            save_checkpoint(pending, config, ofs_params, ofpd_state)     # not --out: the run is not done
             _save_state(out, state)
         stages = quantize_stages(ofs_params, config.reset)
         log["ofs_separation_train"] = separation_scores(stages, windows, config, seed=opts.seed)
+        if opts.stage == "ofs":
+            save_checkpoint(out, config, ofs_params, ofpd_state)
         _save_state(out, state)
 
     if opts.stage in ("ofpd", "all"):
@@ -698,4 +716,5 @@ def train(opts: TrainOptions) -> Path:
     _save_state(out, state)
     with atomic_path(out / "train_log.json") as tmp:
         tmp.write_text(json.dumps(log, indent=1))
+    shutil.rmtree(_pending_path(out), ignore_errors=True)          # --out holds the run's checkpoint now
     return out
