@@ -362,7 +362,7 @@ def main(argv=None) -> int:
     ap = OneLineParser(prog="bench_tracking.py", description=__doc__.split("\n\n")[0],
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("--bundle", default=str(ROOT / "export"), help="deploy bundle (toffe-deploy export ckpt/)")
-    ap.add_argument("--data", type=existing_dir, default=str(ROOT / "data" / "synth"),
+    ap.add_argument("--data", type=Path, default=str(ROOT / "data" / "synth"),
                     help="data set directory (toffe-deploy dataset synth)")
     ap.add_argument("--split", default="multi,pairs", help="comma-separated splits")
     ap.add_argument("--max-windows", type=positive_int, default=200, help="windows per sequence from its start")

@@ -74,7 +74,7 @@ FP_PAD = 10.0
 def parse_args(argv=None):
     ap = OneLineParser(prog="detect_diagnose.py", description=__doc__.split("\n\n")[0])
     ap.add_argument("--ckpt", type=existing_dir, default=str(ROOT / "ckpt"))
-    ap.add_argument("--data", type=existing_dir, default=str(ROOT / "data" / "synth"))
+    ap.add_argument("--data", type=Path, default=str(ROOT / "data" / "synth"))
     ap.add_argument("--split", default="appearance")
     ap.add_argument("--dt", type=positive_int, default=500, help="window length, us (default 500)")
     ap.add_argument("--max-windows", type=positive_int, default=6)

@@ -173,7 +173,7 @@ def score_bins(rows: dict, weight: float, threshold: float, dir_weight: float, d
 def main(argv=None) -> int:
     ap = OneLineParser(prog="fit_plane_fit.py", description=__doc__.split("\n\n")[0])
     ap.add_argument("--ckpt", type=existing_dir, default=str(ROOT / "ckpt"))
-    ap.add_argument("--data", type=existing_dir, default=str(ROOT / "data" / "synth"))
+    ap.add_argument("--data", type=Path, default=str(ROOT / "data" / "synth"))
     ap.add_argument("--split", default="train")
     ap.add_argument("--max-windows", type=positive_int, default=3)
     ap.add_argument("--limit", type=positive_int, default=None, help="first N sequences of each split only")

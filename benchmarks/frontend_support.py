@@ -37,7 +37,7 @@ from _args import OneLineParser, comma_list, existing_dir, guarded, json_output,
 def main(argv=None) -> int:
     ap = OneLineParser(prog="frontend_support.py", description=__doc__.split("\n\n")[0])
     ap.add_argument("--ckpt", type=existing_dir, default=str(ROOT / "ckpt"))
-    ap.add_argument("--data", type=existing_dir, default=str(ROOT / "data" / "synth"))
+    ap.add_argument("--data", type=Path, default=str(ROOT / "data" / "synth"))
     ap.add_argument("--split", default="test")
     ap.add_argument("--max-windows", type=positive_int, default=6)
     ap.add_argument("--support", type=comma_list(nonneg_int, 3, 4), default="4,1,5,2",

@@ -46,7 +46,7 @@ from _args import OneLineParser, existing_dir, guarded, nonneg_int, positive_flo
 
 def parse_args(argv=None):
     ap = OneLineParser(prog="train_asnet.py", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", type=existing_dir, default=str(ROOT / "data" / "synth"), help="data set directory (default data/synth)")
+    ap.add_argument("--data", type=Path, default=str(ROOT / "data" / "synth"), help="data set directory (default data/synth)")
     ap.add_argument("--ckpt", type=existing_dir, default=str(ROOT / "ckpt"), help="TOFFE checkpoint whose config (sensor, bins, "
                                                                "grouping) the baseline shares (default ckpt/)")
     ap.add_argument("--out", default=str(DEFAULT_OUT), help="output directory (default ckpt/baselines/adaptive_spikenet/)")
