@@ -11,7 +11,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "train", help="train OFS (per speed bin) and OFPD into a checkpoint directory",
         description="Train TOFFE on the 'train' split of a data set made by `toffe-deploy dataset synth`. "
-        "Writes a checkpoint directory (config.json, ofs.safetensors, ofpd.safetensors, train_log.json); "
+        "Writes a checkpoint directory (config.json, ofs.safetensors, ofpd.safetensors, train_log.json). "
         "The checkpoint in --out is written when the run's stages are done: an interrupted or failed run leaves it "
         "as it was. Progress is saved after each OFS stage and each OFPD epoch (in --out/.train_state/), so --resume "
         "continues an interrupted run.")

@@ -57,4 +57,3 @@ def count_before(events: np.ndarray, t: int) -> int:
     while hi < n and times[hi - 1] < t:
         hi = min(n, hi * 4)
     return int(np.searchsorted(np.ascontiguousarray(times[:hi]), t, side="left"))
-
