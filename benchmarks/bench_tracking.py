@@ -60,7 +60,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _args import (OneLineParser, existing_dir, existing_file, guarded, json_output, nonneg_float,  # noqa: E402
+from _args import (OneLineParser, existing_file, guarded, json_output, nonneg_float,  # noqa: E402
                    nonneg_int, positive_float, positive_int)
 
 
