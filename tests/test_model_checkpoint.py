@@ -99,3 +99,27 @@ def test_cli_reports_bad_checkpoint_in_one_line(ckpt, tmp_path, capsys):
     rc = main(["eval", str(ckpt), "--data", str(tmp_path)])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and err.count("\n") == 0 and err.startswith("toffe-deploy: error: ") and "ofs.safetensors: missing file" in err
+
+
+def test_a_save_stopped_between_its_two_renames_puts_the_old_checkpoint_back(ckpt, monkeypatch):
+    """fileio.atomic_dir moves the old directory aside, then the new one in: Ctrl-C (or an
+    error) between the two renames leaves the old checkpoint where it was, not nothing."""
+    import os
+
+    import toffe_deploy.fileio as fileio
+
+    before = {p.name: p.read_bytes() for p in ckpt.iterdir() if p.is_file()}
+    ck = load_checkpoint(ckpt)
+    real, calls = os.replace, []
+
+    def replace(a, b):
+        calls.append((a, b))
+        if len(calls) == 2:
+            raise KeyboardInterrupt              # after the old one moved aside, before the new one moved in
+        return real(a, b)
+    monkeypatch.setattr(fileio.os, "replace", replace)
+    with pytest.raises(KeyboardInterrupt):
+        save_checkpoint(ckpt, CFG, [dict(p, threshold=p["threshold"] + 1) for p in ck.ofs], ck.ofpd_state)
+    monkeypatch.setattr(fileio.os, "replace", real)
+    assert {p.name: p.read_bytes() for p in ckpt.iterdir() if p.is_file()} == before
+    assert sorted(p.name for p in ckpt.parent.iterdir()) == [ckpt.name]     # no temp or old directory left

@@ -295,3 +295,43 @@ def test_an_interrupted_run_leaves_the_checkpoint_as_it_was_and_resume_finishes_
     for a, b in zip(pending.ofs, new.ofs):
         np.testing.assert_array_equal(a["weight"], b["weight"])
     assert not (ck / ".train_state" / "checkpoint").exists()
+
+
+def test_resume_continues_only_its_own_run(data, tmp_path, capsys, monkeypatch):
+    """--resume after a run stopped inside its OFS stages: --stage ofpd --resume is refused (an
+    OFPD on half-new OFS stages), another --seed is refused; a new run without --resume drops the
+    progress of the runs before it, so a --resume after its own early stop is a new run (with a
+    warning), never a continuation of an older run."""
+    import toffe_deploy.model.train as tr
+
+    ck = tmp_path / "ck"
+    args = ["train", "--data", str(data), "--out", str(ck), "--ofs-epochs", "1", "--windows-per-seq", "5",
+            "--no-progress", "--epochs", "1"]
+    assert main(args + ["--seed", "3"]) == 0
+    real, calls = tr.train_ofs_stage, []
+
+    def stop_at(n):
+        def stage(*a, **k):
+            calls.append(1)
+            if len(calls) >= n:
+                raise KeyboardInterrupt
+            return real(*a, **k)
+        return stage
+    with monkeypatch.context() as m:                     # seed 4 stopped after 2 of its 4 OFS stages
+        m.setattr(tr, "train_ofs_stage", stop_at(3))
+        assert main(args + ["--seed", "4"]) == 130
+    capsys.readouterr()
+    assert main(args + ["--seed", "4", "--stage", "ofpd", "--resume"]) == 2
+    assert "finished OFS stages [1, 2] of 1-4" in capsys.readouterr().err
+    assert main(args + ["--seed", "5", "--resume"]) == 2
+    assert "--seed 4, not 5" in capsys.readouterr().err
+
+    calls.clear()
+    with monkeypatch.context() as m:                     # a new run (seed 6) stopped before any stage finished
+        m.setattr(tr, "train_ofs_stage", stop_at(1))
+        assert main(args + ["--seed", "6"]) == 130
+    assert not (ck / ".train_state").exists()            # seed 4's progress is not seed 6's
+    capsys.readouterr()
+    assert main(args + ["--seed", "6", "--resume"]) == 0
+    assert "no training progress to resume" in capsys.readouterr().err
+    assert json.loads((ck / ".train_state" / "state.json").read_text())["seed"] == 6

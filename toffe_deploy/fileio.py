@@ -97,7 +97,8 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a fresh temporary directory beside ``path``; on success it replaces ``path``.
 
-    An existing ``path`` is moved aside first and deleted only after the rename succeeded.
+    An existing ``path`` is moved aside first and deleted only after the rename succeeded; an
+    error or Ctrl-C between the two renames puts it back.
     A refused write (WRITE_ERRNOS) is reported as InputError naming ``path``, and so is a
     ``path`` that exists and is not a directory (nothing is written: a file there was moved
     aside, never deleted, and the next save into the new directory failed).
@@ -117,6 +118,9 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
                 os.replace(path, old)
             os.replace(tmp, path)
         finally:
+            if old is not None and not path.exists():
+                os.replace(old, path)              # stopped between the two renames: the old one back
+                old = None
             if tmp.exists():
                 shutil.rmtree(tmp, ignore_errors=True)
             if old is not None:

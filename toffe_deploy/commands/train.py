@@ -14,7 +14,7 @@ def register(sub) -> None:
         "Writes a checkpoint directory (config.json, ofs.safetensors, ofpd.safetensors, train_log.json). "
         "The checkpoint in --out is written when the run's stages are done: an interrupted or failed run leaves it "
         "as it was. Progress is saved after each OFS stage and each OFPD epoch (in --out/.train_state/), so --resume "
-        "continues an interrupted run.")
+        "(same --seed) continues an interrupted run; a run without --resume starts afresh and drops that progress.")
     p.add_argument("--data", required=True, type=Path, help="data-set directory (holds index.json)")
     p.add_argument("--out", required=True, type=Path, help="checkpoint directory to write (e.g. ckpt/)")
     p.add_argument("--stage", choices=("ofs", "ofpd", "all"), default="all",

@@ -422,6 +422,21 @@ def _pending_path(out: Path) -> Path:
     return _state_path(out) / "checkpoint"
 
 
+def _fresh_state(out: Path, keep: bool) -> None:
+    """Before training: a new run drops the progress of any run before it (its state, pending
+    checkpoint and partial OFPD are not this run's: a --resume after an early stop would continue
+    them); a resumed one only the temporary files a killed save left."""
+    d = _state_path(out)
+    if not keep:
+        shutil.rmtree(d, ignore_errors=True)
+        return
+    for p in [*d.glob(".*.tmp"), *d.glob(".*.old-*")]:
+        if p.is_dir():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
+
+
 def _load_state(out: Path) -> dict:
     """The progress --resume continues from (empty without one); InputError when it is unreadable."""
     p = _state_path(out) / "state.json"
@@ -556,12 +571,23 @@ def train(opts: TrainOptions) -> Path:
     out = Path(opts.out)
     files = find_sequences(opts.data, "train")
     state = _load_state(out) if opts.resume else {}
+    resume = opts.resume and bool(state)
+    if opts.resume and not resume:
+        warn(f"{out}: no training progress to resume ({STATE_DIR}/ holds none): a new run")
+    if resume and state.get("seed", opts.seed) != opts.seed:
+        raise InputError(_state_path(out) / "state.json", f"the progress there is of a run with --seed "
+                                                          f"{state['seed']}, not {opts.seed}: resume with its options, "
+                                                          "or start a new run without --resume")
     pending = _pending_path(out)
-    start = out              # --resume: the interrupted run's own checkpoint, unless --stage ofpd would then
-    if opts.resume and (pending / CONFIG_FILE).is_file():    # train an OFPD on OFS stages it had not finished
+    start = out              # --resume: the interrupted run's own checkpoint (_pending_path)
+    if resume and (pending / CONFIG_FILE).is_file():
         n_bins = load_checkpoint(pending).config.n_speed_bins
-        if opts.stage != "ofpd" or set(state.get("ofs_done", [])) >= set(range(1, n_bins + 1)):
-            start = pending
+        done = sorted(state.get("ofs_done", []))
+        if opts.stage == "ofpd" and set(done) < set(range(1, n_bins + 1)):
+            raise InputError(pending, f"the interrupted run there finished OFS stages {done} of 1-{n_bins}: an OFPD "
+                                      "on them would not fit its OFS; continue it with --resume (--stage all or ofs), "
+                                      "or train the OFPD on --out's checkpoint without --resume")
+        start = pending
     have_ckpt = (start / CONFIG_FILE).is_file()
     init_ofs = None                  # OFS stages the OFS training starts from (--init-from), else DOTIE's
     if opts.init_from is not None:
@@ -569,7 +595,7 @@ def train(opts: TrainOptions) -> Path:
             raise ToffeError("--init-from starts the OFS stages from another checkpoint: use --stage ofs or all")
         init = load_checkpoint(opts.init_from)
         init_ofs = [dict(p) for p in init.ofs]
-    if have_ckpt and (opts.resume or opts.stage == "ofpd"):
+    if have_ckpt and (resume or opts.stage == "ofpd"):
         ck = load_checkpoint(start)
         config, ofs_params, ofpd_state = ck.config, ck.ofs, ck.ofpd_state
         if opts.reset is not None and opts.reset != config.reset and opts.stage == "ofpd":
@@ -596,11 +622,11 @@ def train(opts: TrainOptions) -> Path:
                 raise InputError(out, f"its OFS stages were trained with {key} {getattr(config, key)}; "
                                       f"--{key.replace('_', '-')} {want} needs them retrained (--stage all)")
             config = dataclasses.replace(config, **{key: int(want)})
-    if opts.stage in ("ofpd", "all") and not (opts.resume and state.get("ofpd_settings")):
+    if opts.stage in ("ofpd", "all") and not (resume and state.get("ofpd_settings")):
         config = with_current_layout(config)      # a fresh OFPD trains on today's input/output layout
     try:
         config, fresh = resolve_ofpd_settings(config, opts.ofpd_pool, opts.ofpd_kernels,
-                                              state.get("ofpd_settings") if opts.resume else None)
+                                              state.get("ofpd_settings") if resume else None)
     except ValueError as exc:
         raise InputError(out, str(exc)) from None
     if fresh:                        # a new OFPD shape: a fresh OFPD (the OFS stages are kept)
@@ -611,6 +637,8 @@ def train(opts: TrainOptions) -> Path:
     windows = load_windows(files, config, config.dt_us, opts.per_file, opts.seed, progress=opts.progress)
     if len(windows) == 0:
         raise InputError(opts.data, "no usable single-object training windows")
+    _fresh_state(out, keep=resume)
+    state["seed"] = opts.seed
     log = state.setdefault("log", {})
     if opts.stage == "ofpd" and not log and (out / "train_log.json").is_file():
         # an OFPD-only run keeps the OFS stages, and so their training record
@@ -674,7 +702,7 @@ def train(opts: TrainOptions) -> Path:
         sched_total = max(opts.ofpd_epochs, 1)
         ep0 = 0
         partial = _state_path(out) / "ofpd_partial.pt"
-        if opts.resume and state.get("ofpd_epoch") and partial.is_file():
+        if resume and state.get("ofpd_epoch") and partial.is_file():
             try:
                 blob = torch.load(partial, map_location=device, weights_only=True)
                 model.load_state_dict(blob["model"])
