@@ -76,6 +76,9 @@ def pin_one_core(core: int) -> None:
 
 
 def load_windows(path, cfg, limit=None):
+    """The recording's (t0, events) windows of cfg.dt_us (the first ``limit``); InputError when
+    it holds none (nothing to time)."""
+    from toffe_deploy.errors import InputError
     from toffe_deploy.events.io import open_events
 
     with open_events(path) as src:
@@ -84,6 +87,8 @@ def load_windows(path, cfg, limit=None):
             out.append((t0, ev))
             if limit and len(out) >= limit:
                 break
+    if not out:
+        raise InputError(path, f"no whole window of {cfg.dt_us} us: nothing to time")
     return out
 
 
@@ -233,7 +238,7 @@ def main(argv=None) -> int:
 def run(args) -> int:
     from toffe_deploy.commands.run import SAMPLE
     from toffe_deploy.deploy.bundle import load_bundle
-    from toffe_deploy.errors import InputError, ToffeError
+    from toffe_deploy.errors import ToffeError
     from toffe_deploy.fileio import atomic_path, check_outputs
 
     try:
@@ -244,8 +249,6 @@ def run(args) -> int:
     sample = Path(args.events) if args.events else SAMPLE
     check_outputs(files=[("--out", args.out)], inputs=[("the recording", sample)])
     windows = load_windows(sample, cfg)
-    if not windows:
-        raise InputError(sample, f"no whole window of {cfg.dt_us} us: nothing to time")
     targets = args.targets
     out = {"machine": machine(),
            "bundle": str(args.bundle), "recording": str(sample), "sensor_size": list(cfg.sensor_size),

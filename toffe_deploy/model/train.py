@@ -579,9 +579,10 @@ def train(opts: TrainOptions) -> Path:
                                                           f"{state['seed']}, not {opts.seed}: resume with its options, "
                                                           "or start a new run without --resume")
     pending = _pending_path(out)
-    start = out              # --resume: the interrupted run's own checkpoint (_pending_path)
+    start, ck = out, None    # --resume: the interrupted run's own checkpoint (_pending_path)
     if resume and (pending / CONFIG_FILE).is_file():
-        n_bins = load_checkpoint(pending).config.n_speed_bins
+        ck = load_checkpoint(pending)
+        n_bins = ck.config.n_speed_bins
         done = sorted(state.get("ofs_done", []))
         if opts.stage == "ofpd" and set(done) < set(range(1, n_bins + 1)):
             raise InputError(pending, f"the interrupted run there finished OFS stages {done} of 1-{n_bins}: an OFPD "
@@ -596,7 +597,7 @@ def train(opts: TrainOptions) -> Path:
         init = load_checkpoint(opts.init_from)
         init_ofs = [dict(p) for p in init.ofs]
     if have_ckpt and (resume or opts.stage == "ofpd"):
-        ck = load_checkpoint(start)
+        ck = ck if start is pending else load_checkpoint(start)
         config, ofs_params, ofpd_state = ck.config, ck.ofs, ck.ofpd_state
         if opts.reset is not None and opts.reset != config.reset and opts.stage == "ofpd":
             raise InputError(out, f"its OFS stages were trained with reset {config.reset!r}; --reset {opts.reset} "
