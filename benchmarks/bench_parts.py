@@ -53,7 +53,6 @@ def main(argv=None) -> int:
 
 
 def run(args) -> int:
-
     from bench_run import load_windows, pin_one_core
     from toffe_deploy.commands.run import SAMPLE
     from toffe_deploy.deploy.bundle import load_bundle
