@@ -45,6 +45,15 @@ def make_events(x, y, t, p) -> np.ndarray:
     return out
 
 
+def copy_events(events: np.ndarray) -> np.ndarray:
+    """A writable copy of a contiguous EVENT_DTYPE array (a window cut off a reader's buffer).
+    Why not ``events.copy()``: numpy copies an unaligned structured array field by field,
+    ~19 us for a window of 2,200 events against ~2 us for its bytes (measured 2026-11-24)."""
+    if not events.flags.c_contiguous:
+        return events.copy()
+    return events.view(np.uint8).copy().view(EVENT_DTYPE)
+
+
 def count_before(events: np.ndarray, t: int) -> int:
     """How many of the time-sorted ``events`` come before time t: np.searchsorted on
     events["t"], left side. Why not that call itself: the field is a strided, unaligned view

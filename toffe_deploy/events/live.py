@@ -50,7 +50,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import InputError
-from .core import EVENT_DTYPE, count_before
+from .core import EVENT_DTYPE, copy_events, count_before
 from .validate import check_chunk, check_sensor_size
 
 #: Default bound of the live queue, in events (about 1 s of a busy 1 Mev/s camera, 13 MB).
@@ -322,7 +322,7 @@ class LiveSource(abc.ABC):
             if exhausted and not buf.shape[0]:
                 return
             cut = count_before(buf, t1)
-            yield t0, buf[:cut].copy()
+            yield t0, copy_events(buf[:cut])
             buf = buf[cut:]
             n_empty = 0 if cut else n_empty + 1
             t0 = t1
@@ -410,7 +410,7 @@ class StdinSource(LiveSource):
             n = len(data) // rec
             rest = data[n * rec:]
             if n:
-                self._push(np.frombuffer(data[:n * rec], EVENT_DTYPE).copy())
+                self._push(np.frombuffer(bytearray(memoryview(data)[:n * rec]), EVENT_DTYPE))
 
 
 def _host_port(spec: str, scheme: str) -> tuple[str, int]:

@@ -21,7 +21,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .core import EVENT_DTYPE, Events, count_before
+from .core import EVENT_DTYPE, Events, copy_events, count_before
 from .validate import check_chunk
 
 #: Events read per chunk while streaming: 1 Mi events = 15 MiB in EVENT_DTYPE.
@@ -163,7 +163,7 @@ class EventSource(abc.ABC):
                 else:
                     buf = np.concatenate([buf, nxt]) if buf.shape[0] else nxt
             cut = count_before(buf, t1)
-            yield t0, buf[:cut].copy()
+            yield t0, copy_events(buf[:cut])
             buf = buf[cut:]
             w += 1
             n_empty = 0 if cut else n_empty + 1
