@@ -350,3 +350,71 @@ def test_process_stream_twice_without_with_on_loihi_sim(env):
     with Pipeline(b, "cpu", track=False) as cpu:
         assert [r.to_json() for r in cpu.process_stream(wins)] == first
     np.testing.assert_equal(lava.cascade._runtime, None)
+
+
+_KILLED_WRITER = r"""
+import os, signal, sys
+from pathlib import Path
+import toffe_deploy.fileio as fileio
+path, where = Path(sys.argv[1]), sys.argv[2]
+if where == "between":                      # killed between atomic_dir's two renames
+    real = os.replace
+    def replace(a, b, calls=[]):
+        calls.append(a)
+        if len(calls) == 2:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return real(a, b)
+    fileio.os.replace = replace
+if where == "file":
+    with fileio.atomic_path(path) as tmp:
+        tmp.write_bytes(b"half")
+        os.kill(os.getpid(), signal.SIGKILL)
+with fileio.atomic_dir(path) as tmp:
+    (tmp / "a").write_text("new")
+    if where == "inside":
+        os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+@pytest.mark.parametrize("where", ["inside", "between", "file"])
+def test_the_next_write_clears_what_a_killed_writer_left(tmp_path, where):
+    """SIGKILL gives no chance to clean up: a writer killed inside atomic_dir / atomic_path left its
+    temporary directory or file beside the target for good (a killed `dataset synth` or `export`:
+    megabytes), and one killed between atomic_dir's two renames left the target missing, its old
+    content under a hidden name. The temporary names now carry the writer's pid, and the next
+    write of the same path removes a dead writer's leftovers and puts a moved-aside directory
+    back; a live writer's are left alone."""
+    from toffe_deploy import fileio
+
+    target = tmp_path / ("out.bin" if where == "file" else "out")
+    if where != "file":
+        target.mkdir()
+        (target / "a").write_text("old")
+    live = tmp_path / f".{target.name}.{os.getpid()}-abcdefgh.tmp"      # this process: alive
+    live.write_text("x")
+    proc = subprocess.run([sys.executable, "-c", _KILLED_WRITER, str(target), where], capture_output=True)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()
+    left = sorted(p.name for p in tmp_path.iterdir() if p != live)
+    dead = f".{target.name}."
+    if where == "between":                  # the target moved aside, not back, and the new one beside it
+        assert len(left) == 2 and left[0].endswith(".tmp") and left[1].startswith(f".{target.name}.old-")
+        assert not target.exists()
+    elif where == "inside":
+        assert len(left) == 2 and left[0].startswith(dead) and left[0].endswith(".tmp") and left[1] == target.name
+    else:
+        assert len(left) == 1 and left[0].startswith(dead) and left[0].endswith(".tmp") and not target.exists()
+    if where == "between":                  # a write that fails still finds the old directory put back
+        with pytest.raises(RuntimeError):
+            with fileio.atomic_dir(target):
+                raise RuntimeError
+        assert (target / "a").read_text() == "old"
+    if where == "file":
+        with fileio.atomic_path(target) as tmp:
+            tmp.write_bytes(b"whole")
+        assert target.read_bytes() == b"whole"
+    else:
+        with fileio.atomic_dir(target) as tmp:
+            (tmp / "a").write_text("newer")
+        assert (target / "a").read_text() == "newer"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([target.name, live.name])
+

@@ -2,7 +2,9 @@
 
 Files are written to a temporary name in the destination directory and renamed over the target
 (os.replace is atomic on one file system); directories are built in a sibling temp directory
-and renamed into place.
+and renamed into place. The temporary names carry the writer's process id, so that the next write
+of the same path removes what a killed writer (SIGKILL, a crash, power) left beside it
+(``clear_killed``), and puts back a directory it had moved aside.
 """
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ import errno
 import json
 import math
 import os
+import re
 import shutil
 import stat
 import tempfile
@@ -67,6 +70,48 @@ def refuse_special(path: str | os.PathLike, name: str = "") -> None:
         raise InputError(path, f"{name}: {SPECIAL_WHY}" if name else SPECIAL_WHY)
 
 
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (one of another user's counts as alive)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
+
+
+def temp_prefix(path: Path) -> str:
+    """The prefix of a temporary name beside ``path`` (mkstemp / mkdtemp, suffix ``.tmp``):
+    ``.NAME.PID-``, which clear_killed recognises."""
+    return f".{path.name}.{os.getpid()}-"
+
+
+def clear_killed(path: Path, suffix: str = ".tmp") -> None:
+    """Remove what an earlier writer of ``path`` that no longer runs left beside it: temporary
+    files or directories (``.NAME.PID-XXXXXXXX`` + ``suffix``) and a directory it moved aside
+    (``.NAME.old-PID``), which is put back when ``path`` is missing (the writer was killed between
+    atomic_dir's two renames). A live writer's names are left alone."""
+    tmp = re.compile(rf"\.{re.escape(path.name)}\.(\d+)-[a-z0-9_]{{8}}{re.escape(suffix)}")
+    old = re.compile(rf"\.{re.escape(path.name)}\.old-(\d+)")
+    try:
+        names = os.listdir(path.parent)
+    except OSError:
+        return
+    for name in names:
+        m = tmp.fullmatch(name) or old.fullmatch(name)
+        if m is None or _alive(int(m.group(1))):
+            continue
+        p = path.parent / name
+        if m.re is old and not os.path.lexists(path):
+            os.replace(p, path)
+        elif p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            with contextlib.suppress(OSError):
+                p.unlink()
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds.
@@ -80,7 +125,8 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     refuse_special(path)
     with write_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or ".tmp", dir=path.parent)
+        clear_killed(path, suffix or ".tmp")
+        fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path), suffix=suffix or ".tmp", dir=path.parent)
         os.close(fd)
         tmp = Path(tmp)
         try:
@@ -98,7 +144,8 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a fresh temporary directory beside ``path``; on success it replaces ``path``.
 
     An existing ``path`` is moved aside first and deleted only after the rename succeeded; an
-    error or Ctrl-C between the two renames puts it back.
+    error or Ctrl-C between the two renames puts it back (and a kill there, the next write of
+    ``path``: clear_killed).
     A refused write (WRITE_ERRNOS) is reported as InputError naming ``path``, and so is a
     ``path`` that exists and is not a directory (nothing is written: a file there was moved
     aside, never deleted, and the next save into the new directory failed).
@@ -108,7 +155,8 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
         raise InputError(path, "exists and is not a directory: a directory is written here; name a new one")
     with write_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+        clear_killed(path, ".tmp")
+        tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(path), suffix=".tmp", dir=path.parent))
         old = None
         try:
             yield tmp

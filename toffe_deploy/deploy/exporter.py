@@ -23,6 +23,7 @@ from typing import Sequence, TextIO
 
 from ..checkpoint import load_checkpoint
 from ..errors import ToffeError
+from ..fileio import clear_killed, temp_prefix
 from .bundle import Bundle, check_output_dir, sha256_file, write_bundle
 from .parity import torch_threads
 from .quantize import quantize_stages
@@ -73,7 +74,9 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
         if v not in onnx_export.VARIANTS:
             raise ToffeError(f"unknown ONNX variant {v!r} (choose from {', '.join(onnx_export.VARIANTS)})")
 
-    stage_root = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.export-", dir=_parent(out_dir)))
+    parent = _parent(out_dir)
+    clear_killed(parent / out_dir.name)         # the staging an export killed before this one left
+    stage_root = Path(tempfile.mkdtemp(prefix=temp_prefix(out_dir), suffix=".tmp", dir=parent))
     try:
         stage = stage_root / "files"
         stage.mkdir()

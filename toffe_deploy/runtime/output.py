@@ -32,7 +32,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import InputError
-from ..fileio import atomic_path, json_text, special_file
+from ..fileio import atomic_path, clear_killed, json_text, special_file, temp_prefix
 from .pipeline import WindowResult
 from .traffic import Traffic
 
@@ -63,7 +63,8 @@ class LineFile:
         self.regular = True
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
+            clear_killed(self.path)
+            fd, tmp = tempfile.mkstemp(prefix=temp_prefix(self.path), suffix=".tmp", dir=self.path.parent)
         except OSError as exc:
             raise InputError(path, f"cannot write: {exc.strerror or exc}") from None
         self.fd, self.tmp, self.placed = fd, tmp, False
