@@ -389,6 +389,15 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"argument --pythonpath: {a.pythonpath}: no toffe_deploy/ package in it")
     a.pythonpath = str(a.pythonpath)
     groups = set(a.only)
+
+    def chosen(group_name: str, name: str) -> bool:
+        return (not groups or group_name in groups) and a.match in name
+
+    names = matrix(dict.fromkeys(("bundle", "ckpt", "rec"), Path("-")), a.pythonpath, Path("-"))
+    if not any(chosen(g, n) for g, n, *_ in names):      # before the bundle is built (a minute)
+        print(f"fault_sweep.py: error: no scenario matches --only {','.join(a.only) or '(all)'} --match {a.match!r}",
+              file=sys.stderr)
+        return 2
     failed = ran = 0
     with tempfile.TemporaryDirectory(prefix="fault-sweep-") as tmp:
         e = make_env(Path(tmp))
@@ -398,7 +407,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'group':10} {'scenario':34} {'rc':>5} {'exit s':>7} {'procs':>5} {'shm seg':>7} {'shm bytes':>10} temp")
         named = (Path(a.pythonpath) / "toffe_deploy" / "runtime" / "lava_host.py").is_file()
         for group_name, name, args, env, trig, act, globs, wait in matrix(e, a.pythonpath, out):
-            if (groups and group_name not in groups) or a.match not in name:
+            if not chosen(group_name, name):
                 continue
             ran += 1
             o = run_scenario(name, args, trig, act, globs, env=env, settle_s=a.settle, exit_wait_s=wait,
@@ -409,10 +418,6 @@ def main(argv: list[str] | None = None) -> int:
             note = ("" if o.triggered else "  (ended before the stage)") + ("  FAILED" if bad else "")
             print(f"{group_name:10} {name:34} {rc:>5} {o.exit_s:7.2f} {o.procs_left:5d} {o.shm_segments_left:7d} "
                   f"{o.shm_bytes_left:10d} {len(o.temp_left)}{note}", flush=True)
-    if not ran:
-        print(f"fault_sweep.py: error: no scenario matches --only {','.join(a.only) or '(all)'} --match {a.match!r}",
-              file=sys.stderr)
-        return 2
     if failed:
         print(f"fault_sweep.py: {failed} of {ran} scenarios hung or left something behind", file=sys.stderr)
         return 1

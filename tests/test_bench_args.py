@@ -133,7 +133,7 @@ CASES = [
     ("live_latency", ["--period-ms", "nan"]), ("live_latency", ["--period-ms", "-5"]),
     ("live_latency", ["--events", MISSING]),
     ("fault_sweep", ["--pythonpath", MISSING]), ("fault_sweep", ["--pythonpath", "/tmp"]),
-    ("fault_sweep", ["--only", "nosuch"]),
+    ("fault_sweep", ["--only", "nosuch"]), ("fault_sweep", ["--match", "no such scenario"]),
     ("nir_check", ["export", "--windows", "0"]), ("nir_check", ["export", "--json", "/tmp"]),
     ("nir_check", ["export", "--data", MISSING]),
     ("energy_latency", ["--warmup", "-1"]), ("energy_latency", ["--energy-s", "nan"]),
