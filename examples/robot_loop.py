@@ -1,8 +1,8 @@
 #!/usr/bin/env python
 """A robot loop on toffe_deploy's Python API: events in packets, object flow and tracks out.
 
-    python examples/robot_loop.py [--bundle export/] [--events FILE] [--target cpu] [--packet-us 2000]
-                                  [--max-ms 50]
+    python examples/robot_loop.py [--bundle export/] [--events FILE] [--sensor-size W,H] [--target cpu]
+                                  [--packet-us 2000] [--max-ms 50]
 
 A camera driver hands over event packets (here: the shipped sample recording, or --events, read
 in --packet-us slices to stand in for it); each packet goes into ``api.FlowStream.feed``, which
@@ -41,10 +41,19 @@ def main(argv=None) -> int:
     ap.add_argument("--events", default=str(SAMPLE))
     ap.add_argument("--target", default="cpu", choices=api.TARGETS)
     ap.add_argument("--packet-us", type=int, default=2000, help="events per packet, in us of recording")
-    ap.add_argument("--max-ms", type=float, default=50.0, help="stop after this much recording")
+    ap.add_argument("--max-ms", type=float, default=50.0, help="stop after this much recording (inf: all of it)")
+    ap.add_argument("--sensor-size", default=None, metavar="W,H",
+                    help="the camera's width and height in px, for files that do not record it (.npz, .npy, .txt)")
     a = ap.parse_args(argv)
     if a.packet_us <= 0 or not a.max_ms > 0:
         ap.error(f"--packet-us and --max-ms must be > 0, got {a.packet_us}, {a.max_ms}")
+    if a.sensor_size is not None:
+        try:
+            a.sensor_size = tuple(int(v) for v in a.sensor_size.split(","))
+        except ValueError:
+            a.sensor_size = ()
+        if len(a.sensor_size) != 2 or min(a.sensor_size) < 1:
+            ap.error(f"--sensor-size must be W,H in whole px, got {a.sensor_size!r}")
     try:
         return loop(a)
     except ToffeError as exc:           # a missing or broken bundle or recording: one line, exit 2
@@ -56,10 +65,12 @@ def loop(a) -> int:
     """The loop of ``main`` over the parsed arguments."""
     bundle = api.load_bundle(a.bundle)
     n_windows, ids = 0, set()
-    with open_events(a.events) as src, api.FlowStream(bundle, a.target, sensor_size=src.sensor_size,
-                                                      t_start_us=src.t_start_us) as flow:   # run's window grid
+    with open_events(a.events, sensor_size=a.sensor_size) as src, \
+            api.FlowStream(bundle, a.target, sensor_size=src.sensor_size,
+                           t_start_us=src.t_start_us) as flow:   # run's window grid
+        print(f"{a.events}: {src.sensor_size[0]}x{src.sensor_size[1]} sensor")
         centre = (src.sensor_size[0] / 2.0, src.sensor_size[1] / 2.0)
-        t_end = min(src.t_end_us, src.t_start_us + int(a.max_ms * 1000))
+        t_end = src.t_end_us if math.isinf(a.max_ms) else min(src.t_end_us, src.t_start_us + int(a.max_ms * 1000))
         for t in range(src.t_start_us, t_end, a.packet_us):
             packet = src.read(t, min(t + a.packet_us, t_end))          # what a driver would hand over
             windows = flow.feed(packet["x"], packet["y"], packet["t"], packet["p"])

@@ -68,8 +68,64 @@ def test_robot_loop_example_runs(env):
                        capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert p.returncode == 0, p.stderr
     lines = p.stdout.splitlines()
-    assert len(lines) == 9 and lines[0].startswith("t=    0.0 ms:")            # one line per 1.5 ms packet
+    assert lines[0].endswith(" sensor") and lines[1].startswith("t=    0.0 ms:")
+    assert len(lines) == 10                                 # the sensor, then one line per 1.5 ms packet
     assert lines[-1].startswith("24 windows, ") and "confirmed tracks" in lines[-1]
+
+
+def test_robot_loop_example_reads_a_whole_file_without_a_sensor_size(env, tmp_path):
+    """--max-ms inf (the whole recording) gave an OverflowError traceback, and a .npy recording
+    (no sensor size in it) ran on a sensor guessed from its largest coordinates, unsaid:
+    --sensor-size gives it, and the loop prints the sensor it uses."""
+    ev = read_events(env["rec"]).events
+    npy = tmp_path / "rec.npy"
+    np.save(npy, ev)
+    w, h = env["bundle"].config.sensor_size
+    p = subprocess.run([sys.executable, str(ROOT / "examples" / "robot_loop.py"), "--bundle", str(env["bundle"].root),
+                        "--events", str(npy), "--sensor-size", f"{w},{h}", "--packet-us", "5000", "--max-ms", "inf"],
+                       capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert lines[0] == f"{npy}: {w}x{h} sensor"
+    n_win = -(-(int(ev["t"][-1]) + 1) // env["bundle"].config.dt_us)
+    assert lines[-1].startswith(f"{n_win} windows, ")
+    bad = subprocess.run([sys.executable, str(ROOT / "examples" / "robot_loop.py"), "--sensor-size", "640"],
+                         capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert bad.returncode == 2 and "--sensor-size" in bad.stderr.splitlines()[-1]
+
+
+def test_the_api_refuses_what_it_would_otherwise_drop_or_cast(env):
+    """A new user's mistakes that the API took silently or with an AttributeError: OFF events as
+    -1 in a dense window (dropped), NaN values, fractional sizes and starts (cast), events before
+    the first window (dropped), track="no" (tracking on), a (focal, depth) tuple for speed_scale,
+    an unknown OFPD variant (told to re-export it). A list window and a bundle's directory work."""
+    b = env["bundle"]
+    cfg = b.config
+    w, h = cfg.sensor_size
+    x = np.zeros((cfg.n_bins, 2, h, w), np.int8)
+    x[:, :, 10:20, 10:20] = 1
+    with api.FlowStream(b, "cpu") as flow:
+        for bad in (-x, np.where(x > 0, np.nan, 0.0)):
+            with pytest.raises(ValueError, match="counts >= 0"):
+                flow.feed_window(0, bad)
+        with pytest.raises(ValueError, match="dtype"):
+            flow.feed_window(0, x.astype(str))
+        want = flow.feed_window(0, x).to_json()
+    with api.FlowStream(str(b.root), "cpu") as flow:
+        assert flow.feed_window(0, x.tolist()).to_json() == want
+    for kw, msg in (({"sensor_size": (w + 0.5, h)}, "whole number"), ({"t_start_us": 1.5}, "whole number"),
+                    ({"track": "no"}, "track must be"), ({"speed_scale": (554.0, 5.0)}, "SpeedScale"),
+                    ({"ofpd_variant": "bogus"}, "unknown OFPD variant")):
+        with pytest.raises(ValueError, match=msg):
+            api.FlowStream(b, "cpu", **kw)
+    with api.FlowStream(b, "cpu", t_start_us=1000) as flow:
+        with pytest.raises(ValueError, match="real numbers"):
+            flow.feed(np.array([1 + 2j]), [1], [1000], [0])
+        with pytest.raises(ValueError, match="before the first window"):
+            flow.feed([1, 2], [1, 2], [500, 1500], [0, 1])
+        assert [r.t0_us for r in flow.feed([1, 2], [1, 2], [1000, 1500], [0, 1])] == [1000]
+    with api.Pipeline(str(b.root), "cpu") as pipe:
+        assert [r.to_json() for r in pipe.process_stream([(0, x)])] == [want]
 
 
 def test_flush_processes_or_drops_the_last_partial_window(env):

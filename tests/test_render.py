@@ -228,6 +228,8 @@ def test_report_sections_numbers_and_no_urls(tmp_path):
     sim_text = _parse(tmp_path / "s.html")[1]
     assert "simulator wall time per window (not Loihi 2 latency), p50 (ms)" in sim_text and "fixed_pt" in sim_text
     assert "bridge per window: to chip spikes" in sim_text and "1,950" in sim_text
+    rep.write(tmp_path / "c.html", RunSummary(target="cpu", tag="fixed_pt", latencies_s=[1e-3]).to_json())
+    assert "Lava process models" in sim_text and "Lava process models" not in _parse(tmp_path / "c.html")[1]
     untracked = _parse(tmp_path / "u.html")[1]
     assert "no track ids" in untracked and "One lane per speed bin" in untracked and "One lane per track" not in untracked
     assert "One lane per track" in text

@@ -37,7 +37,7 @@ from .deploy.bundle import Bundle, load_bundle
 from .errors import InputError
 from .events.convert import time_us, to_events
 from .events.core import EVENT_DTYPE, count_before
-from .events.validate import check_chunk
+from .events.validate import check_chunk, whole_number
 from .runtime.pipeline import TARGETS, ObjectFlow, Pipeline, WindowResult
 from .runtime.spikes import SpikeVolume
 from .schema import header, load_schema
@@ -72,7 +72,7 @@ class FlowStream:
         if skip_empty_after is not None and (isinstance(skip_empty_after, bool) or int(skip_empty_after) != skip_empty_after
                                              or skip_empty_after < 0):
             raise ValueError(f"skip_empty_after must be a whole number >= 0 (0 or None: never skip), got {skip_empty_after!r}")
-        if t_start_us is not None and int(t_start_us) < 0:
+        if t_start_us is not None and whole_number("t_start_us", t_start_us) < 0:
             raise ValueError(f"t_start_us must be >= 0, got {t_start_us}")
         self.bundle = load_bundle(bundle) if not isinstance(bundle, Bundle) else bundle
         self.pipeline = Pipeline(self.bundle, target, ofpd_variant=ofpd_variant, sensor_size=sensor_size,
@@ -143,6 +143,9 @@ class FlowStream:
                 check_chunk(FEED, ev, self.sensor_size, self._n_fed, self._t_last)
             except InputError as exc:
                 raise ValueError(str(exc)) from None
+            if self._origin is not None and int(ev["t"][0]) < self._origin:
+                raise ValueError(f"{FEED}: an event at t = {int(ev['t'][0])} us is before the first window, which starts "
+                                 f"at t_start_us = {self._origin} us (a later t_start_us, or drop the events before it)")
             if self._done_until is not None and int(ev["t"][0]) < self._done_until:
                 raise ValueError(f"{FEED}: an event at t = {int(ev['t'][0])} us falls in a window already processed "
                                  f"(up to {self._done_until} us): a new recording needs reset() or a new FlowStream")

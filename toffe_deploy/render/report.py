@@ -166,7 +166,7 @@ class RunReport:
                 ["start-up (s)", _fmt(s.get("startup_s"))]]
         what = s.get("latency_kind") or "latency per window"      # the simulator's is its wall time, said so
         rows += [[f"{html.escape(what)}, {q} (ms)", _fmt(lat.get(q))] for q in ("p50", "p90", "p99") if q in lat]
-        if s.get("tag"):
+        if s.get("tag") and str(s.get("target", "")).startswith("loihi"):     # cpu and cuda run no Lava process
             rows.append(["Lava process models", html.escape(str(s["tag"]))])
         cam = s.get("camera")
         if isinstance(cam, dict):

@@ -39,6 +39,7 @@ from ..camera import SpeedScale
 from ..config import MAX_SENSOR_PIXELS, ToffeConfig, sensor_too_large
 from ..errors import InputError
 from ..events.support import SupportHistory, front_end
+from ..events.validate import whole_number
 from ..events.support import warm_up as support_warm_up
 from ..ofpd_io import Decoder, input_shape, ofpd_settings
 from ..plane_fit import PlaneFusion, object_planes_flow
@@ -137,8 +138,12 @@ def _track_dict(track) -> dict:
 def ofpd_model(bundle, variant: str = "fp32"):
     """The bundle's OFPD ONNX file for a variant: fp32 (the reference), or fp16 / int8 when the
     bundle was exported with ``--variants`` (smaller and faster on edge GPUs / CPUs)."""
+    from ..deploy.onnx_export import VARIANTS
+
     if variant == "fp32":
         return bundle.ofpd_onnx
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown OFPD variant {variant!r}; choose one of fp32, {', '.join(VARIANTS)}")
     path = getattr(bundle, "ofpd_variants", {}).get(variant)
     if path is None:
         raise InputError(bundle.root, f"bundle has no {variant} OFPD variant (re-export with "
@@ -219,6 +224,13 @@ class Pipeline:
             raise ValueError(f"unknown target {target!r}; choose one of {', '.join(TARGETS)}")
         if tag not in TAGS:
             raise ValueError(f"unknown tag {tag!r}; choose one of {', '.join(TAGS)}")
+        if not (isinstance(track, (bool, TrackerConfig)) or track is None):
+            raise ValueError(f"track must be True, False or a TrackerConfig, got {track!r}")
+        if speed_scale is not None and not isinstance(speed_scale, SpeedScale):
+            raise ValueError(f"speed_scale must be a toffe_deploy.camera.SpeedScale(focal_px, depth_m), got {speed_scale!r}")
+        if not hasattr(bundle, "config"):              # a bundle's directory, as FlowStream takes
+            from ..deploy.bundle import load_bundle
+            bundle = load_bundle(bundle)
         self.bundle = bundle
         self.config = bundle.config
         self.target = target
@@ -227,9 +239,9 @@ class Pipeline:
                                threads=ofpd_threads)
         size = self.config.sensor_size if sensor_size is None else sensor_size
         try:
-            w, h = (int(v) for v in size)
+            w, h = (whole_number("sensor size", v) for v in size)
         except (TypeError, ValueError):
-            raise ValueError(f"sensor size must be (width, height), got {sensor_size!r}") from None
+            raise ValueError(f"sensor size must be (width, height), each a whole number of px, got {sensor_size!r}") from None
         self.sensor_size = (w, h)
         if min(self.sensor_size) < 1:
             raise ValueError(f"sensor size must be positive, got {self.sensor_size}")
@@ -313,11 +325,22 @@ class Pipeline:
         """Whether the backend takes windows as coordinates (cpu, cuda) or dense (Lava)."""
         return isinstance(self.cascade, CpuCascade)
 
-    def _check(self, x: Window) -> None:
+    def _check(self, x: Window) -> Window:
+        """``x`` (a SpikeVolume, or an array-like made an array) when it has the window's shape
+        (B, 2, H, W); a dense one's values are event counts (nonzero = event): a negative or
+        non-finite value, or values that are no numbers, are a ValueError, not dropped."""
+        if not isinstance(x, SpikeVolume):
+            x = np.asarray(x)
+            if x.dtype.kind not in "biuf":
+                raise ValueError(f"window values must be event counts or 0/1 (bool, int or float), got dtype {x.dtype}")
+            if x.dtype.kind in "if" and x.size and (x.min() < 0 or x.dtype.kind == "f" and not np.isfinite(x).all()):
+                raise ValueError("window values must be event counts >= 0 (nonzero = event; polarity is the channel, "
+                                 "not the sign), got a negative or non-finite value")
         w, h = self.sensor_size
         want = (self.config.n_bins, 2, h, w)
         if tuple(x.shape) != want:
             raise ValueError(f"window must be {want} (B, 2, H, W), got {tuple(x.shape)}")
+        return x
 
     def objects_of(self, volume: SpikeVolume, frames: list[np.ndarray], t0_us: int | None = None,
                    recent=None) -> list[ObjectFlow]:
@@ -368,7 +391,9 @@ class Pipeline:
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
         """(t0_us, window) pairs in, WindowResult per window out, in order, streaming. Windows are
         raw (the front end runs here); with ``input_support`` they come in time order, and the
-        Pipeline keeps the windows before over calls (``self.support``: a gap resets it)."""
+        Pipeline keeps the windows before over calls (``self.support``: a gap resets it). The
+        lower-level form: t0_us is taken as given, its order not checked (api.FlowStream checks
+        it, and cuts events into windows)."""
         if not self._entered:
             with self:
                 yield from self.process_stream(windows)
@@ -377,8 +402,8 @@ class Pipeline:
         pool = self.config.ofs_pool
         if self.sparse:
             for t0, x in windows:
-                self._check(x)
-                vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(np.asarray(x) > 0)
+                x = self._check(x)
+                vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(x > 0)
                 vol = front_end(vol, cfg, hist, int(t0))
                 if pool > 1 and not self.keep_stages:       # pool, cascade and Up_p in one compiled call
                     frames, stages = self.cascade.pooled_frames(vol, pool), None
@@ -396,9 +421,9 @@ class Pipeline:
 
         def dense():
             for t0, x in windows:
-                self._check(x)
+                x = self._check(x)
                 vol = (front_end(x, cfg, hist, int(t0)) if isinstance(x, SpikeVolume)
-                       else SpikeVolume.from_dense(front_end(np.asarray(x), cfg, hist, int(t0))))
+                       else SpikeVolume.from_dense(front_end(x, cfg, hist, int(t0))))
                 grid, inverse = vol.pool(pool)               # the OFS grid (cascade.py)
                 starts.append((int(t0), vol, grid, inverse, hist.latest() if keep_recent else None))
                 yield grid.to_dense(np.uint8)
