@@ -2359,13 +2359,50 @@ KERNELS = (dedupe, active_set, ofs_window, ofs_stage, split_closed, compact_imag
            cell_centres, fill_input, fill_motion, front_end_keep, bin_index, sorted_unique, binned_ones, unique_inverse, pool_index)
 
 
-def warm_up() -> None:
-    """Compile (first run on a machine, a few seconds) or load from the on-disk cache (~0.1 s)
-    every kernel for the argument types the cpu cascade passes, so that the first window of a
-    stream is not the one that pays for it. tests/test_run_sparse.py checks that a cascade
-    after warm_up compiles nothing new."""
+#: warm_up's groups: the kernels one path of the cpu runtime calls from Python (Pipeline.warm_groups)
+WARM_GROUPS = ("binning", "front_end", "pooled", "objects", "objects_recent", "other")
+
+
+def warm_up(only=None) -> None:
+    """Compile (first run on a machine, a few seconds) or load from the on-disk cache every
+    kernel for the argument types the cpu runtime passes, so that the first window of a stream
+    is not the one that pays for it. ``only``: the WARM_GROUPS one path needs (the Pipeline's
+    fast path: binning, front end, pooled cascade and one window_objects form; Pipeline.warm_groups),
+    None: all of them (~1.6 s from the cache, of which ~0.9 s is kernels that path never calls:
+    the other groupings, the unpooled cascade, window_objects' other form). tests/test_run_sparse.py
+    checks that a cascade after warm_up compiles nothing new, tests/test_run_pipeline.py that a
+    Pipeline's windows after its own warm-up load no kernel."""
+    groups = set(WARM_GROUPS if only is None else only)
+    unknown = groups - set(WARM_GROUPS)
+    if unknown:
+        raise ValueError(f"unknown warm-up groups {sorted(unknown)}; choose from {', '.join(WARM_GROUPS)}")
     i64 = np.zeros(1, np.int64)
     scratch = new_scratch(4)
+    if "binning" in groups:
+        from .events.core import EVENT_DTYPE
+
+        for ev in (np.zeros(1, EVENT_DTYPE), np.zeros(2, EVENT_DTYPE)):   # fields of 2+ events are strided ('A')
+            sorted_unique(bin_index(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1))
+            binned_ones(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1)
+    if "front_end" in groups:
+        front_end_keep(i64, 2, 1, 1, True, 2, scratch)
+        dedupe(i64, scratch)
+    if "pooled" in groups:
+        pooled_cascade(i64, 4, 2, 2, 1, 1, 2, 1, scratch, np.ones((1, 1, 1), np.int64), i64, i64,
+                       np.zeros(1, np.bool_), 1, 1)
+    if "objects" in groups:                    # without ofpd.recent_events: ofpd_io.recent_args' (None, None)
+        window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0,
+                       scratch, 0, 1, 1, 1, 2, 5, 1, 1000.0, None, None)
+    if "objects_recent" in groups:
+        window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0,
+                       scratch, 0, 1, 1, 1, 2, 5, 1, 1000.0, np.zeros(4, np.uint8), np.zeros(4, np.int64))
+    if "other" in groups:
+        _warm_other(i64, scratch)
+
+
+def _warm_other(i64, scratch) -> None:
+    """warm_up's group "other": the unpooled and Lava-side cascade kernels, every grouping's
+    kernels as Python calls them (eval, the older groupings) and the OFPD input's."""
     uniq, inverse = dedupe(i64, scratch)
     active, tap_target = active_set(uniq, 2, 2, 1, scratch)
     ofs_window(i64, i64, 2, 2, 2, 1, scratch)
@@ -2378,7 +2415,6 @@ def warm_up() -> None:
     split_closed(alive, inverse, closed)
     cascade_window(i64, i64, inverse, uniq, tap_target, active, np.ones((1, 1, 1), np.int64), i64, i64,
                    np.zeros(1, np.bool_), 1, 2, 2, 1)
-    pooled_cascade(i64, 4, 2, 2, 1, 1, 2, 1, scratch, np.ones((1, 1, 1), np.int64), i64, i64, np.zeros(1, np.bool_), 1, 1)
     box_mean(i64, i64, 0.0, 0.0, 1.0)
     in_boxes(i64, i64, np.zeros((1, 2)), 1.0)
     density_groups(i64, i64, 1, 2)
@@ -2386,9 +2422,9 @@ def warm_up() -> None:
     count, sx, sy, bbox = component_stats(labels, n_comp, i64, i64)
     merge_blobs(labels, count, bbox, i64, i64, 0.2, 1.5, 1)
     blob_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1)
-    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65)
+    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, None, None, None)
     union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, np.zeros(2, np.uint8),
-                  np.zeros(4, np.int64))
+                  np.zeros(4, np.int64), None)           # as ofpd_io.group_objects_flat passes them: explicit Nones
     i8 = np.zeros(1, np.int8)                  # ofpd.split_polarity: the pixels' polarities
     union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.6, 0.65, 0.25, None, None, i8)
     union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.6, 0.65, 0.25, np.zeros(2, np.uint8),
@@ -2402,20 +2438,10 @@ def warm_up() -> None:
     frame_pixels(np.ones((1, 1), np.bool_), i64, i64, 1, i64, 2)
     object_crops(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2)
     object_input(np.ones((1, 1), np.bool_), i64, i64, i64, i64, 1, 0, 1, 1, 1, 2, 2, 5, 1, 1000.0)
-    window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, scratch,
-                   0, 1, 1, 1, 2, 5, 1, 1000.0)
-    window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, scratch,
-                   0, 1, 1, 1, 2, 5, 1, 1000.0, np.zeros(4, np.uint8), np.zeros(4, np.int64))   # with recent_events
     crop_origin(i64, i64, 1, 2, 2)
     two_pass_centroid(i64, i64, 1.0, 2, 2)
     fill_input(np.zeros((1, 3, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 1000.0)
     fill_motion(np.zeros((1, 4, 1, 1), np.float32), i64, i64, i64, i64, np.ones((1, 3), np.int64), 1, 0)
     cell_centres(np.ones((1, 3)), 1, 1000.0)
-    front_end_keep(i64, 2, 1, 1, True, 2, scratch)
-    from .events.core import EVENT_DTYPE
-
-    for ev in (np.zeros(1, EVENT_DTYPE), np.zeros(2, EVENT_DTYPE)):   # fields of 2+ events are strided ('A')
-        sorted_unique(bin_index(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1))
-        binned_ones(ev["t"], ev["x"], ev["y"], ev["p"], 0, 1, 1, 1, 1)
     unique_inverse(i64)
     pool_index(i64, 1, 1, 1, 1, 1)

@@ -113,8 +113,11 @@ class CpuCascade:
         self._vth = np.array([int(p.vth_mant) for p in self.params], dtype=np.int64)
         self._reset_zero = np.array([p.reset == "zero" for p in self.params], dtype=bool)
 
+    #: the compiled.warm_up groups __enter__ loads (None: all); a Pipeline narrows it to its path
+    warm_groups = None
+
     def __enter__(self) -> "CpuCascade":
-        warm_up()                      # compile or load the kernels now, not in the first window
+        warm_up(self.warm_groups)      # compile or load the kernels now, not in the first window
         return self
 
     def __exit__(self, *exc) -> None:
