@@ -363,6 +363,11 @@ def test_dvs_msgs_bag(events, tmp_path, capsys, ros1, mcap):
     assert main(["events", "info", "--no-progress", str(path)]) == 0
     assert "topic:           /event_camera/events (dvs_msgs/msg/EventArray)" in capsys.readouterr().out
     _convert_round_trip(tmp_path, path, ev)
+    if ros1:         # found by its content under any name: `rosbag record` killed leaves NAME.bag.active
+        active = tmp_path / "rec.bag.active"
+        active.write_bytes(path.read_bytes())
+        assert detect_format(active) == "rosbag"
+        np.testing.assert_array_equal(read_events(active).events, ev)
 
 
 def test_dvs_msgs_deserialized_when_the_byte_layout_is_not_the_expected_one(events, tmp_path, monkeypatch):

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -77,15 +78,23 @@ def _reader(bag, path):
         from rosbags.highlevel import AnyReader
     except ImportError:
         raise InputError(path, "reading ROS bags needs the rosbags package (pip install rosbags)") from None
-    reader = AnyReader([Path(bag)], default_typestore=typestore())
-    try:
-        reader.open()
-    except Exception as exc:   # rosbags raises its own errors (and struct/sqlite ones) on bad bags
-        raise InputError(path, f"cannot read ROS bag (truncated or corrupt?): {_msg(exc)}") from None
-    try:
-        yield reader
-    finally:
-        reader.close()
+    with contextlib.ExitStack() as stack:
+        bag = Path(bag)
+        if bag.is_file() and bag.suffix != ".bag":
+            # found by its content (#ROSBAG V2.0); rosbags picks its reader by the name's suffix, and
+            # `rosbag record` leaves a killed recording as NAME.bag.active: open it through a .bag link
+            tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="toffe-bag-")))
+            (tmp / "recording.bag").symlink_to(bag.resolve())
+            bag = tmp / "recording.bag"
+        try:
+            reader = AnyReader([bag], default_typestore=typestore())
+            reader.open()
+        except Exception as exc:   # rosbags raises its own errors (and struct/sqlite ones) on bad bags
+            raise InputError(path, f"cannot read ROS bag (truncated or corrupt?): {_msg(exc)}") from None
+        try:
+            yield reader
+        finally:
+            reader.close()
 
 
 def _msg(exc: BaseException) -> str:
