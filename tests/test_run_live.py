@@ -79,6 +79,51 @@ def test_full_queue_drops_the_oldest_chunks_and_counts_them():
     assert stats.peak_queue_events == 10
 
 
+def test_a_blocking_queue_waits_for_room_and_drops_nothing():
+    """stdin's queue (a pipe can push back on its writer): a put that does not fit waits until the
+    run takes a chunk out; a chunk larger than the bound goes in alone; close() frees a waiting put."""
+    import threading
+
+    stats = LiveStats(queue_events=10)
+    q = ChunkQueue(10, stats, block=True)
+    q.put(make_events([0] * 8, [0] * 8, [0] * 8, [1] * 8))
+    done = threading.Event()
+    t = threading.Thread(target=lambda: (q.put(make_events([1] * 5, [0] * 5, [1] * 5, [1] * 5)), done.set()))
+    t.start()
+    assert not done.wait(0.3)                     # 8 + 5 > 10: it waits
+    assert int(q.get(0)["x"][0]) == 0
+    assert done.wait(2.0)                         # room now
+    assert int(q.get(0)["x"][0]) == 1
+    q.put(make_events([2] * 30, [0] * 30, [2] * 30, [1] * 30))    # larger than the bound: in whole, alone
+    assert q.get(0).shape[0] == 30
+    assert stats.dropped_events == 0 and stats.received_events == 43
+    q.put(make_events([3] * 9, [0] * 9, [3] * 9, [1] * 9))
+    late = threading.Thread(target=lambda: q.put(make_events([4] * 9, [0] * 9, [4] * 9, [1] * 9)))
+    late.start()
+    q.close()                                     # the source closed: the waiting put returns
+    late.join(2.0)
+    assert not late.is_alive()
+
+
+def test_the_clock_maps_no_event_after_its_arrival():
+    """A producer ahead of real time (a file piped in, a sender catching up) gave negative
+    latencies: its events mapped to host times after they arrived. The anchor moves earlier."""
+    r, w = os.pipe()
+    os.write(w, stdin_header(SENSOR))
+    from toffe_deploy.events.live import StdinSource
+
+    src = StdinSource(fd=r)
+    try:
+        src._push(make_events([1], [1], [1000], [1]))
+        src._push(make_events([2], [2], [5_000_000], [1]))        # 5 s of stream time, at once
+        assert src.host_time(5_000_000) <= time.perf_counter()
+        assert src.host_time(1000) <= src.host_time(5_000_000) - 4.99
+    finally:
+        os.close(w)
+        src.close()
+        os.close(r)
+
+
 def test_aer_words_round_trip_with_32_bit_wrap_and_without_timestamps():
     src = UdpAerSource("udp://127.0.0.1:0", SENSOR)
     try:
@@ -221,7 +266,7 @@ def test_stdin_run_equals_the_file_run_from_the_first_event(env, tmp_path):
     ev = events_of(env)
     data = stdin_header(SENSOR) + ev.tobytes()
     r = subprocess.run(cli(env["bundle"], "--events", "-", "--summary-json", tmp_path / "s.json",
-                           "--window-grace-ms", "1000"), input=data,
+                           "--window-grace-ms", "1000", "--queue-events", "300"), input=data,
                        capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
     assert r.returncode == 0, r.stderr
     ref = subprocess.run(cli(env["bundle"], "--events", env["rec"], "--start-us", int(ev["t"][0])),
@@ -251,6 +296,10 @@ def test_a_live_run_that_gets_no_event_says_so(env, tmp_path):
     assert "latency per window p50 -" in r.stdout.decode() + err
     (head,) = (tmp_path / "o.jsonl").read_text().splitlines()
     assert json.loads(head)["type"] == "header"
+    r = subprocess.run(cli(env["bundle"], "--events", "-"), input=stdin_header(SENSOR),
+                       capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
+    assert r.returncode == 0 and "toffe-deploy: warning: no events arrived from - (the stream held its header only)" \
+        in r.stderr.decode().splitlines()
 
 
 def _paced_stdin(ev, pieces, pause_s, stall_after=None):

@@ -448,8 +448,8 @@ def run_command(args) -> int:
         if live:
             summary.live = src.stats_json()
             if not summary.live.get("received_events"):
-                warn(f"no events arrived from {args.events} (a sender started before 'reading ...' was printed "
-                     "sends into nothing)")
+                warn(f"no events arrived from {args.events}" + (" (the stream held its header only)" if args.events == "-"
+                     else " (a sender started before 'reading ...' was printed sends into nothing)"))
     if errors is not None:
         summary.errors = errors.summary()
         if tracking is not None:

@@ -114,10 +114,13 @@ class LiveStats:
 
 class ChunkQueue:
     """Bounded FIFO of event chunks, counted in events. ``put`` never blocks: it drops the oldest
-    chunks until the new one fits (a chunk larger than the bound keeps its newest events)."""
+    chunks until the new one fits (a chunk larger than the bound keeps its newest events); with
+    ``block`` (a pipe, which can push back on its writer) it waits for room instead and drops
+    nothing (a chunk larger than the bound goes in alone)."""
 
-    def __init__(self, max_events: int, stats: LiveStats):
+    def __init__(self, max_events: int, stats: LiveStats, block: bool = False):
         self.max_events = int(max_events)
+        self.block = bool(block)
         self.stats = stats
         self._q: collections.deque = collections.deque()
         self._n = 0
@@ -131,7 +134,9 @@ class ChunkQueue:
             s = self.stats
             s.received_events += n
             s.received_chunks += 1
-            if n > self.max_events:                      # cut: it lost its oldest events (a drop, too)
+            while self.block and self._q and self._n + n > self.max_events and not self._closed:
+                self._cv.wait(_POLL_S)                   # the run takes chunks out (get notifies)
+            if n > self.max_events and not self.block:                      # cut: it lost its oldest events (a drop, too)
                 s.dropped_events += n - self.max_events
                 s.dropped_chunks += 1
                 chunk, n = chunk[n - self.max_events:], self.max_events
@@ -160,6 +165,7 @@ class ChunkQueue:
             if self._q:
                 chunk = self._q.popleft()
                 self._n -= chunk.shape[0]
+                self._cv.notify_all()                    # a blocked put has room now
                 return chunk
             if self._closed:
                 if self._error is not None:
@@ -176,6 +182,7 @@ class LiveSource(abc.ABC):
     live = True
     format_name = "live"
     ground_truth = None
+    blocking = False                      # the reader waits for room in the queue (a pipe) instead of dropping
 
     def __init__(self, name: str, sensor_size, max_events: int = QUEUE_EVENTS, idle_timeout_s: float = 0.0,
                  grace_s: float = GRACE_S):
@@ -187,7 +194,7 @@ class LiveSource(abc.ABC):
         self.idle_timeout_s = float(idle_timeout_s or 0.0)
         self.grace_s = float(grace_s)
         self.stats = LiveStats(queue_events=int(max_events))
-        self.queue = ChunkQueue(max_events, self.stats)
+        self.queue = ChunkQueue(max_events, self.stats, block=self.blocking)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._t_first: int | None = None
@@ -214,6 +221,9 @@ class LiveSource(abc.ABC):
             self._t_first, self._host_first = int(ev["t"][0]), now
             self._close_first = now
         t_max = int(ev["t"].max())
+        ahead = self.host_time(t_max) - now
+        if ahead > 0:                           # no event arrives before it happened: the clock's anchor
+            self._host_first -= ahead           # is the earliest arrival for its timestamp (latency >= 0)
         behind = now - (self._close_first + (t_max - self._t_first) * 1e-6)
         if behind > 0:                          # the producer is slower than real time: follow its pace
             self._close_first += behind
@@ -239,7 +249,9 @@ class LiveSource(abc.ABC):
 
     # ---- run side -----------------------------------------------------------------------
     def host_time(self, t_us: int) -> float:
-        """perf_counter() seconds at which an event stamped ``t_us`` happened (first-event mapping)."""
+        """perf_counter() seconds at which an event stamped ``t_us`` happened: the first event's
+        arrival, moved earlier whenever a chunk arrives before its events map to (a producer
+        ahead of real time: a file piped in, a sender that catches up)."""
         return self._host_first + (int(t_us) - (self._t_first or 0)) * 1e-6
 
     def close_time(self, t_us: int) -> float:
@@ -351,6 +363,7 @@ class LiveSource(abc.ABC):
 
     def close(self) -> None:
         self._stop.set()
+        self.queue.close()                      # a reader waiting for room (a pipe's) stops waiting
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         self._close_device()
@@ -370,6 +383,7 @@ class StdinSource(LiveSource):
     (x u16, y u16, t i64 us, p u8; little-endian, packed), time-sorted, until end of file."""
 
     format_name = "stdin"
+    blocking = True                       # a pipe pushes back on its writer: nothing is dropped
 
     def __init__(self, sensor_size=None, fd: int | None = None, **kw):
         self.fd = sys.stdin.fileno() if fd is None else fd
