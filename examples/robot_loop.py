@@ -48,12 +48,13 @@ def main(argv=None) -> int:
     if a.packet_us <= 0 or not a.max_ms > 0:
         ap.error(f"--packet-us and --max-ms must be > 0, got {a.packet_us}, {a.max_ms}")
     if a.sensor_size is not None:
+        text = a.sensor_size
         try:
-            a.sensor_size = tuple(int(v) for v in a.sensor_size.split(","))
+            a.sensor_size = tuple(int(v) for v in text.split(","))
         except ValueError:
             a.sensor_size = ()
         if len(a.sensor_size) != 2 or min(a.sensor_size) < 1:
-            ap.error(f"--sensor-size must be W,H in whole px, got {a.sensor_size!r}")
+            ap.error(f"--sensor-size must be W,H in whole px, got {text!r}")
     try:
         return loop(a)
     except ToffeError as exc:           # a missing or broken bundle or recording: one line, exit 2

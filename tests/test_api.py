@@ -118,7 +118,8 @@ def test_the_api_refuses_what_it_would_otherwise_drop_or_cast(env):
                     ({"ofpd_variant": "bogus"}, "unknown OFPD variant")):
         with pytest.raises(ValueError, match=msg):
             api.FlowStream(b, "cpu", **kw)
-    with api.FlowStream(b, "cpu", t_start_us=1000) as flow:
+    with api.FlowStream(b, "cpu", sensor_size=np.array([w, h]), t_start_us=np.array(1000), track=np.True_) as flow:
+        assert flow.t_start_us == 1000 and flow.pipeline.tracker is not None     # numpy forms of valid values
         with pytest.raises(ValueError, match="real numbers"):
             flow.feed(np.array([1 + 2j]), [1], [1000], [0])
         with pytest.raises(ValueError, match="before the first window"):

@@ -392,12 +392,17 @@ def test_the_next_write_clears_what_a_killed_writer_left(tmp_path, where):
         (target / "a").write_text("old")
     live = tmp_path / f".{target.name}.{os.getpid()}-abcdefgh.tmp"      # this process: alive
     live.write_text("x")
+    users = tmp_path / f".{target.name}.old-2"                           # a backup made by hand: not ours
+    users.mkdir()
+    stale = tmp_path / f".{target.name}.{os.getpid()}-zzzzzzzz.tmp"     # this pid, before this process: a
+    stale.write_text("x")                                                # container's fixed pid, reused
+    os.utime(stale, (1e9, 1e9))
     proc = subprocess.run([sys.executable, "-c", _KILLED_WRITER, str(target), where], capture_output=True)
     assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()
-    left = sorted(p.name for p in tmp_path.iterdir() if p != live)
+    left = sorted(p.name for p in tmp_path.iterdir() if p not in (live, users, stale))
     dead = f".{target.name}."
     if where == "between":                  # the target moved aside, not back, and the new one beside it
-        assert len(left) == 2 and left[0].endswith(".tmp") and left[1].startswith(f".{target.name}.old-")
+        assert len(left) == 2 and sorted(n.rsplit(".", 1)[1] for n in left) == ["old", "tmp"]
         assert not target.exists()
     elif where == "inside":
         assert len(left) == 2 and left[0].startswith(dead) and left[0].endswith(".tmp") and left[1] == target.name
@@ -416,5 +421,5 @@ def test_the_next_write_clears_what_a_killed_writer_left(tmp_path, where):
         with fileio.atomic_dir(target) as tmp:
             (tmp / "a").write_text("newer")
         assert (target / "a").read_text() == "newer"
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([target.name, live.name])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([target.name, live.name, users.name])
 

@@ -102,7 +102,8 @@ def test_a_blocking_queue_waits_for_room_and_drops_nothing():
     late.start()
     q.close()                                     # the source closed: the waiting put returns
     late.join(2.0)
-    assert not late.is_alive()
+    assert not late.is_alive() and stats.dropped_events == 0      # and evicted nothing
+    assert int(q.get(0)["x"][0]) == 3
 
 
 def test_the_clock_maps_no_event_after_its_arrival():

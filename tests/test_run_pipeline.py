@@ -519,12 +519,14 @@ print("loaded in windows", sorted(k for k in after if after[k] != before[k]))
 """
 
 
-@pytest.mark.parametrize("support", [True, False])
-def test_the_pipelines_windows_load_no_kernel_after_its_warm_up(tmp_path, make_bundle, make_recording, support):
+@pytest.mark.parametrize("support, history", [(True, True), (False, True), (False, False)])
+def test_the_pipelines_windows_load_no_kernel_after_its_warm_up(tmp_path, make_bundle, make_recording, support,
+                                                                 history):
     """Pipeline.__enter__ loads only the compiled kernels its own path calls (compiled.warm_up's
     groups: ~0.9 s less start-up); in a fresh process, its windows then load nothing more (a
     kernel first loaded in a window would cost that window 0.1-0.3 s). The shipped ckpt/'s
-    settings on a tiny sensor, with and without the front end's temporal support."""
+    settings on a tiny sensor, with and without the front end's temporal support and the plane
+    fit's windows before."""
     shipped = json.loads((ROOT / "ckpt" / "config.json").read_text())
     ofpd = dict(shipped["ofpd"], crop_px=32, pool=2, min_events=4)
     extra = {k: shipped[k] for k in ("input_norm", "input_min_cluster")}
@@ -532,6 +534,9 @@ def test_the_pipelines_windows_load_no_kernel_after_its_warm_up(tmp_path, make_b
         extra["input_support"] = shipped["input_support"]
     else:
         ofpd.pop("recent_events")
+    if not history:                          # the one-window plane fit (ckpt/full/, ckpt/subtract/ before it)
+        ofpd.pop("plane_fit_history")
+        ofpd.pop("outline_centre")
     b = make_bundle(tmp_path, ofs_pool=2, ofpd=ofpd, **extra)
     rec = make_recording(tmp_path / "rec.h5", duration=0.02)
     p = subprocess.run([sys.executable, "-c", _LOADS_NOTHING, str(b.root), str(rec)], capture_output=True, text=True,

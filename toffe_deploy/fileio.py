@@ -14,9 +14,11 @@ import json
 import math
 import os
 import re
+import secrets
 import shutil
 import stat
 import tempfile
+import time
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
@@ -70,8 +72,15 @@ def refuse_special(path: str | os.PathLike, name: str = "") -> None:
         raise InputError(path, f"{name}: {SPECIAL_WHY}" if name else SPECIAL_WHY)
 
 
-def _alive(pid: int) -> bool:
-    """Whether process ``pid`` exists (one of another user's counts as alive)."""
+_STARTED = time.time()     # a leftover named with this process's pid but older than it is an earlier process's
+
+
+def _alive(pid: int, mtime: float) -> bool:
+    """Whether the writer ``pid`` of a leftover last changed at ``mtime`` may still run: process
+    ``pid`` exists (one of another user's counts as alive) and is not this process, unless the
+    leftover is newer than it (a container's fixed pid, reused by every run)."""
+    if pid == os.getpid():
+        return mtime >= _STARTED - 1.0
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -90,22 +99,32 @@ def temp_prefix(path: Path) -> str:
 def clear_killed(path: Path, suffix: str = ".tmp") -> None:
     """Remove what an earlier writer of ``path`` that no longer runs left beside it: temporary
     files or directories (``.NAME.PID-XXXXXXXX`` + ``suffix``) and a directory it moved aside
-    (``.NAME.old-PID``), which is put back when ``path`` is missing (the writer was killed between
-    atomic_dir's two renames). A live writer's names are left alone."""
+    (``.NAME.PID-XXXXXXXX.old``), which is put back when ``path`` is missing (the writer was killed
+    between atomic_dir's two renames). A live writer's names are left alone. Limit: the pid is
+    this machine's; a writer in another pid namespace (another container or host writing into
+    the same directory) looks dead to it."""
     tmp = re.compile(rf"\.{re.escape(path.name)}\.(\d+)-[a-z0-9_]{{8}}{re.escape(suffix)}")
-    old = re.compile(rf"\.{re.escape(path.name)}\.old-(\d+)")
+    old = re.compile(rf"\.{re.escape(path.name)}\.(\d+)-[a-z0-9_]{{8}}\.old")
     try:
         names = os.listdir(path.parent)
     except OSError:
         return
     for name in names:
         m = tmp.fullmatch(name) or old.fullmatch(name)
-        if m is None or _alive(int(m.group(1))):
+        if m is None:
             continue
         p = path.parent / name
+        try:
+            mtime = os.lstat(p).st_mtime
+        except OSError:
+            continue                            # gone meanwhile (another writer cleared it)
+        if _alive(int(m.group(1)), mtime):
+            continue
         if m.re is old and not os.path.lexists(path):
-            os.replace(p, path)
-        elif p.is_dir() and not p.is_symlink():
+            with contextlib.suppress(OSError):  # another writer may put it back first
+                os.replace(p, path)
+                continue
+        if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
         else:
             with contextlib.suppress(OSError):
@@ -162,8 +181,9 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
             yield tmp
             os.chmod(tmp, 0o777 & ~_umask())       # mkdtemp makes 0700
             if path.exists():
-                old = path.with_name(f".{path.name}.old-{os.getpid()}")
-                os.replace(path, old)
+                aside = path.with_name(f"{temp_prefix(path)}{secrets.token_hex(4)}.old")
+                os.replace(path, aside)
+                old = aside                        # only once it is there: a failed move leaves nothing to undo
             os.replace(tmp, path)
         finally:
             if old is not None and not path.exists():

@@ -506,3 +506,14 @@ def dense_flow(frames: np.ndarray) -> np.ndarray:
     nz = np.nonzero(frames > 0)
     obj, bb, cc, ys, xs = (a.astype(np.int64) for a in nz)
     return object_planes_flow(obj, xs, ys, bb * 2 + cc, n, np.ones(n, np.bool_))
+
+
+def warm_up() -> None:
+    """Load (or compile) the one-window plane fit's kernels as the Pipeline calls them
+    (object_planes_flow on window_objects' int64 ones, the fusion rows), before the first window."""
+    z = np.zeros(1, np.int64)
+    object_planes_flow(z, z, z, z, 1, np.ones(1, np.bool_))
+    flow = np.full((1, 2), np.nan)
+    fuse_speed_rows(np.zeros(1), flow, 0.5, 0.0, 1.0)
+    fuse_direction_rows(np.ones((1, 2)), flow, 0.5)
+    flow_speed_rows(flow, 1.0)

@@ -80,7 +80,8 @@ def register(sub) -> None:
                                                        "as soon as the window is done")
     p.add_argument("--queue-events", type=int, default=None, metavar="N",
                    help=f"live sources: at most N events wait between the reader and the run; when more "
-                        f"arrive the oldest chunks are dropped and counted (default: {QUEUE_EVENTS})")
+                        f"arrive the oldest chunks are dropped and counted, except on stdin, whose reader "
+                        f"waits (a pipe pushes back; a larger read goes in alone) (default: {QUEUE_EVENTS})")
     p.add_argument("--idle-timeout", type=float, default=None, metavar="S",
                    help="live sources: end the run after S seconds without an event (default: 0, never; "
                         "stdin ends at end of file, dv:// when the sender stops, every source on Ctrl-C)")

@@ -80,13 +80,13 @@ def _reader(bag, path):
         raise InputError(path, "reading ROS bags needs the rosbags package (pip install rosbags)") from None
     with contextlib.ExitStack() as stack:
         bag = Path(bag)
-        if bag.is_file() and bag.suffix != ".bag":
-            # found by its content (#ROSBAG V2.0); rosbags picks its reader by the name's suffix, and
-            # `rosbag record` leaves a killed recording as NAME.bag.active: open it through a .bag link
-            tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="toffe-bag-")))
-            (tmp / "recording.bag").symlink_to(bag.resolve())
-            bag = tmp / "recording.bag"
         try:
+            if bag.is_file() and bag.suffix != ".bag":
+                # found by its content (#ROSBAG V2.0); rosbags picks its reader by the name's suffix, and
+                # `rosbag record` leaves a killed recording as NAME.bag.active: open it through a .bag link
+                tmp = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="toffe-bag-")))
+                (tmp / "recording.bag").symlink_to(bag.resolve())
+                bag = tmp / "recording.bag"
             reader = AnyReader([bag], default_typestore=typestore())
             reader.open()
         except Exception as exc:   # rosbags raises its own errors (and struct/sqlite ones) on bad bags

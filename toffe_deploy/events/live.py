@@ -136,6 +136,8 @@ class ChunkQueue:
             s.received_chunks += 1
             while self.block and self._q and self._n + n > self.max_events and not self._closed:
                 self._cv.wait(_POLL_S)                   # the run takes chunks out (get notifies)
+            if self.block and self._closed:
+                return                                   # closed while it waited: nobody reads on, evict nothing
             if n > self.max_events and not self.block:                      # cut: it lost its oldest events (a drop, too)
                 s.dropped_events += n - self.max_events
                 s.dropped_chunks += 1

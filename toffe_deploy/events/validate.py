@@ -57,6 +57,8 @@ def whole_number(name: str, v) -> int:
     """``v`` as an int when it is a whole number (a Python or numpy int, or a float like 640.0);
     ValueError for 640.7, true or "640", which int() turned silently into 640, 1 or 640
     (sensor sizes in files, integers in config.json)."""
+    if isinstance(v, np.ndarray) and v.ndim == 0:
+        v = v[()]                                # a 0-d array, as int() takes it
     if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)) \
             or not float(v).is_integer():
         raise ValueError(f"{name} must be a whole number, got {v!r}")

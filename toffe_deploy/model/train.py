@@ -430,7 +430,7 @@ def _fresh_state(out: Path, keep: bool) -> None:
     if not keep:
         shutil.rmtree(d, ignore_errors=True)
         return
-    for p in [*d.glob(".*.tmp"), *d.glob(".*.old-*")]:
+    for p in [*d.glob(".*.tmp"), *d.glob(".*.old"), *d.glob(".*.old-*")]:   # (.old-PID: before 2026-11-24)
         if p.is_dir():
             shutil.rmtree(p, ignore_errors=True)
         else:

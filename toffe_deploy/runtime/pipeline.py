@@ -43,6 +43,7 @@ from ..events.validate import whole_number
 from ..events.support import warm_up as support_warm_up
 from ..ofpd_io import Decoder, input_shape, ofpd_settings
 from ..plane_fit import PlaneFusion, object_planes_flow
+from ..plane_fit import warm_up as plane_fit_warm_up
 from ..outline_centre import outline_positions, outline_settings
 from ..outline_centre import warm_up as outline_warm_up
 from ..time_surface import OnesHistory, fuse_history
@@ -224,7 +225,7 @@ class Pipeline:
             raise ValueError(f"unknown target {target!r}; choose one of {', '.join(TARGETS)}")
         if tag not in TAGS:
             raise ValueError(f"unknown tag {tag!r}; choose one of {', '.join(TAGS)}")
-        if not (isinstance(track, (bool, TrackerConfig)) or track is None):
+        if not (isinstance(track, (bool, np.bool_, TrackerConfig)) or track is None):
             raise ValueError(f"track must be True, False or a TrackerConfig, got {track!r}")
         if speed_scale is not None and not isinstance(speed_scale, SpeedScale):
             raise ValueError(f"speed_scale must be a toffe_deploy.camera.SpeedScale(focal_px, depth_m), got {speed_scale!r}")
@@ -259,7 +260,7 @@ class Pipeline:
         self._decode = Decoder(self.config)          # ofpd_io.decode, set up once
         self._batch = ofpd_input.batch_settings(self.config)   # the same for ofpd_input.batch
         self._fusion = PlaneFusion(self.config)
-        self._track = track
+        self._track = bool(track) if isinstance(track, np.bool_) else track
         self.support = (SupportHistory(self.config.input_support[0], self.sensor_size, self.config.dt_us)
                         if self.config.input_support is not None else None)   # the front end's windows before
         h = self._fusion.history
@@ -312,6 +313,8 @@ class Pipeline:
             support_warm_up()
         if self.ones_history is not None:
             history_warm_up()
+        elif self._fusion.on:                # the one-window plane fit
+            plane_fit_warm_up()
         if self._outline is not None:
             outline_warm_up()
         self.cascade.__enter__()
