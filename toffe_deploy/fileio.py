@@ -123,7 +123,7 @@ def clear_killed(path: Path, suffix: str = ".tmp") -> None:
         if m.re is old and not os.path.lexists(path):
             with contextlib.suppress(OSError):  # another writer may put it back first
                 os.replace(p, path)
-                continue
+            continue                            # put back, or kept: never deleted while path is missing
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
         else:

@@ -138,7 +138,7 @@ class ChunkQueue:
                 self._cv.wait(_POLL_S)                   # the run takes chunks out (get notifies)
             if self.block and self._closed:
                 return                                   # closed while it waited: nobody reads on, evict nothing
-            if n > self.max_events and not self.block:                      # cut: it lost its oldest events (a drop, too)
+            if n > self.max_events and not self.block:   # cut: it lost its oldest events (a drop, too)
                 s.dropped_events += n - self.max_events
                 s.dropped_chunks += 1
                 chunk, n = chunk[n - self.max_events:], self.max_events
