@@ -298,17 +298,18 @@ class Pipeline:
         and cuda targets' fast path (pooled OFS grid, "blobs" grouping, no kept stages) calls the
         binning, the front end, pooled_cascade and one form of window_objects: loading only those
         halves start-up (~1.6 -> ~0.7 s); every other path loads all, as before."""
-        if not (self.sparse and self.config.ofs_pool > 1 and not self.keep_stages
-                and ofpd_settings(self.config)["grouping"] == "blobs"):
+        s = self._batch[0]                   # ofpd_settings(config), worked out once in __init__
+        if not (self.sparse and self.config.ofs_pool > 1 and not self.keep_stages and s["grouping"] == "blobs"):
             return None
-        recent = self.support is not None and ofpd_settings(self.config).get("recent_events") is not None
+        recent = self.support is not None and s.get("recent_events") is not None
         return ("binning", "front_end", "pooled", "objects_recent" if recent else "objects")
 
     def __enter__(self) -> "Pipeline":
         groups = self.warm_groups()
         if isinstance(self.cascade, CpuCascade):
-            self.cascade.warm_groups = groups
-        warm_up(groups)              # the compiled kernels (every target de-duplicates pixels with them)
+            self.cascade.warm_groups = groups   # its __enter__ below loads them (once, not here and there)
+        else:
+            warm_up(groups)          # the compiled kernels (every target de-duplicates pixels with them)
         if self.support is not None:
             support_warm_up()
         if self.ones_history is not None:
