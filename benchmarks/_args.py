@@ -10,6 +10,7 @@ runs the version on PYTHONPATH, possibly an older checkout).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 from pathlib import Path
@@ -24,7 +25,8 @@ except ImportError:           # a checkout older than the CLI's one-line parser 
     os_error_line = str
 
 __all__ = ["OneLineParser", "positive_int", "nonneg_int", "positive_float", "nonneg_float", "share", "int_in",
-           "comma_list", "existing_file", "existing_dir", "json_output", "cpu_core", "guarded"]
+           "comma_list", "existing_file", "existing_dir", "json_output", "cpu_core", "guarded", "key_value",
+           "apply_overrides"]
 
 positive_int = _number(int, 1, strict=False)        # an integer >= 1
 nonneg_int = _number(int, 0, strict=False)          # an integer >= 0
@@ -132,3 +134,50 @@ def guarded(prog: str, fn, *args) -> int:
     except OSError as exc:
         print(f"{prog}: error: {os_error_line(exc)}", file=sys.stderr)
         return 2
+
+
+#: config.ofpd keys read outside ofpd_io's defaults (plane_fit.py, outline_centre.py)
+FUSION_KEYS = ("plane_fit_weight", "plane_fit_min_px_ms", "plane_fit_dir_weight", "plane_fit_history",
+               "plane_fit_refits", "outline_centre")
+
+
+def key_value(text: str, option: str) -> tuple[str, object]:
+    """(KEY, JSON value) of ``KEY=VALUE``; ValueError naming the option otherwise."""
+    k, eq, v = text.partition("=")
+    if not eq or not k.strip():
+        raise ValueError(f"argument {option}: expected KEY=VALUE (VALUE in JSON), got {text!r}")
+    try:
+        return k.strip(), json.loads(v)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"argument {option}: {k.strip()}: the value is not JSON ({exc.msg}): {v!r}") from None
+
+
+def apply_overrides(cfg, ofpd: list, top: list):
+    """cfg with --ofpd and --config overrides (KEY, value pairs of ``key_value``), checked as a
+    config.json is (ToffeConfig.from_dict: one-line errors); an unknown key is refused, listing
+    the valid ones. The scripts that take them try a grouping or fusion setting on a trained
+    bundle without exporting a new one."""
+    import dataclasses
+
+    from toffe_deploy import ofpd_io
+    from toffe_deploy.plane_fit import refit_settings
+
+    if not (ofpd or top):
+        return cfg
+    valid_ofpd = sorted(set(ofpd_io.OFPD_DEFAULTS) | set(FUSION_KEYS) | set(cfg.ofpd or {}))
+    valid_top = sorted(f.name for f in dataclasses.fields(cfg) if f.name != "ofpd")
+    for option, pairs, valid in (("--ofpd", ofpd, valid_ofpd), ("--config", top, valid_top)):
+        unknown = [k for k, _ in pairs if k not in valid]
+        if unknown:
+            raise ToffeError(f"{option}: unknown key(s) {', '.join(unknown)} (valid: {', '.join(valid)})")
+    d = {**cfg.to_dict(), **dict(top)}
+    if ofpd:
+        d["ofpd"] = {**(cfg.ofpd or {}), **dict(ofpd)}
+    out = type(cfg).from_dict(d, path="the --ofpd / --config overrides")
+    try:
+        refit_settings(out)                              # what from_dict's validate does not read
+        ofpd_io.blob_settings(ofpd_io.ofpd_settings(out))  # the grouping's numbers (merge_frac, link_px, ...)
+    except (TypeError, ValueError) as exc:
+        given = ", ".join(f"{k}={v!r}" for k, v in ofpd)
+        raise ToffeError(f"--ofpd {given}: {exc}") from None
+    return out

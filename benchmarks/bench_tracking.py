@@ -19,8 +19,10 @@ ground-truth object, as the detections report them and as its track reports them
 and per ground-truth speed bin the mean direction error of the matched detections, as the
 detection reports it (this window only) and as its confirmed track's smoothed velocity does
 (tracked, causal: from past and current windows only). Prints one markdown row per split and
-a direction table; the JSON holds every figure and the settings, and each sequence's MOTA, IDF1, ID switches,
-misses and false positives (per_sequence).
+a direction table; the JSON holds every figure and the settings, and each sequence's detection
+recall and false positives per window, MOTA, IDF1, ID switches, misses and false positives
+(per_sequence). ``--ofpd KEY=VALUE`` / ``--config KEY=VALUE`` try a grouping or fusion setting
+on the bundle's trained weights without exporting a new bundle (as detect_diagnose.py).
 
 ``--save-detections DIR``: also write each split's per-window detections (the pipeline's
 objects, before tracking) to DIR/SPLIT.jsonl (JSON lines: a header {"split", "files", "fields",
@@ -60,8 +62,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _args import (OneLineParser, existing_file, guarded, json_output, nonneg_float,  # noqa: E402
-                   nonneg_int, positive_float, positive_int)
+from _args import (OneLineParser, apply_overrides, existing_file, guarded, json_output,  # noqa: E402
+                   key_value, nonneg_float, nonneg_int, positive_float, positive_int)
 
 
 def bin_flicker(rows) -> int:
@@ -179,6 +181,7 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
             track.new_sequence()
             own = TrackingErrors(gate)                      # this sequence alone (per_sequence)
             own.new_sequence()
+            own_flow = FlowErrors(gate_px=gate, n_bins=cfg.n_speed_bins, pred_scale=cfg.speed_scale)
             with contextlib.ExitStack() as stack:
                 if saved is None:
                     pipe = stack.enter_context(Pipeline(bundle, "cpu", sensor_size=sensor, track=settings,
@@ -191,6 +194,7 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                         keep.append((fi, res.t0_us, res.objects))
                     gt = truth.window(res.t0_us, cfg.dt_us)
                     flow.add_window(predictions_of(res.objects), gt, focal)
+                    own_flow.add_window(predictions_of(res.objects), gt, focal)
                     track.add_result(res, gt)
                     own.add_result(res, gt)
                     for i, j in match_gated([(o.x, o.y) for o in res.objects], [(t.x, t.y) for t in gt], gate):
@@ -205,8 +209,9 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                                 dir_trk[b].append(angle_err_deg(math.radians(o.track["direction_deg"]),
                                                                 gt[i].direction))
                     n_win += 1
-            m = own.summary()
-            per_sequence.append({"sequence": Path(path).stem, "mota": m["mota"], "idf1": m["idf1"],
+            m, d = own.summary(), own_flow.summary()
+            per_sequence.append({"sequence": Path(path).stem, "recall": d["recall"],
+                                 "fp_per_window": d["fp_per_window"], "mota": m["mota"], "idf1": m["idf1"],
                                  "id_switches": m["id_switches"], "misses": m["misses"],
                                  "false_positives": m["false_positives"]})
     e = flow.summary()
@@ -438,12 +443,19 @@ def main(argv=None) -> int:
     ap.add_argument("--detections", type=Path, metavar="DIR",
                     help="replay DIR/SPLIT.jsonl (--save-detections) into the tracker instead of running the pipeline")
     ap.add_argument("--json", type=json_output)
+    ap.add_argument("--ofpd", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a config.ofpd key of the bundle (JSON value), e.g. edge_merge_frac=1.2: a grouping "
+                         "or fusion setting tried without exporting a bundle")
+    ap.add_argument("--config", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a top-level config key of the bundle (JSON value)")
     ap.add_argument("--cost", action="store_true", help="measure the tracker's CPU time per window instead")
     ap.add_argument("--events", type=existing_file, default=str(ROOT / "toffe_deploy" / "samples" / "sample_multi.h5"))
     ap.add_argument("--repeats", type=positive_int, default=5)
     a = ap.parse_args(argv)
     try:
         settings = _settings(a)
+        a.ofpd = [key_value(kv, "--ofpd") for kv in a.ofpd]
+        a.config = [key_value(kv, "--config") for kv in a.config]
     except ValueError as exc:
         ap.error(str(exc))
     if a.detections is not None and a.truth_blobs:
@@ -463,6 +475,8 @@ def run(a, settings) -> int:
             tmp.write_text(json_text(obj, indent=1) + "\n")
 
     bundle = load_bundle(a.bundle)
+    if a.ofpd or a.config:
+        bundle = dataclasses.replace(bundle, config=apply_overrides(bundle.config, a.ofpd, a.config))
     check_outputs(files=[("--json", a.json)], dirs=[("--save-detections", a.save_detections)])
     if a.cost:
         c = tracker_cost(bundle, a.events, settings, a.repeats)

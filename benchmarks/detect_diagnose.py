@@ -62,11 +62,9 @@ from toffe_deploy import ofpd_io  # noqa: E402
 from toffe_deploy.compiled import min_gap, surrounds  # noqa: E402
 from toffe_deploy.errors import InputError, ToffeError  # noqa: E402
 from toffe_deploy.metrics import GATE_PX, match_gated  # noqa: E402
-from _args import OneLineParser, existing_dir, existing_file, guarded, json_output, positive_int  # noqa: E402
+from _args import (OneLineParser, apply_overrides, existing_dir, existing_file, guarded, json_output,  # noqa: E402
+                   key_value, positive_int)
 
-#: config.ofpd keys read outside ofpd_io's defaults (plane_fit.py, outline_centre.py)
-FUSION_KEYS = ("plane_fit_weight", "plane_fit_min_px_ms", "plane_fit_dir_weight", "plane_fit_history",
-               "plane_fit_refits", "outline_centre")
 NEAR_PAD = 8.0        # R = size / 2 + NEAR_PAD around a true object
 FP_PAD = 10.0
 
@@ -87,49 +85,11 @@ def parse_args(argv=None):
                     help="only print the tables of a --json file written earlier")
     a = ap.parse_args(argv)
     try:
-        a.ofpd = [_key_value(kv, "--ofpd") for kv in a.ofpd]
-        a.config = [_key_value(kv, "--config") for kv in a.config]
+        a.ofpd = [key_value(kv, "--ofpd") for kv in a.ofpd]
+        a.config = [key_value(kv, "--config") for kv in a.config]
     except ValueError as exc:
         ap.error(str(exc))
     return a
-
-
-def _key_value(text: str, option: str) -> tuple[str, object]:
-    """(KEY, JSON value) of ``KEY=VALUE``; ValueError naming the option otherwise."""
-    k, eq, v = text.partition("=")
-    if not eq or not k.strip():
-        raise ValueError(f"argument {option}: expected KEY=VALUE (VALUE in JSON), got {text!r}")
-    try:
-        return k.strip(), json.loads(v)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"argument {option}: {k.strip()}: the value is not JSON ({exc.msg}): {v!r}") from None
-
-
-def apply_overrides(cfg, ofpd: list, top: list):
-    """cfg with the --ofpd and --config overrides, checked as a config.json is
-    (ToffeConfig.from_dict: one-line errors); an unknown key is refused, listing the valid ones."""
-    import dataclasses
-
-    from toffe_deploy.plane_fit import refit_settings
-
-    if not (ofpd or top):
-        return cfg
-    valid_ofpd = sorted(set(ofpd_io.OFPD_DEFAULTS) | set(FUSION_KEYS) | set(cfg.ofpd or {}))
-    valid_top = sorted(f.name for f in dataclasses.fields(cfg) if f.name != "ofpd")
-    for option, pairs, valid in (("--ofpd", ofpd, valid_ofpd), ("--config", top, valid_top)):
-        unknown = [k for k, _ in pairs if k not in valid]
-        if unknown:
-            raise ToffeError(f"{option}: unknown key(s) {', '.join(unknown)} (valid: {', '.join(valid)})")
-    d = {**cfg.to_dict(), **dict(top)}
-    if ofpd:
-        d["ofpd"] = {**(cfg.ofpd or {}), **dict(ofpd)}
-    out = type(cfg).from_dict(d, path="the --ofpd / --config overrides")
-    try:
-        refit_settings(out)                              # what from_dict's validate does not read
-        ofpd_io.blob_settings(ofpd_io.ofpd_settings(out))  # the grouping's numbers (merge_frac, link_px, ...)
-    except (TypeError, ValueError) as exc:
-        raise ToffeError(f"--ofpd: {exc}") from None
-    return out
 
 
 def _sorted_x(xs, ys):

@@ -115,6 +115,7 @@ CASES = [
     ("bench_tracking", ["--limit", "-1"]), ("bench_tracking", ["--score-gate", "0"]),
     ("bench_tracking", ["--score-gate", "nan"]), ("bench_tracking", ["--cost", "--repeats", "0"]),
     ("bench_tracking", ["--json", "/tmp"]), ("bench_tracking", ["--data", MISSING]),
+    ("bench_tracking", ["--ofpd", "merge_frac"]), ("bench_tracking", ["--config", "input_min_cluster=x"]),
     ("detect_diagnose", ["--max-windows", "0"]), ("detect_diagnose", ["--dt", "0"]),
     ("detect_diagnose", ["--dt", "-500"]), ("detect_diagnose", ["--ofpd", "merge_frac=0.3x"]),
     ("detect_diagnose", ["--ofpd", "merge_frac"]), ("detect_diagnose", ["--render", MISSING]),
@@ -240,6 +241,10 @@ def test_bench_tracking_missing_detections_and_file_as_save_dir(tmp_path, make_b
     assert rc == 2 and "not a directory" in _one_line_error(capsys, rc)
     rc = mod.main(base[:-1] + ["nosuch"])
     assert rc == 2 and "no sequences in split 'nosuch'" in _one_line_error(capsys, rc)
+    rc = mod.main(base + ["--ofpd", "nosuch=1"])
+    assert rc == 2 and "--ofpd: unknown key(s) nosuch (valid: " in _one_line_error(capsys, rc)
+    rc = mod.main(base + ["--ofpd", "merge_frac=\"x\""])
+    assert rc == 2 and "merge_frac" in _one_line_error(capsys, rc)
     assert capsys.readouterr().out == ""                    # nothing printed before the refusals
 
 

@@ -348,6 +348,22 @@ def test_a_producer_slower_than_real_time_loses_no_event(env):
         assert np.array_equal(got, ev[(ev["t"] >= t0) & (ev["t"] < t0 + 500)])
 
 
+def test_events_out_of_time_order_within_their_window_are_sorted_in_and_counted(env):
+    """Two neighbouring events of one window swapped by the producer: the window is the file's
+    (sorted back), nothing is late, and the one event that came behind a later stamp is counted."""
+    ev = events_of(env).copy()
+    t = ev["t"]
+    i = next(i for i in range(len(ev) // 2, len(ev) - 1)
+             if t[i] < t[i + 1] and (t[i] - t[0]) // 500 == (t[i + 1] - t[0]) // 500)
+    swapped = ev.copy()
+    swapped[[i, i + 1]] = ev[[i + 1, i]]
+    wins, stats = _paced_stdin(swapped, pieces=2, pause_s=0.02)
+    assert stats.late_events == 0 and stats.reordered_events == 1 and stats.received_events == len(ev)
+    for t0, got in wins:
+        assert np.array_equal(got, ev[(t >= t0) & (t < t0 + 500)])
+    assert sum(len(w) for _t0, w in wins) == len(ev)
+
+
 def test_the_window_grid_is_the_first_event_as_it_came_however_the_pipe_cuts_it(env):
     """An event stamped earlier than the first one, in the first chunk: the first chunk was
     sorted before the grid was fixed, so the grid started at that event when it came in the

@@ -106,6 +106,7 @@ class LiveStats:
     dropped_chunks: int = 0         # chunks dropped whole, or cut to the queue's size (one larger than it)
     dropped_windows: int = 0        # windows jumped over after a drop (their events are gone: no line)
     late_events: int = 0
+    reordered_events: int = 0       # came after a later-stamped event but in time: sorted into their window
     invalid_events: int = 0         # UDP: addresses outside the sensor (dropped, not fatal)
     socket_drops: int = 0           # UDP: datagrams the kernel dropped (socket buffer full; Linux)
     queue_events: int = 0
@@ -353,7 +354,9 @@ class LiveSource(abc.ABC):
             chunk = chunk[~late]
         out = np.concatenate([buf, chunk]) if buf.shape[0] else chunk
         if out.shape[0] > 1 and (np.diff(out["t"]) < 0).any():
-            out = out[np.argsort(out["t"], kind="stable")]
+            t = out["t"]                       # buf is sorted: the events behind the latest stamp before them
+            self.stats.reordered_events += int((t[1:] < np.maximum.accumulate(t)[:-1]).sum())
+            out = out[np.argsort(t, kind="stable")]
         return out
 
     def stats_json(self) -> dict:

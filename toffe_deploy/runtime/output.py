@@ -265,6 +265,8 @@ def live_line(stats: dict, latencies_s: list[float]) -> str:
             f"{stats['received_events']} events in {stats['received_chunks']} chunks received, "
             f"{stats['dropped_events']} dropped in {stats['dropped_chunks']} chunks (queue of "
             f"{stats['queue_events']} events, peak {stats['peak_queue_events']}), {stats['late_events']} late"
+            + (f", {stats['reordered_events']} out of time order put back in order" if stats.get("reordered_events")
+               else "")
             + (f"; {stats['dropped_windows']} windows whose events were dropped jumped over (no JSON line, "
                "not counted as sensor time done)" if stats.get("dropped_windows") else "")
             + (f", {stats['invalid_events']} outside the sensor" if stats.get("invalid_events") else "")
