@@ -504,7 +504,7 @@ def run(a, settings) -> int:
         if a.save_detections is not None:
             check_outputs(files=[("--save-detections", a.save_detections / f"{split}.jsonl")])
     out = {"bundle": a.bundle, "settings": dataclasses.asdict(settings), "max_windows": a.max_windows,
-           "score_gate_px": a.score_gate, "splits": {}}
+           "score_gate_px": a.score_gate, "overrides": {"ofpd": dict(a.ofpd), "config": dict(a.config)}, "splits": {}}
     if a.truth_blobs:
         out["detections"] = "truth_blobs"
         out["truth_merge"] = a.truth_merge

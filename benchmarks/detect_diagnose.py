@@ -60,7 +60,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from toffe_deploy import ofpd_io  # noqa: E402
 from toffe_deploy.compiled import min_gap, surrounds  # noqa: E402
-from toffe_deploy.errors import InputError, ToffeError  # noqa: E402
+from toffe_deploy.errors import InputError  # noqa: E402
 from toffe_deploy.metrics import GATE_PX, match_gated  # noqa: E402
 from _args import (OneLineParser, apply_overrides, existing_dir, existing_file, guarded, json_output,  # noqa: E402
                    key_value, positive_int)
