@@ -280,3 +280,21 @@ def test_fit_plane_fit_refuses_an_unknown_check_split(tmp_path, capsys):
     (data / "train" / "s.h5").write_bytes(b"")
     rc = _load("fit_plane_fit").main(["--ckpt", str(tmp_path / "ckpt"), "--data", str(data), "--check", "nosuch"])
     assert rc == 2 and "no sequences in split 'nosuch'" in _one_line_error(capsys, rc)
+
+
+def test_bench_tracking_recall_by_events_per_edge():
+    """The misses of objects the sensor hardly sees (about 1 event per passing edge) are told
+    from the rest: the recall over objects at or above each threshold, from the attrs the
+    generator writes (a dict, or its JSON text), nothing for a recording without them."""
+    mod = _load("bench_tracking")
+    app = {"objects": [{"events_per_edge": 0.9}, {"events_per_edge": 2.4}]}
+    assert mod.events_per_edge({"appearance": app}) == {0: 0.9, 1: 2.4}
+    assert mod.events_per_edge({"appearance": json.dumps(app)}) == {0: 0.9, 1: 2.4}
+    assert mod.events_per_edge({}) == {} and mod.events_per_edge({"appearance": "not json"}) == {}
+    rows = [{"events_per_edge": 0.9, "windows": 100, "detected": 10},
+            {"events_per_edge": 1.3, "windows": 100, "detected": 90},
+            {"events_per_edge": 2.4, "windows": 200, "detected": 200}]
+    r = mod.recall_by_events_per_edge(rows)
+    assert r[">=1.0"] == {"objects": 2, "windows": 300, "recall": 290 / 300}
+    assert r[">=1.5"]["recall"] == 1.0 and r[">=2.0"]["objects"] == 1
+    assert mod.recall_by_events_per_edge(rows + [{"events_per_edge": None, "windows": 5, "detected": 0}]) == {}
