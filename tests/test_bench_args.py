@@ -298,3 +298,4 @@ def test_bench_tracking_recall_by_events_per_edge():
     assert r[">=1.0"] == {"objects": 2, "windows": 300, "recall": 290 / 300}
     assert r[">=1.5"]["recall"] == 1.0 and r[">=2.0"]["objects"] == 1
     assert mod.recall_by_events_per_edge(rows + [{"events_per_edge": None, "windows": 5, "detected": 0}]) == {}
+    assert mod._object_count({"objects": json.dumps([{}, {}])}) == 2 and mod._object_count({}) == 0
