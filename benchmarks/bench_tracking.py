@@ -24,8 +24,10 @@ recall and false positives per window, MOTA, IDF1, ID switches, misses and false
 (per_sequence), and each object's windows and detected windows with its events per passing
 edge where the generator recorded it (per_object; recall_by_events_per_edge: the recall of the
 objects that fire at least 1 / 1.2 / 1.5 / 2 events per edge, also printed: the misses of
-objects the sensor hardly sees told from the pipeline's own). ``--ofpd KEY=VALUE`` / ``--config KEY=VALUE`` try a grouping or fusion setting
-on the bundle's trained weights without exporting a new bundle (as detect_diagnose.py).
+objects the sensor hardly sees told from the pipeline's own), and the tracking metrics again
+over the sequences whose every object fires at least 1 (tracking_visible). ``--ofpd
+KEY=VALUE`` / ``--config KEY=VALUE`` try a grouping or fusion setting on the bundle's trained
+weights without exporting a new bundle (as detect_diagnose.py).
 
 ``--save-detections DIR``: also write each split's per-window detections (the pipeline's
 objects, before tracking) to DIR/SPLIT.jsonl (JSON lines: a header {"split", "files", "fields",
@@ -277,14 +279,20 @@ EDGE_EVENTS = (1.0, 1.2, 1.5, 2.0)
 VISIBLE_EDGE_EVENTS = 1.0
 
 
+def _json_attr(attrs: dict, key: str):
+    """attrs[key] as the generator wrote it (a JSON text or the value it decodes to), None if absent or not JSON."""
+    v = attrs.get(key) if isinstance(attrs, dict) else None
+    if isinstance(v, str):
+        try:
+            return json.loads(v)
+        except json.JSONDecodeError:
+            return None
+    return v
+
+
 def _object_count(attrs: dict) -> int:
     """How many objects a generated sequence holds (its ``objects`` attrs), 0 when not known."""
-    objs = attrs.get("objects") if isinstance(attrs, dict) else None
-    if isinstance(objs, str):
-        try:
-            objs = json.loads(objs)
-        except json.JSONDecodeError:
-            return 0
+    objs = _json_attr(attrs, "objects")
     return len(objs) if isinstance(objs, list) else 0
 
 
@@ -292,12 +300,7 @@ def events_per_edge(attrs: dict) -> dict:
     """{object id: events per passing edge} that the generator recorded for a sequence (its
     ``appearance`` attrs: |log contrast| / contrast threshold, `dataset synth`'s randomized
     splits); {} for a recording without them."""
-    app = attrs.get("appearance") if isinstance(attrs, dict) else None
-    if isinstance(app, str):
-        try:
-            app = json.loads(app)
-        except json.JSONDecodeError:
-            return {}
+    app = _json_attr(attrs, "appearance")
     objs = app.get("objects") if isinstance(app, dict) else None
     if not isinstance(objs, list):
         return {}
@@ -534,6 +537,9 @@ def main(argv=None) -> int:
         ap.error(str(exc))
     if a.detections is not None and a.truth_blobs:
         ap.error("--detections replays the pipeline's detections; --truth-blobs makes its own: give one")
+    if (a.ofpd or a.config) and (a.detections is not None or a.truth_blobs):
+        ap.error("--ofpd and --config change the pipeline's detections; --detections and --truth-blobs do not "
+                 "run it")
     return guarded("bench_tracking", run, a, settings)
 
 

@@ -116,6 +116,8 @@ CASES = [
     ("bench_tracking", ["--score-gate", "nan"]), ("bench_tracking", ["--cost", "--repeats", "0"]),
     ("bench_tracking", ["--json", "/tmp"]), ("bench_tracking", ["--data", MISSING]),
     ("bench_tracking", ["--ofpd", "merge_frac"]), ("bench_tracking", ["--config", "input_min_cluster=x"]),
+    ("bench_tracking", ["--ofpd", "merge_frac=0.3", "--truth-blobs"]),
+    ("bench_tracking", ["--ofpd", "merge_frac=0.3", "--detections", "/tmp"]),
     ("detect_diagnose", ["--max-windows", "0"]), ("detect_diagnose", ["--dt", "0"]),
     ("detect_diagnose", ["--dt", "-500"]), ("detect_diagnose", ["--ofpd", "merge_frac=0.3x"]),
     ("detect_diagnose", ["--ofpd", "merge_frac"]), ("detect_diagnose", ["--render", MISSING]),
