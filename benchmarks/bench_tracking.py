@@ -433,7 +433,7 @@ def _settings(a):
                          handover_px=a.handover, handover_reach=a.handover_reach,
                          handover_windows=a.handover_windows, handover_speed_ratio=a.handover_speed_ratio,
                          parting=a.parting, parting_heading_px=a.parting_heading,
-                         parting_events_px=a.parting_events)
+                         parting_events_px=a.parting_events, parting_turn_rad=a.parting_turn)
 
 
 def main(argv=None) -> int:
@@ -511,6 +511,8 @@ def main(argv=None) -> int:
                     help="parting_heading_px: parting cost (px) per radian of direction difference")
     ap.add_argument("--parting-events", type=float, default=d.parting_events_px,
                     help="parting_events_px: parting cost (px) per unit of ln(event ones) difference (0: off)")
+    ap.add_argument("--parting-turn", type=float, default=d.parting_turn_rad,
+                    help="parting_turn_rad: the most a track's state from before its blob turns when carried to now (rad)")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--truth-merge", type=nonneg_float, default=1.0, metavar="F",

@@ -77,7 +77,10 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                or swapped by the cheaper pairing of
                    c(i, k) = |P_i(t) - z_k| + parting_heading_px q_k |angle(u_k, R(w_i (t - t_b)) v_i)|
                              + parting_events_px |ln n_k - a_i|
-               (P_i: track i's copy carried to now at constant turn rate; q_k as in associate;
+               (P_i: track i's copy carried to now at constant turn rate, the whole turn
+               |w_i (t - t_b)| at most parting_turn_rad: a turn rate measured before the blob
+               does not last its tens of windows, and at the full rate a curving object's copy
+               swung tens of px off and the pairing took the wrong way; q_k as in associate;
                n_k the detection's event ones, a_i the copy's mean ln(event ones) of its own
                detections, EVENTS_BETA; the term is left out where either is not known).
                Why: in a blob the taker follows the blob's centre, which is neither object's,
@@ -193,7 +196,10 @@ class TrackerConfig:
     their ids by which way round their motion and look before the blob fit the two detections
     (position, plus parting_heading_px per radian of direction difference, weighted as
     heading_cost_px's q_j, plus parting_events_px per unit of |ln(event ones) - the track's mean
-    ln(event ones) before the blob|; 0: motion alone)."""
+    ln(event ones) before the blob|; 0: motion alone); parting_turn_rad: the most a kept state
+    turns in all when carried to now (the turn rate measured before a blob does not last the tens
+    of windows a blob can: carried at its full rate, a curving object's state swung far off;
+    docs/tracking-log.md)."""
 
     gate_px: float = 17.0
     gate_growth: float = 0.5
@@ -234,6 +240,7 @@ class TrackerConfig:
     parting: bool = True
     parting_heading_px: float = 40.0
     parting_events_px: float = 60.0
+    parting_turn_rad: float = 0.3
 
     def __post_init__(self):
         for f in fields(self):                  # kinds first: NaN, strings or 2.5 windows fail here
@@ -278,6 +285,8 @@ class TrackerConfig:
             raise ValueError(f"parting_heading_px must be >= 0, got {self.parting_heading_px}")
         if not self.parting_events_px >= 0:
             raise ValueError(f"parting_events_px must be >= 0, got {self.parting_events_px}")
+        if not self.parting_turn_rad >= 0:
+            raise ValueError(f"parting_turn_rad must be >= 0, got {self.parting_turn_rad}")
         if not (min(self.handover_px, self.handover_reach, self.handover_windows) >= 0
                 and self.handover_speed_ratio >= 1):
             raise ValueError("handover_px, handover_reach and handover_windows must be >= 0 and "
@@ -864,12 +873,15 @@ PARTING_WAIT = 10
 _FILTER = [X, Y, VX, VY, S, BIN, HX, HY, W, LX, LY, LT, UX, UY, EV]
 
 
-def _carried(before: list, t_us: int) -> tuple[float, float, float]:
+def _carried(before: list, t_us: int, max_turn: float = math.inf) -> tuple[float, float, float]:
     """(x, y, direction) of a track's state from before its blob (its row, t_b) carried to t_us
-    at its constant turn rate: x + int_0^T R(w t) v dt (closed form)."""
+    at its constant turn rate: x + int_0^T R(w t) v dt (closed form), the rate lowered so that the
+    whole turn |w T| is at most max_turn (rad)."""
     row, tb = before[0], before[1]
     T = (t_us - tb) * 1e-6
     vx, vy, w = row[VX], row[VY], row[W]
+    if abs(w * T) > max_turn:
+        w = math.copysign(max_turn / T, w)
     a = w * T
     if abs(a) < 1e-9:
         dx, dy = vx * T, vy * T
@@ -1008,10 +1020,10 @@ class Tracker:
             for r2 in free[i + 1:]:
                 b1, b2 = before[id_now[r1]], before[id_now[r2]]
                 tb = max(b1[1], b2[1])                       # were the two near each other before?
-                q1, q2 = _carried(b1, tb), _carried(b2, tb)
+                q1, q2 = _carried(b1, tb, s.parting_turn_rad), _carried(b2, tb, s.parting_turn_rad)
                 if math.hypot(q1[0] - q2[0], q1[1] - q2[1]) > s.merge_px:
                     continue
-                p1, p2 = _carried(b1, t0_us), _carried(b2, t0_us)
+                p1, p2 = _carried(b1, t0_us, s.parting_turn_rad), _carried(b2, t0_us, s.parting_turn_rad)
                 k1, k2 = det_of[r1], det_of[r2]
                 c = [[_part_cost(p, b[0][EV], zr, n, k, s.parting_heading_px, s.parting_events_px, s.heading_px,
                                  dt_s) for k in (k1, k2)] for p, b in ((p1, b1), (p2, b2))]
