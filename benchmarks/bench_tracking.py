@@ -433,7 +433,8 @@ def _settings(a):
                          handover_px=a.handover, handover_reach=a.handover_reach,
                          handover_windows=a.handover_windows, handover_speed_ratio=a.handover_speed_ratio,
                          parting=a.parting, parting_heading_px=a.parting_heading,
-                         parting_events_px=a.parting_events, parting_turn_rad=a.parting_turn)
+                         parting_events_px=a.parting_events, parting_turn_rad=a.parting_turn,
+                         coast_turn_rad=a.coast_turn)
 
 
 def main(argv=None) -> int:
@@ -513,6 +514,8 @@ def main(argv=None) -> int:
                     help="parting_events_px: parting cost (px) per unit of ln(event ones) difference (0: off)")
     ap.add_argument("--parting-turn", type=float, default=d.parting_turn_rad,
                     help="parting_turn_rad: the most a track's state from before its blob turns when carried to now (rad)")
+    ap.add_argument("--coast-turn", type=float, default=d.coast_turn_rad,
+                    help="coast_turn_rad: the most a track's prediction turns over a run of windows without its own detection (rad)")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--truth-merge", type=nonneg_float, default=1.0, metavar="F",

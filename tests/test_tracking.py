@@ -639,7 +639,7 @@ def test_settings_reject_nonsense_nan_and_wrong_kinds_with_a_value_error():
                 dict(birth_gap_px=math.nan), dict(handover_px="40"), dict(reid_ratio_missed=1),
                 dict(hidden_px=math.inf), dict(parting_heading_px=-1), dict(parting_heading_px=math.nan),
                 dict(parting_events_px=-1), dict(parting_events_px=math.nan), dict(parting_events_px=math.inf),
-                dict(parting_turn_rad=-0.1), dict(parting_turn_rad=math.nan),
+                dict(parting_turn_rad=-0.1), dict(parting_turn_rad=math.nan), dict(coast_turn_rad=-1),
                 dict(parting=1)):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
@@ -825,3 +825,36 @@ def test_nan_costs_do_not_hang_the_matching():
     objs = [Obj(112.0, 205.0, math.nan, 4000.0), Obj(113.0, 207.0, math.nan, 4000.0)]   # both in both gates
     tr.update(objs, 6 * DT_US)
     assert all(o.track_id is not None for o in objs)
+
+
+def _heading_turned_while_hidden(settings, turn_per_window=0.08, seen=40, hidden=18):
+    """An object on a circle (2 px a window, turning turn_per_window rad a window) seen for
+    `seen` windows, then not at all for `hidden`: -> (the track's heading change over the hidden
+    windows (rad), the turn rate it had learnt (rad a window))."""
+    from toffe_deploy.tracking import VX, VY, W
+
+    tr = Tracker(CFG, DT_US, settings)
+    x, y, th = 100.0, 200.0, 0.0
+    for w in range(seen):
+        tr.update([Obj(x, y, th, 4000.0)], w * DT_US)
+        x, y, th = x + 2.0 * math.cos(th), y + 2.0 * math.sin(th), th + turn_per_window
+    (row,) = tr.tracks.a
+    before, rate = math.atan2(row[VY], row[VX]), row[W] * DT_US * 1e-6
+    for w in range(seen, seen + hidden):
+        tr.update([], w * DT_US)
+    (row,) = tr.tracks.a
+    return (math.atan2(row[VY], row[VX]) - before + math.pi) % (2 * math.pi) - math.pi, rate
+
+
+def test_a_hidden_track_turns_at_most_coast_turn_rad_then_goes_straight():
+    """A turn rate learnt before an object was hidden does not last the tens of windows it can
+    stay hidden: the prediction turns by at most coast_turn_rad (0.6 rad) in all over the
+    windows without its own detection, where at the full rate it would turn on (18 x the
+    learnt rate here)."""
+    turned, rate = _heading_turned_while_hidden(TrackerConfig())
+    assert rate > 0.05 and 18 * rate > 0.9                                  # the rate alone: > 0.9 rad
+    assert turned == pytest.approx(0.6, abs=1e-6)
+    free, _ = _heading_turned_while_hidden(TrackerConfig(coast_turn_rad=1e6))
+    assert free == pytest.approx(18 * rate, rel=1e-6)
+    still, _ = _heading_turned_while_hidden(TrackerConfig(), hidden=5)      # a short gap: the full rate
+    assert still == pytest.approx(5 * rate, rel=1e-6)

@@ -5,7 +5,11 @@ the object flow it measures (position, direction, speed) is what makes tracking 
 window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and px/s:
 
     predict    v_i' = R(w_i dt) v_i,  p_i' = p_i + R(w_i dt / 2) v_i dt   (constant turn rate w_i;
-               R(a) rotates by a; w_i = 0 is constant velocity)
+               R(a) rotates by a; w_i = 0 is constant velocity); over a run of m_i + b_i
+               windows without its own detection (below) the turn adds up to at most
+               coast_turn_rad, then the prediction goes straight on (a turn rate measured
+               before an object was hidden does not last; at its full rate a curving object's
+               prediction swung off it: docs/tracking-log.md)
     associate  d_ij = |p_i' - z_j|; pairs within the gate d_ij <= R_i, the most pairs then the
                least total distance (assignment.match_pairs: Hungarian on the gated matrix),
                confirmed tracks first, then tentative ones with the detections left over;
@@ -199,7 +203,9 @@ class TrackerConfig:
     ln(event ones) before the blob|; 0: motion alone); parting_turn_rad: the most a kept state
     turns in all when carried to now (the turn rate measured before a blob does not last the tens
     of windows a blob can: carried at its full rate, a curving object's state swung far off;
-    docs/tracking-log.md)."""
+    docs/tracking-log.md); coast_turn_rad: the same bound on a track's own prediction over a run
+    of windows without its own detection (missed, or in a blob of two): beyond it the
+    prediction goes straight on."""
 
     gate_px: float = 17.0
     gate_growth: float = 0.5
@@ -241,6 +247,7 @@ class TrackerConfig:
     parting_heading_px: float = 40.0
     parting_events_px: float = 60.0
     parting_turn_rad: float = 0.3
+    coast_turn_rad: float = 0.6
 
     def __post_init__(self):
         for f in fields(self):                  # kinds first: NaN, strings or 2.5 windows fail here
@@ -287,6 +294,8 @@ class TrackerConfig:
             raise ValueError(f"parting_events_px must be >= 0, got {self.parting_events_px}")
         if not self.parting_turn_rad >= 0:
             raise ValueError(f"parting_turn_rad must be >= 0, got {self.parting_turn_rad}")
+        if not self.coast_turn_rad >= 0:
+            raise ValueError(f"coast_turn_rad must be >= 0, got {self.coast_turn_rad}")
         if not (min(self.handover_px, self.handover_reach, self.handover_windows) >= 0
                 and self.handover_speed_ratio >= 1):
             raise ValueError("handover_px, handover_reach and handover_windows must be >= 0 and "
@@ -410,7 +419,7 @@ class BinEdges:
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
  P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO, P_COAST_PX, P_MAX_COAST, P_POS_BETA, P_POS_MIN, P_POS_MAX_RAD,
  P_BLOB_GROWTH, P_HEADING_COST, P_REID_GROWTH, P_REID_MISSED, P_HIDDEN, P_HANDOVER, P_HANDOVER_REACH,
- P_HANDOVER_WINDOWS, P_HANDOVER_RATIO) = range(37)
+ P_HANDOVER_WINDOWS, P_HANDOVER_RATIO, P_COAST_TURN) = range(38)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -423,7 +432,7 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
                      float(cfg.shared_gate_grows), cfg.reid_ratio, cfg.coast_px, cfg.max_coast,
                      cfg.pos_beta, cfg.pos_min_px, cfg.pos_max_rad, cfg.blob_growth, cfg.heading_cost_px,
                      cfg.reid_growth, float(cfg.reid_ratio_missed), cfg.hidden_px, cfg.handover_px,
-                     cfg.handover_reach, cfg.handover_windows, cfg.handover_speed_ratio],
+                     cfg.handover_reach, cfg.handover_windows, cfg.handover_speed_ratio, cfg.coast_turn_rad],
                     dtype=_F)
 
 
@@ -440,6 +449,9 @@ def _predict(t, z, p):
     simple = True
     for i in range(n_t):
         th = t[i, W] * dt_s
+        hidden = t[i, MISS] + t[i, BLB]              # windows in a row without its own detection
+        if (hidden + 1.0) * abs(th) > p[P_COAST_TURN]:    # the turn of that run bounded (coast_turn_rad)
+            th = math.copysign(max(0.0, p[P_COAST_TURN] - hidden * abs(th)), th)
         c, s, ch, sh = math.cos(th), math.sin(th), math.cos(0.5 * th), math.sin(0.5 * th)
         a[i, VX], a[i, VY] = c * t[i, VX] - s * t[i, VY], s * t[i, VX] + c * t[i, VY]
         a[i, X] += (ch * t[i, VX] - sh * t[i, VY]) * dt_s
@@ -809,7 +821,7 @@ def _listing(out, assigned, p):
     return info
 
 
-N_P = P_HANDOVER_RATIO + 1
+N_P = P_COAST_TURN + 1
 
 
 @njit(cache=True, nogil=True)
