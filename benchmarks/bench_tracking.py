@@ -207,8 +207,9 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                     if keep is not None:
                         keep.append((fi, res.t0_us, res.objects))
                     gt = truth.window(res.t0_us, cfg.dt_us)
-                    flow.add_window(predictions_of(res.objects), gt, focal)
-                    own_flow.add_window(predictions_of(res.objects), gt, focal)
+                    preds = predictions_of(res.objects)
+                    flow.add_window(preds, gt, focal)
+                    own_flow.add_window(preds, gt, focal)
                     track.add_result(res, gt)
                     own.add_result(res, gt)
                     if visible:

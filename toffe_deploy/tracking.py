@@ -885,7 +885,7 @@ PARTING_WAIT = 10
 _FILTER = [X, Y, VX, VY, S, BIN, HX, HY, W, LX, LY, LT, UX, UY, EV]
 
 
-def _carried(before: list, t_us: int, max_turn: float = math.inf) -> tuple[float, float, float]:
+def _carried(before: list, t_us: int, max_turn: float) -> tuple[float, float, float]:
     """(x, y, direction) of a track's state from before its blob (its row, t_b) carried to t_us
     at its constant turn rate: x + int_0^T R(w t) v dt (closed form), the rate lowered so that the
     whole turn |w T| is at most max_turn (rad)."""
