@@ -435,7 +435,7 @@ def _settings(a):
                          handover_windows=a.handover_windows, handover_speed_ratio=a.handover_speed_ratio,
                          parting=a.parting, parting_heading_px=a.parting_heading,
                          parting_events_px=a.parting_events, parting_turn_rad=a.parting_turn,
-                         coast_turn_rad=a.coast_turn)
+                         coast_turn_rad=a.coast_turn, occluded_px=a.occluded, occluded_travel_px=a.occluded_travel)
 
 
 def main(argv=None) -> int:
@@ -517,6 +517,11 @@ def main(argv=None) -> int:
                     help="parting_turn_rad: the most a track's state from before its blob turns when carried to now (rad)")
     ap.add_argument("--coast-turn", type=float, default=d.coast_turn_rad,
                     help="coast_turn_rad: the most a track's prediction turns over a run of windows without its own detection (rad)")
+    ap.add_argument("--occluded", type=float, default=d.occluded_px,
+                    help="occluded_px: a missed track this near a detection another track took is occluded, while it "
+                         "has travelled at most --occluded-travel since its last detection (0: off)")
+    ap.add_argument("--occluded-travel", type=float, default=d.occluded_travel_px,
+                    help="occluded_travel_px: the most a track may have travelled since its last detection for --occluded")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--truth-merge", type=nonneg_float, default=1.0, metavar="F",

@@ -112,7 +112,11 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                windows in a row, or while m_i s_i dt <= coast_px (up to max_coast), then dies;
                one that is occluded (its prediction within R_i of
                a detection another track took: a merged blob) lives, and is listed, up to
-               ``max_occluded`` misses in a row
+               ``max_occluded`` misses in a row; so does one whose prediction lies within
+               ``occluded_px`` of such a detection while it has travelled at most
+               ``occluded_travel_px`` since its last own detection ((m_i + 1) s_i dt: a slow
+               object beside a big or long blob, its events joined to it, is hidden there but
+               lies outside the blob-centred gate)
     bin        hysteresis on the smoothed speed: a track keeps bin b while
                lo_b (1 - h) <= s_i <= hi_b (1 + h), else takes the bin of s_i
                (lo_1 = 0, hi_N = inf; edges are the bundle's bins in px/s)
@@ -159,7 +163,11 @@ class TrackerConfig:
     curving object); max_occluded: misses in a row an occluded track survives (occluded: missed
     while its prediction lies within its gate of a detection another track took, i.e. two
     objects seen as one blob, or the other track of a blob of two (merges); listed in ``coasting``
-    all that time); heading_px, heading_beta:
+    all that time); occluded_px, occluded_travel_px: a missed confirmed track is also occluded
+    while its prediction lies within occluded_px of a detection another track took and it has
+    travelled at most occluded_travel_px since its last own detection (0: off; a slow object
+    whose events the grouping joined to a neighbour's blob lies tens of px from that blob's
+    centre, outside its gate: docs/tracking-log.md, 2026-11-25); heading_px, heading_beta:
     the travel per window (px) at which a detection's direction is taken as it is, and the
     smallest heading gain (slow objects); shared_keeps_motion: a detection inside the gates of
     two or more confirmed tracks (two objects seen as one blob) moves the track it is assigned
@@ -219,6 +227,8 @@ class TrackerConfig:
     gate_speed: float = 0.0
     report_misses: int = 5
     max_occluded: int = 80
+    occluded_px: float = 50.0
+    occluded_travel_px: float = 20.0
     heading_px: float = 5.0
     heading_beta: float = 0.15
     shared_keeps_motion: bool = True
@@ -272,6 +282,9 @@ class TrackerConfig:
             raise ValueError("confirm_hits must be >= 1, max_misses and tentative_misses >= 0")
         if not (self.gate_speed >= 0 and self.report_misses >= 0 and self.max_occluded >= 0):
             raise ValueError("gate_speed, report_misses and max_occluded must be >= 0")
+        if not (self.occluded_px >= 0 and self.occluded_travel_px >= 0):
+            raise ValueError(f"occluded_px and occluded_travel_px must be >= 0, got {self.occluded_px}, "
+                             f"{self.occluded_travel_px}")
         if not self.hysteresis >= 0:
             raise ValueError(f"hysteresis must be >= 0, got {self.hysteresis}")
         if not (self.heading_px > 0 and 0 < self.heading_beta <= 1):
@@ -419,7 +432,7 @@ class BinEdges:
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
  P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO, P_COAST_PX, P_MAX_COAST, P_POS_BETA, P_POS_MIN, P_POS_MAX_RAD,
  P_BLOB_GROWTH, P_HEADING_COST, P_REID_GROWTH, P_REID_MISSED, P_HIDDEN, P_HANDOVER, P_HANDOVER_REACH,
- P_HANDOVER_WINDOWS, P_HANDOVER_RATIO, P_COAST_TURN) = range(38)
+ P_HANDOVER_WINDOWS, P_HANDOVER_RATIO, P_COAST_TURN, P_OCC_PX, P_OCC_TRAVEL) = range(40)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -432,7 +445,8 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
                      float(cfg.shared_gate_grows), cfg.reid_ratio, cfg.coast_px, cfg.max_coast,
                      cfg.pos_beta, cfg.pos_min_px, cfg.pos_max_rad, cfg.blob_growth, cfg.heading_cost_px,
                      cfg.reid_growth, float(cfg.reid_ratio_missed), cfg.hidden_px, cfg.handover_px,
-                     cfg.handover_reach, cfg.handover_windows, cfg.handover_speed_ratio, cfg.coast_turn_rad],
+                     cfg.handover_reach, cfg.handover_windows, cfg.handover_speed_ratio, cfg.coast_turn_rad,
+                     cfg.occluded_px, cfg.occluded_travel_px],
                     dtype=_F)
 
 
@@ -647,6 +661,8 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost):
         a[i, OCC] = 0.0
         if not hit[i] and t[i, CONF] > 0:                    # missed: under another track's detection?
             gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * dt_s
+            if (t[i, MISS] + 1.0) * t[i, S] * dt_s <= p[P_OCC_TRAVEL]:
+                gate = max(gate, p[P_OCC_PX])                # a slow one beside a blob its events joined
             for k in range(n_d):
                 if (taken[k] and d[i, k] <= gate) or mate[k] == i:
                     a[i, OCC] = 1.0
@@ -821,7 +837,7 @@ def _listing(out, assigned, p):
     return info
 
 
-N_P = P_COAST_TURN + 1
+N_P = P_OCC_TRAVEL + 1
 
 
 @njit(cache=True, nogil=True)
