@@ -435,7 +435,8 @@ def _settings(a):
                          handover_windows=a.handover_windows, handover_speed_ratio=a.handover_speed_ratio,
                          parting=a.parting, parting_heading_px=a.parting_heading,
                          parting_events_px=a.parting_events, parting_turn_rad=a.parting_turn,
-                         coast_turn_rad=a.coast_turn, occluded_px=a.occluded, occluded_travel_px=a.occluded_travel)
+                         coast_turn_rad=a.coast_turn, occluded_px=a.occluded, occluded_travel_px=a.occluded_travel,
+                         occluded_min_hits=a.occluded_hits)
 
 
 def main(argv=None) -> int:
@@ -522,6 +523,8 @@ def main(argv=None) -> int:
                          "has travelled at most --occluded-travel since its last detection (0: off)")
     ap.add_argument("--occluded-travel", type=float, default=d.occluded_travel_px,
                     help="occluded_travel_px: the most a track may have travelled since its last detection for --occluded")
+    ap.add_argument("--occluded-hits", type=int, default=d.occluded_min_hits,
+                    help="occluded_min_hits: the fewest hits a track needs for --occluded")
     ap.add_argument("--truth-blobs", action="store_true",
                     help="the tracker alone, on the ground truth with touching objects merged (module doc)")
     ap.add_argument("--truth-merge", type=nonneg_float, default=1.0, metavar="F",

@@ -114,9 +114,10 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                a detection another track took: a merged blob) lives, and is listed, up to
                ``max_occluded`` misses in a row; so does one whose prediction lies within
                ``occluded_px`` of such a detection while it has travelled at most
-               ``occluded_travel_px`` since its last own detection ((m_i + 1) s_i dt: a slow
-               object beside a big or long blob, its events joined to it, is hidden there but
-               lies outside the blob-centred gate)
+               ``occluded_travel_px`` since its last own detection ((m_i + 1) s_i dt) and has
+               at least ``occluded_min_hits`` hits (a slow object beside a big or long blob, its
+               events joined to it, is hidden there but lies outside the blob-centred gate; a
+               piece of one object, confirmed on a few hits, is not kept that way)
     bin        hysteresis on the smoothed speed: a track keeps bin b while
                lo_b (1 - h) <= s_i <= hi_b (1 + h), else takes the bin of s_i
                (lo_1 = 0, hi_N = inf; edges are the bundle's bins in px/s)
@@ -163,11 +164,13 @@ class TrackerConfig:
     curving object); max_occluded: misses in a row an occluded track survives (occluded: missed
     while its prediction lies within its gate of a detection another track took, i.e. two
     objects seen as one blob, or the other track of a blob of two (merges); listed in ``coasting``
-    all that time); occluded_px, occluded_travel_px: a missed confirmed track is also occluded
-    while its prediction lies within occluded_px of a detection another track took and it has
-    travelled at most occluded_travel_px since its last own detection (0: off; a slow object
-    whose events the grouping joined to a neighbour's blob lies tens of px from that blob's
-    centre, outside its gate: docs/tracking-log.md, 2026-11-25); heading_px, heading_beta:
+    all that time); occluded_px, occluded_travel_px, occluded_min_hits: a missed confirmed track
+    is also occluded while its prediction lies within occluded_px of a detection another track
+    took, it has travelled at most occluded_travel_px since its last own detection and it has at
+    least occluded_min_hits hits (occluded_px 0: off; a slow object whose events the grouping
+    joined to a neighbour's blob lies tens of px from that blob's centre, outside its gate; the
+    hits keep a sparse object's pieces, confirmed on a few hits each, from being kept beside it:
+    docs/tracking-log.md, 2026-11-25); heading_px, heading_beta:
     the travel per window (px) at which a detection's direction is taken as it is, and the
     smallest heading gain (slow objects); shared_keeps_motion: a detection inside the gates of
     two or more confirmed tracks (two objects seen as one blob) moves the track it is assigned
@@ -229,6 +232,7 @@ class TrackerConfig:
     max_occluded: int = 80
     occluded_px: float = 50.0
     occluded_travel_px: float = 20.0
+    occluded_min_hits: int = 10
     heading_px: float = 5.0
     heading_beta: float = 0.15
     shared_keeps_motion: bool = True
@@ -282,9 +286,9 @@ class TrackerConfig:
             raise ValueError("confirm_hits must be >= 1, max_misses and tentative_misses >= 0")
         if not (self.gate_speed >= 0 and self.report_misses >= 0 and self.max_occluded >= 0):
             raise ValueError("gate_speed, report_misses and max_occluded must be >= 0")
-        if not (self.occluded_px >= 0 and self.occluded_travel_px >= 0):
-            raise ValueError(f"occluded_px and occluded_travel_px must be >= 0, got {self.occluded_px}, "
-                             f"{self.occluded_travel_px}")
+        if not (self.occluded_px >= 0 and self.occluded_travel_px >= 0 and self.occluded_min_hits >= 0):
+            raise ValueError(f"occluded_px, occluded_travel_px and occluded_min_hits must be >= 0, got "
+                             f"{self.occluded_px}, {self.occluded_travel_px}, {self.occluded_min_hits}")
         if not self.hysteresis >= 0:
             raise ValueError(f"hysteresis must be >= 0, got {self.hysteresis}")
         if not (self.heading_px > 0 and 0 < self.heading_beta <= 1):
@@ -432,7 +436,7 @@ class BinEdges:
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
  P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO, P_COAST_PX, P_MAX_COAST, P_POS_BETA, P_POS_MIN, P_POS_MAX_RAD,
  P_BLOB_GROWTH, P_HEADING_COST, P_REID_GROWTH, P_REID_MISSED, P_HIDDEN, P_HANDOVER, P_HANDOVER_REACH,
- P_HANDOVER_WINDOWS, P_HANDOVER_RATIO, P_COAST_TURN, P_OCC_PX, P_OCC_TRAVEL) = range(40)
+ P_HANDOVER_WINDOWS, P_HANDOVER_RATIO, P_COAST_TURN, P_OCC_PX, P_OCC_TRAVEL, P_OCC_HITS) = range(41)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -446,7 +450,7 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
                      cfg.pos_beta, cfg.pos_min_px, cfg.pos_max_rad, cfg.blob_growth, cfg.heading_cost_px,
                      cfg.reid_growth, float(cfg.reid_ratio_missed), cfg.hidden_px, cfg.handover_px,
                      cfg.handover_reach, cfg.handover_windows, cfg.handover_speed_ratio, cfg.coast_turn_rad,
-                     cfg.occluded_px, cfg.occluded_travel_px],
+                     cfg.occluded_px, cfg.occluded_travel_px, cfg.occluded_min_hits],
                     dtype=_F)
 
 
@@ -661,8 +665,8 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost):
         a[i, OCC] = 0.0
         if not hit[i] and t[i, CONF] > 0:                    # missed: under another track's detection?
             gate = p[P_GATE] + (p[P_GATE_SPEED] + p[P_GROWTH] * t[i, MISS]) * t[i, S] * dt_s
-            if (t[i, MISS] + 1.0) * t[i, S] * dt_s <= p[P_OCC_TRAVEL]:
-                gate = max(gate, p[P_OCC_PX])                # a slow one beside a blob its events joined
+            if (t[i, MISS] + 1.0) * t[i, S] * dt_s <= p[P_OCC_TRAVEL] and t[i, HITS] >= p[P_OCC_HITS]:
+                gate = max(gate, p[P_OCC_PX])                # a slow object beside a blob its events joined
             for k in range(n_d):
                 if (taken[k] and d[i, k] <= gate) or mate[k] == i:
                     a[i, OCC] = 1.0
@@ -837,7 +841,7 @@ def _listing(out, assigned, p):
     return info
 
 
-N_P = P_OCC_TRAVEL + 1
+N_P = P_OCC_HITS + 1
 
 
 @njit(cache=True, nogil=True)
