@@ -100,7 +100,8 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                predictions updated again, their mean counts too; ids, age and hits go with the
                track). A track seen again waits up to PARTING_WAIT (10)
                windows for its partner to be seen too (a fast object that passed over a slow
-               one comes out first), then drops its copy; a copy is kept for at most
+               one comes out first), then drops its copy, also where the partner's copy is
+               gone (its track died: a piece of one object's); a copy is kept for at most
                PARTING_MAX_WINDOWS (80) windows
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
@@ -1039,13 +1040,14 @@ class Tracker:
         for r, q in entering.tolist():
             if id_now[r] not in before:
                 before[id_now[r]] = [t[q].copy(), t_last, 0]
-        if len(before) < 2:
-            return ids
         blob = (out[:, CONF] > 0) & ((out[:, OCC] > 0) | (out[:, BLB] > 0))
         n = zr.shape[0] // 6
         det_of = {r: k for k, r in enumerate(rows) if r >= 0}
         free = [r for r, tid in enumerate(id_now)
                 if tid in before and r in det_of and out[r, MISS] == 0 and not blob[r]]
+        if len(before) < 2:                                  # a copy whose partner's is gone waits as below:
+            self._wait(free, id_now)                         # kept, it stood for the track's state before
+            return ids                                       # a later blob (up to 80 windows old)
         s, dt_s = self.settings, self.dt_us * 1e-6
         pairs = []
         for i, r1 in enumerate(free):
@@ -1069,13 +1071,17 @@ class Tracker:
             if gain < 0.0:                                   # the other way round fits better
                 if self._exchange(t, out, zr, r1, r2, det_of[r1], det_of[r2]):
                     ids = [int(out[r, ID]) if r in (r1, r2) else i for r, i in zip(rows, ids)]
-        for r in free:                                       # a partner still hidden: wait for it
-            if r not in done:
-                b = before[id_now[r]]
-                b[2] += 1
-                if b[2] > PARTING_WAIT:
-                    del before[id_now[r]]
+        self._wait([r for r in free if r not in done], id_now)   # a partner still hidden: wait for it
         return ids
+
+    def _wait(self, free: list, id_now: list) -> None:
+        """The parting's wait: each track of rows ``free`` (seen on its own, its copy kept) counts
+        one more window, its copy dropped after PARTING_WAIT."""
+        for r in free:
+            b = self._before[id_now[r]]
+            b[2] += 1
+            if b[2] > PARTING_WAIT:
+                del self._before[id_now[r]]
 
     def _exchange(self, t: np.ndarray, out: np.ndarray, zr: np.ndarray, r1: int, r2: int, k1: int, k2: int) -> bool:
         """Rows r1 and r2 of ``out`` (tracks i and j, updated with detections k1 and k2) become j
