@@ -741,19 +741,27 @@ def test_parting_tells_the_two_apart_by_their_event_counts_where_their_motion_mi
     assert after == (before[1], before[0])
 
 
-def _replay_turning(settings):
-    """tests/data/crossing_turning.json (a generated crossing's detections with their event
-    counts, windows 60-139) through a Tracker: -> {window: [(x, y, track_id)]}."""
+def _replay_counted(name, settings, first=0):
+    """tests/data/NAME.json (a generated crossing's detections with their event counts, its first
+    window numbered ``first``) through a Tracker: -> ({window: objects [(x, y, track_id)]},
+    {window: coasting [(x, y, track_id, occluded)]})."""
     import json
     from pathlib import Path
 
-    d = json.loads((Path(__file__).parent / "data" / "crossing_turning.json").read_text())
-    tr, out = Tracker(CFG, DT_US, settings), {}
+    d = json.loads((Path(__file__).parent / "data" / f"{name}.json").read_text())
+    tr, objects, coasting = Tracker(CFG, DT_US, settings), {}, {}
     for w, rows in enumerate(d["windows"]):
         objs = [Counted(x, y, th, sp, b, n_events=n) for x, y, th, sp, b, n in rows]
         tr.update(objs, d["t0_us"] + w * DT_US)
-        out[60 + w] = [(o.x, o.y, o.track_id) for o in objs]
-    return out
+        objects[first + w] = [(o.x, o.y, o.track_id) for o in objs]
+        coasting[first + w] = [(c["track"]["x"], c["track"]["y"], c["track_id"], c["track"]["occluded"])
+                               for c in tr.coasting()]
+    return objects, coasting
+
+
+def _replay_turning(settings):
+    """tests/data/crossing_turning.json (windows 60-139): -> {window: [(x, y, track_id)]}."""
+    return _replay_counted("crossing_turning", settings, 60)[0]
 
 
 def test_parting_carries_a_turning_track_with_a_bounded_turn():
@@ -863,20 +871,9 @@ def test_a_hidden_track_turns_at_most_coast_turn_rad_then_goes_straight():
 
 
 def _replay_hidden(settings):
-    """tests/data/crossing_hidden.json (a generated crossing's detections with their event counts,
-    windows 0-140) through a Tracker: -> {window: (objects [(x, y, track_id)], coasting [(x, y,
-    track_id, occluded)])}."""
-    import json
-    from pathlib import Path
-
-    d = json.loads((Path(__file__).parent / "data" / "crossing_hidden.json").read_text())
-    tr, out = Tracker(CFG, DT_US, settings), {}
-    for w, rows in enumerate(d["windows"]):
-        objs = [Counted(x, y, th, sp, b, n_events=n) for x, y, th, sp, b, n in rows]
-        tr.update(objs, d["t0_us"] + w * DT_US)
-        out[w] = ([(o.x, o.y, o.track_id) for o in objs],
-                  [(c["track"]["x"], c["track"]["y"], c["track_id"], c["track"]["occluded"]) for c in tr.coasting()])
-    return out
+    """tests/data/crossing_hidden.json (windows 0-140): -> {window: (objects, coasting)}."""
+    objects, coasting = _replay_counted("crossing_hidden", settings)
+    return {w: (objects[w], coasting[w]) for w in objects}
 
 
 def test_a_slow_object_beside_a_blob_its_events_joined_stays_listed_while_hidden():
@@ -909,15 +906,7 @@ def test_a_copy_kept_for_a_parting_whose_partner_never_comes_is_dropped():
     the two and the swap the association made where they part stayed. A lone copy now waits for
     its partner as any copy does (10 windows seen on its own), and the parting keeps each id on
     its object (docs/tracking-log.md: crossing IDF1 over 48 seeds 0.896 -> 0.898)."""
-    import json
-    from pathlib import Path
-
-    d = json.loads((Path(__file__).parent / "data" / "crossing_lone_copy.json").read_text())
-    tr, out = Tracker(CFG, DT_US), {}
-    for w, rows in enumerate(d["windows"]):
-        objs = [Counted(x, y, th, sp, b, n_events=n) for x, y, th, sp, b, n in rows]
-        tr.update(objs, d["t0_us"] + w * DT_US)
-        out[w] = [(o.x, o.y, o.track_id) for o in objs]
+    out, _ = _replay_counted("crossing_lone_copy", TrackerConfig())
     assert sum(len(out[w]) == 1 for w in range(108, 117)) >= 7                   # one blob
     faint, bright = _id_near(out[100], 248, 306), _id_near(out[100], 283, 272)   # truth, window 100
     assert None not in (faint, bright) and faint != bright
