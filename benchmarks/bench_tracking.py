@@ -21,8 +21,10 @@ detection reports it (this window only) and as its confirmed track's smoothed ve
 (tracked, causal: from past and current windows only). Prints one markdown row per split and
 a direction table; the JSON holds every figure and the settings, and each sequence's detection
 recall and false positives per window, MOTA, IDF1, ID switches, misses and false positives
-(per_sequence), and each object's windows and detected windows with its events per passing
-edge where the generator recorded it (per_object; recall_by_events_per_edge: the recall of the
+(per_sequence), and each object's windows, detected windows (a detection within the score
+gate, one to one) and tracked windows (as the tracking metrics score: a confirmed track's
+object or a listed coasting track within the gate, tracking_metrics.reported) with its events
+per passing edge where the generator recorded it (per_object; recall_by_events_per_edge: the recall of the
 objects that fire at least 1 / 1.2 / 1.5 / 2 events per edge, also printed: the misses of
 objects the sensor hardly sees told from the pipeline's own), and the tracking metrics again
 over the sequences whose every object fires at least 1 (tracking_visible). ``--ofpd
@@ -155,7 +157,7 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
     from toffe_deploy.runtime.spikes import SpikeVolume
     from toffe_deploy.runtime.truth import TruthIndex, sequence_focal_px
     from toffe_deploy.tracking import Tracker
-    from toffe_deploy.tracking_metrics import TrackingErrors
+    from toffe_deploy.tracking_metrics import TrackingErrors, reported
 
     def replay(fi):
         """The saved windows of sequence fi through a fresh Tracker (what Pipeline(track=) does)."""
@@ -215,7 +217,9 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                     if visible:
                         track_visible.add_result(res, gt)
                     for t in gt:
-                        seen.setdefault(int(t.object_id), [0, 0])[0] += 1
+                        seen.setdefault(int(t.object_id), [0, 0, 0])[0] += 1
+                    for i, _ in match_gated([h[1:] for h in reported(res)], [(t.x, t.y) for t in gt], gate):
+                        seen[int(gt[i].object_id)][2] += 1
                     for i, j in match_gated([(o.x, o.y) for o in res.objects], [(t.x, t.y) for t in gt], gate):
                         seen[int(gt[i].object_id)][1] += 1
                         key = (fi, gt[i].object_id)
@@ -230,7 +234,8 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                                                                 gt[i].direction))
                     n_win += 1
             per_object += [{"sequence": Path(path).stem, "object_id": k, "windows": n, "detected": hit,
-                            "events_per_edge": epe.get(k)} for k, (n, hit) in sorted(seen.items())]
+                            "tracked": held, "events_per_edge": epe.get(k)}
+                           for k, (n, hit, held) in sorted(seen.items())]
             m, d = own.summary(), own_flow.summary()
             per_sequence.append({"sequence": Path(path).stem, "recall": d["recall"],
                                  "fp_per_window": d["fp_per_window"], "mota": m["mota"], "idf1": m["idf1"],

@@ -10,7 +10,7 @@ import pytest
 from toffe_deploy.config import ToffeConfig
 from toffe_deploy.tracking import (CONF, ID, MISS, OCC, BinEdges, Detections, Tracker, TrackerConfig, Tracks, _predict,
                                    params, step)
-from toffe_deploy.tracking_metrics import TrackingErrors
+from toffe_deploy.tracking_metrics import TrackingErrors, reported
 
 DT_US = 500
 CFG = ToffeConfig()                     # bins 1-18 / 18-42 / 42-84 / 84-500 m/s at 5 m, 554 px
@@ -229,8 +229,13 @@ def test_coasting_tracks_are_flagged_listed_for_report_misses_and_their_lines_va
         m = mover(50, 200, 0, 12000, w)
         objs = [] if 8 <= w < 12 else [ObjectFlow(4, 4, 80.0, 80.0, m.speed_px_s, m.x, m.y, m.direction_rad, 9)]
         tr.update(objs, w * DT_US)
-        line = WindowResult(w * DT_US, (w + 1) * DT_US, objs, coasting=tr.coasting()).to_json()
+        res = WindowResult(w * DT_US, (w + 1) * DT_US, objs, coasting=tr.coasting())
+        line = res.to_json()
         v.validate(line)
+        # what the tracking metrics score: the detected object once confirmed, else a listed coasting track
+        want = ([(0, objs[0].x, objs[0].y)] if objs and w >= TrackerConfig().confirm_hits - 1 else
+                [(c["track_id"], c["track"]["x"], c["track"]["y"]) for c in line["coasting"]])
+        assert reported(res) == want
         listed.append([(c["track_id"], c["track"]["misses"], c["track"]["occluded"]) for c in line["coasting"]])
         assert all(o["track"]["misses"] == 0 and o["track"]["occluded"] is False for o in line["objects"])
     assert listed[8:12] == [[(0, 1, False)], [(0, 2, False)], [], []]     # alive but no longer reported

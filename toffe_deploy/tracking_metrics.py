@@ -57,8 +57,7 @@ class TrackingErrors:
         """add_window with what a window reports (pipeline.WindowResult of a tracking Pipeline):
         its objects of confirmed tracks at their detected centre, and its coasting tracks at
         their predicted centre."""
-        hyp = [(o.track_id, o.x, o.y) for o in result.objects if o.track is not None and o.track.confirmed]
-        hyp += [(c["track_id"], c["track"]["x"], c["track"]["y"]) for c in result.coasting or ()]
+        hyp = reported(result)
         self.add_window([h[0] for h in hyp], [h[1:] for h in hyp], truths)
 
     def summary(self) -> dict:
@@ -81,6 +80,14 @@ class TrackingErrors:
             out = {v: (float(row[k]) if k in ("mota", "motp", "idf1") else int(row[k])) for k, v in METRICS.items()}
         out.update(windows=n_windows, gate_px=self.gate_px)
         return out
+
+
+def reported(result) -> list:
+    """What a window of a tracking Pipeline reports as tracked objects, [(track_id, x, y)]: its
+    objects of confirmed tracks at their detected centre, then its coasting tracks at their
+    predicted centre (what the tracking metrics score)."""
+    hyp = [(o.track_id, o.x, o.y) for o in result.objects if o.track is not None and o.track.confirmed]
+    return hyp + [(c["track_id"], c["track"]["x"], c["track"]["y"]) for c in result.coasting or ()]
 
 
 def tracking_line(t: dict) -> str:
