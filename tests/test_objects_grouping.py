@@ -416,3 +416,32 @@ def test_union_objects_claims_are_the_stage_order_claims_sorted_stably(rng):
         assert np.array_equal(keys, ref_keys[srt]) and np.array_equal(own, owner[order][srt])
         n_checked += keys.size
     assert n_checked > 500
+
+
+APART = ToffeConfig(sensor_size=SENSOR, ofpd={**ofpd_io.OFPD_DEFAULTS, "closed_apart": True})
+
+
+def test_two_whole_outlines_stay_two_objects_with_closed_apart():
+    """`crossing` seed 20's merge: a 17 px ring 7 px from the corner of a 57 px square's outline
+    (both surround their centroids, both >= min_events pixels; 7 px < merge_frac 0.2 * 57):
+    joined into one object between them by default, two objects at their centres with
+    ofpd.closed_apart. A piece of one outline (an open edge) near it still joins it."""
+    from toffe_deploy.compiled import surrounds
+
+    sq = square_ring(200, 200, 57)
+    ring = disc(243, 163, 17) ^ disc(243, 163, 12)                  # corner (228, 172): gap ~7 px
+    edge = np.zeros_like(sq)
+    edge[202:204, 233:243] = True                                   # an open piece 5 px right of the square
+    assert surrounds(*xy(sq)) and surrounds(*xy(ring)) and not surrounds(*xy(edge))
+    assert len(ofpd_io.group_objects_xy(stages(sq | ring), SENSOR, CFG)[0]) == 1
+    objs, claims = ofpd_io.group_objects_xy(stages(sq | ring | edge), SENSOR, APART)
+    assert len(objs) == 2
+    np.testing.assert_allclose(sorted(o[1:] for o in objs), [(200.5, 200.1), (243.0, 163.0)], atol=1.5)
+    xs, ys = xy(sq | ring | edge)
+    masks = ofpd_io.object_masks_xy(xs, ys, objs, claims)
+    big = int(np.argmin([o[1] for o in objs]))
+    assert np.array_equal(masks[big], (sq | edge)[ys, xs]) and np.array_equal(masks[1 - big], ring[ys, xs])
+    with pytest.raises(ValueError, match="closed_apart"):
+        ofpd_io.ofpd_settings(ToffeConfig(ofpd={**ofpd_io.OFPD_DEFAULTS, "closed_apart": 1}))
+    with pytest.raises(ValueError, match="closed_apart"):
+        ofpd_io.ofpd_settings(ToffeConfig(ofpd={**ofpd_io.OFPD_DEFAULTS, "stages": "join", "closed_apart": True}))

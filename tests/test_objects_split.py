@@ -98,6 +98,6 @@ def test_split_two_cut_runs_through_the_contact():
 
 def test_split_settings():
     assert ofpd_io.ofpd_settings(PLAIN)["split_frac"] == 0.0                 # off unless a checkpoint sets it
-    assert ofpd_io.blob_settings(ofpd_io.ofpd_settings(SPLIT))[-3:] == (0.6, 0.65, 0.0)
+    assert ofpd_io.blob_settings(ofpd_io.ofpd_settings(SPLIT))[-4:] == (0.6, 0.65, 0.0, False)
     with pytest.raises(ValueError, match="split_frac"):
         ofpd_io.ofpd_settings(ToffeConfig(ofpd={**ofpd_io.OFPD_DEFAULTS, "stages": "join", "split_frac": 0.6}))

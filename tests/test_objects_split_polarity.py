@@ -147,7 +147,7 @@ def test_every_form_of_the_grouping_agrees_with_polarity():
 
 def test_split_polarity_settings():
     assert ofpd_io.ofpd_settings(ToffeConfig())["split_polarity"] == 0.0       # off unless a checkpoint sets it
-    assert ofpd_io.blob_settings(ofpd_io.ofpd_settings(POL))[-1] == 0.25
+    assert ofpd_io.blob_settings(ofpd_io.ofpd_settings(POL))[-2] == 0.25
     assert not ofpd_io.uses_polarity(ofpd_io.ofpd_settings(NO_POL))
     for bad in (-0.1, 0.6, "0.2", True):
         with pytest.raises(ValueError, match="split_polarity"):

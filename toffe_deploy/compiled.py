@@ -962,7 +962,7 @@ def surrounds(xs, ys):
 
 
 @njit(cache=True, nogil=True)
-def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count, known_closed=None):
+def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count, known_closed=None, apart_px=0):
     """Groups a frame's components into objects, closest pairs first.
 
     Components with >= min_count pixels (seeds) are joined in order of their gap (smallest
@@ -978,11 +978,16 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count, 
     comes within frac_closed * the seed's extent of; specks never group on their own. Returns
     (group (C,) 0..G-1 numbered by smallest member, -1 for specks in no group; per group count,
     bbox and whether it is closed: it surrounds its centroid, or did before a join). known_closed (C,) int8, optional: a seed's
-    ``surrounds`` when the caller knows it (0 / 1), -1 where not (union_objects' second pass)."""
+    ``surrounds`` when the caller knows it (0 / 1), -1 where not (union_objects' second pass).
+    apart_px > 0 (ofpd.closed_apart: min_events): two closed groups that each hold >= apart_px
+    pixels are two objects, never joined: two whole outlines, each an object on its own (a small
+    object beside a big one's corner came within frac_closed of the big one's extent and was
+    taken in: `crossing` seed 20, a 17 px circle 7 px from a 57 px square)."""
     n = count.shape[0]
     start = np.zeros(n + 1, np.int64)
     for c in range(n):
         start[c + 1] = start[c] + count[c]
+    size = count.copy()                                   # pixels per group (at its root)
     px = np.empty(labels.shape[0], np.int64)              # the pixels by component (any order within)
     py = np.empty(labels.shape[0], np.int64)
     fill = start[:n].copy()
@@ -1034,8 +1039,11 @@ def merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count, 
         limit = frac_closed if was_closed else frac_open
         if ratio[q] > limit:
             continue
+        if apart_px > 0 and closed[ra] and closed[rb] and size[ra] >= apart_px and size[rb] >= apart_px:
+            continue                         # two whole outlines: two objects
         _union(parent, ra, rb)
         r = _root(parent, ra)
+        size[r] = size[ra] + size[rb]
         for c in range(4):
             gbox[r, c] = min(gbox[ra, c], gbox[rb, c]) if c < 2 else max(gbox[ra, c], gbox[rb, c])
         k = 0
@@ -1498,7 +1506,7 @@ def split_groups(xs, ys, pg, n_groups, need, frac, waist, pol=None, polarity=0.0
 
 @njit(cache=True, nogil=True)
 def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min_count, split_frac=0.0,
-                  split_waist=0.65, split_polarity=0.0, recent=None, recent_rule=None, pol=None):
+                  split_waist=0.65, split_polarity=0.0, closed_apart=False, recent=None, recent_rule=None, pol=None):
     """ofpd_io.blob_objects_xy with ofpd.stages "union": the window's stage pixels (stage i's
     are xs, ys[starts[i]:starts[i + 1]], disjoint: the cascade gives each pixel to one stage)
     form blobs together (link_components, component_stats, merge_blobs, as one frame's), and
@@ -1513,7 +1521,9 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
     hold two objects (two touching outlines, split_two with split_frac and split_waist) is two
     groups; with split_polarity > 0 and ``pol`` (per pixel: bit 1 and bit 2 for the two
     polarities of its ones, frame_pixels' spol) a half that holds a leading and a trailing
-    edge is a whole object too (split_two, two_sided). With ``recent`` (the (H * W,) uint8
+    edge is a whole object too (split_two, two_sided). With closed_apart, two groups that each
+    surround their centroid and hold >= need pixels are never joined (merge_blobs' apart_px).
+    With ``recent`` (the (H * W,) uint8
     event-pixel counts of the latest windows,
     ofpd.recent_events) a group short of need is an object too when recent_reaches holds for it
     (recent_rule = [r, m, c, E]; its stage is then the one holding most of its pixels).
@@ -1528,7 +1538,9 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
         stage_of[starts[i]:starts[i + 1]] = i
     labels, n_comp, order = link_components_ordered(xs, ys, link, width)
     count, _sx, _sy, bbox = component_stats(labels, n_comp, xs, ys)
-    first, count1, box1, closed1 = merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count)
+    apart_px = need if closed_apart else 0
+    first, count1, box1, closed1 = merge_blobs(labels, count, bbox, xs, ys, frac_closed, frac_open, min_count,
+                                               None, apart_px)
     # a group without specks is its seeds, whose ``surrounds`` the first pass computed last
     # (closed1); an open one with specks gets it computed again over all its pixels (a closed
     # one stays closed, as in merge_blobs)
@@ -1540,7 +1552,7 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
             known[first[c]] = -1
     inside = np.flatnonzero(first[labels] >= 0)                # the same rule once more, on the groups
     second, gcount, _gbox, _gclosed = merge_blobs(first[labels[inside]], count1, box1, xs[inside], ys[inside],
-                                                  frac_closed, frac_open, min_count, known)
+                                                  frac_closed, frac_open, min_count, known, apart_px)
     comp_group = np.full(n_comp, -1, np.int64)
     for c in range(n_comp):
         if first[c] >= 0:
@@ -1896,7 +1908,8 @@ def object_input(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_m
 
 @njit(cache=True, nogil=True)
 def window_objects(frames, pix_inverse, upix, width, plane, n_channels, union, link, frac_closed, frac_open, need,
-                   min_count, split_frac, split_waist, split_polarity, slot_of, fixed_size, g, pool_min, pool_max,
+                   min_count, split_frac, split_waist, split_polarity, closed_apart, slot_of, fixed_size, g, pool_min,
+                   pool_max,
                    height, n_input, n_bins, coord_scale, recent=None, recent_rule=None):
     """The runtime's batch for grouping "blobs" in one call: frame_pixels, then union_objects
     (``union``) or blob_objects, claimed_by (scratch ``slot_of``) and object_input, the same
@@ -1910,8 +1923,8 @@ def window_objects(frames, pix_inverse, upix, width, plane, n_channels, union, l
     if union:                                  # spol is empty and split_polarity 0 when polarities are not read
         stage, _cx, _cy, _own, keys, owner = union_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
                                                            min_count, split_frac, split_waist,
-                                                           split_polarity if with_pol else 0.0, recent, recent_rule,
-                                                           spol)
+                                                           split_polarity if with_pol else 0.0, closed_apart, recent,
+                                                           recent_rule, spol)
     else:
         stage, _cx, _cy, _own, keys, owner = blob_objects(sx, sy, starts, width, link, frac_closed, frac_open, need,
                                                           min_count)
@@ -2392,10 +2405,10 @@ def warm_up(only=None) -> None:
                        np.zeros(1, np.bool_), 1, 1)
     if "objects" in groups:                    # without ofpd.recent_events: ofpd_io.recent_args' (None, None)
         window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0,
-                       scratch, 0, 1, 1, 1, 2, 5, 1, 1000.0, None, None)
+                       False, scratch, 0, 1, 1, 1, 2, 5, 1, 1000.0, None, None)
     if "objects_recent" in groups:
         window_objects(np.ones((1, 1), np.bool_), i64, i64, 2, i64, 2, True, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0,
-                       scratch, 0, 1, 1, 1, 2, 5, 1, 1000.0, np.zeros(4, np.uint8), np.zeros(4, np.int64))
+                       False, scratch, 0, 1, 1, 1, 2, 5, 1, 1000.0, np.zeros(4, np.uint8), np.zeros(4, np.int64))
     if "other" in groups:
         _warm_other(i64, scratch)
 
@@ -2422,12 +2435,14 @@ def _warm_other(i64, scratch) -> None:
     count, sx, sy, bbox = component_stats(labels, n_comp, i64, i64)
     merge_blobs(labels, count, bbox, i64, i64, 0.2, 1.5, 1)
     blob_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1)
-    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, None, None, None)
-    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, np.zeros(2, np.uint8),
-                  np.zeros(4, np.int64), None)           # as ofpd_io.group_objects_flat passes them: explicit Nones
+    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, False, None, None,
+                  None)
+    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, False,
+                  np.zeros(2, np.uint8), np.zeros(4, np.int64), None)           # as ofpd_io.group_objects_flat passes them: explicit Nones
     i8 = np.zeros(1, np.int8)                  # ofpd.split_polarity: the pixels' polarities
-    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.6, 0.65, 0.25, None, None, i8)
-    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.6, 0.65, 0.25, np.zeros(2, np.uint8),
+    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.6, 0.65, 0.25, False, None, None, i8)
+    union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.6, 0.65, 0.25, False,
+                  np.zeros(2, np.uint8),
                   np.zeros(4, np.int64), i8)
     split_groups(i64, i64, i64.copy(), 1, 1, 0.6, 0.65)
     min_gap(i64, i64, i64, i64, 1.0)

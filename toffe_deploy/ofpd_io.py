@@ -101,6 +101,8 @@ OFPD_DEFAULTS: dict[str, Any] = {
     "split_waist": 0.65,    # >= split_frac * extent apart, cut <= split_waist * width (compiled.split_two); 0 = never
     "split_polarity": 0.0,  # split_frac > 0: a half that does not surround its centroid is an object too when >= this
                             # share of its pixels fired each polarity only, apart (compiled.two_sided); 0 = never
+    "closed_apart": False,  # stages "union": two groups that each surround their centroid and hold >= min_events
+                            # pixels stay two objects (merge_frac joins them no more: compiled.merge_blobs)
     "recent_events": None,  # stages "union": [r, m, c], a group short of min_events is an object when the event pixels
                             # of the latest K windows (input_support's) in its box grown by r px reach
                             # m + floor(c * box area * their density) (compiled.recent_reaches); None = never
@@ -150,6 +152,10 @@ def _ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
         raise ValueError(f"ofpd.split_polarity must be a number in [0, 0.5], got {pol!r}")
     if float(pol) > 0 and float(s["split_frac"]) <= 0:
         raise ValueError("ofpd.split_polarity > 0 needs ofpd.split_frac > 0 (it relaxes that split's test)")
+    if not isinstance(s["closed_apart"], bool):
+        raise ValueError(f"ofpd.closed_apart must be true or false, got {s['closed_apart']!r}")
+    if s["closed_apart"] and s["stages"] != "union":
+        raise ValueError('ofpd.closed_apart needs ofpd.stages "union"')
     if s["recent_events"] is not None:
         check_recent_events(s, config)
     if s["bin_from"] == "ofpd" and s["speed_unit"] != "px_ms":
@@ -518,13 +524,14 @@ def blob_objects_xy(stage_pixels: Sequence[tuple[np.ndarray, np.ndarray]], senso
     return _blob_objects_flat(xs, ys, starts, int(sensor_size[0]), config, recent, pol)
 
 
-def blob_settings(s: dict) -> tuple[bool, int, float, float, int, int, float, float, float]:
+def blob_settings(s: dict) -> tuple[bool, int, float, float, int, int, float, float, float, bool]:
     """(stages "union"?, then link, frac_closed, frac_open, need, min_count as compiled.union_objects /
-    blob_objects take them, then split_frac, split_waist, split_polarity, union_objects' only) from
-    ofpd_settings ``s``."""
+    blob_objects take them, then split_frac, split_waist, split_polarity, closed_apart, union_objects'
+    only) from ofpd_settings ``s``."""
     need = int(s["min_events"])
     return (s["stages"] == "union", int(s["link_px"]), float(s["merge_frac"]), float(s["edge_merge_frac"]), need,
-            max(1, -(-need // 4)), float(s["split_frac"]), float(s["split_waist"]), float(s["split_polarity"]))
+            max(1, -(-need // 4)), float(s["split_frac"]), float(s["split_waist"]), float(s["split_polarity"]),
+            bool(s["closed_apart"]))
 
 
 def uses_polarity(s: dict) -> bool:
