@@ -9,8 +9,9 @@ setup:
 demo: setup
 	.venv/bin/toffe-deploy export ckpt/
 	.venv/bin/toffe-deploy run --target loihi-sim --out export/object_flow.jsonl
-	@echo "object flow, one JSON line per window (export/object_flow.jsonl):"
-	@cat export/object_flow.jsonl
+	@echo "object flow, one JSON line per window: the header and the first two windows of" \
+	      "$$(wc -l < export/object_flow.jsonl) lines in export/object_flow.jsonl:"
+	@head -n 3 export/object_flow.jsonl
 
 test: setup
 	.venv/bin/python -m pytest -q tests

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """A robot loop on toffe_deploy's Python API: events in packets, object flow and tracks out.
 
-    python examples/robot_loop.py [--bundle export/] [--events FILE] [--sensor-size W,H] [--target cpu]
+    python examples/robot_loop.py [--bundle export/] [--events FILE] [--sensor-size WxH] [--target cpu]
                                   [--packet-us 2000] [--max-ms 50]
 
 A camera driver hands over event packets (here: the shipped sample recording, or --events, read
@@ -22,6 +22,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from toffe_deploy import api  # noqa: E402
+from toffe_deploy.commands.run import parse_size  # noqa: E402
 from toffe_deploy.errors import ToffeError  # noqa: E402
 from toffe_deploy.events.io import open_events  # noqa: E402
 
@@ -42,19 +43,16 @@ def main(argv=None) -> int:
     ap.add_argument("--target", default="cpu", choices=api.TARGETS)
     ap.add_argument("--packet-us", type=int, default=2000, help="events per packet, in us of recording")
     ap.add_argument("--max-ms", type=float, default=50.0, help="stop after this much recording (inf: all of it)")
-    ap.add_argument("--sensor-size", default=None, metavar="W,H",
+    ap.add_argument("--sensor-size", default=None, metavar="WxH",
                     help="the camera's width and height in px, for files that do not record it (.npz, .npy, .txt)")
     a = ap.parse_args(argv)
     if a.packet_us <= 0 or not a.max_ms > 0:
         ap.error(f"--packet-us and --max-ms must be > 0, got {a.packet_us}, {a.max_ms}")
-    if a.sensor_size is not None:
-        text = a.sensor_size
+    if a.sensor_size is not None:           # WxH as `toffe-deploy run` takes it (W,H also works)
         try:
-            a.sensor_size = tuple(int(v) for v in text.split(","))
-        except ValueError:
-            a.sensor_size = ()
-        if len(a.sensor_size) != 2 or min(a.sensor_size) < 1:
-            ap.error(f"--sensor-size must be W,H in whole px, got {text!r}")
+            a.sensor_size = parse_size(a.sensor_size.replace(",", "x"))
+        except ValueError as exc:
+            ap.error(f"--sensor-size: {exc}")
     try:
         return loop(a)
     except ToffeError as exc:           # a missing or broken bundle or recording: one line, exit 2

@@ -26,6 +26,11 @@ find_python310() {
 }
 
 if [ ! -x "$VENV/bin/python" ]; then
+    if [ -n "${PYTHON310:-}" ] && ! "$PYTHON310" -c 'import sys; assert sys.version_info[:2] == (3, 10)' 2>/dev/null; then
+        ver=$("$PYTHON310" -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>/dev/null || echo "not a Python")
+        echo "toffe-deploy set-up: PYTHON310=$PYTHON310 is $ver, not Python 3.10 (Lava 0.10 needs exactly 3.10)." >&2
+        exit 2
+    fi
     if ! PY=$(find_python310); then
         echo "toffe-deploy set-up: Python 3.10 not found (Lava 0.10 needs exactly 3.10)." >&2
         echo "  Install it (e.g. 'pyenv install 3.10' or your distribution's python3.10) or set PYTHON310=/path/to/python3.10." >&2

@@ -82,7 +82,7 @@ def test_robot_loop_example_reads_a_whole_file_without_a_sensor_size(env, tmp_pa
     np.save(npy, ev)
     w, h = env["bundle"].config.sensor_size
     p = subprocess.run([sys.executable, str(ROOT / "examples" / "robot_loop.py"), "--bundle", str(env["bundle"].root),
-                        "--events", str(npy), "--sensor-size", f"{w},{h}", "--packet-us", "5000", "--max-ms", "inf"],
+                        "--events", str(npy), "--sensor-size", f"{w}x{h}", "--packet-us", "5000", "--max-ms", "inf"],
                        capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert p.returncode == 0, p.stderr
     lines = p.stdout.splitlines()

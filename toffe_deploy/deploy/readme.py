@@ -140,6 +140,8 @@ until they surround it; keys `link_px`, `merge_frac`, `edge_merge_frac`, `min_ev
 the other in a narrow waist, at most `split_waist` of the narrower one's width, is two objects,
 and with `split_polarity` f > 0 so is a blob whose halves each hold a leading and a trailing edge
 instead (>= f of a half's pixels fired one polarity only, >= f the other, apart; extents alike);
+with `closed_apart` true, `"union"` only, two blobs that each surround their centroid and hold
+`min_events` pixels stay two objects however close;
 with `recent_events` [r, m, c], `"union"` and `input_support` only, a blob short of `min_events`
 is an object when the latest K windows' event pixels in its box grown by r px reach
 m + floor(c A E / (H W)) and it lies apart from every object) or
