@@ -146,6 +146,14 @@ def test_save_load_roundtrip(tmp_path):
         AdaptiveSpikeNetBaseline.load(tmp_path / "missing", base.config)
 
 
+def test_a_deeply_nested_config_is_one_line(tmp_path):
+    """config.json nested deeper than the parser's stack raised RecursionError, not InputError."""
+    (tmp_path / "config.json").write_text("[" * 3000 + "]" * 3000)
+    (tmp_path / "weights.safetensors").write_bytes(b"x")
+    with pytest.raises(InputError, match="config.json: not readable JSON"):
+        AdaptiveSpikeNetBaseline.load(tmp_path, ToffeConfig(sensor_size=(64, 48)))
+
+
 @pytest.mark.skipif(not (SHIPPED / "weights.safetensors").exists(), reason="no shipped baseline weights")
 def test_shipped_weights_detect_moving_disc():
     meta = json.loads((SHIPPED / "config.json").read_text())

@@ -33,6 +33,35 @@ def test_a_terminal_gets_the_bar_unless_asked_not_to(monkeypatch):
     assert not show_progress(argparse.Namespace(no_progress=True))
 
 
+def test_a_slow_start_is_announced_on_a_terminal_only(monkeypatch):
+    """slow_notice: a block still running after after_s prints its message once on a terminal
+    (the first run's kernel compile); a quick block, --no-progress or a redirected stderr: nothing."""
+    import io
+    import time
+
+    from toffe_deploy.commands import slow_notice
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    term = Terminal()
+    monkeypatch.setattr(sys, "stderr", term)
+    with slow_notice(argparse.Namespace(no_progress=False), "compiling", after_s=0.05):
+        time.sleep(0.3)
+    with slow_notice(argparse.Namespace(no_progress=False), "quick", after_s=0.5):
+        pass
+    with slow_notice(argparse.Namespace(no_progress=True), "asked not to", after_s=0.0):
+        time.sleep(0.1)
+    time.sleep(0.6)                                  # a cancelled timer never fires
+    assert term.getvalue() == "compiling\n"
+    piped = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", piped)
+    with slow_notice(argparse.Namespace(no_progress=False), "redirected", after_s=0.0):
+        time.sleep(0.1)
+    assert piped.getvalue() == ""
+
+
 @pytest.mark.parametrize("command", ["events info", "events convert", "dataset synth", "dataset show", "train", "eval",
                                      "export", "run"])
 def test_every_command_takes_no_progress(command):

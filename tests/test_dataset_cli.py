@@ -97,10 +97,32 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, needle, random_eve
     assert err.startswith("toffe-deploy: error:") and needle in err and "\n" not in err
 
 
+@pytest.mark.parametrize("edit, needle", [
+    (lambda d: d["sequences"][0].__setitem__("file", 5), "sequences[0].file is 5, expected a non-empty string"),
+    (lambda d: d["sequences"][0].__setitem__("file", ""), "sequences[0].file is '', expected a non-empty string"),
+    (lambda d: d.__setitem__("sequences", [1, 2]), "sequences[0] is 1, expected an object"),
+    (lambda d: d["sequences"][1].pop("split"), "sequences[1] lacks 'split'"),
+    (lambda d: d["sequences"][0].__setitem__("name", None), "sequences[0].name is None"),
+    (lambda d: d["sequences"][0].__setitem__("n_events", "12"), "sequences[0].n_events is '12', expected a whole"),
+])
+def test_malformed_index_rows_are_one_line_errors(synth_dir, tmp_path, capsys, edit, needle):
+    """An index row that is no object, or whose file / name / split / n_events is missing or of the
+    wrong type, gave TypeError / KeyError tracebacks (iter_split_files, build_dataset)."""
+    d = json.loads((synth_dir / "index.json").read_text())
+    edit(d)
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "index.json").write_text(json.dumps(d))
+    for argv in (["train", "--data", str(tmp_path / "d"), "--out", str(tmp_path / "ck")],
+                 ["dataset", "synth", "--out", str(tmp_path / "d"), "--split", "test", "--limit", "1"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("toffe-deploy: error:") and "index.json: " + needle in err and "\n" not in err
+
+
 def test_bad_option_values_exit_2(tmp_path, capsys):
     for argv in (["--duration-s", "-1"], ["--limit", "0"], ["--noise-hz", "nan"], ["--size-px", "5,2"],
                  ["--sensor-size", "640"], ["--dark-fraction", "1.5"], ["--hot-pixels", "0,2"],
-                 ["--threshold", "0.1,0.2,0.3"]):
+                 ["--threshold", "0.1,0.2,0.3"], ["--hfov-deg", "1e-300"], ["--hfov-deg", "0.05,60"]):
         with pytest.raises(SystemExit) as exc:
             main(["dataset", "synth", "--out", str(tmp_path), *argv])
         assert exc.value.code == 2

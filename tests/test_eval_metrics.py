@@ -238,3 +238,16 @@ def test_sequence_focal_length_from_attrs_and_summary_lines():
     e.add_window([P(500, 500)], [])
     assert truth_lines(e.summary()) == ["vs ground truth: no object in the truth, 1.000 false positives per window "
                                         "(1 in 1 windows)"]
+
+
+@pytest.mark.parametrize("dt, needle", [("99999999999999999999", "expected microseconds in 1..1000000000"),
+                                        ("1000000001", "expected microseconds in 1..1000000000"),
+                                        ("500,,600", "empty item in '500,,600'"), ("500,", "empty item")])
+def test_eval_dt_items_beyond_a_window_or_empty_are_refused(tmp_path, capsys, dt, needle):
+    """A dt longer than any sequence evaluated 0 windows with exit 0; an empty item was dropped."""
+    from toffe_deploy.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["eval", str(tmp_path), "--data", str(tmp_path), "--dt", dt])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1 and f"argument --dt: {needle}" in err

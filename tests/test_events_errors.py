@@ -198,3 +198,24 @@ def test_writer_refuses_bad_events(tmp_path):
     with pytest.raises(ValueError, match="reserved"):
         write_events_h5(tmp_path / "x.h5", ev[:1], SIZE, attrs={"sensor_width": 3})
     assert not (tmp_path / "x.h5").exists() and not list(tmp_path.iterdir())   # nothing half-written
+
+
+def test_deeply_nested_json_attribute_is_one_line(tmp_path, capsys):
+    """A root attribute holding JSON nested deeper than the parser's stack raised RecursionError."""
+    path = tmp_path / "deep.h5"
+    write_events_h5(path, make_events([1, 2], [1, 1], [0, 5], [1, 0]), SIZE, attrs={"note": 1})
+    with h5py.File(path, "r+") as f:
+        f.attrs["note"] = "[" * 3000 + "]" * 3000
+    with open_events(path) as src, pytest.raises(InputError, match="root attribute note: JSON nested too deeply"):
+        src.attrs
+    assert "nested too deeply" in _cli_error(capsys, path)
+
+
+def test_missing_sensor_size_attribute_is_named(tmp_path, capsys):
+    """Named as the attribute, not as h5py's "Unable to synchronously open attribute (...)"."""
+    path = tmp_path / "nosize.h5"
+    write_events_h5(path, make_events([1, 2], [1, 1], [0, 5], [1, 0]), SIZE)
+    with h5py.File(path, "r+") as f:
+        del f.attrs["sensor_width"]
+    _read_fails(path, r"missing root attribute sensor_width$")
+    assert _cli_error(capsys, path).endswith("nosize.h5: missing root attribute sensor_width")

@@ -110,6 +110,15 @@ def test_output_dir_rules(tmp_path, bundle_dir):
         check_output_dir(tmp_path / "file", force=True)
 
 
+def test_a_deeply_nested_manifest_is_no_bundle_and_one_line_to_load(tmp_path, bundle_dir):
+    """JSON nested deeper than the parser's stack raised RecursionError, past is_bundle_dir's
+    (OSError, ValueError) and read_json's JSONDecodeError."""
+    (bundle_dir / "manifest.json").write_text("[" * 3000 + "]" * 3000)
+    assert not is_bundle_dir(bundle_dir)
+    with pytest.raises(InputError, match=r"manifest.json: not valid JSON \(nested too deeply\)"):
+        load_bundle(bundle_dir)
+
+
 def test_failed_write_leaves_nothing(tmp_path, bundle_dir):
     before = sorted(p.name for p in tmp_path.iterdir())
     with pytest.raises(ValueError):

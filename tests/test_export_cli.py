@@ -139,3 +139,15 @@ def test_missing_checkpoint_dir_and_bad_options(tmp_path, capsys):
     assert run_cli(tmp_path / "ck", "-o", tmp_path / "out", "--data", tmp_path / "nodata") == 2
     assert "data directory does not exist" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_negative_seed_and_empty_out_are_refused_before_any_work(tmp_path, ckpt, capsys):
+    """--seed -1 ended in numpy's SeedSequence traceback; -o "" was named as an empty path."""
+    with pytest.raises(SystemExit) as exc:
+        run_cli(ckpt, "-o", tmp_path / "out", "--checks", "end_to_end", "--windows", "2", "--seed", "-1")
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1 and "argument --seed: must be >= 0, got -1" in err
+    assert run_cli(ckpt, "-o", "", "--checks", "none") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "-o is empty: name the bundle directory to write" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ck"]

@@ -658,6 +658,23 @@ def _edit_config(env, tmp_path, fn):
     (lambda c: c.__setitem__("mask_kernel", 100001), "mask_kernel must be 1..255"),           # tens of GiB
     (lambda c: c.__setitem__("input_min_cluster", 10 ** 30), "input_min_cluster must be"),    # OverflowError
     (lambda c: c.__setitem__("n_bins", 4), "do not belong together"),                         # onnxruntime's error
+    # out of range, accepted silently before:
+    (lambda c: c["ofpd"].__setitem__("min_events", 0), "ofpd.min_events must be a whole number 1.."),
+    (lambda c: c["ofpd"].__setitem__("min_events", "12"), "ofpd.min_events must be a whole number 1.."),
+    (lambda c: c["ofpd"].__setitem__("min_events", True), "ofpd.min_events must be a whole number 1.."),
+    (lambda c: c["ofpd"].__setitem__("link_px", 0), "ofpd.link_px must be a whole number 1..4096"),
+    (lambda c: c["ofpd"].__setitem__("dedupe_px", -3), "ofpd.dedupe_px must be a whole number 1..4096"),
+    (lambda c: c["ofpd"].__setitem__("merge_frac", -0.1), "ofpd.merge_frac must be a finite number >= 0"),
+    (lambda c: c["ofpd"].__setitem__("edge_merge_frac", float("nan")), "ofpd.edge_merge_frac must be a finite"),
+    (lambda c: c["ofpd"].__setitem__("split_frac", float("inf")), "ofpd.split_frac must be a finite number >= 0"),
+    (lambda c: c["ofpd"].__setitem__("merge_frac", 10 ** 400), "ofpd.merge_frac must be a finite number >= 0"),
+    (lambda c: c.__setitem__("focal_px", 10 ** 400), "malformed config: int too large to convert to float"),
+    (lambda c: c["ofpd"].__setitem__("split_waist", 0), "ofpd.split_waist must be a finite number > 0"),
+    (lambda c: c["ofpd"].__setitem__("pool_min", 32), "ofpd.pool_min 32 must not exceed ofpd.pool_max 16"),
+    (lambda c: c["ofpd"].__setitem__("pool_max", 0), "ofpd.pool_max must be a whole number 1..4096"),
+    (lambda c: c.__setitem__("dt_us", 10 ** 10), "dt_us must be <= 1000000000"),
+    (lambda c: c["representative_speeds"].__setitem__(1, -1.0), "representative_speeds must be finite and >= 0"),
+    (lambda c: c["representative_speeds"].__setitem__(1, float("inf")), "representative_speeds must be finite"),
 ])
 def test_edited_bundle_configs_are_one_line_errors(env, capsys, tmp_path, edit, needle):
     b = _edit_config(env, tmp_path, edit)
@@ -669,6 +686,8 @@ def test_edited_bundle_configs_are_one_line_errors(env, capsys, tmp_path, edit, 
     (["--sensor-size", "65535x65535"], "larger than toffe-deploy runs"),
     (["--depth-m", "1e308"], "--depth-m must be in"),
     (["--focal-px", "5e-324"], "--focal-px must be in"),
+    (["--hfov-deg", "1e-300"], "--hfov-deg must be in [0.1, 179], got 1e-300"),            # a focal of 3.7e304 px
+    (["--hfov-deg", "179.99999999"], "--hfov-deg must be in [0.1, 179], got 179.99999999"),  # ... of 3e-8 px
 ])
 def test_sizes_beyond_any_camera_are_refused(env, capsys, tmp_path, extra, needle):
     ev = _npy(tmp_path / "ok.npy", 100 + 10 * np.arange(200))
@@ -678,6 +697,7 @@ def test_sizes_beyond_any_camera_are_refused(env, capsys, tmp_path, extra, needl
 
 
 @pytest.mark.parametrize("spec, needle", [("multi:2,seed=-1", "seed must be >= 0"),
+                                          ("multi:2,hfov=1e-300", "hfov must be in [0.1, 179] degrees"),
                                           ("multi:2,sensor=65535x65535", "larger than toffe-deploy runs")])
 def test_bad_synthetic_seeds_and_sizes(env, capsys, spec, needle):
     one_line_error(*cli(capsys, "run", env["bundle"], "--synthetic", spec, "--max-windows", "1", "--no-progress")[::2],
@@ -744,3 +764,52 @@ def test_a_fractional_sensor_size_is_refused_not_truncated(env, capsys, tmp_path
     np.savez(npz, x=z, y=z, t=np.arange(5), p=z, sensor_size=np.array([64.7, 48.2]))
     for path in (h5, npz):
         one_line_error(*cli(capsys, "events", "info", path)[::2], path.name, "in whole pixels")
+
+
+def test_an_ofpd_model_giving_nan_is_one_line_error(env, capsys, tmp_path):
+    """An ofpd.onnx with NaN weights (manifest re-hashed) wrote "x": null ... with exit 0, which
+    the output schema refuses: now the model is named, exit 2, and --out keeps only the whole
+    lines of the windows before (none with an object)."""
+    onnx = pytest.importorskip("onnx")
+    from onnx import numpy_helper
+
+    b = copy_bundle(env, tmp_path)
+    model = onnx.load(str(b / "ofpd.onnx"))
+    (fc,) = [t for t in model.graph.initializer if t.name == "fc.weight"]
+    fc.CopyFrom(numpy_helper.from_array(np.full_like(numpy_helper.to_array(fc), np.nan), fc.name))
+    onnx.save(model, str(b / "ofpd.onnx"))
+    rehash(b, "ofpd.onnx")
+    out = tmp_path / "o.jsonl"
+    one_line_error(*cli(capsys, *run_args(env, "--out", out, bundle=b))[::2],
+                   "ofpd.onnx: produced non-finite output (NaN or inf)")
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    assert lines[0]["type"] == "header" and not any(line.get("objects") for line in lines)
+
+
+def test_ground_truth_time_running_backwards_is_refused(env, capsys, tmp_path):
+    """A /ground_truth/t that runs backwards for an object gave wrong truth per window with exit 0;
+    rows grouped by object (each object's in time order) stay fine."""
+    grouped, back = tmp_path / "grouped.h5", tmp_path / "back.h5"
+    for path in (grouped, back):
+        shutil.copy(env["rec"], path)
+    with h5py.File(grouped, "r+") as f:
+        g = f["ground_truth"]
+        order = np.argsort(g["object_id"][()], kind="stable")
+        for k in list(g):
+            g[k][...] = g[k][()][order]
+    assert cli(capsys, "events", "info", grouped)[0] == 0
+    with h5py.File(back, "r+") as f:
+        f["ground_truth/t"][...] = f["ground_truth/t"][()][::-1]
+    with unchanged(back):
+        one_line_error(*cli(capsys, *run_args(env, "--max-windows", "2", events=back))[::2], "back.h5",
+                       "/ground_truth/t runs backwards at row")
+        one_line_error(*cli(capsys, "dataset", "show", back, "--out", tmp_path / "g.png")[::2],
+                       "/ground_truth/t runs backwards")
+    assert not (tmp_path / "g.png").exists()
+
+
+def test_a_deeply_nested_manifest_is_one_line_error(env, capsys, tmp_path):
+    """JSON nested deeper than the parser's stack raised RecursionError with a traceback."""
+    b = copy_bundle(env, tmp_path)
+    (b / "manifest.json").write_text("[" * 3000 + "]" * 3000)
+    one_line_error(*cli(capsys, *run_args(env, bundle=b))[::2], "manifest.json: not valid JSON (nested too deeply)")

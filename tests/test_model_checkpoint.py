@@ -92,6 +92,12 @@ def test_bad_config_json(ckpt):
     _expect(ckpt, r"config.json: config lacks n_bins, speed_bins")
 
 
+def test_deeply_nested_config_json(ckpt):
+    """JSON nested deeper than the parser's stack raised RecursionError (fileio.read_json)."""
+    (ckpt / "config.json").write_text("[" * 3000 + "]" * 3000)
+    _expect(ckpt, r"config.json: not valid JSON \(nested too deeply\)")
+
+
 def test_cli_reports_bad_checkpoint_in_one_line(ckpt, tmp_path, capsys):
     from toffe_deploy.cli import main
 

@@ -335,3 +335,21 @@ def test_resume_continues_only_its_own_run(data, tmp_path, capsys, monkeypatch):
     assert main(args + ["--seed", "6", "--resume"]) == 0
     assert "no training progress to resume" in capsys.readouterr().err
     assert json.loads((ck / ".train_state" / "state.json").read_text())["seed"] == 6
+
+
+def test_a_deeply_nested_training_progress_is_one_line(tmp_path):
+    """state.json nested deeper than the parser's stack raised RecursionError, not InputError."""
+    from toffe_deploy.errors import InputError
+    from toffe_deploy.model.train import STATE_DIR, _load_state
+
+    (tmp_path / STATE_DIR).mkdir()
+    (tmp_path / STATE_DIR / "state.json").write_text("[" * 3000 + "]" * 3000)
+    with pytest.raises(InputError, match="state.json: cannot read the training progress"):
+        _load_state(tmp_path)
+
+
+def test_train_dt_beyond_the_longest_window_is_refused(tmp_path, capsys):
+    """A --dt the saved config would refuse (config.MAX_DT_US) is refused before the training."""
+    assert main(["train", "--data", str(tmp_path), "--out", str(tmp_path / "ck"), "--dt", "10000000000"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--dt must be <= 1000000000 us" in err and not (tmp_path / "ck").exists()

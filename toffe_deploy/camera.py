@@ -45,6 +45,10 @@ def hfov_deg_from_focal(width_px: int, focal_px: float) -> float:
 
 
 REFERENCE_FOCAL_PX = focal_px_from_hfov(REFERENCE_WIDTH_PX, REFERENCE_HFOV_DEG)   # 554.26 px
+#: the horizontal fields of view (deg) an option may state: over 8 .. 4096 px they give focal
+#: lengths of 0.035 .. 2.3e6 px, inside --focal-px's range (runtime.run_camera.OPTION_RANGE);
+#: (0, 180) took 1e-300 deg (a focal length of 3.7e304 px) and 179.99999999 deg (3e-8 px)
+HFOV_RANGE_DEG = (0.1, 179.0)
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,10 @@ RESETS = ("subtract", "zero")
 MAX_SENSOR_PIXELS = 4096 * 4096
 #: the largest closing kernel (OFS-grid cells); 100,001 asked for 9 GiB in training
 MAX_MASK_KERNEL = 255
+#: the longest window (us), 1000 s: longer than any recording a window is cut from, and far
+#: enough from int64's range that the window arithmetic on microseconds (t0 + dt_us, n x dt_us)
+#: cannot overflow (any whole number was taken, 1e20 too)
+MAX_DT_US = 10 ** 9
 
 
 def sensor_too_large(sensor_size) -> str:
@@ -152,7 +156,7 @@ class ToffeConfig:
             if kw.get("input_support") is not None:
                 kw["input_support"] = check_support(kw["input_support"])
             cfg = cls(**kw)
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:   # OverflowError: float() of a 400-digit number
             raise InputError(path, f"malformed config: {exc}") from None
         cfg.validate(path)
         return cfg
@@ -171,6 +175,8 @@ class ToffeConfig:
             bad(f"n_bins must be >= 1, got {self.n_bins}")
         if self.dt_us < self.n_bins:
             bad(f"dt_us must be >= n_bins, got dt_us={self.dt_us}")
+        if self.dt_us > MAX_DT_US:
+            bad(f"dt_us must be <= {MAX_DT_US} ({MAX_DT_US / 1e6:g} s), got {self.dt_us}")
         if not self.speed_bins:
             bad("speed_bins is empty")
         lo_prev = -math.inf
@@ -180,6 +186,8 @@ class ToffeConfig:
             lo_prev = lo
         if len(self.representative_speeds) != len(self.speed_bins):
             bad("representative_speeds must have one entry per speed bin")
+        if not all(math.isfinite(v) and v >= 0 for v in self.representative_speeds):
+            bad(f"representative_speeds must be finite and >= 0, got {list(self.representative_speeds)}")
         if self.ofs_kernel % 2 != 1 or self.ofs_kernel < 1:
             bad(f"ofs_kernel must be odd, got {self.ofs_kernel}")
         if not 1 <= self.mask_kernel <= MAX_MASK_KERNEL:

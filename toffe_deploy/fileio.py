@@ -217,6 +217,12 @@ def json_text(obj: Any, **kwargs) -> str:
         return json.dumps(finite_json(obj), allow_nan=False, **kwargs)
 
 
+#: what json.load / json.loads raise on text that is not usable JSON: ValueError (JSONDecodeError,
+#: UnicodeDecodeError) and RecursionError, which the parser raises for nesting deeper than the
+#: interpreter's stack ('[' * 2000), not a ValueError
+JSON_ERRORS = (ValueError, RecursionError)
+
+
 def read_json(path: str | os.PathLike) -> Any:
     """A JSON file's content; a missing, unreadable or malformed file is a one-line InputError."""
     try:
@@ -228,6 +234,8 @@ def read_json(path: str | os.PathLike) -> Any:
         raise InputError(path, f"cannot read: {exc}") from None
     except json.JSONDecodeError as exc:
         raise InputError(path, f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except RecursionError:
+        raise InputError(path, "not valid JSON (nested too deeply)") from None
 
 
 def write_bytes_atomic(path: str | os.PathLike, data, suffix: str = "") -> None:

@@ -137,18 +137,32 @@ def _ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
     if given:
         s.update({k: v for k, v in LEGACY_LAYOUT.items() if k not in given})
     s.update(given)
-    for key in ("crop_px", "pool"):
-        if not (isinstance(s[key], int) and not isinstance(s[key], bool) and 1 <= s[key] <= 4096):
-            raise ValueError(f"ofpd.{key} must be a whole number 1..4096, got {s[key]!r}")
+    from .config import MAX_SENSOR_PIXELS
+    # whole numbers (int() downstream took 4.5, true or "12" silently, and 0 or less too): sizes
+    # and distances in px within the largest sensor side (4096), min_events a count of one frame's pixels
+    for key, hi in (("crop_px", 4096), ("pool", 4096), ("link_px", 4096), ("dedupe_px", 4096), ("pool_min", 4096),
+                    ("pool_max", 4096), ("min_events", MAX_SENSOR_PIXELS)):
+        if not (isinstance(s[key], int) and not isinstance(s[key], bool) and 1 <= s[key] <= hi):
+            raise ValueError(f"ofpd.{key} must be a whole number 1..{hi}, got {s[key]!r}")
     if s["crop_px"] % s["pool"] != 0:
         raise ValueError(f"ofpd.crop_px {s['crop_px']} must be a multiple of ofpd.pool {s['pool']}")
+    if s["pool_min"] > s["pool_max"]:
+        raise ValueError(f"ofpd.pool_min {s['pool_min']} must not exceed ofpd.pool_max {s['pool_max']}")
+    # fractions of an object's extent or width (compiled.merge_blobs, split_two): finite (abs < 1e300
+    # fails NaN, inf and a whole number too large for a float alike), not negative; split_waist > 0
+    # (split_frac 0 is what turns splitting off)
+    for key, strict in (("merge_frac", False), ("edge_merge_frac", False), ("split_frac", False),
+                        ("split_waist", True)):
+        v = s[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) < 1e300 or (v <= 0 if strict else v < 0):
+            raise ValueError(f"ofpd.{key} must be a finite number {'>' if strict else '>='} 0, got {v!r}")
     for key, choices in LAYOUT_CHOICES.items():
         if s[key] not in choices:
             raise ValueError(f"ofpd.{key} must be one of {', '.join(choices)}, got {s[key]!r}")
     if float(s["split_frac"]) > 0 and s["stages"] != "union":
         raise ValueError('ofpd.split_frac > 0 needs ofpd.stages "union"')
     pol = s["split_polarity"]
-    if isinstance(pol, bool) or not isinstance(pol, (int, float)) or not 0.0 <= float(pol) <= 0.5:
+    if isinstance(pol, bool) or not isinstance(pol, (int, float)) or not 0.0 <= pol <= 0.5:
         raise ValueError(f"ofpd.split_polarity must be a number in [0, 0.5], got {pol!r}")
     if float(pol) > 0 and float(s["split_frac"]) <= 0:
         raise ValueError("ofpd.split_polarity > 0 needs ofpd.split_frac > 0 (it relaxes that split's test)")

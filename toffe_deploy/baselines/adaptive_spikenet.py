@@ -50,6 +50,7 @@ import numpy as np
 
 from ..config import ToffeConfig
 from ..errors import InputError
+from ..fileio import JSON_ERRORS
 
 WEIGHTS_FILE = "weights.safetensors"
 CONFIG_FILE = "config.json"
@@ -422,7 +423,7 @@ class AdaptiveSpikeNetBaseline:
                 raise InputError(p, "missing file (train it with benchmarks/train_asnet.py)")
         try:
             meta = json.loads(cfg_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
+        except (OSError, *JSON_ERRORS) as exc:
             raise InputError(cfg_path, f"not readable JSON ({exc})") from None
         if not isinstance(meta, dict) or meta.get("format") != FORMAT:
             raise InputError(cfg_path, f"not a {FORMAT} config")

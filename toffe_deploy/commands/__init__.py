@@ -19,3 +19,29 @@ def show_progress(args) -> bool:
     import sys
 
     return not getattr(args, "no_progress", False) and sys.stderr.isatty()
+
+
+class slow_notice:
+    """``with slow_notice(args, "..."):`` prints the message once on stderr when the block is
+    still running after ``after_s`` seconds and progress is shown (stderr a terminal, no
+    --no-progress): the first run on a machine compiles the numba kernels (~2 minutes) before
+    its first window, and a silent terminal for that long looks like a hang."""
+
+    def __init__(self, args, message: str, after_s: float = 3.0):
+        self.message, self.after_s, self.on = message, float(after_s), show_progress(args)
+        self._timer = None
+
+    def __enter__(self):
+        if self.on:
+            import sys
+            import threading
+
+            self._timer = threading.Timer(self.after_s, lambda: print(self.message, file=sys.stderr, flush=True))
+            self._timer.daemon = True
+            self._timer.start()
+        return self
+
+    def __exit__(self, *exc):
+        if self._timer is not None:
+            self._timer.cancel()
+        return False

@@ -84,6 +84,8 @@ _nonneg_int = _number(int, 0, strict=False)
 
 
 def register(sub) -> None:
+    from ..camera import HFOV_RANGE_DEG
+
     p = sub.add_parser("dataset", help="generate the synthetic high-speed data set, render samples to PNG",
                        description="The synthetic TOFFE data set: objects on closed trajectories seen by "
                        "an emulated 640x480 DVS at 20,000 samples/s, with per-sample ground truth.")
@@ -121,8 +123,8 @@ def register(sub) -> None:
                              "random splits only; sensor options to all")
     r.add_argument("--sensor-size", type=_sensor_size, default=None, metavar="WxH",
                    help="sensor size in pixels (default: 640x480)")
-    r.add_argument("--hfov-deg", type=_range(0, True, 170.0), default=None, metavar="LO,HI",
-                   help="horizontal field of view, degrees (random: 40,90; paper: 60)")
+    r.add_argument("--hfov-deg", type=_range(HFOV_RANGE_DEG[0], False, 170.0), default=None, metavar="LO,HI",
+                   help=f"horizontal field of view, degrees, {HFOV_RANGE_DEG[0]:g}..170 (random: 40,90; paper: 60)")
     r.add_argument("--focal-px", type=_range(0, True), default=None, metavar="LO,HI",
                    help="focal length in pixels, instead of --hfov-deg")
     r.add_argument("--depth-m", type=_range(0, True), default=None, metavar="LO,HI",

@@ -8,14 +8,22 @@ from . import add_progress_flag, show_progress
 
 
 def _dts(text: str) -> tuple[int, ...]:
+    """Window lengths: whole microseconds 1..MAX_DT_US, no empty item (``500,,600`` was read as
+    500,600, and a dt longer than every sequence evaluated 0 windows with exit 0)."""
     import argparse
 
+    from ..config import MAX_DT_US
+
+    items = [v.strip() for v in text.split(",")]
+    if "" in items:
+        raise argparse.ArgumentTypeError(f"empty item in {text!r}: expected comma-separated microseconds")
     try:
-        vals = tuple(int(v) for v in text.split(",") if v.strip())
+        vals = tuple(int(v) for v in items)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated microseconds, got {text!r}") from None
-    if not vals or min(vals) <= 0:
-        raise argparse.ArgumentTypeError(f"expected positive microseconds, got {text!r}")
+    if min(vals) <= 0 or max(vals) > MAX_DT_US:
+        raise argparse.ArgumentTypeError(f"expected microseconds in 1..{MAX_DT_US} ({MAX_DT_US / 1e6:g} s), "
+                                         f"got {text!r}")
     return tuple(dict.fromkeys(vals))             # each once, in the order given
 
 
@@ -31,6 +39,7 @@ def _by(text: str):
 
 
 def register(sub) -> None:
+    from ..config import MAX_DT_US
     from ..metrics import GATE_PX
 
     p = sub.add_parser(
@@ -45,7 +54,7 @@ def register(sub) -> None:
                    help="data-set split to evaluate: any split the index lists or any DIR/NAME/ holding .h5 files "
                    "(test (default), multi, train, appearance, pairs, ...)")
     p.add_argument("--dt", type=_dts, default=(200, 500, 1000, 2000, 5000),
-                   help="window lengths in us, comma separated (default 200,500,1000,2000,5000)")
+                   help=f"window lengths in us (each 1..{MAX_DT_US}), comma separated (default 200,500,1000,2000,5000)")
     p.add_argument("--max-windows", type=int, default=20,
                    help="windows per sequence and dt, evenly spaced (default 20); at least as many as a "
                         "recording holds (200 for 100 ms at 500 us) is every window: the whole stream, as "

@@ -1,7 +1,8 @@
 """`toffe-deploy export CKPT [-o export/]`: the verified deploy bundle (see export/README.md)."""
 from __future__ import annotations
 
-from . import add_progress_flag, show_progress
+from . import add_progress_flag, show_progress, slow_notice
+from .dataset import _nonneg_int
 
 CHECK_NAMES = ("fixed_vs_float", "lava_vs_fixed", "netx_vs_fixed", "onnx_vs_torch", "end_to_end")
 
@@ -31,7 +32,8 @@ def register(sub) -> None:
                    help="windows (48x32 crops) run on the Lava simulator for the bit-exactness and netx checks (default: 2)")
     p.add_argument("--checks", default=",".join(CHECK_NAMES), metavar="LIST",
                    help=f"comma-separated parity checks to run, or 'none' (default: all: {','.join(CHECK_NAMES)})")
-    p.add_argument("--seed", type=int, default=0, help="seed for choosing/generating held-out windows (default: 0)")
+    p.add_argument("--seed", type=_nonneg_int, default=0,
+                   help="seed (>= 0) for choosing/generating held-out windows (default: 0)")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 1 when a parity check fails its goal (the bundle is still written)")
     add_progress_flag(p)
@@ -47,9 +49,11 @@ def check_export_output(args) -> None:
     import os
     from pathlib import Path
 
-    from ..errors import InputError
+    from ..errors import InputError, ToffeError
     from ..fileio import check_outputs
 
+    if not args.out:                  # "" is the current directory to os.path, and an empty name in messages
+        raise ToffeError("-o is empty: name the bundle directory to write, e.g. -o export")
     out = Path(os.path.realpath(args.out))
     for what, p in (("the checkpoint", args.checkpoint), ("the --data set", args.data)):
         if p is None:
@@ -78,9 +82,11 @@ def run(args) -> int:
     if args.windows < 1 or args.lava_windows < 1:
         raise ToffeError("--windows and --lava-windows must be >= 1")
     check_export_output(args)
-    res = export_bundle(args.checkpoint, args.out, force=args.force, variants=_list(args.variants), checks=checks,
-                        data=args.data, seed=args.seed, n_windows=args.windows, lava_windows=args.lava_windows,
-                        progress=show_progress(args))
+    with slow_notice(args, "\ntoffe-deploy: the parity checks run the pipeline, whose kernels the first run on a "
+                           "machine compiles (about 2 minutes, once)", after_s=45.0):   # a warm export: ~22 s
+        res = export_bundle(args.checkpoint, args.out, force=args.force, variants=_list(args.variants),
+                            checks=checks, data=args.data, seed=args.seed, n_windows=args.windows,
+                            lava_windows=args.lava_windows, progress=show_progress(args))
     b = res.bundle
     print(f"wrote bundle {b.root}/ ({len(b.manifest['files'])} files, {len(b.ofs)} OFS stages, "
           f"sensor {b.config.width}x{b.config.height}, B={b.config.n_bins}, dt={b.config.dt_us} us) "

@@ -26,7 +26,7 @@ from ..config import MAX_SENSOR_PIXELS, sensor_too_large
 from ..errors import InputError, ToffeError, warn
 from ..events.live import GRACE_S, QUEUE_EVENTS, is_live
 from ..signals import signal_behind, signals_deferred
-from . import add_progress_flag, show_progress
+from . import add_progress_flag, show_progress, slow_notice
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
 SAMPLE = Path(__file__).resolve().parent.parent / "samples" / "sample_multi.h5"
@@ -36,6 +36,8 @@ SKIP_EMPTY_AFTER = 1000
 
 
 def register(sub) -> None:
+    from ..camera import HFOV_RANGE_DEG
+
     p = sub.add_parser(
         "run", help="run a deploy bundle on events and print object flow per window",
         description="Run the deployed TOFFE (OFS cascade + OFPD) on a stream of events and print, per "
@@ -58,7 +60,7 @@ def register(sub) -> None:
                           "'SPLIT[:INDEX][,duration=S][,seed=N][,sensor=WxH][,hfov=DEG]', e.g. "
                           "'multi:2,duration=0.05,sensor=346x260' (SPLIT: train, test or multi); rendered on a "
                           "pinhole camera of sensor WxH (default: --sensor-size, else the bundle's) and "
-                          "horizontal field of view DEG (default: 60)")
+                          f"horizontal field of view DEG ({HFOV_RANGE_DEG[0]:g}..{HFOV_RANGE_DEG[1]:g}, default: 60)")
     p.add_argument("--sensor-size", metavar="WxH", type=parse_size,
                    help="the recording's sensor size, e.g. 346x260: for files without one (npz/npy without "
                         "sensor_size are otherwise sized by their largest coordinate) or to override the file's; "
@@ -73,7 +75,7 @@ def register(sub) -> None:
                            "field of view over the recording's width)")
     lens.add_argument("--hfov-deg", type=float, metavar="DEG",
                       help="the recording camera's horizontal field of view instead of --focal-px: "
-                           "F = (W / 2) / tan(DEG / 2)")
+                           f"F = (W / 2) / tan(DEG / 2); {HFOV_RANGE_DEG[0]:g}..{HFOV_RANGE_DEG[1]:g} degrees")
     p.add_argument("--out", metavar="FILE.jsonl", help="write the JSON lines to this file instead of stdout ('-': "
                                                        "stdout): it replaces an existing file with its first line "
                                                        "(the header), then each window's line is appended whole "
@@ -83,8 +85,9 @@ def register(sub) -> None:
                         f"arrive the oldest chunks are dropped and counted, except on stdin, whose reader "
                         f"waits (a pipe pushes back; a larger read goes in alone) (default: {QUEUE_EVENTS})")
     p.add_argument("--idle-timeout", type=float, default=None, metavar="S",
-                   help="live sources: end the run after S seconds without an event (default: 0, never; "
-                        "stdin ends at end of file, dv:// when the sender stops, every source on Ctrl-C)")
+                   help="live sources: end the run after S seconds without an event, counted from the source's "
+                        "opening until its first event, then from the latest (default: 0, never; stdin ends at "
+                        "end of file, dv:// when the sender stops, every source on Ctrl-C)")
     p.add_argument("--window-grace-ms", type=float, default=None, metavar="MS",
                    help=f"live sources: how long past a window's end (in host time, the source's clock mapped "
                         f"at its first event) the run waits for late events when nothing newer came; events "
@@ -142,6 +145,7 @@ parse_size.__name__ = "sensor size"      # argparse names the type in its error 
 def parse_synthetic(spec: str) -> dict:
     """'multi:2,duration=0.05,seed=1,sensor=346x260,hfov=60' -> {split, index, duration, seed,
     sensor, hfov} (ToffeError if malformed)."""
+    from ..camera import HFOV_RANGE_DEG
     from ..dataset.splits import MAX_SYNTH_DURATION_S
 
     out = {"split": "multi", "index": 0, "duration": None, "seed": 0, "sensor": None, "hfov": None}
@@ -175,8 +179,9 @@ def parse_synthetic(spec: str) -> dict:
     if out["duration"] is not None and not 0 < out["duration"] <= MAX_SYNTH_DURATION_S:
         raise ToffeError(f"--synthetic {spec!r}: duration must be in (0, {MAX_SYNTH_DURATION_S:g}] s "
                          "(the generator holds the whole recording in memory)")
-    if out["hfov"] is not None and not 0 < out["hfov"] < 180:
-        raise ToffeError(f"--synthetic {spec!r}: hfov must be in (0, 180) degrees")
+    lo, hi = HFOV_RANGE_DEG
+    if out["hfov"] is not None and not lo <= out["hfov"] <= hi:
+        raise ToffeError(f"--synthetic {spec!r}: hfov must be in [{lo:g}, {hi:g}] degrees, got {out['hfov']:.12g}")
     return out
 
 
@@ -392,8 +397,10 @@ def run_command(args) -> int:
                                  f"{need / 2**30:.1f} GiB in memory (limit {DUMP_MAX_BYTES / 2**30:.0f}); "
                                  "lower --max-windows")
             dump = SpikeDump(args.dump_spikes)
-        pipe = Pipeline(bundle, args.target, tag=args.tag, ofpd_variant=args.ofpd, sensor_size=sensor,
-                        speed_scale=camera.scale, keep_stages=dump is not None, track=not args.no_track)
+        with slow_notice(args, "toffe-deploy: loading the compiled kernels (the first run on a machine "
+                               "compiles them: about 2 minutes, once)"):
+            pipe = Pipeline(bundle, args.target, tag=args.tag, ofpd_variant=args.ofpd, sensor_size=sensor,
+                            speed_scale=camera.scale, keep_stages=dump is not None, track=not args.no_track)
         tracking = None
         if errors is not None and pipe.tracker is not None:
             from ..tracking_metrics import TrackingErrors

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..config import MAX_MASK_KERNEL
+from ..config import MAX_DT_US, MAX_MASK_KERNEL
 from . import add_progress_flag, show_progress
 
 
@@ -106,6 +106,8 @@ def run(args) -> int:
     for name in ("dt", "ofs_epochs", "epochs", "windows_per_seq"):
         if getattr(args, name) < (0 if "epochs" in name else 1):
             raise ToffeError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
+    if args.dt > MAX_DT_US:                 # the checkpoint's config would be refused, after the training
+        raise ToffeError(f"--dt must be <= {MAX_DT_US} us, got {args.dt}")
     from ..fileio import check_outputs
 
     check_outputs(dirs=[("--out", args.out)], inputs=[("the data set", args.data)])   # before any training

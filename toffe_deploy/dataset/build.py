@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import reprlib
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -112,7 +113,30 @@ def read_index(root: str | os.PathLike) -> dict[str, Any] | None:
     d = read_json(path)
     if not isinstance(d, dict) or d.get("format") != INDEX_FORMAT or not isinstance(d.get("sequences"), list):
         raise InputError(path, f"not a {INDEX_FORMAT} file")
+    for i, row in enumerate(d["sequences"]):
+        check_index_row(path, i, row)
     return d
+
+
+#: the fields of an index row that its readers use (the split's files, a rebuild's kept rows)
+ROW_FIELDS = ("file", "name", "split", "n_events")
+
+
+def check_index_row(path: Path, i: int, row: Any) -> None:
+    """InputError naming index.json for a row its readers would fail on with a TypeError or
+    KeyError: not an object, or a field of ROW_FIELDS missing or of the wrong type."""
+    if not isinstance(row, dict):
+        raise InputError(path, f"sequences[{i}] is {reprlib.repr(row)}, expected an object")
+    for key in ROW_FIELDS:
+        if key not in row:
+            raise InputError(path, f"sequences[{i}] lacks {key!r}")
+        v = row[key]
+        if key == "n_events":
+            ok, want = isinstance(v, int) and not isinstance(v, bool) and v >= 0, "a whole number >= 0"
+        else:
+            ok, want = isinstance(v, str) and v != "", "a non-empty string"
+        if not ok:
+            raise InputError(path, f"sequences[{i}].{key} is {reprlib.repr(v)}, expected {want}")
 
 
 def build_dataset(root: str | os.PathLike, specs_by_split: dict[str, list[SequenceSpec]], seed: int,

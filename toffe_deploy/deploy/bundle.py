@@ -38,7 +38,7 @@ import numpy as np
 from .. import __version__
 from ..config import ToffeConfig, load_config
 from ..errors import InputError
-from ..fileio import atomic_dir, read_json
+from ..fileio import JSON_ERRORS, atomic_dir, read_json
 from ..fixed_point import DECAY_UNITY, STATE_SHIFT, VTH_MANT_MAX, WEIGHT_MAX, LoihiOFSParams
 
 BUNDLE_FORMAT = "toffe-deploy-bundle"
@@ -226,7 +226,7 @@ def is_bundle_dir(path: str | os.PathLike) -> bool:
     m = Path(path) / MANIFEST
     try:
         d = json.loads(m.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, *JSON_ERRORS):
         return False
     return isinstance(d, dict) and d.get("format") == BUNDLE_FORMAT
 

@@ -170,10 +170,10 @@ class ToffeH5Source(EventSource):
         if version > FORMAT_VERSION:
             raise InputError(path, f"{FORMAT_NAME} format version {version} is newer than this "
                                    f"toffe-deploy reads ({FORMAT_VERSION}); upgrade toffe-deploy")
-        try:
-            own = (a["sensor_width"], a["sensor_height"])      # check_sensor_size: whole numbers only
-        except KeyError as exc:
-            raise InputError(path, f"missing root attribute {exc.args[0]!r}") from None
+        missing = [k for k in ("sensor_width", "sensor_height") if k not in a]
+        if missing:                                             # h5py's KeyError text is its C library's
+            raise InputError(path, f"missing root attribute{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+        own = (a["sensor_width"], a["sensor_height"])          # check_sensor_size: whole numbers only
         super().__init__(path, check_sensor_size(path, sensor_size or own))
         self._h5 = h5
         if "events" not in h5 or not isinstance(h5["events"], h5py.Group):
@@ -262,7 +262,9 @@ class ToffeH5Source(EventSource):
             try:
                 out[k] = json.loads(v) if isinstance(v, str) else v.tolist() if hasattr(v, "tolist") else v
             except json.JSONDecodeError:
-                out[k] = v
+                out[k] = v                      # a plain string, not JSON
+            except RecursionError:              # JSON nested deeper than the parser's stack
+                raise InputError(self.path, f"root attribute {k}: JSON nested too deeply") from None
         return out
 
     def close(self):

@@ -161,7 +161,26 @@ def check_ground_truth(path, gt: dict, required=()) -> dict:
     d = np.asarray(gt.get("depth_m", []))
     if d.size and (np.isfinite(d) & (d <= 0)).any():
         raise InputError(path, f"/ground_truth/depth_m holds {d[np.isfinite(d) & (d <= 0)][0]!r}: a depth is > 0")
+    _check_truth_order(path, gt)
     return gt
+
+
+def _check_truth_order(path, gt: dict) -> None:
+    """Each object's samples in time order: the per-window lookup interpolates between the two
+    samples around a window's midpoint found by bisection, and on a ``t`` that runs backwards it
+    took the wrong two (wrong scores, exit 0). Rows in time order (the writer's) pass in one
+    comparison; rows grouped by object are fine too."""
+    t = np.asarray(gt.get("t", []))
+    if t.shape[0] < 2 or not (t[1:] < t[:-1]).any():     # compared, not np.diff: unsigned t wraps
+        return
+    ids = np.asarray(gt["object_id"]) if "object_id" in gt else np.zeros(t.shape[0], np.int8)
+    order = np.argsort(ids, kind="stable")
+    ts, os_ = t[order], ids[order]
+    back = np.flatnonzero((ts[1:] < ts[:-1]) & (os_[1:] == os_[:-1]))
+    if back.size:
+        j = int(back[0])
+        raise InputError(path, f"/ground_truth/t runs backwards at row {int(order[j + 1])}: {ts[j + 1].item()} us after "
+                               f"{ts[j].item()} us of object {os_[j].item()} (each object's rows must be in time order)")
 
 
 #: ground-truth columns that must be finite (speed_px_ms and depth_m may be NaN: not known)

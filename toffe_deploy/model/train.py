@@ -55,7 +55,7 @@ from ..config import ToffeConfig
 from ..errors import InputError, ToffeError, warn
 from ..events.frontend import apply_dense
 from ..events.support import event_pixels, history_counts, support_dense
-from ..fileio import atomic_path
+from ..fileio import JSON_ERRORS, atomic_path
 from .. import ofpd_io
 from ..cascade import pool_any, run_cascade, stage_frame
 from .data import WindowSet
@@ -444,7 +444,7 @@ def _load_state(out: Path) -> dict:
         return {}
     try:
         state = json.loads(p.read_text())
-    except (OSError, ValueError) as exc:
+    except (OSError, *JSON_ERRORS) as exc:
         raise InputError(p, f"cannot read the training progress ({exc}); delete {STATE_DIR}/ to start over") from None
     if not isinstance(state, dict):
         state = {"ofs_done": None}                   # reported below as malformed
@@ -645,7 +645,7 @@ def train(opts: TrainOptions) -> Path:
         # an OFPD-only run keeps the OFS stages, and so their training record
         try:
             old = json.loads((out / "train_log.json").read_text())
-        except (OSError, ValueError):
+        except (OSError, *JSON_ERRORS):
             old = {}
         log.update({k: v for k, v in old.items() if k.startswith("ofs_")} if isinstance(old, dict) else {})
     log["train_windows"] = len(windows)

@@ -78,4 +78,9 @@ class OFPDRunner:
         if x.shape[0] == 0:
             return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32), np.zeros((0, 1), np.float32)
         pose, direction, speed = self._run(self._output_names, {INPUT_NAME: x}, None)
+        # NaN or inf out: a broken model (NaN weights, an overflow), whose objects were written
+        # as null positions and speeds with exit 0, against the output schema; the arrays are tiny
+        if not (np.isfinite(pose).all() and np.isfinite(direction).all() and np.isfinite(speed).all()):
+            raise InputError(self.path, "produced non-finite output (NaN or inf): the OFPD model is broken "
+                                        "(NaN or huge weights?); re-export the bundle")
         return pose, direction, speed

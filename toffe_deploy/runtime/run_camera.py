@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..camera import SpeedScale, focal_px_from_hfov, hfov_deg_from_focal, speed_text
+from ..camera import HFOV_RANGE_DEG, SpeedScale, focal_px_from_hfov, hfov_deg_from_focal, speed_text
 from ..config import ToffeConfig
 from ..errors import ToffeError
 
@@ -47,9 +47,9 @@ class RunCamera:
                 "speed_bins_mps": [[self.scale.to_mps(lo), self.scale.to_mps(hi)] for lo, hi in config.speed_bins_px_ms]}
 
 
-#: what --depth-m (m) and --focal-px (px) may be: any camera's, with room (a depth of 1e308 m
-#: made every m/s factor 0 and a division by it fail)
-OPTION_RANGE = {"--depth-m": (1e-3, 1e6), "--focal-px": (1e-2, 1e7)}
+#: what --depth-m (m), --focal-px (px) and --hfov-deg (deg) may be: any camera's, with room (a
+#: depth of 1e308 m made every m/s factor 0 and a division by it fail; camera.HFOV_RANGE_DEG)
+OPTION_RANGE = {"--depth-m": (1e-3, 1e6), "--focal-px": (1e-2, 1e7), "--hfov-deg": HFOV_RANGE_DEG}
 
 
 def _positive(name: str, v: float | None) -> None:
@@ -59,7 +59,7 @@ def _positive(name: str, v: float | None) -> None:
     if not (v > 0 and v < float("inf")):
         raise ToffeError(f"{name} must be a positive number, got {v:g}")
     if not lo <= v <= hi:
-        raise ToffeError(f"{name} must be in [{lo:g}, {hi:g}], got {v:g}")
+        raise ToffeError(f"{name} must be in [{lo:g}, {hi:g}], got {v:.12g}")
 
 
 def resolve_camera(config: ToffeConfig, sensor_size: tuple[int, int], *, depth_m: float | None = None,
@@ -68,8 +68,7 @@ def resolve_camera(config: ToffeConfig, sensor_size: tuple[int, int], *, depth_m
     """The run's camera from the bundle's config, the recording's sensor and the options (module doc)."""
     _positive("--depth-m", depth_m)
     _positive("--focal-px", focal_px)
-    if hfov_deg is not None and not 0 < hfov_deg < 180:
-        raise ToffeError(f"--hfov-deg must be in (0, 180) degrees, got {hfov_deg:g}")
+    _positive("--hfov-deg", hfov_deg)
     w = int(sensor_size[0])
     if focal_px is not None:
         f, f_from = float(focal_px), "--focal-px"
