@@ -279,6 +279,15 @@ def test_fps_without_video_is_refused(tmp_path, make_bundle, capsys):
     assert not (tmp_path / "v").exists()
 
 
+def test_theme_without_render_is_refused(tmp_path, make_bundle, capsys):
+    """--theme only colours --render's frames: alone it would be ignored, so it is refused as --fps is."""
+    bundle = make_bundle(tmp_path)
+    rc = main(["run", str(bundle.root), "--theme", "light", "--out", str(tmp_path / "o.jsonl"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--theme sets the --render frames' background" in err and err.count("\n") == 1
+    assert not (tmp_path / "o.jsonl").exists()
+
+
 def test_untracked_report_counts_windows_not_detections_and_names_its_series(tmp_path):
     rep = RunReport(SENSOR)
     for i in range(3):                       # two bin-2 objects a window: 6 detections in 3 windows

@@ -257,6 +257,19 @@ time.sleep(0.5)
         server.wait()
 
 
+def test_a_dv_stream_that_refuses_is_one_plain_line():
+    """Nothing listening on the port: the error says so in words, without Boost's source location."""
+    from toffe_deploy.errors import InputError
+
+    with socket.socket() as s:                      # a port that was free a moment ago
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(InputError) as info:
+        DvSource(f"dv://127.0.0.1:{port}", grace_s=0.5)
+    msg = str(info.value)
+    assert "cannot connect to a DV network stream" in msg and "[" not in msg and "\n" not in msg
+
+
 # ------------------------------------------------------------------ the CLI
 def window_lines(stdout: bytes) -> list[bytes]:
     """The window lines of a run's JSON lines (the header line, first, describes the run)."""

@@ -305,6 +305,8 @@ def run_command(args) -> int:
         raise ToffeError("--video needs --render DIR")
     if args.fps is not None and not args.video:
         raise ToffeError("--fps sets the --video file's frame rate: add --render DIR --video")
+    if args.theme != "dark" and not args.render:
+        raise ToffeError("--theme sets the --render frames' background: add --render DIR")
     if args.out == "-" or _is_stdout(args.out):
         args.out = None                              # stdout, as --events - is stdin (the summary goes to stderr)
     if args.tag != "fixed_pt" and args.target in ("cpu", "cuda"):

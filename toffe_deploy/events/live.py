@@ -560,8 +560,9 @@ class DvSource(LiveSource):
             host, port = _host_port(spec, "dv://")
             try:
                 self.reader = dv.io.NetworkReader(host, port)
-            except Exception as exc:
-                raise InputError(spec, f"cannot connect to a DV network stream: {exc}") from None
+            except Exception as exc:                 # Boost's message, less its source location
+                raise InputError(spec, "cannot connect to a DV network stream: "
+                                       f"{str(exc).split(' [', 1)[0].strip() or type(exc).__name__}") from None
         else:
             serial = spec.partition(":")[2]
             found = [str(d) for d in dv.io.camera.discover()]
