@@ -243,6 +243,14 @@ def test_min_gap_equals_brute_force_also_at_the_threshold(rng):
 JOIN = ToffeConfig(sensor_size=SENSOR, ofpd={**ofpd_io.OFPD_DEFAULTS, "stages": "join"})
 
 
+def grouped(mask, config):
+    """The objects of one stage frame's pixels ``mask`` and the mask of each over those pixels
+    (listed as xy(mask) gives them)."""
+    objs, claims = ofpd_io.group_objects_xy(stages(mask), SENSOR, config)
+    xs, ys = xy(mask)
+    return objs, ofpd_io.object_masks_xy(xs, ys, objs, claims), (xs, ys)
+
+
 def square_ring(cx, cy, side, width=3):
     """The outline of a square (what a square moving by ``width`` px along its diagonal gives)."""
     ys, xs = np.ogrid[:SENSOR[1], :SENSOR[0]]
@@ -340,11 +348,9 @@ def test_a_closed_object_stays_closed_when_a_noise_seed_joins_it():
     edge = np.zeros_like(star)
     edge[142:144, 185:215] = True                                   # 12 px above the star's top point
     assert surrounds(*xy(star)) and not surrounds(*xy(star | seed))
-    objs, claims = ofpd_io.group_objects_xy(stages(star | seed | edge), SENSOR, CFG)
+    objs, masks, (xs, ys) = grouped(star | seed | edge, CFG)
     assert len(objs) == 2
     np.testing.assert_allclose(sorted(o[1:] for o in objs), [(199.5, 142.5), (200.0, 178.0)], atol=0.6)
-    xs, ys = xy(star | seed | edge)
-    masks = ofpd_io.object_masks_xy(xs, ys, objs, claims)
     top = int(np.argmin([o[2] for o in objs]))
     assert np.array_equal(masks[top], edge[ys, xs])                  # the edge alone; the seed is the star's
     assert np.array_equal(masks[1 - top], (star | seed)[ys, xs])
@@ -434,11 +440,9 @@ def test_two_whole_outlines_stay_two_objects_with_closed_apart():
     edge[202:204, 233:243] = True                                   # an open piece 5 px right of the square
     assert surrounds(*xy(sq)) and surrounds(*xy(ring)) and not surrounds(*xy(edge))
     assert len(ofpd_io.group_objects_xy(stages(sq | ring), SENSOR, CFG)[0]) == 1
-    objs, claims = ofpd_io.group_objects_xy(stages(sq | ring | edge), SENSOR, APART)
+    objs, masks, (xs, ys) = grouped(sq | ring | edge, APART)
     assert len(objs) == 2
     np.testing.assert_allclose(sorted(o[1:] for o in objs), [(200.5, 200.1), (243.0, 163.0)], atol=1.5)
-    xs, ys = xy(sq | ring | edge)
-    masks = ofpd_io.object_masks_xy(xs, ys, objs, claims)
     big = int(np.argmin([o[1] for o in objs]))
     assert np.array_equal(masks[big], (sq | edge)[ys, xs]) and np.array_equal(masks[1 - big], ring[ys, xs])
     with pytest.raises(ValueError, match="closed_apart"):
