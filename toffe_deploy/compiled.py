@@ -1523,8 +1523,7 @@ def union_objects(xs, ys, starts, width, link, frac_closed, frac_open, need, min
     polarities of its ones, frame_pixels' spol) a half that holds a leading and a trailing
     edge is a whole object too (split_two, two_sided). With closed_apart, two groups that each
     surround their centroid and hold >= need pixels are never joined (merge_blobs' apart_px).
-    With ``recent`` (the (H * W,) uint8
-    event-pixel counts of the latest windows,
+    With ``recent`` (the (H * W,) uint8 event-pixel counts of the latest windows,
     ofpd.recent_events) a group short of need is an object too when recent_reaches holds for it
     (recent_rule = [r, m, c, E]; its stage is then the one holding most of its pixels).
     Returns what blob_objects returns."""
@@ -1909,8 +1908,7 @@ def object_input(masks, xs, ys, ch, pix_inverse, n_pixels, fixed_size, g, pool_m
 @njit(cache=True, nogil=True)
 def window_objects(frames, pix_inverse, upix, width, plane, n_channels, union, link, frac_closed, frac_open, need,
                    min_count, split_frac, split_waist, split_polarity, closed_apart, slot_of, fixed_size, g, pool_min,
-                   pool_max,
-                   height, n_input, n_bins, coord_scale, recent=None, recent_rule=None):
+                   pool_max, height, n_input, n_bins, coord_scale, recent=None, recent_rule=None):
     """The runtime's batch for grouping "blobs" in one call: frame_pixels, then union_objects
     (``union``) or blob_objects, claimed_by (scratch ``slot_of``) and object_input, the same
     kernels on the same arrays back to back, so that a window crosses from Python into compiled
@@ -2438,12 +2436,11 @@ def _warm_other(i64, scratch) -> None:
     union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, False, None, None,
                   None)
     union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.0, 0.65, 0.0, False,
-                  np.zeros(2, np.uint8), np.zeros(4, np.int64), None)           # as ofpd_io.group_objects_flat passes them: explicit Nones
+                  np.zeros(2, np.uint8), np.zeros(4, np.int64), None)   # as group_objects_flat passes them: explicit Nones
     i8 = np.zeros(1, np.int8)                  # ofpd.split_polarity: the pixels' polarities
     union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.6, 0.65, 0.25, False, None, None, i8)
     union_objects(i64, i64, np.array([0, 1], np.int64), 2, 1, 0.2, 1.5, 1, 1, 0.6, 0.65, 0.25, False,
-                  np.zeros(2, np.uint8),
-                  np.zeros(4, np.int64), i8)
+                  np.zeros(2, np.uint8), np.zeros(4, np.int64), i8)
     split_groups(i64, i64, i64.copy(), 1, 1, 0.6, 0.65)
     min_gap(i64, i64, i64, i64, 1.0)
     surrounds(i64, i64)
