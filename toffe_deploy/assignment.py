@@ -21,7 +21,7 @@ on average, 200 us at p99); compiled, the whole ambiguous window stays one call.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .compiled import _root
 

@@ -22,7 +22,7 @@ that marks entries clears them again before it returns, so one scratch array ser
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .fixed_point import DECAY_BITS, DECAY_UNITY, STATE_MAX, STATE_SHIFT
 

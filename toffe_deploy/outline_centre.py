@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .config import ToffeConfig
 from .time_surface import OnesHistory, history_rows

@@ -42,7 +42,7 @@ import copy
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .plane_fit import (NEIGHBOURHOODS, _grid_planes, _solve, flow_speed_rows, fuse_direction_rows,
                         fuse_speed_rows)

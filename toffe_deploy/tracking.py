@@ -141,7 +141,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .assignment import match_pairs
 

@@ -27,7 +27,7 @@ cpu target does: per step only the pixels that got events or hold state.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 from .dotie import Detection, DotieParams
 

@@ -14,7 +14,7 @@ an undefined type in the last chunk, -1 none: decoding stopped there).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 Y, TL, TH, TH_RAW, LOOPS, BASE, POL, BAD = range(8)
 STATE_LEN = 8

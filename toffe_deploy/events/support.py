@@ -31,7 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 from ..compiled import _root, cluster_sizes, front_end_pass
 from .frontend import apply_dense, check_min_cluster, check_norm, slots_for
