@@ -85,7 +85,7 @@ def loop(a) -> int:
                 print(f"t={t / 1000:7.1f} ms: {len(tracks)} tracks; react to track {threat['track_id']} at "
                       f"({s['x']:.0f}, {s['y']:.0f}) px, heading {s['direction_deg']:.0f} deg, "
                       f"{s['speed_px_s']:.0f} px/s (bin {s['speed_bin']})")
-        n_windows += len(flow.flush())
+        n_windows += len(flow.flush(t_end_us=t_end))                  # the windows read up to t_end
     print(f"{n_windows} windows, {len(ids)} confirmed tracks: {sorted(ids)}")
     return 0
 

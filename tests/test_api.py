@@ -87,7 +87,7 @@ def test_robot_loop_example_reads_a_whole_file_without_a_sensor_size(env, tmp_pa
     assert p.returncode == 0, p.stderr
     lines = p.stdout.splitlines()
     assert lines[0] == f"{npy}: {w}x{h} sensor"
-    n_win = -(-(int(ev["t"][-1]) + 1) // env["bundle"].config.dt_us)
+    n_win = (int(ev["t"][-1]) + 1 - int(ev["t"][0])) // env["bundle"].config.dt_us     # whole windows, as `run`
     assert lines[-1].startswith(f"{n_win} windows, ")
     bad = subprocess.run([sys.executable, str(ROOT / "examples" / "robot_loop.py"), "--sensor-size", "640"],
                          capture_output=True, text=True, timeout=60, cwd=ROOT)
@@ -130,8 +130,8 @@ def test_the_api_refuses_what_it_would_otherwise_drop_or_cast(env):
 
 
 def test_flush_processes_or_drops_the_last_partial_window(env):
-    """Three whole windows and half of a fourth fed: flush() processes the partial fourth too,
-    flush(partial=False) drops it (its objects would come from half a window)."""
+    """Three whole windows and half of a fourth fed: flush() drops the partial fourth (its objects
+    would come from half a window), as `run` does; flush(partial=True) processes it too."""
     ev = read_events(env["rec"]).events
     dt = env["bundle"].config.dt_us
     cut = ev[ev["t"] < 3 * dt + dt // 2]
@@ -150,13 +150,13 @@ def test_a_stream_refuses_events_of_windows_it_processed_until_reset(env):
     ev = read_events(env["rec"]).events
     ev = ev[ev["t"] < 2000]
     with api.FlowStream(str(env["bundle"].root), "cpu", t_start_us=0) as flow:
-        first = [r.to_json() for r in flow.feed(ev["x"], ev["y"], ev["t"], ev["p"]) + flow.flush()]
+        first = [r.to_json() for r in flow.feed(ev["x"], ev["y"], ev["t"], ev["p"]) + flow.flush(t_end_us=2000)]
         with pytest.raises(ValueError, match="timestamps decrease|already processed"):
             flow.feed(ev["x"], ev["y"], ev["t"], ev["p"])
         with pytest.raises(ValueError, match="negative timestamp"):
             flow.feed([1], [1], [-5], [1])
         flow.reset()
-        again = [r.to_json() for r in flow.feed(ev["x"], ev["y"], ev["t"], ev["p"]) + flow.flush()]
+        again = [r.to_json() for r in flow.feed(ev["x"], ev["y"], ev["t"], ev["p"]) + flow.flush(t_end_us=2000)]
     assert again == first and len(first) == 4
 
 
@@ -165,7 +165,7 @@ def test_a_gap_is_jumped_on_the_window_grid_of_t_start(env):
     t_start_us (as `run`), not on multiples of dt."""
     dt = env["bundle"].config.dt_us
     with api.FlowStream(str(env["bundle"].root), "cpu", t_start_us=50, skip_empty_after=2, track=False) as flow:
-        got = flow.feed([1, 2, 3], [1, 2, 3], [60, 100_000, 100_010], [1, 1, 0]) + flow.flush()
+        got = flow.feed([1, 2, 3], [1, 2, 3], [60, 100_000, 100_010], [1, 1, 0]) + flow.flush(partial=True)
     starts = [r.t0_us for r in got]
     assert starts[0] == 50 and all((t - 50) % dt == 0 for t in starts) and starts[-1] == 50 + (100_000 - 50) // dt * dt
 
@@ -232,7 +232,7 @@ def test_skip_empty_after_zero_never_skips_as_in_run(env):
     dt = env["bundle"].config.dt_us
     for skip in (0, None):
         with api.FlowStream(env["bundle"], "cpu", t_start_us=0, skip_empty_after=skip, track=False) as flow:
-            got = flow.feed([1, 2], [1, 2], [10, 20 * dt + 5], [1, 1]) + flow.flush()
+            got = flow.feed([1, 2], [1, 2], [10, 20 * dt + 5], [1, 1]) + flow.flush(partial=True)
         assert [r.t0_us for r in got] == [k * dt for k in range(21)]
     with pytest.raises(ValueError, match="skip_empty_after"):
         api.FlowStream(env["bundle"], "cpu", skip_empty_after=-1)

@@ -15,6 +15,7 @@ import pytest
 from toffe_deploy import ofpd_io
 from toffe_deploy.cascade import run_cascade
 from toffe_deploy.cli import main
+from toffe_deploy.events.io import read_events
 from toffe_deploy.config import ToffeConfig
 from toffe_deploy.plane_fit import dense_flow, object_planes_flow
 from toffe_deploy.fixed_point import run_ofs_fixed
@@ -186,6 +187,34 @@ def test_run_cli_stdout_is_pure_jsonl_and_max_windows(env, capsys):
     assert "3 windows" in stderr
 
 
+def test_a_last_partial_window_is_dropped_and_said_unless_asked_for(env, capsys, tmp_path):
+    """A recording that ends 200 us into its last window: that window's objects would come from
+    part of it (its slow objects' speeds were wrong), so `run` drops it and says so, as eval
+    does; --include-incomplete processes it; a recording shorter than one window is an error."""
+    from toffe_deploy.events.io import write_events_npz
+
+    ev = read_events(env["rec"]).events
+    cut = tmp_path / "cut.npz"
+    write_events_npz(cut, ev[ev["t"] < 3 * 500 + 200], SENSOR)       # no t_range: it ends at its last event
+    t_last = int(ev["t"][ev["t"] < 1700][-1])
+    t_first = int(ev["t"][0])
+    whole = (t_last + 1 - t_first) // 500
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--events", cut, "--summary-json", tmp_path / "s.json")
+    assert rc == 0 and len(out.splitlines()) == 1 + whole
+    tail = t_last + 1 - (t_first + whole * 500)
+    assert f"the recording's last {tail} us end inside a window: not processed" in err
+    assert json.loads((tmp_path / "s.json").read_text())["incomplete_tail_us"] == tail
+    rc, out_all, err = run_cli(capsys, env["bundle"].root, "--events", cut, "--include-incomplete")
+    assert rc == 0 and len(out_all.splitlines()) == 2 + whole and "end inside a window" not in err
+    assert out_all.splitlines()[:1 + whole] == out.splitlines()
+    short = tmp_path / "short.npz"
+    write_events_npz(short, ev[ev["t"] < t_first + 300], SENSOR)
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--events", short)
+    assert rc == 2 and "shorter than one window (500 us)" in err and len(err.strip().splitlines()) == 1
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--max-windows", "3")
+    assert rc == 0 and "end inside a window" not in err                   # stopped early: nothing to say
+
+
 def test_cpu_target_imports_neither_torch_nor_lava(env, tmp_path):
     code = ("import sys; from toffe_deploy.cli import main; "
             f"rc = main(['run', {str(env['bundle'].root)!r}, '--events', {str(env['rec'])!r}, '--out', "
@@ -248,6 +277,13 @@ def test_tampered_or_incomplete_bundle_is_one_line_error(env, capsys, tmp_path):
     assert rc == 2 and "ofpd.onnx: missing file" in err
     rc, _, err = run_cli(capsys, tmp_path / "nope", "--events", env["rec"])
     assert rc == 2 and "does not exist" in err
+    renamed = tmp_path / "renamed"                      # a manifest naming another fp32 OFPD was ignored
+    shutil.copytree(env["bundle"].root, renamed)
+    m = json.loads((renamed / "manifest.json").read_text())
+    m["ofpd"]["file"] = "mine.onnx"
+    (renamed / "manifest.json").write_text(json.dumps(m))
+    rc, _, err = run_cli(capsys, renamed, "--events", env["rec"])
+    assert rc == 2 and "ofpd.file is 'mine.onnx'" in err and err.count("\n") == 1
 
 
 def test_cuda_target_without_gpu_provider_says_what_is_missing(env, capsys):

@@ -10,8 +10,8 @@
                     obj.x, obj.y, obj.direction_deg, obj.speed_px_s, obj.speed_mps, obj.track_id
                 for t in flow.tracks():                       # every confirmed track, seen or coasting
                     t["track_id"], t["track"]["x"], t["track"]["speed_bin"]
-        for win in flow.flush():                              # the last, partial window
-            ...
+        for win in flow.flush():                              # the windows still buffered (not a
+            ...                                               # partial last one: flush(partial=True))
 
 Windows: [t0, t0 + dt) on a grid from ``t_start_us`` (default: the first event's time, as
 `run` on a live source); a window is processed once an event at or after its end arrives
@@ -156,19 +156,21 @@ class FlowStream:
             self._buf = np.concatenate([self._buf, ev]) if self._buf.shape[0] else ev
         return self._drain(final=False)
 
-    def flush(self, partial: bool = True) -> list[WindowResult]:
-        """Process the windows still buffered. The last one is partial (its events end where the
-        stream ended, so its objects are found from part of a window: a slow one's position and
-        speed from a fraction of its edges): processed with ``partial``, dropped without."""
-        out = self._drain(final=True, partial=partial)
+    def flush(self, partial: bool = False, t_end_us: int | None = None) -> list[WindowResult]:
+        """Process the windows still buffered. The last one is partial when the stream ended inside
+        it, so its objects would be found from part of a window (a slow one's position and speed
+        from a fraction of its edges): dropped, as `run` and `eval` drop it, or processed with
+        ``partial=True`` (`run --include-incomplete`). The stream ends at ``t_end_us`` (exclusive;
+        a recording's end, or where a loop stopped reading) or, by default, at its last event + 1 us."""
+        out = self._drain(final=True, partial=partial, t_end=t_end_us)
         self._buf = self._buf[:0]
         return out
 
-    def _drain(self, final: bool, partial: bool = True) -> list[WindowResult]:
+    def _drain(self, final: bool, partial: bool = True, t_end: int | None = None) -> list[WindowResult]:
         out = []
         while self._buf.shape[0] and (final or int(self._buf["t"][-1]) >= self.t0 + self.dt_us):
             t1 = self.t0 + self.dt_us
-            if final and not partial and int(self._buf["t"][-1]) < t1:
+            if final and not partial and (int(self._buf["t"][-1]) + 1 if t_end is None else int(t_end)) < t1:
                 break                                      # the last, partial window: dropped
             cut = count_before(self._buf, t1)
             win, self._buf = self._buf[:cut], self._buf[cut:]

@@ -104,6 +104,10 @@ def register(sub) -> None:
                         "track, a per-bin summary and the summary figures")
     p.add_argument("--max-windows", type=int, metavar="N", help="stop after N windows")
     p.add_argument("--start-us", type=int, metavar="T", help="first window starts at T >= 0 (default: recording start)")
+    p.add_argument("--include-incomplete", action="store_true",
+                   help="also process the last window when the recording (or a live stream) ends inside it; by "
+                        "default it is dropped and the summary says so, since its objects would come from part of "
+                        "a window (a slow one's speed and position from a fraction of its edges), as eval does")
     p.add_argument("--skip-empty-after", type=int, default=SKIP_EMPTY_AFTER, metavar="N",
                    help=f"after N consecutive empty windows jump to the window of the next event (a long gap "
                         f"in the recording costs N windows, not millions); the summary counts the skipped "
@@ -332,15 +336,22 @@ def run_command(args) -> int:
                                 synthetic_focal_px=src.attrs.get("focal_px") if args.synthetic else None,
                                 sensor_from=sensor_origin(args, src))
         if live:                    # the first event fixes the start; the end is the stream's
-            t_start, n_total = None, args.max_windows
+            t_start, n_total, t_end, incomplete_us = None, args.max_windows, None, 0
         else:
             t_start = src.t_start_us if args.start_us is None else int(args.start_us)
             if args.start_us is not None and t_start >= src.t_end_us:
                 raise ToffeError(f"--start-us {t_start} is at or after the end of the recording: it spans "
                                  f"[{src.t_start_us}, {src.t_end_us}) us")
-            n_total = max(0, -(-(src.t_end_us - t_start) // cfg.dt_us))
-            if args.max_windows is not None:
-                n_total = min(n_total, args.max_windows)
+            span = src.t_end_us - t_start
+            n_total = max(0, -(-span // cfg.dt_us) if args.include_incomplete else span // cfg.dt_us)
+            if n_total == 0:
+                raise ToffeError(f"{args.events or 'the recording'}: {span} us from the first window's start to the "
+                                 f"recording's end, shorter than one window ({cfg.dt_us} us): nothing whole to "
+                                 "process (--include-incomplete processes it as a partial window)")
+            t_end = t_start + n_total * cfg.dt_us
+            incomplete_us = max(0, src.t_end_us - t_end)
+            if args.max_windows is not None and args.max_windows < n_total:
+                n_total, incomplete_us = args.max_windows, 0
         truth = src.ground_truth
         errors = None
         if truth and len(truth["speed_bin"]) and int(truth["speed_bin"].max()) > cfg.n_speed_bins:
@@ -372,7 +383,8 @@ def run_command(args) -> int:
             t_next = t_start
             skip = args.skip_empty_after or None
             dropped = 0              # a live source's windows jumped over after its queue dropped their events
-            for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=t_start, skip_empty_after=skip)):
+            cut = ({"include_incomplete": args.include_incomplete} if live else {"t_end": t_end})
+            for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=t_start, skip_empty_after=skip, **cut)):
                 if n_total is not None and i >= n_total:
                     return
                 if t_next is not None and t0 > t_next:
@@ -389,7 +401,7 @@ def run_command(args) -> int:
 
         summary = RunSummary(target=args.target, tag=args.tag,          # as the header: cpu and cuda run fixed_pt's arithmetic
                              camera=camera.describe(cfg), camera_json=camera.to_json(cfg),
-                             dt_us=cfg.dt_us)
+                             dt_us=cfg.dt_us, incomplete_us=incomplete_us)
         t_setup = time.perf_counter()
         dump = None
         if args.dump_spikes:

@@ -109,6 +109,7 @@ class LiveStats:
     reordered_events: int = 0       # came after a later-stamped event but in time: sorted into their window
     invalid_events: int = 0         # UDP: addresses outside the sensor (dropped, not fatal)
     socket_drops: int = 0           # UDP: datagrams the kernel dropped (socket buffer full; Linux)
+    incomplete_events: int = 0      # the stream ended inside its last window: its events, not processed
     queue_events: int = 0
     peak_queue_events: int = 0
 
@@ -284,11 +285,14 @@ class LiveSource(abc.ABC):
                 return _END
         return item
 
-    def iter_windows(self, dt_us: int, t_start: int | None = None,
-                     skip_empty_after: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    def iter_windows(self, dt_us: int, t_start: int | None = None, skip_empty_after: int | None = None,
+                     include_incomplete: bool = True) -> Iterator[tuple[int, np.ndarray]]:
         """(t0, events with t0 <= t < t0 + dt_us), from the first event's time (or ``t_start``)
         until the stream ends; after ``skip_empty_after`` empty windows it waits for the next
-        event and jumps to its window, as the file path does."""
+        event and jumps to its window, as the file path does. A window the stream ended inside
+        (its last event + 1 us before the window's end) is partial: its objects would come from
+        part of a window, so `run` passes ``include_incomplete=False`` to drop it (counted in
+        ``stats.incomplete_events``), as it drops a file's last partial window."""
         dt_us = int(dt_us)
         self._opened = time.perf_counter()
         self.start()
@@ -337,6 +341,9 @@ class LiveSource(abc.ABC):
             if exhausted and not buf.shape[0]:
                 return
             cut = count_before(buf, t1)
+            if exhausted and cut == buf.shape[0] and cut and int(buf["t"][-1]) + 1 < t1 and not include_incomplete:
+                self.stats.incomplete_events += cut          # the stream ended inside this window
+                return
             yield t0, copy_events(buf[:cut])
             buf = buf[cut:]
             n_empty = 0 if cut else n_empty + 1

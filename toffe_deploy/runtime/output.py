@@ -169,6 +169,8 @@ class RunSummary:
     skipped_windows: int = 0
     skipped_gaps: int = 0
     longest_gap_us: int = 0
+    #: a file's last us after its last whole window, not processed (run --include-incomplete processes them)
+    incomplete_us: int = 0
     traffic: Traffic | None = None          # host <-> chip bridge traffic (Lava targets)
     #: live sources: per window, line written - host time of its newest event (events.live's clock)
     event_latencies_s: list[float] = field(default_factory=list)
@@ -213,6 +215,7 @@ class RunSummary:
                 "errors": self.errors, "camera": self.camera_json,
                 "skipped": {"windows": self.skipped_windows, "gaps": self.skipped_gaps,
                             "longest_gap_s": self.longest_gap_us / 1e6},
+                "incomplete_tail_us": self.incomplete_us,
                 "bridge_traffic": self.traffic.to_json() if self.traffic is not None else None,
                 "live": None if self.live is None else
                 {**self.live, "event_latency_ms": percentiles_ms(self.event_latencies_s)}}
@@ -248,6 +251,9 @@ class RunSummary:
         if self.skipped_windows:
             out.append(f"skipped {self.skipped_windows} empty windows in {self.skipped_gaps} gap(s) without events "
                        f"(longest {self.longest_gap_us / 1e6:.3f} s); no JSON line for them")
+        if self.incomplete_us:
+            out.append(f"the recording's last {self.incomplete_us} us end inside a window: not processed (its "
+                       "objects would come from part of a window; --include-incomplete processes it)")
         if self.errors is not None:
             out += truth_lines(self.errors)
         return out
@@ -270,6 +276,8 @@ def live_line(stats: dict, latencies_s: list[float]) -> str:
             + (f"; {stats['dropped_windows']} windows whose events were dropped jumped over (no JSON line, "
                "not counted as sensor time done)" if stats.get("dropped_windows") else "")
             + (f", {stats['invalid_events']} outside the sensor" if stats.get("invalid_events") else "")
+            + (f"; the stream ended inside its last window: its {stats['incomplete_events']} events not processed "
+               "(--include-incomplete processes them)" if stats.get("incomplete_events") else "")
             + (f", {stats['socket_drops']} datagrams dropped by the kernel (socket buffer full)"
                if stats.get("socket_drops") else ""))
 
