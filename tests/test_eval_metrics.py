@@ -166,6 +166,10 @@ def test_eval_any_split_directory_with_breakdown(eval_env, tmp_path, capsys):
     assert main(["eval", str(eval_env["ck"]), "--data", str(eval_env["data"]), "--split", "appearance",
                  "--dt", "3", "--no-progress"]) == 2                  # shorter than its 5 time bins
     assert "--dt 3: a window of 5 time bins" in capsys.readouterr().err
+    assert main(["eval", str(eval_env["ck"]), "--data", str(eval_env["data"]), "--split", "appearance",
+                 "--dt", "500,900000", "--no-progress"]) == 2             # longer than every sequence: no table
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--dt 900000: no sequence" in err and "holds a whole window" in err
     from toffe_deploy.commands.eval import _dts
     assert _dts("500,200,500") == (500, 200)                          # each dt once
 

@@ -139,10 +139,16 @@ def evaluate(opts: EvalOptions) -> dict:
         raise ToffeError(f"--dt {short[0]}: a window of {cfg.n_bins} time bins needs at least {cfg.n_bins} us")
     files = split_files(opts.data, opts.split)
 
-    attrs = []
+    attrs, spans = [], []
     for path in files:
         with open_events(path) as src:
             attrs.append(src.attrs)
+            spans.append(int(src.t_end_us - src.t_start_us))
+    need = 2 if opts.skip_stream_start else 1          # windows a sequence must hold to give one
+    long = [dt for dt in opts.dts if files and need * dt > max(spans)]
+    if long:                    # before the work: a table of nothing, exit 0, was the answer
+        raise ToffeError(f"--dt {long[0]}: no sequence of {opts.data}/{opts.split} holds a whole window of "
+                         f"{long[0]} us{' after its first' if need == 2 else ''} (the longest spans {max(spans)} us)")
     groups = []                                           # per --by: (found paths, bucket of each file, order)
     for b in opts.by:
         found = [attr_value(a, b.name) for a in attrs]
