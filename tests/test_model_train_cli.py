@@ -38,6 +38,11 @@ def test_train_resume_and_eval(data, tmp_path, capsys):
         np.testing.assert_array_equal(a["weight"], b["weight"])
     assert any(not np.array_equal(first.ofpd_state[k], second.ofpd_state[k]) for k in first.ofpd_state)
     capsys.readouterr()
+    stamps = {p.name: p.stat().st_mtime_ns for p in ck.iterdir() if p.is_file()}
+    assert main(args + ["--epochs", "2", "--resume"]) == 0          # finished: nothing to do, nothing rewritten
+    cap = capsys.readouterr()
+    assert "nothing to resume" in cap.err and "checkpoint written" not in cap.out
+    assert {p.name: p.stat().st_mtime_ns for p in ck.iterdir() if p.is_file()} == stamps
 
     out_json = tmp_path / "eval.json"
     assert main(["eval", str(ck), "--data", str(data), "--dt", "500,1000", "--max-windows", "3",

@@ -128,5 +128,6 @@ def run(args) -> int:
                              init_from=args.init_from, ofs_pool=args.ofs_pool, mask_kernel=args.mask_kernel,
                              input_support=support,
                              speed_loss=SpeedLoss(args.speed_balance, float(args.speed_edge_weight))))
-    print(f"checkpoint written to {out}")
+    if out is not None:                  # None: a --resume of a finished run (train said so)
+        print(f"checkpoint written to {out}")
     return 0

@@ -563,8 +563,9 @@ def resolve_ofpd_settings(config: ToffeConfig, pool: int | None, kernels: tuple[
     return config, fresh
 
 
-def train(opts: TrainOptions) -> Path:
-    """Run the requested training stages into opts.out (a checkpoint directory)."""
+def train(opts: TrainOptions) -> Path | None:
+    """Run the requested training stages into opts.out (a checkpoint directory); None when a
+    --resume finds the run finished (nothing written)."""
     from .data import find_sequences, load_windows
 
     device = pick_device(opts.device)
@@ -623,6 +624,15 @@ def train(opts: TrainOptions) -> Path:
                 raise InputError(out, f"its OFS stages were trained with {key} {getattr(config, key)}; "
                                       f"--{key.replace('_', '-')} {want} needs them retrained (--stage all)")
             config = dataclasses.replace(config, **{key: int(want)})
+    if resume and state.get("finished") and (opts.stage == "ofpd" or len(set(state.get("ofs_done", [])))
+                                             >= config.n_speed_bins) and (
+            opts.stage == "ofs" or int(state.get("ofpd_epoch") or 0) >= opts.ofpd_epochs):
+        # a finished run: it loaded the data and rewrote the checkpoint for nothing (minutes)
+        warn(f"{out}: nothing to resume: its run finished its OFS stages and "
+             f"{int(state.get('ofpd_epoch') or 0)} OFPD epochs (--epochs {opts.ofpd_epochs}); a larger --epochs "
+             "trains the OFPD on, a run without --resume starts afresh; the checkpoint is left as it is")
+        return None
+    state["finished"] = False               # until its last file is written (the end of this function)
     if opts.stage in ("ofpd", "all") and not (resume and state.get("ofpd_settings")):
         config = with_current_layout(config)      # a fresh OFPD trains on today's input/output layout
     try:
@@ -746,4 +756,6 @@ def train(opts: TrainOptions) -> Path:
     with atomic_path(out / "train_log.json") as tmp:
         tmp.write_text(json.dumps(log, indent=1))
     shutil.rmtree(_pending_path(out), ignore_errors=True)          # --out holds the run's checkpoint now
+    state["finished"] = True                # every file written: a --resume of this run has nothing to do
+    _save_state(out, state)
     return out
