@@ -141,6 +141,13 @@ def test_flush_processes_or_drops_the_last_partial_window(env):
             got = flow.feed(cut["x"], cut["y"], cut["t"], cut["p"]) + flow.flush(partial=partial)
             assert flow.flush() == []                   # nothing left buffered either way
         assert [r.t0_us for r in got] == [k * dt for k in range(n)]
+    with api.FlowStream(str(env["bundle"].root), "cpu", t_start_us=0) as flow:   # the stream's end given:
+        got = flow.feed(cut["x"], cut["y"], cut["t"], cut["p"])                  # the fourth is whole
+        for bad in (int(cut["t"][-1]), 1.5 * dt, "x", float("nan")):
+            with pytest.raises(ValueError, match="t_end_us must be a whole number"):
+                flow.flush(t_end_us=bad)
+        got += flow.flush(t_end_us=4 * dt)
+    assert [r.t0_us for r in got] == [k * dt for k in range(4)]
 
 
 def test_a_stream_refuses_events_of_windows_it_processed_until_reset(env):

@@ -162,6 +162,14 @@ class FlowStream:
         from a fraction of its edges): dropped, as `run` and `eval` drop it, or processed with
         ``partial=True`` (`run --include-incomplete`). The stream ends at ``t_end_us`` (exclusive;
         a recording's end, or where a loop stopped reading) or, by default, at its last event + 1 us."""
+        if t_end_us is not None:
+            try:
+                ok = int(t_end_us) == t_end_us
+            except (TypeError, ValueError, OverflowError):
+                ok = False
+            if not ok or (self._t_last is not None and int(t_end_us) <= self._t_last):
+                raise ValueError(f"FlowStream.flush: t_end_us must be a whole number of us after the last event fed "
+                                 f"({self._t_last} us), got {t_end_us!r}")
         out = self._drain(final=True, partial=partial, t_end=t_end_us)
         self._buf = self._buf[:0]
         return out
