@@ -215,6 +215,26 @@ def test_a_last_partial_window_is_dropped_and_said_unless_asked_for(env, capsys,
     assert rc == 0 and "end inside a window" not in err                   # stopped early: nothing to say
 
 
+def test_epoch_timestamps_give_the_same_object_flow(env, capsys, tmp_path):
+    """Cameras stamp events in Unix-epoch microseconds (~1.7e15, a DV camera's clock): the same
+    recording shifted there gives the same lines, times shifted (no float32 time anywhere)."""
+    from toffe_deploy.events.io import write_events_npz
+
+    ev = read_events(env["rec"]).events
+    off = 1_764_000_000_000_000 + 137                      # not on the window grid of the first
+    shifted = ev.copy()
+    shifted["t"] += off
+    for name, e in (("a.npz", ev), ("b.npz", shifted)):
+        write_events_npz(tmp_path / name, e, SENSOR)
+        rc, out, err = run_cli(capsys, env["bundle"].root, "--events", tmp_path / name, "--out", tmp_path / f"{name}.jsonl")
+        assert rc == 0, err
+    a, b = ([json.loads(s) for s in (tmp_path / f"{n}.jsonl").read_text().splitlines()[1:]] for n in ("a.npz", "b.npz"))
+    for w in b:
+        w["t0_us"] -= off
+        w["t1_us"] -= off
+    assert len(a) > 10 and any(w["objects"] for w in a) and a == b
+
+
 def test_cpu_target_imports_neither_torch_nor_lava(env, tmp_path):
     code = ("import sys; from toffe_deploy.cli import main; "
             f"rc = main(['run', {str(env['bundle'].root)!r}, '--events', {str(env['rec'])!r}, '--out', "
