@@ -150,6 +150,28 @@ def test_flush_processes_or_drops_the_last_partial_window(env):
     assert [r.t0_us for r in got] == [k * dt for k in range(4)]
 
 
+def test_flush_to_a_later_end_processes_the_empty_windows_as_run_does(env, capsys, tmp_path):
+    """A recording whose stated end lies windows after its last event: flush(t_end_us=end) gives
+    run's windows, the empty ones included (it stopped at the last event's window), and with
+    skip_empty_after the same jump past the end."""
+    from toffe_deploy.events.io import write_events_h5
+
+    ev = read_events(env["rec"]).events
+    dt = env["bundle"].config.dt_us
+    part = ev[ev["t"] < 2300]
+    rec = tmp_path / "quiet_end.h5"
+    write_events_h5(rec, part, env["bundle"].config.sensor_size, t_range=(0, 6700))
+    for skip in (1000, 2):
+        assert main(["run", str(env["bundle"].root), "--events", str(rec), "--out", str(tmp_path / "o.jsonl"),
+                     "--skip-empty-after", str(skip), "--no-progress"]) == 0
+        capsys.readouterr()
+        want = [json.loads(x)["t0_us"] for x in (tmp_path / "o.jsonl").read_text().splitlines()[1:]]
+        with api.FlowStream(str(env["bundle"].root), "cpu", t_start_us=0, skip_empty_after=skip) as flow:
+            got = flow.feed(part["x"], part["y"], part["t"], part["p"]) + flow.flush(t_end_us=6700)
+        assert [r.t0_us for r in got] == want
+        assert want[-1] == (12 * dt if skip == 1000 else 2000 + skip * dt)          # 6000: [6500, 7000) is partial
+
+
 def test_a_stream_refuses_events_of_windows_it_processed_until_reset(env):
     """Feeding the recording again after flush() was a silent loss (one empty window for all of
     it): events in windows already processed are refused, and reset() starts a new recording

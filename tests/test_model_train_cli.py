@@ -43,6 +43,8 @@ def test_train_resume_and_eval(data, tmp_path, capsys):
     cap = capsys.readouterr()
     assert "nothing to resume" in cap.err and "checkpoint written" not in cap.out
     assert {p.name: p.stat().st_mtime_ns for p in ck.iterdir() if p.is_file()} == stamps
+    assert main(args + ["--epochs", "2", "--resume", "--ofpd-pool", "2"]) == 2   # other OFPD settings: refused,
+    assert "cannot resume" in capsys.readouterr().err                          # as for an interrupted run
 
     out_json = tmp_path / "eval.json"
     assert main(["eval", str(ck), "--data", str(data), "--dt", "500,1000", "--max-windows", "3",

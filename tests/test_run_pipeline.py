@@ -213,6 +213,19 @@ def test_a_last_partial_window_is_dropped_and_said_unless_asked_for(env, capsys,
     assert rc == 2 and "shorter than one window (500 us)" in err and len(err.strip().splitlines()) == 1
     rc, out, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--max-windows", "3")
     assert rc == 0 and "end inside a window" not in err                   # stopped early: nothing to say
+    gap = ev[ev["t"] < t_first + 1300].copy()                             # a gap the run jumps over: fewer
+    later = gap.copy()                                                    # windows done than the grid holds
+    later["t"] += 20_000
+    write_events_npz(tmp_path / "gap.npz", np.concatenate([gap, later]), SENSOR)
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--events", tmp_path / "gap.npz", "--skip-empty-after", "2",
+                           "--max-windows", "8")
+    assert rc == 0 and len(out.splitlines()) - 1 < 8 and "end inside a window: not processed" in err
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--events", tmp_path / "gap.npz", "--include-incomplete")
+    assert rc == 0
+    empty = tmp_path / "empty.npz"
+    write_events_npz(empty, ev[:0], SENSOR)
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--events", empty, "--include-incomplete")
+    assert rc == 2 and "--include-incomplete processes" not in err and len(err.strip().splitlines()) == 1
 
 
 def test_epoch_timestamps_give_the_same_object_flow(env, capsys, tmp_path):

@@ -175,11 +175,17 @@ class FlowStream:
         return out
 
     def _drain(self, final: bool, partial: bool = True, t_end: int | None = None) -> list[WindowResult]:
+        """Process the buffered windows: those an event past their end has closed, or (``final``)
+        every window before the stream's end (``t_end``, else the last event + 1 us), empty ones
+        included as `run` processes a file's, the last partial one only with ``partial``."""
         out = []
-        while self._buf.shape[0] and (final or int(self._buf["t"][-1]) >= self.t0 + self.dt_us):
+        end = (int(t_end) if t_end is not None else int(self._buf["t"][-1]) + 1 if self._buf.shape[0] else None)
+        while self.t0 is not None:
             t1 = self.t0 + self.dt_us
-            if final and not partial and (int(self._buf["t"][-1]) + 1 if t_end is None else int(t_end)) < t1:
-                break                                      # the last, partial window: dropped
+            if not final and not (self._buf.shape[0] and int(self._buf["t"][-1]) >= t1):
+                break                                      # not closed yet: wait for more events
+            if final and (end is None or self.t0 >= end or (t1 > end and not partial)):
+                break                                      # the stream's end (a last partial window: dropped)
             cut = count_before(self._buf, t1)
             win, self._buf = self._buf[:cut], self._buf[cut:]
             self._empty = 0 if cut else self._empty + 1
@@ -191,6 +197,8 @@ class FlowStream:
                 self.t0 = (self._origin + (int(self._buf["t"][0]) - self._origin) // self.dt_us * self.dt_us
                            if self._buf.shape[0] else t1)  # on the grid from the origin, as `run`
                 self._empty = 0
+                if not self._buf.shape[0]:
+                    break                                  # nothing left: the rest is the gap (`run` jumps past it)
         return out
 
     def tracks(self) -> list[dict]:

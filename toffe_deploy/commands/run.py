@@ -345,13 +345,14 @@ def run_command(args) -> int:
             span = src.t_end_us - t_start
             n_total = max(0, -(-span // cfg.dt_us) if args.include_incomplete else span // cfg.dt_us)
             if n_total == 0:
-                raise ToffeError(f"{args.events or 'the recording'}: {span} us from the first window's start to the "
-                                 f"recording's end, shorter than one window ({cfg.dt_us} us): nothing whole to "
-                                 "process (--include-incomplete processes it as a partial window)")
+                raise ToffeError(f"{args.events or 'the recording'}: " + (
+                    f"{span} us from the first window's start to the recording's end, shorter than one window "
+                    f"({cfg.dt_us} us): nothing whole to process (--include-incomplete processes it as a partial "
+                    "window)" if span > 0 else "no events to process"))
             t_end = t_start + n_total * cfg.dt_us
-            incomplete_us = max(0, src.t_end_us - t_end)
-            if args.max_windows is not None and args.max_windows < n_total:
-                n_total, incomplete_us = args.max_windows, 0
+            incomplete_us = max(0, src.t_end_us - t_end)       # said unless --max-windows stops the run first
+            if args.max_windows is not None:
+                n_total = min(n_total, args.max_windows)
         truth = src.ground_truth
         errors = None
         if truth and len(truth["speed_bin"]) and int(truth["speed_bin"].max()) > cfg.n_speed_bins:
@@ -386,6 +387,7 @@ def run_command(args) -> int:
             cut = ({"include_incomplete": args.include_incomplete} if live else {"t_end": t_end})
             for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=t_start, skip_empty_after=skip, **cut)):
                 if n_total is not None and i >= n_total:
+                    summary.incomplete_us = 0          # --max-windows ended the run, not the recording
                     return
                 if t_next is not None and t0 > t_next:
                     n = (t0 - t_next) // cfg.dt_us

@@ -624,15 +624,6 @@ def train(opts: TrainOptions) -> Path | None:
                 raise InputError(out, f"its OFS stages were trained with {key} {getattr(config, key)}; "
                                       f"--{key.replace('_', '-')} {want} needs them retrained (--stage all)")
             config = dataclasses.replace(config, **{key: int(want)})
-    if resume and state.get("finished") and (opts.stage == "ofpd" or len(set(state.get("ofs_done", [])))
-                                             >= config.n_speed_bins) and (
-            opts.stage == "ofs" or int(state.get("ofpd_epoch") or 0) >= opts.ofpd_epochs):
-        # a finished run: it loaded the data and rewrote the checkpoint for nothing (minutes)
-        warn(f"{out}: nothing to resume: its run finished its OFS stages and "
-             f"{int(state.get('ofpd_epoch') or 0)} OFPD epochs (--epochs {opts.ofpd_epochs}); a larger --epochs "
-             "trains the OFPD on, a run without --resume starts afresh; the checkpoint is left as it is")
-        return None
-    state["finished"] = False               # until its last file is written (the end of this function)
     if opts.stage in ("ofpd", "all") and not (resume and state.get("ofpd_settings")):
         config = with_current_layout(config)      # a fresh OFPD trains on today's input/output layout
     try:
@@ -640,6 +631,16 @@ def train(opts: TrainOptions) -> Path | None:
                                               state.get("ofpd_settings") if resume else None)
     except ValueError as exc:
         raise InputError(out, str(exc)) from None
+    ofs_left = opts.stage != "ofpd" and len(set(state.get("ofs_done", []))) < config.n_speed_bins
+    ofpd_left = opts.stage != "ofs" and int(state.get("ofpd_epoch") or 0) < opts.ofpd_epochs
+    if resume and state.get("finished") and not fresh and not ofs_left and not ofpd_left:
+        # a finished run: it loaded the data and rewrote the checkpoint for nothing (minutes); other
+        # OFPD settings were refused above, as for an interrupted run
+        warn(f"{out}: nothing to resume: its run finished its OFS stages and "
+             f"{int(state.get('ofpd_epoch') or 0)} OFPD epochs (--epochs {opts.ofpd_epochs}); a larger --epochs "
+             "trains the OFPD on, a run without --resume starts afresh; the checkpoint is left as it is")
+        return None
+    state["finished"] = False               # until its last file is written (the end of this function)
     if fresh:                        # a new OFPD shape: a fresh OFPD (the OFS stages are kept)
         if opts.stage == "ofs":
             raise ToffeError("--ofpd-pool / --ofpd-kernels change the OFPD, which --stage ofs does not train")
