@@ -163,13 +163,10 @@ class FlowStream:
         ``partial=True`` (`run --include-incomplete`). The stream ends at ``t_end_us`` (exclusive;
         a recording's end, or where a loop stopped reading) or, by default, at its last event + 1 us."""
         if t_end_us is not None:
-            try:
-                ok = int(t_end_us) == t_end_us
-            except (TypeError, ValueError, OverflowError):
-                ok = False
-            if not ok or (self._t_last is not None and int(t_end_us) <= self._t_last):
+            t_end_us = whole_number("t_end_us", t_end_us)
+            if self._t_last is not None and t_end_us <= self._t_last:
                 raise ValueError(f"FlowStream.flush: t_end_us must be a whole number of us after the last event fed "
-                                 f"({self._t_last} us), got {t_end_us!r}")
+                                 f"({self._t_last} us), got {t_end_us}")
         out = self._drain(final=True, partial=partial, t_end=t_end_us)
         self._buf = self._buf[:0]
         return out
@@ -179,7 +176,7 @@ class FlowStream:
         every window before the stream's end (``t_end``, else the last event + 1 us), empty ones
         included as `run` processes a file's, the last partial one only with ``partial``."""
         out = []
-        end = (int(t_end) if t_end is not None else int(self._buf["t"][-1]) + 1 if self._buf.shape[0] else None)
+        end = t_end if t_end is not None else int(self._buf["t"][-1]) + 1 if self._buf.shape[0] else None
         while self.t0 is not None:
             t1 = self.t0 + self.dt_us
             if not final and not (self._buf.shape[0] and int(self._buf["t"][-1]) >= t1):

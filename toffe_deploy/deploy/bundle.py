@@ -478,7 +478,8 @@ def load_bundle(path: str | os.PathLike, verify: bool = True) -> Bundle:
     ofs = ofs_from_json(ofs_d, ofs_path, expect_channels=config.ofs_in_channels, expect_kernel=config.ofs_kernel,
                         expect_stages=config.n_speed_bins, expect_reset=config.reset)
     onnx_path = root / OFPD_ONNX
-    named = (m.get("ofpd") or {}).get("file", OFPD_ONNX) if isinstance(m.get("ofpd"), dict) else OFPD_ONNX
+    ofpd = m.get("ofpd")                # not an object: ofpd_variant_files below says so
+    named = ofpd.get("file", OFPD_ONNX) if isinstance(ofpd, dict) else OFPD_ONNX
     if named != OFPD_ONNX:              # the fp32 model's name is fixed (it was read whatever this said)
         raise InputError(root / MANIFEST, f"ofpd.file is {named!r}, but a bundle's fp32 OFPD is always "
                                           f"{OFPD_ONNX} (variants go in ofpd.variants); re-export the bundle")
