@@ -30,6 +30,9 @@ it at the camera's depth and focal length (``speed_scale``, default the bundle's
 """
 from __future__ import annotations
 
+import functools
+import threading
+
 import numpy as np
 
 from .camera import SpeedScale
@@ -50,6 +53,18 @@ FEED = "FlowStream.feed"
 
 #: Consecutive empty windows processed before a gap in the events is jumped over (as `run`'s default).
 SKIP_EMPTY_AFTER = 1000
+
+
+def _serialized(method):
+    """One call at a time on a FlowStream (its lock): two threads inside ``feed`` at once cut the
+    same buffered events into windows twice (measured: 370 windows returned for a recording of
+    200). Events must still arrive in time order; the lock only keeps each call whole."""
+
+    @functools.wraps(method)
+    def call(self, *args, **kwargs):
+        with self._lock:
+            return method(self, *args, **kwargs)
+    return call
 
 
 class FlowStream:
@@ -82,8 +97,11 @@ class FlowStream:
         self.sensor_size = self.pipeline.sensor_size
         self.t_start_us = None if t_start_us is None else int(t_start_us)
         self.skip_empty_after = int(skip_empty_after) if skip_empty_after else None    # None: never skip
+        self._lock = threading.RLock()
+        self._closed = False
         self.reset()
 
+    @_serialized
     def reset(self) -> None:
         """Start a new recording: no buffered events, no tracks, the window grid from
         ``t_start_us`` (or the next first event) again. Events older than those fed so far are
@@ -98,28 +116,50 @@ class FlowStream:
         self._last: WindowResult | None = None
         self.pipeline.reset_tracks()
 
+    @_serialized
     def __enter__(self) -> "FlowStream":
-        self.pipeline.__enter__()
+        self._open()
         return self
 
     def __exit__(self, *exc) -> None:
-        self.pipeline.__exit__(*exc)
+        self.close()
 
+    @_serialized
     def close(self) -> None:
+        """Stop the pipeline (a Lava target's runtime); the FlowStream takes no more calls."""
+        self._closed = True
         self.pipeline.close()
 
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _open(self) -> None:
+        """The pipeline, opened once (ValueError once closed)."""
+        if self._closed:
+            raise ValueError("FlowStream is closed: make a new one to go on")
+        if not self.pipeline._entered:
+            self.pipeline.__enter__()
+
     def _run(self, t0: int, window) -> WindowResult:
+        self._open()
         (res,) = self.pipeline.process_stream([(int(t0), window)])
         self._last = res
         return res
 
+    @_serialized
     def feed_window(self, t0_us: int, window) -> WindowResult:
         """Object flow of one ready window [t0_us, t0_us + dt): a (B, 2, H, W) array (nonzero =
-        event) or a SpikeVolume. Windows come in time order: t0_us >= 0 and at or after the end of
-        the last window processed (ValueError otherwise); a later ``feed`` goes on from its end."""
+        event) or a SpikeVolume. Windows come in time order: t0_us >= 0, on the window grid (a
+        whole number of dt from ``t_start_us``, or from the first window fed) and at or after the
+        end of the last window processed (ValueError otherwise); a later ``feed`` goes on from its end."""
+        self._open()
         t0 = int(t0_us)
         if t0 != t0_us or t0 < 0:
             raise ValueError(f"FlowStream.feed_window: t0_us must be a whole number of us >= 0, got {t0_us!r}")
+        if self._origin is not None and (t0 - self._origin) % self.dt_us:
+            raise ValueError(f"FlowStream.feed_window: t0 = {t0} us is off the window grid, which starts at "
+                             f"{self._origin} us in steps of dt = {self.dt_us} us")
         if self._done_until is not None and t0 < self._done_until:
             raise ValueError(f"FlowStream.feed_window: the window at t0 = {t0} us starts before the end of the last "
                              f"window processed ({self._done_until} us): windows go in time order (reset() starts again)")
@@ -132,11 +172,13 @@ class FlowStream:
         self._empty = 0
         return res
 
+    @_serialized
     def feed(self, x, y, t, p) -> list[WindowResult]:
         """Add a packet of time-sorted events (columns of one length: x, y whole px, t whole us,
         p 0/1, -1/+1 or bool) and process every window it completes; -> their results, in time
         order. Columns the file readers would refuse (a fractional or negative coordinate, a
         NaN time, a polarity 7) are a ValueError here too, not silently cast."""
+        self._open()
         ev = _checked_events(x, y, t, p)
         if ev.shape[0]:
             try:                                   # sensor, negative times, time order (the readers' check)
@@ -156,12 +198,14 @@ class FlowStream:
             self._buf = np.concatenate([self._buf, ev]) if self._buf.shape[0] else ev
         return self._drain(final=False)
 
+    @_serialized
     def flush(self, partial: bool = False, t_end_us: int | None = None) -> list[WindowResult]:
         """Process the windows still buffered. The last one is partial when the stream ended inside
         it, so its objects would be found from part of a window (a slow one's position and speed
         from a fraction of its edges): dropped, as `run` and `eval` drop it, or processed with
         ``partial=True`` (`run --include-incomplete`). The stream ends at ``t_end_us`` (exclusive;
         a recording's end, or where a loop stopped reading) or, by default, at its last event + 1 us."""
+        self._open()
         if t_end_us is not None:
             t_end_us = whole_number("t_end_us", t_end_us)
             if self._t_last is not None and t_end_us <= self._t_last:
@@ -198,6 +242,7 @@ class FlowStream:
                     break                                  # nothing left: the rest is the gap (`run` jumps past it)
         return out
 
+    @_serialized
     def tracks(self) -> list[dict]:
         """Every live confirmed track after the last window ([{"track_id", "track"}]: seen in it,
         ``track["misses"]`` 0, or coasting, > 0, also past the report_misses windows for which

@@ -419,7 +419,7 @@ class Pipeline:
         cfg, hist = self.config, self.support
         pool = self.config.ofs_pool
         if self.sparse:
-            for t0, x in windows:
+            for t0, x in _pairs(windows):
                 x = self._check(x)
                 vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(x > 0)
                 vol = front_end(vol, cfg, hist, int(t0))
@@ -438,7 +438,7 @@ class Pipeline:
         keep_recent = hist is not None and ofpd_settings(cfg).get("recent_events") is not None
 
         def dense():
-            for t0, x in windows:
+            for t0, x in _pairs(windows):
                 x = self._check(x)
                 vol = (front_end(x, cfg, hist, int(t0)) if isinstance(x, SpikeVolume)
                        else SpikeVolume.from_dense(front_end(x, cfg, hist, int(t0))))
@@ -451,6 +451,16 @@ class Pipeline:
             frames = up_frames([np.asarray(f).reshape(-1)[grid.idx] for f in res.frames], inverse)
             yield self._result(t0, vol, frames, recent, cascade=res,
                                stages=_stage_arrays(res) if self.keep_stages else None)
+
+
+def _pairs(windows: Iterable) -> Iterator[tuple]:
+    """process_stream's items as (t0_us, window) pairs: a bare window is a one-line ValueError
+    (unpacking it said "too many values to unpack")."""
+    for item in windows:
+        if not (isinstance(item, (tuple, list)) and len(item) == 2):
+            raise ValueError(f"Pipeline.process_stream takes (t0_us, window) pairs, got a {type(item).__name__}"
+                             + (f" of shape {item.shape}" if hasattr(item, "shape") else ""))
+        yield item
 
 
 def _stage_arrays(res) -> tuple[np.ndarray, np.ndarray]:
