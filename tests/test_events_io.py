@@ -71,6 +71,42 @@ def test_npz_round_trip(tmp_path, random_events):
     assert back.sensor_size == SIZE
 
 
+def test_npz_writer_is_numpys_layout_and_closes_its_zip_when_interrupted(tmp_path):
+    """fileio.savez_compressed writes what np.savez_compressed writes (np.load reads the same
+    arrays) and closes its zip on an exception mid-write: numpy's left it open, and after a
+    Ctrl-C in `events convert OUT.npz` its __del__ wrote into the closed buffer (a traceback
+    under "interrupted")."""
+    import gc
+    import io
+    import sys
+
+    from toffe_deploy.fileio import savez_compressed
+
+    arrays = {"x": np.arange(7, dtype=np.uint16), "t": np.arange(7, dtype=np.int64) * 3, "b": np.eye(2, dtype=bool)}
+    savez_compressed(tmp_path / "ours.npz", **arrays)
+    np.savez_compressed(tmp_path / "numpy.npz", **arrays)
+    with np.load(tmp_path / "ours.npz") as ours, np.load(tmp_path / "numpy.npz") as ref:
+        assert ours.files == ref.files
+        assert all(np.array_equal(ours[k], ref[k]) and ours[k].dtype == ref[k].dtype for k in ref.files)
+
+    class Interrupting:
+        def __array__(self, dtype=None, copy=None):
+            raise KeyboardInterrupt
+
+    unraisable, hook = [], sys.unraisablehook
+    sys.unraisablehook = unraisable.append
+    try:
+        buf = io.BytesIO()
+        with pytest.raises(KeyboardInterrupt) as info:     # its traceback holds the writer's frames,
+            savez_compressed(buf, x=arrays["x"], y=Interrupting())
+        buf.close()                                        # as the CLI's did while it unwound
+        del info
+        gc.collect()
+    finally:
+        sys.unraisablehook = hook
+    assert unraisable == []
+
+
 def test_convert_round_trip_h5_to_npz_to_h5(tmp_path, random_events):
     from toffe_deploy.cli import main
 

@@ -425,6 +425,28 @@ def test_out_into_a_fifo_streams_into_it_and_whole_file_outputs_refuse_it(env, c
     assert not list(tmp_path.glob(".*.tmp"))
 
 
+def test_out_into_a_fifo_whose_reader_goes_away_ends_quietly(env, tmp_path):
+    """`--out FIFO` whose reader reads a line and goes: exit 0 and no error, as `> FIFO` and
+    `| head -1` end (it was "cannot write: Broken pipe", exit 2)."""
+    import threading
+
+    fifo = tmp_path / "lines.fifo"
+    os.mkfifo(fifo)
+    got = []
+
+    def first_line():
+        with open(fifo, "rb") as fh:
+            got.append(fh.readline())
+
+    reader = threading.Thread(target=first_line, daemon=True)
+    reader.start()
+    r = subprocess.run([sys.executable, "-m", "toffe_deploy.cli", *map(str, run_args(env)), "--out", str(fifo)],
+                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, timeout=300)
+    reader.join(timeout=60)
+    assert r.returncode == 0 and b"error" not in r.stderr and b"Traceback" not in r.stderr, r.stderr
+    assert json.loads(got[0])["type"] == "header"
+
+
 def test_a_reader_closing_stdout_at_the_summary_costs_no_output_file(env, tmp_path):
     """The summary was printed before --summary-json and --report were written: a reader that
     went away then (`| (sleep; exit)`) left the old summary file in place and no report, exit 0

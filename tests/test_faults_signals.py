@@ -76,6 +76,30 @@ def test_sigterm_and_sigint_raise_once_then_are_ignored():
     assert signal.getsignal(signal.SIGTERM) == before
 
 
+def test_the_program_ignores_signals_after_a_signal_ended_its_command():
+    """cli.entry (the toffe-deploy program) leaves the signals ignored after a signal ended the
+    command: a second Ctrl-C during the interpreter's exit raised in an atexit hook (a
+    traceback) or killed the process by SIGINT instead of exit 130. Without a signal, and for
+    in-process callers (main), the handlers are restored."""
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        with exceptions_on_signals(ignore_after_signal=True):
+            pass
+        assert {sig: signal.getsignal(sig) for sig in before} == before
+        with exceptions_on_signals(ignore_after_signal=True):
+            with pytest.raises(KeyboardInterrupt):
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(1)
+        assert all(signal.getsignal(sig) is signal.SIG_IGN for sig in before if before[sig] is not signal.SIG_IGN)
+        os.kill(os.getpid(), signal.SIGINT)                  # ignored: no KeyboardInterrupt
+        time.sleep(0.05)
+    finally:
+        for sig, prev in before.items():
+            signal.signal(sig, prev)
+    from toffe_deploy import cli
+    assert 'toffe-deploy = "toffe_deploy.cli:entry"' in (ROOT / "pyproject.toml").read_text() and callable(cli.entry)
+
+
 def test_a_signal_inside_signals_deferred_is_raised_when_the_block_ends():
     """A live run's window bookkeeping runs in signals_deferred: a Ctrl-C there lets the block
     finish (the line and the summary's count both happen) and is raised at its end; a second

@@ -188,6 +188,12 @@ def test_init_from_fine_tunes_in_the_zero_reset_arithmetic(data, tmp_path, capsy
     trained = json.loads((ck / "train_log.json").read_text())["ofs_stage1"]["trained_threshold"]
     assert abs(trained - 0.7) < abs(trained - dotie_ofs(cfg)[0]["threshold"])   # started from src's 0.7
     capsys.readouterr()
+    before = {f.name: f.read_bytes() for f in src.iterdir() if f.is_file()}   # --out the checkpoint it starts
+    assert main(["train", "--data", str(data), "--out", str(src), "--stage", "ofs", "--init-from", str(src),  # from:
+                 "--ofs-epochs", "1", "--windows-per-seq", "3", "--no-progress"]) == 2                 # refused,
+    err = capsys.readouterr().err                                                 # before any work (it was
+    assert "--out would overwrite the --init-from checkpoint" in err and len(err.strip().splitlines()) == 1
+    assert {f.name: f.read_bytes() for f in src.iterdir() if f.is_file()} == before   # silently replaced)
     assert main(["train", "--data", str(data), "--out", str(ck), "--stage", "ofpd", "--reset", "subtract",
                  "--no-progress"]) == 2
     assert "reset 'zero'" in capsys.readouterr().err

@@ -211,6 +211,11 @@ def test_a_last_partial_window_is_dropped_and_said_unless_asked_for(env, capsys,
     write_events_npz(short, ev[ev["t"] < t_first + 300], SENSOR)
     rc, out, err = run_cli(capsys, env["bundle"].root, "--events", short)
     assert rc == 2 and "shorter than one window (500 us)" in err and len(err.strip().splitlines()) == 1
+    back = ev[ev["t"] < t_first + 1700].copy()        # its last event back at the first's time: a short span
+    back["t"][-1] = t_first                           # from the ends alone, but the error is the order's
+    np.savez(tmp_path / "back.npz", x=back["x"], y=back["y"], t=back["t"], p=back["p"], sensor_size=np.array(SENSOR))
+    rc, out, err = run_cli(capsys, env["bundle"].root, "--events", tmp_path / "back.npz")
+    assert rc == 2 and f"timestamps decrease at event {len(back) - 1}" in err and "shorter" not in err
     rc, out, err = run_cli(capsys, env["bundle"].root, "--events", env["rec"], "--max-windows", "3")
     assert rc == 0 and "end inside a window" not in err                   # stopped early: nothing to say
     gap = ev[ev["t"] < t_first + 1300].copy()                             # a gap the run jumps over: fewer

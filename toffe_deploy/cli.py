@@ -59,11 +59,18 @@ def os_error_line(exc: OSError) -> str:
     return f"{exc.filename}: {reason}" if exc.filename else reason
 
 
-def main(argv: list[str] | None = None) -> int:
+def entry() -> int:
+    """The ``toffe-deploy`` program (pyproject's script, ``python -m toffe_deploy.cli``): main,
+    with the signals left ignored after a signal ended the command, so that a second Ctrl-C
+    during the interpreter's exit cannot turn exit status 130 into a traceback."""
+    return main(process=True)
+
+
+def main(argv: list[str] | None = None, process: bool = False) -> int:
     """Run one command. Signals raise from the start (toffe_deploy.signals), so a Ctrl-C or a
     kill at any stage unwinds through the clean-ups: exit 130 (SIGINT) or 128 + n (SIGTERM 143,
-    SIGHUP 129) with one line on stderr."""
-    with exceptions_on_signals():
+    SIGHUP 129) with one line on stderr. ``process``: this is the program, about to exit (entry)."""
+    with exceptions_on_signals(ignore_after_signal=process):
         try:
             parser = build_parser()
             args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
@@ -110,4 +117,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(entry())

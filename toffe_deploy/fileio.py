@@ -19,6 +19,7 @@ import shutil
 import stat
 import tempfile
 import time
+import zipfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
@@ -236,6 +237,19 @@ def read_json(path: str | os.PathLike) -> Any:
         raise InputError(path, f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
     except RecursionError:
         raise InputError(path, "not valid JSON (nested too deeply)") from None
+
+
+def savez_compressed(file, **arrays) -> None:
+    """np.savez_compressed's .npz (a deflated zip of NAME.npy members, no pickle) into ``file``
+    (a path or a binary file object), the zip closed on every way out: numpy's own leaves its
+    ZipFile open when a Ctrl-C lands mid-write, and that object's __del__ later wrote into the
+    closed buffer ("Exception ignored ... I/O operation on closed file" after `interrupted`)."""
+    import numpy as np
+
+    with zipfile.ZipFile(file, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
+        for name, value in arrays.items():
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
 
 def write_bytes_atomic(path: str | os.PathLike, data, suffix: str = "") -> None:

@@ -12,7 +12,7 @@ repeated signal while unwinding is ignored, so it cannot cut a clean-up short; S
 host, see runtime.lava_host). A signal that the parent set to be ignored (``nohup``, a
 background job's SIGINT) stays ignored.
 
-Exit status (cli.main): 130 for SIGINT, 128 + n for ``Terminated`` (143 for SIGTERM, 129 for
+Exit status (cli.main; the process ends with it, signals still ignored, through cli.entry): 130 for SIGINT, 128 + n for ``Terminated`` (143 for SIGTERM, 129 for
 SIGHUP), with one line on stderr.
 """
 from __future__ import annotations
@@ -65,8 +65,12 @@ def _send_again(signum: int) -> None:
 
 
 @contextlib.contextmanager
-def exceptions_on_signals() -> Iterator[None]:
-    """Within this block (main thread only), SIGINT, SIGTERM and SIGHUP raise once, then are ignored."""
+def exceptions_on_signals(ignore_after_signal: bool = False) -> Iterator[None]:
+    """Within this block (main thread only), SIGINT, SIGTERM and SIGHUP raise once, then are ignored.
+    With ``ignore_after_signal`` (the command line's process, cli.entry) they stay ignored after
+    a block that a signal ended: only the interpreter's exit is left (its atexit hooks stop any
+    Lava runtime still open, bounded by timeouts), and a second Ctrl-C there raised in an atexit
+    hook (a traceback) or killed the process by the signal instead of its exit status 130."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -103,10 +107,11 @@ def exceptions_on_signals() -> Iterator[None]:
     try:
         yield
     finally:
+        signalled = bool(fired or raised)
         fired.append(0)                   # a signal from here on must not raise outside the caller's try
         sys.unraisablehook = prev_hook
         for sig, prev in old.items():
-            signal.signal(sig, prev)
+            signal.signal(sig, signal.SIG_IGN if ignore_after_signal and signalled else prev)
 
 
 @contextlib.contextmanager

@@ -110,7 +110,8 @@ def run(args) -> int:
         raise ToffeError(f"--dt must be <= {MAX_DT_US} us, got {args.dt}")
     from ..fileio import check_outputs
 
-    check_outputs(dirs=[("--out", args.out)], inputs=[("the data set", args.data)])   # before any training
+    check_outputs(dirs=[("--out", args.out)], inputs=[("the data set", args.data),      # before any training
+                                                      ("the --init-from checkpoint", args.init_from)])
     import torch
 
     if args.device not in ("auto", "cpu") and not args.device.startswith("cuda"):

@@ -15,7 +15,7 @@ import zipfile
 import numpy as np
 
 from ..errors import InputError
-from ..fileio import write_bytes_atomic
+from ..fileio import savez_compressed, write_bytes_atomic
 from .convert import time_us, to_events
 from .core import EVENT_DTYPE
 from .source import ArraySource, EventSource
@@ -38,10 +38,18 @@ def _columns(path, arr: np.ndarray) -> dict[str, np.ndarray]:
                            f"array (x, y, t, p), got dtype {arr.dtype} shape {arr.shape}")
 
 
-def _infer_size(cols) -> tuple[int, int]:
+def _infer_size(path, cols, plain: bool) -> tuple[int, int]:
+    """Max coordinate + 1, checked; a plain N x 4 array whose size is off the scale says its
+    column order (a (t, x, y, p) array read as x, y, t, p made "sensor size 99951x346")."""
     if cols["x"].shape[0] == 0:
         return (1, 1)
-    return (int(np.max(cols["x"])) + 1, int(np.max(cols["y"])) + 1)
+    w, h = int(np.max(cols["x"])) + 1, int(np.max(cols["y"])) + 1
+    try:
+        return check_sensor_size(path, (w, h))
+    except InputError:
+        raise InputError(path, f"no sensor size given, and the largest coordinates make {w}x{h} px, over 65535"
+                         + (": a plain N x 4 array holds the columns x, y, t, p in that order (t in us)" if plain
+                            else "") + " (--sensor-size WxH gives the size)") from None
 
 
 class NpySource(EventSource):
@@ -80,12 +88,14 @@ def open_numpy(path, kind: str, sensor_size=None) -> EventSource:
             arr = np.load(path, mmap_mode="r", allow_pickle=False)
             cols = _columns(path, arr)
             inferred = sensor_size is None
-            size = check_sensor_size(path, sensor_size or _infer_size(cols))
+            size = check_sensor_size(path, sensor_size) if sensor_size else _infer_size(path, cols, not arr.dtype.names)
             return NpySource(path, cols, size, inferred)
         with np.load(path, allow_pickle=False) as z:
             names = set(z.files)
+            plain = False
             if "events" in names:
-                cols = _columns(path, z["events"])
+                arr = z["events"]
+                cols, plain = _columns(path, arr), not arr.dtype.names
             else:
                 missing = [n for n in EVENT_DTYPE.names if n not in names]
                 if missing:
@@ -101,7 +111,7 @@ def open_numpy(path, kind: str, sensor_size=None) -> EventSource:
     except (ValueError, OSError, EOFError, zipfile.BadZipFile, KeyError) as exc:
         raise InputError(path, f"cannot read {kind} file (truncated or corrupt?): {exc}") from None
     inferred = sensor_size is None and own is None
-    size = check_sensor_size(path, sensor_size or own or _infer_size(cols))
+    size = check_sensor_size(path, sensor_size or own) if (sensor_size or own) else _infer_size(path, cols, plain)
     ev = to_events(path, cols["x"], cols["y"], time_us(path, cols["t"]), cols["p"])
     src = ArraySource(path, ev, size, attrs={"sensor_size_inferred": True} if inferred else None)
     src.format_name = "npz"
@@ -116,6 +126,6 @@ def write_npz(path, events: np.ndarray, sensor_size) -> None:
     except InputError as exc:
         raise ValueError(f"refusing to write bad events: {exc.problem}") from None
     buf = io.BytesIO()     # built in memory so a full disk is one OSError, not a broken zip writer
-    np.savez_compressed(buf, sensor_size=np.array([w, h], np.int64),
+    savez_compressed(buf, sensor_size=np.array([w, h], np.int64),
                         **{n: np.ascontiguousarray(events[n]) for n in EVENT_DTYPE.names})
     write_bytes_atomic(path, buf.getbuffer(), suffix=".npz")

@@ -32,7 +32,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import InputError
-from ..fileio import atomic_path, clear_killed, json_text, special_file, temp_prefix
+from ..fileio import atomic_path, clear_killed, json_text, savez_compressed, special_file, temp_prefix
 from .pipeline import WindowResult
 from .traffic import Traffic
 
@@ -48,7 +48,8 @@ class LineFile:
     events in its first window, a live source that never sends) leaves an existing file as it
     was and no new one; ``close`` then removes the temp file. A ``path`` that names a device or
     a pipe (/dev/null, a FIFO, bash's ``>(...)``: fileio.special_file) is written into directly,
-    as a shell redirection would (a rename would replace the device or pipe with a file)."""
+    as a shell redirection would (a rename would replace the device or pipe with a file); a pipe
+    whose reader went away ends the run as a closed stdout does (BrokenPipeError: exit 0, quietly)."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
@@ -79,6 +80,8 @@ class LineFile:
         try:
             while done < len(data):
                 done += os.write(self.fd, data[done:])
+        except BrokenPipeError:
+            raise                                  # a pipe's reader went away (a FIFO, >(head)): as stdout's, cli ends quietly
         except OSError as exc:
             if done and self.regular:
                 os.ftruncate(self.fd, self.size)
@@ -342,6 +345,6 @@ class SpikeDump:
     def write(self) -> None:
         """One compressed .npz, atomically (atomic_path reports a refused write naming the file)."""
         with atomic_path(self.path) as tmp, open(tmp, "wb") as f:
-            np.savez_compressed(f, t0_us=np.asarray(self.t0, dtype=np.int64),
+            savez_compressed(f, t0_us=np.asarray(self.t0, dtype=np.int64),
                                 stage_input=np.asarray(self.inputs, dtype=bool),
                                 stage_output=np.asarray(self.outputs, dtype=bool))
