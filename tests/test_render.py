@@ -91,6 +91,14 @@ def test_frames_draw_trails_by_track_id_and_degrade_without(tmp_path, tracked):
     assert tuple(frame[ev[1], ev[0]]) == draw.THEMES["dark"].on
 
 
+def test_frame_time_is_ms_into_a_recording_or_a_clock_time_for_epoch_timestamps():
+    """A DV camera's epoch timestamps were labelled "t = 1700000000000005.1 ms"."""
+    from toffe_deploy.render.frames import time_label
+
+    assert time_label(5_100) == "5.1 ms" and time_label(3_600_000_000) == "3600000.0 ms"
+    assert time_label(1_700_000_000_000_005) == "2023-11-14 22:13:20.000005 UTC"
+
+
 def test_a_tentative_tracks_id_is_not_drawn():
     from toffe_deploy.render.draw import Mark
 

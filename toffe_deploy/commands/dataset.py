@@ -124,7 +124,9 @@ def register(sub) -> None:
     r.add_argument("--sensor-size", type=_sensor_size, default=None, metavar="WxH",
                    help="sensor size in pixels (default: 640x480)")
     r.add_argument("--hfov-deg", type=_range(HFOV_RANGE_DEG[0], False, 170.0), default=None, metavar="LO,HI",
-                   help=f"horizontal field of view, degrees, {HFOV_RANGE_DEG[0]:g}..170 (random: 40,90; paper: 60)")
+                   help=f"horizontal field of view, degrees, {HFOV_RANGE_DEG[0]:g}..170 (random: 40,90; paper: 60; the "
+                        "generator's pinhole image beyond 170 is mostly stretched edge, where run's --hfov-deg, "
+                        "a unit conversion only, takes up to 179)")
     r.add_argument("--focal-px", type=_range(0, True), default=None, metavar="LO,HI",
                    help="focal length in pixels, instead of --hfov-deg")
     r.add_argument("--depth-m", type=_range(0, True), default=None, metavar="LO,HI",

@@ -24,8 +24,9 @@ def register(sub) -> None:
     p.add_argument("--variants", default="", metavar="LIST",
                    help="comma-separated extra OFPD precisions for the edge GPU: fp16, int8 (default: none)")
     p.add_argument("--data", metavar="DIR", default=None,
-                   help="data set directory whose held-out 'test' sequences give the parity windows "
-                        "(default: generate small multi-object scenes with a fixed seed)")
+                   help="data set directory whose held-out 'test' sequences give the parity windows, recorded at "
+                        "the checkpoint's sensor size (the netx and NIR files hold the checkpoint's grid; another "
+                        "camera's data is refused) (default: generate small multi-object scenes with a fixed seed)")
     p.add_argument("--windows", type=int, default=16, metavar="N",
                    help="number of held-out windows for the parity checks (default: 16)")
     p.add_argument("--lava-windows", type=int, default=2, metavar="N",

@@ -19,6 +19,21 @@ from .video import VIDEO_NAME, FrameSink
 __all__ = ["FrameRenderer", "VIDEO_NAME"]
 
 
+#: Timestamps from here on are a clock's (us since 1970: DV cameras, ROS), not a recording's own.
+EPOCH_FROM_US = 10 ** 12          # 11.6 days
+
+
+def time_label(t_us: int) -> str:
+    """A frame's time: ms into the recording, or a UTC clock time where the timestamps are a
+    clock's (a 16-digit ms figure read "t = 1700000000000005.1 ms")."""
+    if t_us < EPOCH_FROM_US:
+        return f"{t_us / 1000:.1f} ms"
+    import datetime
+
+    clock = datetime.datetime.fromtimestamp(t_us // 10 ** 6, tz=datetime.timezone.utc)
+    return f"{clock:%Y-%m-%d %H:%M:%S}.{t_us % 10 ** 6:06d} UTC"
+
+
 class FrameRenderer:
     """Draws and writes the frames of a run (module doc); ``close(ok)`` keeps them only when ok."""
 
@@ -45,7 +60,7 @@ class FrameRenderer:
         t0 = window.get("t0_us")
         header = None
         if t0 is not None:
-            header = (f"t = {t0 / 1000:.1f} ms, {len(marks)} object{'' if len(marks) == 1 else 's'}"
+            header = (f"t = {time_label(t0)}, {len(marks)} object{'' if len(marks) == 1 else 's'}"
                       + (", dashed: ground truth" if truth_marks else ""))
         return draw.compose(img, marks, truth_marks, scale=scale, unit=draw.unit_px((w, h)), theme=self.theme,
                             header=header, trails=self.trails.update(marks))
