@@ -223,7 +223,7 @@ def test_coasting_tracks_are_flagged_listed_for_report_misses_and_their_lines_va
     from toffe_deploy.schema import load_schema
 
     v = jsonschema.Draft202012Validator(load_schema())
-    tr = Tracker(CFG, DT_US, TrackerConfig(report_misses=2, max_misses=4))
+    tr = Tracker(CFG, DT_US, TrackerConfig(report_misses=2, max_misses=4), 0.1109)   # a camera (554.3 px at 5 m), as a run has
     listed = []
     for w in range(14):
         m = mover(50, 200, 0, 12000, w)
