@@ -188,6 +188,9 @@ def test_init_from_fine_tunes_in_the_zero_reset_arithmetic(data, tmp_path, capsy
     trained = json.loads((ck / "train_log.json").read_text())["ofs_stage1"]["trained_threshold"]
     assert abs(trained - 0.7) < abs(trained - dotie_ofs(cfg)[0]["threshold"])   # started from src's 0.7
     capsys.readouterr()
+    assert main(["train", "--data", str(data), "--out", str(tmp_path / "ck2"), "--stage", "ofs", "--init-from",
+                 str(src), "--dt", "1000", "--ofs-epochs", "1", "--no-progress"]) == 2    # fine-tuning keeps dt
+    assert "the --init-from checkpoint has dt 500, so --dt 1000 would not apply" in capsys.readouterr().err
     before = {f.name: f.read_bytes() for f in src.iterdir() if f.is_file()}   # --out the checkpoint it starts
     assert main(["train", "--data", str(data), "--out", str(src), "--stage", "ofs", "--init-from", str(src),  # from:
                  "--ofs-epochs", "1", "--windows-per-seq", "3", "--no-progress"]) == 2                 # refused,
@@ -338,6 +341,17 @@ def test_resume_continues_only_its_own_run(data, tmp_path, capsys, monkeypatch):
     assert "finished OFS stages [1, 2] of 1-4" in capsys.readouterr().err
     assert main(args + ["--seed", "5", "--resume"]) == 2
     assert "--seed 4, not 5" in capsys.readouterr().err
+    # options the resumed run cannot honour: refused (--reset zero rewrote the config over stages
+    # trained with subtract; --dt 1000 trained and wrote a 500 us checkpoint, both exit 0)
+    for extra, says in ((["--reset", "zero"], "trains reset 'subtract', not --reset zero"),
+                        (["--dt", "1000"], "has dt 500, so --dt 1000 would not apply"),
+                        (["--ofs-kernel", "3"], "has ofs-kernel 5, so --ofs-kernel 3"),
+                        (["--input-support", "4,2,5,2"], "has input-support off, so --input-support 4,2,5,2")):
+        assert main(args + ["--seed", "4", "--resume"] + extra) == 2
+        err = capsys.readouterr().err
+        assert says in err and "resume with its options" in err and len(err.strip().splitlines()) == 1, err
+    assert main(args + ["--seed", "4", "--stage", "ofpd", "--min-cluster", "2"]) == 2       # --out's checkpoint
+    assert "the checkpoint --stage ofpd trains on has min-cluster 4" in capsys.readouterr().err
 
     calls.clear()
     with monkeypatch.context() as m:                     # a new run (seed 6) stopped before any stage finished

@@ -19,7 +19,9 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, type=Path, help="checkpoint directory to write (e.g. ckpt/)")
     p.add_argument("--stage", choices=("ofs", "ofpd", "all"), default="all",
                    help="what to train: the OFS stages, the OFPD (needs trained OFS in --out), or both (default)")
-    p.add_argument("--dt", type=int, default=500, help="window length in microseconds the checkpoint is trained for (default 500)")
+    p.add_argument("--dt", type=int, default=None,
+                   help="window length in microseconds a new checkpoint is trained for (default 500; a run on an "
+                        "existing checkpoint (--resume, --stage ofpd, --init-from) keeps its own, and refuses another)")
     p.add_argument("--ofs-epochs", type=int, default=4, help="epochs per OFS stage (default 4)")
     p.add_argument("--epochs", type=int, default=30, help="OFPD epochs (default 30)")
     p.add_argument("--windows-per-seq", type=int, default=30,
@@ -32,11 +34,11 @@ def register(sub) -> None:
                         "(blob grouping, scaled crop, px/ms speed)")
     p.add_argument("--ofpd-kernels", default=None, metavar="K1,K2",
                    help="OFPD conv kernel sizes (default: the checkpoint's, else 3,3); a new value trains a fresh OFPD")
-    p.add_argument("--input-norm", choices=("first", "none"), default="first",
+    p.add_argument("--input-norm", choices=("first", "none"), default=None,
                    help="input front end of a new checkpoint: 'first' keeps each pixel's first spike per polarity "
                         "in a window (speed from swept area, not event density; default), 'none' every spike "
                         "(the paper's input)")
-    p.add_argument("--min-cluster", type=int, default=4, metavar="N",
+    p.add_argument("--min-cluster", type=int, default=None, metavar="N",
                    help="input front end of a new checkpoint: keep only the spikes of pixels in 8-connected "
                         "clusters of >= N event pixels of the window (a background-activity filter; 1 keeps "
                         "all; default 4)")
@@ -44,7 +46,7 @@ def register(sub) -> None:
                    help="input front end of a new checkpoint: also keep a pixel the cluster filter drops when the "
                         "window and the K windows before it fired >= M + C * (2R+1)^2 * (their event-pixel density) "
                         "pixels in its (2R+1)^2 box (config.input_support; the shipped one's: 4,2,5,2; default off)")
-    p.add_argument("--ofs-kernel", type=int, default=5, metavar="K",
+    p.add_argument("--ofs-kernel", type=int, default=None, metavar="K",
                    help="OFS conv kernel size of a new checkpoint (odd; default 5, the shipped one's: slow edges move "
                         "under a pixel per time bin; the paper's is 3)")
     p.add_argument("--ofs-pool", type=int, default=None, metavar="P",
@@ -83,7 +85,7 @@ def run(args) -> int:
             kernels = tuple(int(k) for k in args.ofpd_kernels.split(","))
         except ValueError:
             raise ToffeError(f"--ofpd-kernels needs two odd sizes like 3,3, got {args.ofpd_kernels!r}") from None
-    if args.min_cluster < 1:
+    if args.min_cluster is not None and args.min_cluster < 1:
         raise ToffeError(f"--min-cluster must be >= 1, got {args.min_cluster}")
     support = None
     if args.input_support is not None:
@@ -99,14 +101,14 @@ def run(args) -> int:
         raise ToffeError(f"--mask-kernel must be 1..{MAX_MASK_KERNEL}, got {args.mask_kernel}")
     if args.seed < 0:
         raise ToffeError(f"--seed must be >= 0, got {args.seed}")
-    if args.ofs_kernel < 1 or args.ofs_kernel % 2 == 0:
+    if args.ofs_kernel is not None and (args.ofs_kernel < 1 or args.ofs_kernel % 2 == 0):
         raise ToffeError(f"--ofs-kernel must be an odd positive size, got {args.ofs_kernel}")
     if not args.speed_edge_weight >= 0:
         raise ToffeError(f"--speed-edge-weight must be >= 0, got {args.speed_edge_weight}")
     for name in ("dt", "ofs_epochs", "epochs", "windows_per_seq"):
-        if getattr(args, name) < (0 if "epochs" in name else 1):
+        if getattr(args, name) is not None and getattr(args, name) < (0 if "epochs" in name else 1):
             raise ToffeError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
-    if args.dt > MAX_DT_US:                 # the checkpoint's config would be refused, after the training
+    if args.dt is not None and args.dt > MAX_DT_US:                 # the checkpoint's config would be refused, after the training
         raise ToffeError(f"--dt must be <= {MAX_DT_US} us, got {args.dt}")
     from ..fileio import check_outputs
 

@@ -384,6 +384,30 @@ def ofpd_loss(model, batch, device, speed_terms=None, edge_weight: float = 0.0):
 
 
 # ------------------------------------------------------------------------------- driver
+#: A new checkpoint's model settings where TrainOptions leaves them None (the CLI's defaults).
+NEW_CHECKPOINT = {"dt_us": 500, "input_norm": "first", "ofs_kernel": 5, "min_cluster": 4}
+
+
+def _new_setting(opts: "TrainOptions", key: str):
+    v = getattr(opts, key)
+    return NEW_CHECKPOINT[key] if v is None else v
+
+
+def _check_kept_settings(opts: "TrainOptions", config: ToffeConfig, where, why: str, retry: str) -> None:
+    """A run on an existing checkpoint's config (--resume, --stage ofpd, --init-from) keeps its
+    model settings: an option that sets one of those to another value is refused, one line,
+    before any work (they were dropped silently: --dt 1000 trained and wrote a 500 us checkpoint)."""
+    for opt, want, have in (("--dt", opts.dt_us, config.dt_us), ("--input-norm", opts.input_norm, config.input_norm),
+                            ("--ofs-kernel", opts.ofs_kernel, config.ofs_kernel),
+                            ("--min-cluster", opts.min_cluster, config.input_min_cluster),
+                            ("--input-support", opts.input_support, config.input_support)):
+        if want is None or (have is not None and list(np.atleast_1d(want)) == list(np.atleast_1d(have))):
+            continue
+        shown = ",".join(map(str, np.atleast_1d(want))) if opt == "--input-support" else want
+        raise InputError(where, f"{why} has {opt[2:]} {'off' if have is None else have}, so {opt} {shown} would not "
+                                f"apply; {retry}")
+
+
 @dataclass
 class TrainOptions:
     data: Path
@@ -393,15 +417,15 @@ class TrainOptions:
     ofpd_epochs: int = 30
     seed: int = 0
     resume: bool = False
-    dt_us: int = 500
+    dt_us: int | None = None          # window length of a new checkpoint; None: NEW_CHECKPOINT's
     per_file: int = 30
     device: str = "auto"
     progress: bool = True
     ofpd_pool: int | None = None      # OFPD cell size P; None: the checkpoint's (or OFPD_DEFAULTS')
     ofpd_kernels: tuple[int, int] | None = None   # OFPD conv kernel sizes; None: likewise
-    input_norm: str = "first"         # input front end of a new checkpoint (events/frontend.py)
-    ofs_kernel: int = 5               # OFS conv kernel of a new checkpoint
-    min_cluster: int = 4              # input front end's cluster filter of a new checkpoint (the CLI default)
+    input_norm: str | None = None     # input front end of a new checkpoint (events/frontend.py); None: NEW_CHECKPOINT's
+    ofs_kernel: int | None = None     # OFS conv kernel of a new checkpoint; None: NEW_CHECKPOINT's
+    min_cluster: int | None = None    # input front end's cluster filter of a new checkpoint; None: NEW_CHECKPOINT's
     reset: str | None = None          # OFS neuron reset (config.RESETS); None: the checkpoint's, else subtract
     init_from: Path | None = None     # checkpoint whose config and OFS stages a new run starts from (fine-tune)
     ofs_pool: int | None = None       # OFS grid pooling (config.ofs_pool); None: the checkpoint's, NEW_OFS_POOL for a new one
@@ -603,15 +627,28 @@ def train(opts: TrainOptions) -> Path | None:
         if opts.reset is not None and opts.reset != config.reset and opts.stage == "ofpd":
             raise InputError(out, f"its OFS stages were trained with reset {config.reset!r}; --reset {opts.reset} "
                                   "needs them retrained (--stage all)")
+        if resume:
+            if opts.reset is not None and opts.reset != config.reset:
+                raise InputError(out, f"the run --resume continues trains reset {config.reset!r}, not --reset "
+                                      f"{opts.reset} (its finished OFS stages would keep the old one): resume with "
+                                      "its options, or start a new run without --resume")
+            _check_kept_settings(opts, config, out, "the run --resume continues",
+                                 "resume with its options, or start a new run without --resume")
+        else:
+            _check_kept_settings(opts, config, out, "the checkpoint --stage ofpd trains on",
+                                 "drop the option, or train a new checkpoint (--stage all)")
     elif init_ofs is not None:
         config = init_config(init.config, files, Path(opts.data), opts.seed, opts.init_from)
+        _check_kept_settings(opts, config, opts.init_from, "the --init-from checkpoint",
+                             "drop the option (fine-tuning keeps the model's settings), or train from scratch")
         ofs_params, ofpd_state = [dict(p) for p in init_ofs], init.ofpd_state
         state = {}
     else:
         if opts.stage == "ofpd":
             raise InputError(out, "--stage ofpd needs a checkpoint with trained OFS stages in --out (run --stage ofs first)")
-        config = make_config(files, Path(opts.data), opts.dt_us, opts.seed, opts.input_norm, opts.ofs_kernel,
-                             opts.min_cluster)
+        config = make_config(files, Path(opts.data), _new_setting(opts, "dt_us"), opts.seed,
+                             _new_setting(opts, "input_norm"), _new_setting(opts, "ofs_kernel"),
+                             _new_setting(opts, "min_cluster"))
         config = dataclasses.replace(config, ofs_pool=NEW_OFS_POOL if opts.ofs_pool is None else int(opts.ofs_pool),
                                      input_support=opts.input_support)
         ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
