@@ -14,7 +14,7 @@ object-centric crop and pooled to g x g cells (g = ofpd.crop_px / ofpd.pool):
     x[2B]    = (x_px of the cell centre) / COORD_SCALE,  x[2B+1] = (y_px of the cell centre) / COORD_SCALE
 
     x[2B + 0], x[2B + 1] (ofpd.motion "time_cov", the motion planes; absent for "none"):
-               per cell, 12 n cov(t, u) / P^2 and 12 n cov(t, v) over its n ones, t = b / (B-1) - 1/2
+               per cell, 12 n cov(t, u) / P^2 and 12 n cov(t, v) / P^2 over its n ones, t = b / (B-1) - 1/2
                the time bin, u, v = the position inside the cell in cells (-1/2 .. 1/2)
 
 so C = 2B + 2 (+ 2) channels of g x g. The motion planes say which way time runs inside a

@@ -149,7 +149,8 @@ def register(sub) -> None:
     r.add_argument("--threshold-sigma", type=_range(0, False), default=None, metavar="LO,HI",
                    help="per-pixel threshold mismatch, standard deviation (random: 0,0.06; paper: 0.03)")
     r.add_argument("--refractory-us", type=_range(0, False), default=None, metavar="LO,HI",
-                   help="refractory period in microseconds: a pixel that fired cannot fire again within it "
+                   help="refractory period in microseconds: a pixel's scene events (objects, texture) come at "
+                   "least this far apart; background noise and hot pixels are added after it, not thinned "
                    "(random: 0,500; paper: 0)")
     r.add_argument("--noise-hz", type=_range(0, False), default=None, metavar="LO,HI",
                    help="background-activity noise rate per pixel in Hz (random: 0.1,50; paper: 0)")

@@ -30,7 +30,8 @@ RESET_NOTES = {
                 "netx_vs_fixed). Use lava_procs with ofs_loihi.json for the faithful model.",
     "zero": "netx's stock CUBA neuron resets to zero, as this bundle's OFS does: loaded with "
             "Network(net_config=FILE, reset_interval=n_bins, reset_offset=1) and fed bin b of window i at "
-            "Lava step i * n_bins + b + 1, each file reproduces its stage bit for bit.",
+            "Lava step i * n_bins + b + 1 (steps count from 1: a lava.proc.io RingBuffer source's column "
+            "i * n_bins + b), each file reproduces its stage bit for bit.",
 }
 #: netx.hdf5.Network(reset_interval=n_bins, reset_offset=NETX_RESET_OFFSET) starts every window
 #: from rest when bin b of window i enters at Lava step i * n_bins + b + 1 (run_netx_stage).

@@ -103,11 +103,18 @@ lowers the scale (a note says so).
 Input `events`: (N, C, h, w) float32 with dynamic N, made by `toffe_deploy.ofpd_io.prepare`
 from N objects' speed-separated frames: C = 2B pooled event planes (B time bins x 2 polarities)
 + the motion planes + 2 coordinate planes, h = w = g = `crop_px / pool` cells (32 by default).
+Event plane 2b + p (time bin b, polarity p: 0 OFF, 1 ON) holds, per cell, the fraction of its
+P x P pixels that have a front-end event in that bin and polarity (the mean of crop[b, p] > 0).
+The crop is the S x S block whose centre x0 + (S - 1) / 2, y0 + (S - 1) / 2 lies nearest the
+two-pass centroid of the object's event pixels (their mean, then the mean of those within S / 2
+of it), zero outside the sensor (`ofpd_io.crop_origin_xy` and `ofpd_io.prepare_xy`, with the
+module doc of `toffe_deploy/ofpd_io.py`, are the reference implementation).
 Each object's crop is S x S px with cells of P = S / g px; with `config.ofpd.crop = "scaled"`
 (OFPDs trained since the layout keys exist) S = g * clip(2^ceil(log2(1.5 * extent / g)),
 pool_min, pool_max), 64..512 px by default, with `"fixed"` S = `crop_px`. The motion planes
 (`config.ofpd.motion = "time_cov"`: planes 2B and 2B + 1; none for `"none"`, older OFPDs) hold
-per cell 12 n cov(t, u) / P^2 and 12 n cov(t, v) over its n event ones, t the time bin scaled to
+per cell 12 n cov(t, u) / P^2 and 12 n cov(t, v) / P^2 over its n event ones (the cell's ones in
+every event plane), t the time bin scaled to
 -1/2..1/2 and (u, v) the position inside the cell in cells: which way time runs in the cell,
 the direction of motion whatever the contrast sign. The last two planes hold the cell centres'
 x, then y, in sensor px / 1000: the graph reads the crop centre (their mean) and P (their
@@ -163,7 +170,8 @@ legacy value: boxes / fixed / mps / no motion planes / bin from the OFS / join).
 netx's stock CUBA neuron resets to zero after a spike. For a **`reset: zero` bundle the files
 reproduce the bundle bit for bit** when loaded with the periodic reset the manifest states
 (`netx.reset_interval` = B, `netx.reset_offset` = 1) and fed bin b of window i at Lava step
-i * B + b + 1 (spikes of that bin come out one step later):
+i * B + b + 1 (steps count from 1: with a `lava.proc.io.source.RingBuffer` that is column i * B + b of
+its data, which it sends one column a step from step 1), and the spikes of that bin come out one step later:
 
 ```python
 from lava.lib.dl.netx.hdf5 import Network
