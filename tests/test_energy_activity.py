@@ -99,3 +99,31 @@ def test_dotie_count_names_the_events_it_counted(rng):
     raw = _window(rng)
     plain, cl, _w, _s = count_dotie(raw)
     assert plain.extra["raw_events"] == cl.extra["raw_events"] == int(raw.sum()) == plain.work.input_events
+
+
+def test_both_models_list_frame_pixels_by_the_same_rule(rng):
+    """DOTIE's clustering lists its separated pixels and TOFFE's grouping its stage frames'
+    pixels, by the rules' scan term alike: per listed pixel by the event-driven rule, per frame
+    pixel by the dense one. DOTIE's listing was a full-frame scan by both rules (2 uJ of its 6
+    by the event rule on 640x480), and TOFFE's grouping was not counted at all."""
+    from toffe_deploy.energy.activity import grouping_ops
+    from toffe_deploy.energy.rules import dense, event_driven
+
+    x = np.zeros((5, 2, 96, 128), np.uint16)               # events well inside (morphology's reach)
+    x[:, :, 36:60, 48:80] = _window(rng)
+    _plain, clus, _w, _s = count_dotie(x)
+    _sp, out = dotie_separate(x)
+    assert clus.work.scan_event == out.sum() > 0 and clus.work.scan_dense == out.size
+    big = np.zeros((5, 2, 192, 256), np.uint16)            # the same events on a 4x larger sensor
+    big[:, :, 36:132, 48:176] = x
+    _p, clus_big, _w, _s = count_dotie(big)
+    assert event_driven(clus_big.work) == event_driven(clus.work)                # the event rule: the events'
+    assert dense(clus_big.work).energy_j() > 3 * dense(clus.work).energy_j()       # the dense one: the frames'
+    x = _window(rng)
+    cfg = ToffeConfig(sensor_size=(32, 24))
+    res, mc = count_toffe(x, _params(), cfg, ofpd_macs=0, ofpd_in_elems=0)
+    stage_px = sum(int(np.asarray(f).any(axis=0).sum()) for f in res.frames)
+    assert mc.work.scan_event == stage_px > 0 and mc.work.scan_dense == 4 * 24 * 32
+    ones = sum(int(np.count_nonzero(f)) for f in res.frames)
+    g = grouping_ops(stage_px, ones)
+    assert mc.host_hybrid.add_int32 >= g.add_int32 > 0 and mc.work.post.mul_int32 >= g.mul_int32 > 0

@@ -69,6 +69,18 @@ def front_end_ops(raw_ones: int, pixels: int, support_radius: int | None) -> Hos
                    sram_bytes=16 * raw_ones + (8 * 9 + 2 * box) * pixels)
 
 
+def grouping_ops(stage_pixels: int, object_ones: int) -> HostOps:
+    """Upper bound of the host's object grouping and OFPD input (runtime/ofpd_input.batch, one
+    compiled call) on a window, from the stage frames' listed pixels (their listing is the
+    rules' scan term): per stage pixel the 8 neighbour reads and union-find of link_components
+    (~10 int ops, as front_end_ops' cluster filter) and its group's box and centroid sums (2);
+    per object one (each bin and polarity) its crop cell's index (a multiply, 2 adds), the event
+    plane's count and the motion planes' 6 integer sums. The planes written are the OFPD's
+    input (count_toffe's ofpd term)."""
+    return HostOps(add_int32=12 * stage_pixels + 8 * object_ones, mul_int32=object_ones,
+                   sram_bytes=(8 * 9 + 16) * stage_pixels + 56 * object_ones)
+
+
 #: the plane fit's and outline's bounds per object (time_surface.MAX_PLANES, plane_fit.IRLS_PASSES)
 PLANES_MAX, IRLS_PASSES_COUNTED = 256, 4
 
@@ -160,6 +172,10 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
         if hist is not None:
             ks = history_windows([o.speed_px_s / 1000.0 for o in objects], hist[0], hist[1], config.dt_us)
             extras = extras + plane_fit_ops([o.n_events for o in objects], ks, outline_settings(config) is not None)
+    # the grouping over the stage frames' pixels, then each object's ones into the OFPD input
+    stage_px = sum(int(np.count_nonzero(np.asarray(f).reshape(b, -1).any(axis=0))) for f in res.frames)
+    object_ones = sum(int(o.n_events) for o in objects) if objects else int(sum(np.count_nonzero(f) for f in res.frames))
+    extras = extras + grouping_ops(stage_px, object_ones)
     ofs_host = HostOps()
     for k in range(n):
         ofs_host = ofs_host + event_conv_ops(sum(acts[k].synops)) + fixed_lif_ops(host_updates[k])
@@ -167,6 +183,7 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
                 layers=[LayerWork(h * w, b, ch, params[k].kernel_size, float(sum(acts[k].synops)), float(host_updates[k]))
                         for k in range(n)],
                 morph=morph, mask_event=mask_event, mask_dense=float(2 * n * b * ch * h * w),
+                scan_event=float(stage_px), scan_dense=float(n * h_s * w_s),
                 post=ofpd + sort_unique_ops(n_raw) + extras)
     mc = ModelCount(loihi=acts, host_all=binarize + extras + ofs_host + masks + ofpd, host_hybrid=masks + ofpd + extras,
                     extra={"ofpd_calls": ofpd_calls, "input_events": int(np.count_nonzero(binned)), "raw_events": n_raw},
@@ -217,9 +234,13 @@ def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()
         cl = cl + ops
         for k, v in stats.items():
             totals[k] += v
+    scan = HostOps(op_int8=b * h * w, sram_bytes=b * h * w)     # count_clustering's np.nonzero, per step
     cluster = ModelCount(loihi=[act], host_all=plain.host_all + cl, host_hybrid=post + cl,
                          extra={"separated_px": int(out.sum()), "raw_events": n_raw, **totals},
-                         work=dataclasses.replace(work, post=work.post + cl))
+                         # the listing of the separated pixels is a rule's (scan_*): per pixel by the
+                         # event rule (it was a full-frame scan by both, 2 uJ of 6 by the event rule)
+                         work=dataclasses.replace(work, post=work.post + cl + scan.scaled(-1),
+                                                  scan_event=float(out.sum()), scan_dense=float(b * h * w)))
     window_ops, window_stats = count_clustering(out.any(axis=0), p)
     window = ModelCount(loihi=[act], host_all=plain.host_all + HostOps(op_int8=out.size) + window_ops,
                         host_hybrid=post + window_ops, extra={"separated_px": int(out.sum()), **window_stats})

@@ -137,15 +137,18 @@ def markdown_table(rows: list[dict], machine_name: str) -> str:
         return (f"{fmt(p['dotie_cluster'][col][0] / p['toffe'][col][0])}x / "
                 f"{fmt(p['dotie_cluster'][col][1] / p['toffe'][col][1])}x")
 
-    lines.append("| ratio DOTIE with clustering / TOFFE (across levels: DOTIE reference, TOFFE optimised; "
-                 "see the like-for-like table) | " + " | ".join(
+    lines.append("| ratio DOTIE with clustering / TOFFE (across levels and counting: DOTIE's reference code over "
+                 "whole frames, TOFFE's deployed pipeline over its events; like for like: the like-for-like "
+                 "table) | " + " | ".join(
         [pr("cpu"), rcell("cpu"), pr("cuda"), rcell("cuda"), pr("loihi"), rcell("loihi-sim"), rcell("loihi2")]) + " |")
     return "\n".join(lines)
 
 
 def legend() -> str:
     return ("Cells: dynamic energy per inference E (mJ) [how] / latency per inference L (ms, p50, batch 1). "
-            "[m] modelled from counted operations (constants in the JSON), [r] measured RAPL, [n] measured NVML, "
+            "[m] modelled from the operations of the code the row times, counted as it runs (constants in the "
+            "JSON): DOTIE's reference code over whole frames (as the dense rule counts), TOFFE's deployed "
+            "pipeline over its events (as the event-driven rule); [r] measured RAPL, [n] measured NVML, "
             "[j] measured Jetson INA3221, [l] Loihi 2 profiler, [b] measured but below noise; "
             "ᵐ latency modelled (Loihi 2 T_ts x B from counted activity, plus the host part measured here). "
             "n/a: target not available on this machine (reason in the JSON).")
@@ -174,8 +177,10 @@ def detail_table(rows: list[dict]) -> str:
 
 def hybrid_split_table(row: dict | None) -> str:
     """TOFFE on Loihi 2 + host: the modelled Loihi side per stage, the host side, and the paper."""
-    if not row or row.get("status") != "ok" or "loihi" not in row:
-        return "(no Loihi 2 model: TOFFE was not counted)"
+    if not row:
+        return "(no Loihi 2 model: this run's --targets has no loihi-sim)"
+    if row.get("status") != "ok" or "loihi" not in row:
+        return f"(no Loihi 2 model: TOFFE's loihi-sim row is n/a: {row.get('reason', 'not counted')})"
     lo, host = row["loihi"], row["host"]
     lines = ["| part | E (mJ) | L (ms) | how |", "|---|---|---|---|"]
     for i, st in enumerate(lo["stages"], start=1):

@@ -9,10 +9,12 @@ Work into operations (``HostOps``):
     event_driven(work): per input event its index; per synaptic op one int32 accumulate; per
                         neuron update with input or state a fixed-point LIF (1 mul + 3 adds);
                         morphology over the bounding box of the spikes (+ kernel reach);
-                        masks over the window's events
+                        masks over the window's events; a frame's pixels listed (for
+                        clustering or grouping) from its events
     dense(work):        a zero-filled count frame per step and channel; per neuron, step and
                         synapse one fp32 MAC; per neuron and step a float LIF (1 MAC + 2 adds);
-                        morphology and masks over whole frames
+                        morphology and masks over whole frames; a frame's pixels listed by
+                        scanning the whole frame
 
 Energy of a rule's operations = compute (per-op energies) + memory (bytes moved x pJ/byte),
 reported apart: ``energy_split``. Constants: cost_model.CONSTANTS (Horowitz, ISSCC 2014,
@@ -61,6 +63,9 @@ class Work:
     """What one inference computes (see module doc). morph: (box pixels, kernel, passes) per
     morphology run, the box being the spikes' bounding box grown by the kernel's reach;
     mask_event / mask_dense: element-wise mask operations over the events / whole frames;
+    scan_event / scan_dense: elements read to list a frame's pixels (DOTIE's separated pixels
+    for its clustering, TOFFE's stage frames for its grouping): the pixels themselves / every
+    pixel of the frames (an 8-bit compare and a byte read each);
     post: clustering and dense networks, priced the same by both rules."""
 
     frame_px: int
@@ -71,6 +76,8 @@ class Work:
     morph: list[tuple[int, int, int]] = field(default_factory=list)
     mask_event: float = 0.0
     mask_dense: float = 0.0
+    scan_event: float = 0.0
+    scan_dense: float = 0.0
     post: HostOps = field(default_factory=HostOps)
 
     def to_dict(self) -> dict:
@@ -85,7 +92,7 @@ def event_driven(w: Work) -> HostOps:
         ops = ops + event_conv_ops(layer.synops) + fixed_lif_ops(layer.active)
     for box_px, k, passes in w.morph:
         ops = ops + morphology_ops(box_px, 1, k, passes)
-    return ops + mask_ops(int(w.mask_event)) + w.post
+    return ops + mask_ops(int(w.mask_event)) + HostOps(op_int8=w.scan_event, sram_bytes=w.scan_event) + w.post
 
 
 def dense(w: Work) -> HostOps:
@@ -97,7 +104,7 @@ def dense(w: Work) -> HostOps:
             + dense_lif_ops(layer.neurons, layer.steps)
     for _box, k, passes in w.morph:
         ops = ops + morphology_ops(w.frame_px, 1, k, passes)
-    return ops + mask_ops(int(w.mask_dense)) + w.post
+    return ops + mask_ops(int(w.mask_dense)) + HostOps(op_int8=w.scan_dense, sram_bytes=w.scan_dense) + w.post
 
 
 RULE_FUNCTIONS = {"event": event_driven, "dense": dense}
