@@ -230,16 +230,16 @@ def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()
     cl = HostOps()
     totals = {"dbscan_points": 0, "dbscan_runs": 0, "dbscan_neighbour_pairs": 0, "boxes": 0}
     for t in range(b):
-        ops, stats = count_clustering(out[t], p)
+        ops, stats = count_clustering(out[t], p, scan=False)
         cl = cl + ops
         for k, v in stats.items():
             totals[k] += v
-    scan = HostOps(op_int8=b * h * w, sram_bytes=b * h * w)     # count_clustering's np.nonzero, per step
-    cluster = ModelCount(loihi=[act], host_all=plain.host_all + cl, host_hybrid=post + cl,
+    scan = HostOps(op_int8=b * h * w, sram_bytes=b * h * w)     # its code's np.nonzero of every step's frame
+    cluster = ModelCount(loihi=[act], host_all=plain.host_all + scan + cl, host_hybrid=post + scan + cl,
                          extra={"separated_px": int(out.sum()), "raw_events": n_raw, **totals},
                          # the listing of the separated pixels is a rule's (scan_*): per pixel by the
-                         # event rule (it was a full-frame scan by both, 2 uJ of 6 by the event rule)
-                         work=dataclasses.replace(work, post=work.post + cl + scan.scaled(-1),
+                         # event rule (it was a full-frame scan by both, 2 uJ of 7.5 by the event rule)
+                         work=dataclasses.replace(work, post=work.post + cl,
                                                   scan_event=float(out.sum()), scan_dense=float(b * h * w)))
     window_ops, window_stats = count_clustering(out.any(axis=0), p)
     window = ModelCount(loihi=[act], host_all=plain.host_all + HostOps(op_int8=out.size) + window_ops,
@@ -247,12 +247,13 @@ def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()
     return plain, cluster, window, spikes
 
 
-def count_clustering(image: np.ndarray, p: DotieParams = DotieParams()) -> tuple[HostOps, dict]:
-    """Operations of ``dotie_cluster`` on one (H, W) image: the scan for its pixels, then, from
+def count_clustering(image: np.ndarray, p: DotieParams = DotieParams(), scan: bool = True) -> tuple[HostOps, dict]:
+    """Operations of ``dotie_cluster`` on one (H, W) image: the scan for its pixels (unless
+    ``scan`` is False: the counting rules price the listing themselves), then, from
     min_samples pixels on, DBSCAN with its neighbour pairs counted exactly (radius query) and
     the box filter. Returns (ops, {dbscan_points, dbscan_runs, dbscan_neighbour_pairs, boxes})."""
     ys, xs = np.nonzero(image)
-    ops = HostOps(op_int8=image.size, sram_bytes=image.size)           # np.nonzero's scan
+    ops = HostOps(op_int8=image.size, sram_bytes=image.size) if scan else HostOps()   # np.nonzero's scan
     stats = {"dbscan_points": 0, "dbscan_runs": 0, "dbscan_neighbour_pairs": 0, "boxes": 0}
     if xs.shape[0] < p.min_samples:
         return ops, stats
