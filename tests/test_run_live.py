@@ -296,6 +296,7 @@ def test_stdin_run_equals_the_file_run_from_the_first_event(env, tmp_path):
     assert b"the stream ended inside its last window" in r.stderr
     assert set(live["event_latency_ms"]) >= {"p50", "p99"} and live["event_latency_ms"]["p50"] > 0
     assert b"live: newest event -> JSON line p50" in r.stderr
+    assert b"windows/s over" in r.stderr and b"(a live source's pace: its waits and --idle-timeout included" in r.stderr
     assert b"toffe-deploy: reading - (stdin)" in r.stderr and b"no events arrived" not in r.stderr
 
 

@@ -235,7 +235,9 @@ class RunSummary:
         bins = ", ".join(f"bin {k}: {v}" for k, v in sorted(self.objects_per_bin.items())) or "none"
         what = self.latency_kind
         out = [f"target {self.target}: {self.windows} windows, {self.objects} objects ({bins})",
-               f"{self.windows_per_s:.1f} windows/s over {self.wall_s:.2f} s (start-up {self.startup_s:.2f} s"
+               f"{self.windows_per_s:.1f} windows/s over {self.wall_s:.2f} s"
+               + (" (a live source's pace: its waits and --idle-timeout included" if self.live is not None else " (")
+               + f"{'; ' if self.live is not None else ''}start-up {self.startup_s:.2f} s"
                + (f"; real-time factor {self.realtime_factor:.3g}" if math.isfinite(self.realtime_factor) else "")
                + "); "
                f"{what} p50 {_ms(lat['p50'])}, p90 {_ms(lat['p90'])}, p99 {_ms(lat['p99'])}"]
