@@ -14,7 +14,7 @@ recall (all and per speed bin), pixE, dirE, speedE (TOFFE only: DOTIE reports bo
 positives per window. Before the timed settings, the first --warmup windows of the recording
 (without added noise) go through both models untimed (compiled kernels, caches; the Pipeline's
 tracks and windows before are reset after it), so the first setting's CPU time is not inflated.
-Writes noise_ablation.{md,json} to --out (default benchmarks/results/; strict JSON: a figure
+Writes noise_ablation.{md,json} to --out (default benchmarks/results/, --quick: benchmarks/results/quick/; strict JSON: a figure
 that does not exist, e.g. DOTIE's direction error, is null).
 """
 from __future__ import annotations
@@ -52,8 +52,12 @@ def parse_args(argv=None):
     ap.add_argument("--warmup", type=nonneg_int, default=None,
                     help=f"untimed windows through both models before the first setting (default {WARMUP}, quick 2)")
     ap.add_argument("--quick", action="store_true", help="6 windows, noise 0 and 50 Hz, one hot-pixel setting")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results"), help="output directory")
+    ap.add_argument("--out", default=None,
+                    help="output directory (default benchmarks/results/, --quick: benchmarks/results/quick/, so that "
+                         "a quick run never replaces the full table)")
     a = ap.parse_args(argv)
+    if a.out is None:
+        a.out = str(ROOT / "benchmarks" / "results" / ("quick" if a.quick else ""))
     if a.quick:
         a.windows, a.noise, a.hot = min(a.windows, 6), "0,50", "0.01"
     if a.warmup is None:
@@ -165,6 +169,7 @@ def run(a) -> int:
     with atomic_path(out / "noise_ablation.md") as tmp:
         tmp.write_text(md)
     print(md)
+    print(f"[noise_ablation] wrote {out / 'noise_ablation'}.{{md,json}}", file=sys.stderr)
     return 0
 
 

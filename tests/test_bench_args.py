@@ -301,3 +301,11 @@ def test_bench_tracking_recall_by_events_per_edge():
     assert r[">=1.5"]["recall"] == 1.0 and r[">=2.0"]["objects"] == 1
     assert mod.recall_by_events_per_edge(rows + [{"events_per_edge": None, "windows": 5, "detected": 0}]) == {}
     assert mod._object_count({"objects": json.dumps([{}, {}])}) == 2 and mod._object_count({}) == 0
+
+
+def test_a_quick_noise_ablation_writes_beside_the_full_table_not_over_it():
+    """`noise_ablation.py --quick` replaced benchmarks/results/noise_ablation.{md,json} (the full
+    table the README quotes) with its 6 windows; it writes to results/quick/ as energy_latency does."""
+    mod = _load("noise_ablation")
+    assert Path(mod.parse_args(["--quick"]).out) == ROOT / "benchmarks" / "results" / "quick"
+    assert Path(mod.parse_args([]).out) == ROOT / "benchmarks" / "results"
