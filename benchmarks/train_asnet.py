@@ -43,6 +43,8 @@ from toffe_deploy.baselines.registry import ASNET_DIR as DEFAULT_OUT  # noqa: E4
 from toffe_deploy.commands import add_progress_flag, show_progress  # noqa: E402
 from _args import OneLineParser, existing_dir, guarded, nonneg_int, positive_float, positive_int  # noqa: E402
 
+EVAL_WINDOWS, COST_WINDOWS = 6, 16      # the shipped eval_test.json's and cost.json's
+
 
 def parse_args(argv=None):
     ap = OneLineParser(prog="train_asnet.py", description=__doc__.split("\n\n")[0])
@@ -57,12 +59,15 @@ def parse_args(argv=None):
     ap.add_argument("--lr", type=positive_float, default=2e-3)
     ap.add_argument("--threads", type=positive_int, default=1, help="torch threads (default 1: on a shared 2-core machine 2 threads ran 10x slower)")
     ap.add_argument("--seed", type=nonneg_int, default=0)
-    ap.add_argument("--eval-windows", type=positive_int, default=6, help="test windows per sequence (default 6, as ckpt/eval_test.json)")
+    ap.add_argument("--eval-windows", type=positive_int, default=EVAL_WINDOWS,
+                    help=f"test windows per sequence (default {EVAL_WINDOWS}, as ckpt/eval_test.json)")
     add_progress_flag(ap)
-    ap.add_argument("--eval-only", action="store_true", help="evaluate the weights in --out, no training")
+    ap.add_argument("--eval-only", action="store_true", help="evaluate the weights in --out, no training "
+                    "(with --cost-only: both)")
     ap.add_argument("--limit", type=positive_int, help="use only this many sequences per split (quick runs)")
     ap.add_argument("--cost-only", action="store_true", help="only count operations and time inference (cost.json)")
-    ap.add_argument("--cost-windows", type=positive_int, default=16, help="test windows for the cost figures (default 16)")
+    ap.add_argument("--cost-windows", type=positive_int, default=COST_WINDOWS,
+                    help=f"test windows for the cost figures (default {COST_WINDOWS})")
     return ap.parse_args(argv)
 
 
@@ -283,6 +288,14 @@ def cost(args, config, files) -> dict:
     return out
 
 
+def writes_results(args) -> bool:
+    """Whether the run writes its JSON files: not a reduced run (--limit, fewer windows) into the
+    shipped directory, which would replace the figures the README quotes (it did, silently, with
+    recall NaN); its results are printed instead."""
+    reduced = args.limit is not None or args.eval_windows != EVAL_WINDOWS or args.cost_windows != COST_WINDOWS
+    return not (reduced and Path(args.out).resolve() == DEFAULT_OUT.resolve())
+
+
 def main(argv=None) -> int:
     return guarded("train_asnet", run, parse_args(argv))
 
@@ -293,30 +306,40 @@ def run(args) -> int:
     from toffe_deploy.baselines.adaptive_spikenet import ASNetConfig
     from toffe_deploy.checkpoint import load_checkpoint
     from toffe_deploy.evaluate import split_files
-    from toffe_deploy.fileio import atomic_path, check_outputs
+    from toffe_deploy.fileio import atomic_path, check_outputs, json_text
 
     torch.set_num_threads(args.threads)
     config = load_checkpoint(args.ckpt).config
     cfg = ASNetConfig(downsample=args.downsample, n_bins=config.n_bins, dt_us=config.dt_us)
     out = Path(args.out)
     check_outputs(dirs=[("--out", out)])
+    keep = writes_results(args)
+
+    def write(name: str, obj: dict) -> None:
+        if not keep:
+            log(f"{name} not written: a reduced run (--limit, --eval-windows, --cost-windows) does not replace "
+                f"the shipped figures in {out} (copy the baseline elsewhere and give that as --out to keep it)")
+            return
+        with atomic_path(out / name, suffix=".json") as tmp:
+            tmp.write_text(json_text(obj, indent=1) + "\n")
+        log(f"wrote {out / name}")
+
     test = split_files(Path(args.data), "test")[:args.limit]        # before training: a missing split fails now
     if not (args.eval_only or args.cost_only):
         files = split_files(Path(args.data), "train")[:args.limit]
-        tl = train(args, config, cfg, files)
-        with atomic_path(out / "train_log.json", suffix=".json") as tmp:
-            tmp.write_text(json.dumps(tl, indent=1) + "\n")
+        write("train_log.json", train(args, config, cfg, files))
     if args.cost_only:
         c = cost(args, config, test)
-        with atomic_path(out / "cost.json", suffix=".json") as tmp:
-            tmp.write_text(json.dumps(c, indent=1) + "\n")
-        return 0
+        write("cost.json", c)
+        if not keep:
+            print(json_text(c, indent=1))
+        if not args.eval_only:
+            return 0
     res = evaluate(args, config, test)
-    with atomic_path(out / "eval_test.json", suffix=".json") as tmp:
-        tmp.write_text(json.dumps(res, indent=1) + "\n")
+    write("eval_test.json", res)
     a = res["all"]
-    print(json.dumps({k: a[k] for k in ("recall", "fp_per_window", "pixE", "dirE", "speedE", "speedE_px_ms",
-                                        "bin_accuracy")}, indent=1))
+    print(json_text({k: a[k] for k in ("recall", "fp_per_window", "pixE", "dirE", "speedE", "speedE_px_ms",
+                                       "bin_accuracy")}, indent=1))
     return 0
 
 

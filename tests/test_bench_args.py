@@ -309,3 +309,13 @@ def test_a_quick_noise_ablation_writes_beside_the_full_table_not_over_it():
     mod = _load("noise_ablation")
     assert Path(mod.parse_args(["--quick"]).out) == ROOT / "benchmarks" / "results" / "quick"
     assert Path(mod.parse_args([]).out) == ROOT / "benchmarks" / "results"
+
+
+def test_a_reduced_asnet_run_does_not_replace_the_shipped_figures(tmp_path):
+    """`train_asnet.py --eval-only --limit 1` rewrote the shipped, tracked eval_test.json (64
+    sequences -> 1, recall NaN); a reduced run writes only into another --out."""
+    mod = _load("train_asnet")
+    assert mod.writes_results(mod.parse_args(["--eval-only"]))
+    for extra in (["--limit", "1"], ["--eval-windows", "1"], ["--cost-only", "--cost-windows", "2"]):
+        assert not mod.writes_results(mod.parse_args(["--eval-only", *extra]))
+        assert mod.writes_results(mod.parse_args(["--eval-only", *extra, "--out", str(tmp_path)]))
