@@ -97,7 +97,9 @@ def run(args) -> int:
                 total.append((t[-1] - t[0]) / 1e3)
     res = {name: round(float(np.median(v)), 1) for name, v in parts.items()}
     res.update(sum_median_us=round(float(np.median(total)), 1), sum_mean_us=round(float(np.mean(total)), 1),
-               windows=len(total), recording_windows=len(windows), repeats=args.repeats, load_1min=round(os.getloadavg()[0], 2))
+               windows=len(total), recording_windows=len(windows), repeats=args.repeats, load_1min=round(os.getloadavg()[0], 2),
+               unit="us of the thread's CPU time per window: each part's median over the windows; sum_median_us is "
+                    "the median of the per-window sums (not the sum of the medians)")
     print(json.dumps(res))
     return 0
 

@@ -244,10 +244,7 @@ def run(args) -> int:
     from toffe_deploy.errors import ToffeError
     from toffe_deploy.fileio import atomic_path, check_outputs
 
-    try:
-        bundle = load_bundle(args.bundle)
-    except ToffeError as exc:
-        raise ToffeError(f"{exc} (run `toffe-deploy export ckpt/` first)") from None
+    bundle = load_bundle(args.bundle)          # its error says how to make one
     cfg = bundle.config
     sample = Path(args.events) if args.events else SAMPLE
     check_outputs(files=[("--out", args.out)], inputs=[("the recording", sample)])

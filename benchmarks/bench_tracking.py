@@ -622,8 +622,11 @@ def run(a, settings) -> int:
         return 0
     saved_of = {split: None if a.detections is None else
                 load_detections(a.detections / f"{split}.jsonl", files_of[split], a.max_windows) for split in splits}
-    print("| split | sequences | windows | recall | MOTA | IDF1 | MOTP (px) | ID switches | frag. | misses | FP "
-          "| bin changes det. / track |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("(detection recall: the pipeline's detections per window, one to one within the score gate; MOTA, IDF1, "
+          "misses and FP: the tracker's confirmed and listed coasting tracks, CLEAR MOT, so its first windows before "
+          "a track is confirmed are misses even where the detection recall is 1)")
+    print("| split | sequences | windows | detection recall | MOTA | IDF1 | MOTP (px) | ID switches | frag. | "
+          "tracker misses | tracker FP | bin changes det. / track |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
     for split in splits:
         files = files_of[split]
         t = time.perf_counter()

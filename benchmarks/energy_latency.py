@@ -48,7 +48,7 @@ if str(ROOT) not in sys.path:          # runnable from a fresh clone without ins
     sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _args import nonneg_float, nonneg_int, positive_float  # noqa: E402
+from _args import OneLineParser, nonneg_float, nonneg_int, positive_float  # noqa: E402
 from toffe_deploy.commands import add_progress_flag, show_progress  # noqa: E402
 from toffe_deploy.errors import InputError, ToffeError  # noqa: E402
 
@@ -61,7 +61,7 @@ QUICK = dict(windows=6, warmup=2, repeats=1, count_windows=3, sim_windows=0, ene
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(prog="energy_latency.py", description=__doc__.split("\n\n")[0],
+    ap = OneLineParser(prog="energy_latency.py", description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--bundle", default=str(DEFAULT_BUNDLE),
                     help="deploy bundle directory (default: export/; make it with `toffe-deploy export ckpt/`)")
@@ -554,14 +554,14 @@ def like_for_like(args, ctx, machine: dict, reader=None) -> dict:
     load0 = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     warnings = []
     if load0 is not None and load0 > cores:
-        warnings.append(f"load average {load0:.1f} > {cores} cores at start: wall times are inflated; "
+        warnings.append(f"load average {load0:.2f} > {cores} cores at start: wall times are inflated; "
                         "read the CPU-time columns")
         log("WARNING: " + warnings[-1])
     log(f"like for like: {len(models)} models x {args.blocks} interleaved blocks of {n} windows")
     times = time_blocks({m.key: m.run for m in models}, n, args.blocks, warmup=min(args.warmup, 3))
     load1 = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     if load1 is not None and load1 > cores and not warnings:
-        warnings.append(f"load average {load1:.1f} > {cores} cores at end: wall times are inflated")
+        warnings.append(f"load average {load1:.2f} > {cores} cores at end: wall times are inflated")
     power = args.power_w if args.power_w is not None else PAPER_CPU_POWER_W
     truth = getattr(args, "truth", None)
     rows = []

@@ -190,6 +190,8 @@ def main(argv=None) -> int:
     ap.add_argument("--per-bin", action="store_true", help="each candidate's errors per true speed bin too")
     ap.add_argument("--no-progress", dest="progress", action="store_false")
     a = ap.parse_args(argv)
+    if a.refits != [0] and not a.history:
+        ap.error("--refits tries plane_fit_refits with --history D,..; without it there is no history to refit over")
     return guarded("fit_plane_fit", run, a)
 
 

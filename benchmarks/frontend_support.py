@@ -41,7 +41,8 @@ def main(argv=None) -> int:
     ap.add_argument("--split", default="test")
     ap.add_argument("--max-windows", type=positive_int, default=6)
     ap.add_argument("--support", type=comma_list(nonneg_int, 3, 4), default="4,1,5,2",
-                    help="K,r,m[,c]: windows before, box radius, min count, noise factor (K = 0: off)")
+                    help="K,r,m[,c]: windows before, box radius, min count, noise factor (K = 0: off; default "
+                         "4,1,5,2, the setting before ckpt/'s 4,2,5,2, which the study compared it with)")
     ap.add_argument("--json", type=json_output, help="write eval's result dict here")
     a = ap.parse_args(argv)
     k, r, m, c = (a.support + [0])[:4]

@@ -108,7 +108,8 @@ def main(argv=None) -> int:
     ap = OneLineParser(prog="live_latency.py", description=__doc__.splitlines()[0])
     ap.add_argument("--bundle", default=str(ROOT / "export"))
     ap.add_argument("--events", type=existing_file, default=str(SAMPLE))
-    ap.add_argument("--target", default="cpu")
+    ap.add_argument("--target", default="cpu", choices=("cpu", "cuda", "loihi-sim", "loihi2"),
+                    help="run's --target (default cpu)")
     ap.add_argument("--seconds", type=positive_float, default=5.0)
     ap.add_argument("--fractions", type=comma_list(share), default="0.05,0.25,1",
                     help="shares of the recording's events sent, each in (0, 1]")

@@ -63,7 +63,13 @@ def shm_used() -> int:
 
 def main(argv: list[str]) -> int:
     if not argv or argv[0] in ("-h", "--help"):
-        print(__doc__)
+        try:
+            print(__doc__, file=sys.stdout if argv else sys.stderr, flush=True)
+        except BrokenPipeError:                 # `--help | head`: stop quietly, as the CLI does
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except OSError as exc:                  # `> /dev/full`
+            print(f"peak_memory: error: cannot write the help: {exc.strerror or exc}", file=sys.stderr)
+            return 2
         return 0 if argv else 2
     base = shm_used()
     t0 = time.time()
