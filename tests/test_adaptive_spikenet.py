@@ -130,19 +130,6 @@ def test_flow_objects_two_blobs():
     assert preds[1].speed_px_ms == pytest.approx(12.0)
 
 
-def test_the_torch_reference_runs_at_its_thread_count():
-    """The torch runner ran on torch's default pool (all cores) while ONNX Runtime and every
-    other timed model ran on one thread: on the shared 2-core VM its reference row came out ~25x
-    slower (1,559 ms a window against 62.5). It runs at ``threads`` (1) and restores the pool."""
-    model = build_model(SMALL)
-    seen = []
-    model.register_forward_hook(lambda *_: seen.append(torch.get_num_threads()))
-    before = torch.get_num_threads()
-    binned, _c = moving_disc_window(sensor=(64, 48), centre=(30.0, 24.0))
-    AdaptiveSpikeNetBaseline(model, SMALL, ToffeConfig(sensor_size=(64, 48))).net_flow(binned)
-    assert seen == [1] and torch.get_num_threads() == before
-
-
 def test_save_load_roundtrip(tmp_path):
     model = build_model(SMALL)
     save_baseline(tmp_path / "b", model, SMALL)

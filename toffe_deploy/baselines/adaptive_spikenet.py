@@ -392,8 +392,7 @@ def host_ops(counts: dict):
 class AdaptiveSpikeNetBaseline:
     """The trained baseline: ``detect(events, t0)`` -> metrics.Prediction list for one window,
     ``flow(binned)`` -> sensor flow, ``op_counts(binned)`` -> count_ops dict + host rules.
-    ``runner``: "torch" (eager, the reference) or "onnx" (ONNX Runtime, ``optimised()``), each
-    with ``threads`` intra-op threads (1 by default, as every model the benchmarks time).
+    ``runner``: "torch" (eager, the reference) or "onnx" (ONNX Runtime, ``optimised()``).
 
     ``config``: the TOFFE config whose sensor, bins, dt and grouping settings it shares."""
 
@@ -447,10 +446,8 @@ class AdaptiveSpikeNetBaseline:
             if sess is None:
                 sess = self._sessions[x.shape] = onnx_session(self.model, x.shape, self.threads)
             return sess.run(None, {"x": x})[0][0]
-        from ..model.threads import torch_threads
-
-        with torch_threads(self.threads), torch.no_grad():   # torch's default pool on a shared 2-core machine
-            return self.model(torch.from_numpy(x))[0].numpy()  # ran it ~25x slower (a review measured it)
+        with torch.no_grad():
+            return self.model(torch.from_numpy(x))[0].numpy()
 
     def flow(self, binned: np.ndarray) -> np.ndarray:
         """(2, H, W) sensor flow, px/ms."""

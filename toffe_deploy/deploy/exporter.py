@@ -25,7 +25,7 @@ from ..checkpoint import load_checkpoint
 from ..errors import ToffeError
 from ..fileio import clear_killed, temp_prefix
 from .bundle import Bundle, check_output_dir, sha256_file, write_bundle
-from ..model.threads import torch_threads
+from .parity import torch_threads
 from .quantize import quantize_stages
 
 DEFAULT_CHECKS = ("fixed_vs_float", "lava_vs_fixed", "netx_vs_fixed", "onnx_vs_torch", "end_to_end")
