@@ -62,6 +62,7 @@ def tiny_events(tmp_path_factory):
 
 def test_quick_run_writes_table_json_and_png(tiny_bundle, tiny_events, tmp_path, capsys):
     harness = _load_harness()
+    torch_threads_before = __import__("torch").get_num_threads()
     out = tmp_path / "results"
     rc = harness.main(["--quick", "--bundle", str(tiny_bundle), "--events", str(tiny_events), "--out", str(out),
                        "--targets", "cpu,cuda,loihi-sim,loihi2", "--sysfs-root", str(tmp_path / "no-sysfs")])
@@ -105,6 +106,9 @@ def test_quick_run_writes_table_json_and_png(tiny_bundle, tiny_events, tmp_path,
         ev, de = r["energy"]["event"], r["energy"]["dense"]
         assert 0 < ev["total_uj"] < de["total_uj"]          # sparse input: the event rule counts less
         assert ev["total_uj"] == pytest.approx(ev["compute_uj"] + ev["memory_uj"])
+    asnet = next(r for r in lfl["rows"] if r["key"] == "asnet@reference")    # torch on one thread, as every
+    assert asnet["cpu"]["median_ms"] <= 1.2 * asnet["wall"]["median_ms"]    # model (its pool's spare thread spun:
+    assert __import__("torch").get_num_threads() == torch_threads_before      # CPU 1.43x wall), restored after
     assert set(lfl["ratios"]) == {f"{m}/toffe@{lvl}" for m in ("dotie", "dotie_cluster", "asnet")
                                   for lvl in ("reference", "optimised")}
     assert "Like for like" in md and "E event rule" in md
