@@ -241,7 +241,6 @@ def main(argv=None) -> int:
 def run(args) -> int:
     from toffe_deploy.commands.run import SAMPLE
     from toffe_deploy.deploy.bundle import load_bundle
-    from toffe_deploy.errors import ToffeError
     from toffe_deploy.fileio import atomic_path, check_outputs
 
     bundle = load_bundle(args.bundle)          # its error says how to make one
