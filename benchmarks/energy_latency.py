@@ -285,29 +285,20 @@ class SumReader:
 
 
 # -------------------------------------------------------------------------------------- main
-@contextlib.contextmanager
-def single_threaded_torch():
-    """Every timed model runs on one thread (onnxruntime sessions and numba are set so); torch,
-    the Adaptive-SpikeNet reference's runtime, otherwise takes every core (2 here), and its
-    thread count cannot be switched per call: its pool's idle thread then spins, counted as CPU
-    time. A review measured that row at 1,559 ms a window under load against ~40 ms on one
-    thread (CPU 59.5 against 41.6 ms wall when unloaded). One thread for the whole run, restored
-    after it (the harness also runs inside other processes: tests)."""
-    try:
-        import torch
-    except ImportError:          # no torch: no Adaptive-SpikeNet row either
-        yield
-        return
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
-
-
 def run(args) -> int:
-    with single_threaded_torch():
+    """_run with torch on one thread for the whole run, restored after (deploy.parity.torch_threads).
+    Every timed model runs on one thread (onnxruntime sessions and numba are set so); torch, the
+    Adaptive-SpikeNet reference's runtime, otherwise takes every core (2 here), and its thread
+    count cannot be switched per call: its pool's idle thread then spins, counted as CPU time. A
+    review measured that row at 1,559 ms a window under load against ~40 ms on one thread (CPU
+    59.5 against 41.6 ms wall when unloaded)."""
+    try:
+        import torch  # noqa: F401
+    except ImportError:          # no torch: no Adaptive-SpikeNet row either
+        return _run(args)
+    from toffe_deploy.deploy.parity import torch_threads
+
+    with torch_threads(1):
         return _run(args)
 
 
