@@ -94,7 +94,7 @@ def angle_err_deg(a: float, b: float) -> float:
 
 #: an ObjectFlow's fields in a detections file (``--save-detections``), in this order
 DET_FIELDS = ("speed_bin", "ofs_bin", "speed_mps", "speed_bin_mps", "speed_px_s", "x", "y", "direction_rad",
-              "n_events", "speed_clipped")
+              "n_events", "speed_clipped", "faint")
 
 
 def save_detections(path: Path, split: str, files, windows: list, max_windows: int) -> None:
@@ -163,7 +163,7 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
         """The saved windows of sequence fi through a fresh Tracker (what Pipeline(track=) does)."""
         tracker = Tracker(cfg, cfg.dt_us, settings, cfg.speed_scale.px_ms_per_mps)
         for t0, rows in saved[fi][:max_windows]:
-            objs = [ObjectFlow(*r) for r in rows]
+            objs = [ObjectFlow(**dict(zip(DET_FIELDS, r))) for r in rows]
             tracker.update(objs, t0)
             yield WindowResult(t0, t0 + cfg.dt_us, objs, coasting=tracker.coasting())
 
@@ -225,7 +225,7 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                         key = (fi, gt[i].object_id)
                         o, b = res.objects[j], int(gt[i].speed_bin)
                         det_bins.append((key, w, o.speed_bin))
-                        if b in dir_det:
+                        if b in dir_det and not o.faint:    # a faint object's direction is no measurement
                             dir_det[b].append(angle_err_deg(o.direction_rad, gt[i].direction))
                         if o.track is not None:
                             trk_bins.append((key, w, o.track["speed_bin"]))
@@ -653,7 +653,7 @@ def run(a, settings) -> int:
                       f"E {k[2:]}: {v['recall']:.3f} ({v['objects']} objects)" for k, v in
                       r["recall_by_events_per_edge"].items() if v["recall"] is not None))
     bins = sorted({k for r in out["splits"].values() for k in r["direction_error_deg"]})
-    print("\nDirection error per ground-truth speed bin (deg, mean over detections matched to the truth): "
+    print("\nDirection error per ground-truth speed bin (deg, mean over detections matched to the truth, faint ones left out: their direction is a guess): "
           "the detection's own (this window) / its confirmed track's (tracked, causal: from past windows only)\n")
     print("| split | " + " | ".join(f"bin {k}" for k in bins) + " |\n|---|" + "---|" * len(bins))
 

@@ -791,7 +791,8 @@ def test_detections_take_the_event_count_as_a_seventh_column():
     from toffe_deploy.tracking import EV, raw_detections
 
     d = Detections.of([Counted(1.0, 2.0, 0.0, 100.0, 2, n_events=50), Obj(3.0, 4.0, 0.0, 100.0, 2)])
-    assert d.a.shape == (2, 7) and d.a[0, 6] == pytest.approx(math.log(50)) and math.isnan(d.a[1, 6])
+    assert d.a.shape == (2, 8) and d.a[0, 6] == pytest.approx(math.log(50)) and math.isnan(d.a[1, 6])
+    assert d.a[:, 7].tolist() == [0.0, 0.0]                  # both with a measured motion
     assert raw_detections([Counted(1.0, 2.0, 0.0, 100.0, 2, n_events=50)]).tolist() == [1.0, 2.0, 0.0, 100.0, 2.0, 50.0]
     assert math.isnan(Detections(np.zeros((1, 6))).a[0, 6])
     tr = Tracker(CFG, DT_US)

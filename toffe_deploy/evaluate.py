@@ -27,7 +27,7 @@ import numpy as np
 from .breakdown import Breakdown, attr_value, bucket_labels, bucket_order, numeric_keys
 from .cascade import stage_frame
 from .checkpoint import load_checkpoint
-from .errors import InputError, ToffeError
+from .errors import InputError, ToffeError, warn
 from .events.support import WindowHistories
 from .metrics import GATE_PX, FlowErrors, SeparationCounts
 from .tracking_metrics import TrackingErrors
@@ -160,8 +160,14 @@ def evaluate(opts: EvalOptions) -> dict:
         labels = bucket_labels(values, b.edges)
         groups.append((sorted({f[0] for f in found if f}), labels, bucket_order(labels, values)))
 
+    from .faint_objects import faint_settings
+
+    if faint_settings(cfg) is not None:
+        warn(f"{opts.ckpt}: ofpd.faint_objects is not applied by eval's reference models (its sampled "
+             "windows lack the reported objects of the windows before, which the rule excludes); "
+             "benchmarks/bench_tracking.py scores the deployed pipeline with it")
     results = {"checkpoint": str(opts.ckpt), "trained_dt_us": cfg.dt_us, "split": opts.split, "ofs": opts.ofs,
-               "sequences": len(files), "max_windows_per_sequence": opts.max_windows, "gate_px": opts.gate_px,
+               "faint_objects_applied": False, "sequences": len(files), "max_windows_per_sequence": opts.max_windows, "gate_px": opts.gate_px,
                "track_windows": opts.track_windows, "skip_stream_start": opts.skip_stream_start, "per_dt": []}
 
     def new_errors():

@@ -108,7 +108,10 @@ def match_within(d: np.ndarray, ok: np.ndarray) -> list[tuple[int, int]]:
 @dataclass
 class Prediction:
     """One reported object: stage (1-based speed bin) and its decoded object flow; ``speed_px_ms``
-    is its image-plane speed when the producer has it (NaN: derive it from ``speed_mps``)."""
+    is its image-plane speed when the producer has it (NaN: derive it from ``speed_mps``);
+    ``measured`` False: a position-only object (ofpd.faint_objects: its speed is its bin's
+    representative, its direction a guess), scored in recall, false positives, pixE and the bin,
+    left out of dirE and speedE (counted as ``n_position_only``)."""
 
     stage: int
     x: float
@@ -117,6 +120,7 @@ class Prediction:
     speed_mps: float
     speed_bin_mps: float
     speed_px_ms: float = math.nan
+    measured: bool = True
 
 
 def predictions_of(objects) -> list[Prediction]:
@@ -124,7 +128,8 @@ def predictions_of(objects) -> list[Prediction]:
     y, direction_rad, speed_mps, speed_bin_mps, speed_px_s), px/ms included: what `run`'s
     summary, parity.json, the benchmarks and eval score."""
     return [Prediction(int(o.speed_bin), float(o.x), float(o.y), float(o.direction_rad), float(o.speed_mps),
-                       float(o.speed_bin_mps), float(o.speed_px_s) / 1000.0) for o in objects]
+                       float(o.speed_bin_mps), float(o.speed_px_s) / 1000.0, not getattr(o, "faint", False))
+            for o in objects]
 
 
 def _or_nan(v) -> float:
@@ -156,6 +161,7 @@ class FlowErrors:
     pred_bin: list = field(default_factory=list)     # matched objects: predicted bin
     all_gt_bin: list = field(default_factory=list)   # every ground-truth object
     fp_bin: list = field(default_factory=list)       # every unmatched prediction: its bin
+    position_only: list = field(default_factory=list)  # matched objects: not measured (Prediction.measured)
     n_windows: int = 0
 
     def _px_ms(self, v_mps: float) -> float:
@@ -174,6 +180,15 @@ class FlowErrors:
         for i, j in pairs:
             t, p = truths[i], preds[j]
             self.pix.append(float(np.hypot(p.x - t.x, p.y - t.y)))
+            self.gt_bin.append(int(t.speed_bin))
+            self.pred_bin.append(int(p.stage))
+            self.position_only.append(not getattr(p, "measured", True))
+            if self.position_only[-1]:                   # no measured motion: left out of dirE and speedE
+                self.dir.append(math.nan)
+                self.speed_px_ms.append(math.nan)
+                self.speed.append(math.nan)
+                self.speed_bin.append(math.nan)
+                continue
             self.dir.append(float(angle_error_deg(p.direction_rad, t.direction)))
             true_px = _or_nan(getattr(t, "speed_px_ms", None))
             depth = _or_nan(getattr(t, "depth_m", None))
@@ -187,8 +202,6 @@ class FlowErrors:
                               else abs(p.speed_mps - float(t.speed)))
             self.speed_bin.append(truth_scale.to_mps(abs(bin_px - true_px)) if truth_scale and _finite(bin_px)
                                   else abs(p.speed_bin_mps - float(t.speed)))
-            self.gt_bin.append(int(t.speed_bin))
-            self.pred_bin.append(int(p.stage))
 
     @property
     def labels(self) -> list[int]:
@@ -225,7 +238,8 @@ class FlowErrors:
                "false_positives": fp, "fp_per_window": fp / self.n_windows if self.n_windows else float("nan"),
                "pixE": mean(self.pix), "dirE": mean(self.dir), "speedE": mean(self.speed),
                "speedE_bin_only": mean(self.speed_bin), "speedE_px_ms": mean(self.speed_px_ms),
-               "bin_accuracy": float(hit[sel].mean()) if n else float("nan")}
+               "bin_accuracy": float(hit[sel].mean()) if n else float("nan"),
+               "n_position_only": int(np.asarray(self.position_only, bool)[sel].sum()) if n else 0}
         if bin_k is None:
             out.update(n_pred=n + fp, n_windows=self.n_windows, gate_px=self.gate_px, confusion=self.confusion())
         return out

@@ -106,6 +106,8 @@ OFPD_DEFAULTS: dict[str, Any] = {
     "recent_events": None,  # stages "union": [r, m, c], a group short of min_events is an object when the event pixels
                             # of the latest K windows (input_support's) in its box grown by r px reach
                             # m + floor(c * box area * their density) (compiled.recent_reaches); None = never
+    "faint_objects": None,  # [L, z]: faint slow objects from the event density of the last L windows, z noise
+                            # standard deviations above it (toffe_deploy/faint_objects.py); None = never
     "pool_min": 2,          # crop "scaled": P = clip(2^ceil(log2(1.5 * extent / g)), pool_min, pool_max)
     "pool_max": 16,
 }
@@ -172,6 +174,10 @@ def _ofpd_settings(config: ToffeConfig) -> dict[str, Any]:
         raise ValueError('ofpd.closed_apart needs ofpd.stages "union"')
     if s["recent_events"] is not None:
         check_recent_events(s, config)
+    if s["faint_objects"] is not None:
+        from .faint_objects import check_faint_objects
+
+        check_faint_objects(s["faint_objects"], config)
     if s["bin_from"] == "ofpd" and s["speed_unit"] != "px_ms":
         raise ValueError('ofpd.bin_from "ofpd" needs ofpd.speed_unit "px_ms"')
     return s

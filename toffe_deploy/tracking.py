@@ -20,8 +20,9 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                Hungarian cost is d_ij + heading_cost_px q_j |angle(u_j, v_i')| (q_j below: a
                fast detection's direction tells two parting objects apart)
     update     p_i = p_i' + alpha (z_j - p_i')                            (alpha-beta filter)
-               (a detection within the gates of 2+ confirmed tracks, a blob of two objects, moves
-               p_i only: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay; the gates
+               (a detection without a measured motion, ofpd.faint_objects', moves p_i only, and
+               a track it starts is at rest; a detection within the gates of 2+ confirmed tracks,
+               a blob of two objects, moves p_i only too: with ``shared_keeps_motion`` v_i, s_i, h_i and the bin stay; the gates
                here without the coasting growth unless ``shared_gate_grows``; so does a
                detection within hidden_px of the prediction p_m' of a confirmed track m still
                missed after re-identification and approaching track i,
@@ -366,19 +367,23 @@ class Tracks:
 
 @dataclass(frozen=True)
 class Detections:
-    """One window's objects as one (n, 7) array ``a``: x, y (px), velocity ux, uy (px/s, from the
-    direction: image plane, y down), speed (px/s), speed bin (1-based) and ln(event ones) (NaN:
-    not known; an (n, 6) array gets that column); columns X..S line up with Tracks' (so that
-    one operation updates a track's x, y, vx, vy and speed)."""
+    """One window's objects as one (n, 8) array ``a``: x, y (px), velocity ux, uy (px/s, from the
+    direction: image plane, y down), speed (px/s), speed bin (1-based), ln(event ones) (NaN:
+    not known; an (n, 6) array gets that column) and position-only (1: a detection without a
+    measured motion, ofpd.faint_objects': it moves a track's position, not its motion, and a
+    track it starts is at rest; 0 where an (n, 6) or (n, 7) array lacks it); columns X..S line
+    up with Tracks' (so that one operation updates a track's x, y, vx, vy and speed)."""
 
     a: np.ndarray
 
     def __post_init__(self):
         a = np.asarray(self.a, _F)
-        if a.ndim != 2 or a.shape[1] not in (6, 7):
-            raise ValueError(f"detections must be an (n, 6) or (n, 7) array, got shape {a.shape}")
+        if a.ndim != 2 or a.shape[1] not in (6, 7, 8):
+            raise ValueError(f"detections must be an (n, 6), (n, 7) or (n, 8) array, got shape {a.shape}")
         if a.shape[1] == 6:
             a = np.concatenate([a, np.full((a.shape[0], 1), np.nan)], axis=1)
+        if a.shape[1] == 7:
+            a = np.concatenate([a, np.zeros((a.shape[0], 1))], axis=1)
         object.__setattr__(self, "a", np.ascontiguousarray(a))
 
     def __len__(self) -> int:
@@ -398,22 +403,27 @@ def raw_detections(objects) -> np.ndarray:
     """The window's detections as ``Tracker.columns`` takes them, one flat (6 n,) float64 array
     of six columns: the objects' x, then y, direction_rad, speed_px_s, speed_bin and n_events
     (0 where an object has none: not known) (the one pass over the objects' attributes a window
-    needs; one flat list: numpy converts it faster than nested ones)."""
-    flat = [v for o in objects for v in (o.x, o.y, o.direction_rad, o.speed_px_s, o.speed_bin,
-                                         getattr(o, "n_events", 0))]
+    needs; one flat list: numpy converts it faster than nested ones); a faint object's direction
+    goes as NaN (position only: _detections)."""
+    flat = [v for o in objects for v in (o.x, o.y, math.nan if getattr(o, "faint", False) else o.direction_rad,
+                                         o.speed_px_s, o.speed_bin, getattr(o, "n_events", 0))]
     return np.array(flat, _F).reshape(-1, 6).T.ravel()
 
 
 @njit(cache=True, nogil=True)
 def _detections(zr):
-    """Detections.a (n, 7) of raw_detections' (6 n,) columns (velocity from direction and speed,
-    ln of the event ones; NaN where not known: 0)."""
+    """Detections.a (n, 8) of raw_detections' (6 n,) columns (velocity from direction and speed,
+    ln of the event ones; NaN where not known: 0; a NaN direction: position only, at rest)."""
     n = zr.shape[0] // 6
-    z = np.empty((n, 7))
+    z = np.empty((n, 8))
     for k in range(n):
         z[k, 0], z[k, 1], z[k, 4], z[k, 5] = zr[k], zr[n + k], zr[3 * n + k], zr[4 * n + k]
         z[k, 6] = math.log(zr[5 * n + k]) if 0 < zr[5 * n + k] < np.inf else np.nan
         z[k, 2], z[k, 3] = zr[3 * n + k] * math.cos(zr[2 * n + k]), zr[3 * n + k] * math.sin(zr[2 * n + k])
+        z[k, 7] = 0.0
+        if math.isnan(zr[2 * n + k]):                        # no measured motion (ofpd.faint_objects)
+            z[k, 2] = z[k, 3] = z[k, 4] = 0.0
+            z[k, 7] = 1.0
     return z
 
 
@@ -571,7 +581,8 @@ def _agree(ux, uy, vx, vy, max_rad):
 def _hit(a, i, z, k, p, lo, hi, inner, shared):
     """Update of predicted track i (row of ``a``) with detection k (module doc); shared: k lies
     in the gates of two or more confirmed tracks."""
-    if shared and p[P_SHARED_KEEPS] > 0:                   # one blob of two objects: its motion is neither's
+    if (shared and p[P_SHARED_KEEPS] > 0) or z[k, 7] > 0:  # one blob of two objects: its motion is neither's;
+        # or a detection without a measured motion (a faint object's position)
         a[i, X] += p[P_ALPHA] * (z[k, 0] - a[i, X])
         a[i, Y] += p[P_ALPHA] * (z[k, 1] - a[i, Y])
         return

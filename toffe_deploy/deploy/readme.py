@@ -151,7 +151,11 @@ with `closed_apart` true, `"union"` only, two blobs that each surround their cen
 `min_events` pixels stay two objects however close;
 with `recent_events` [r, m, c], `"union"` and `input_support` only, a blob short of `min_events`
 is an object when the latest K windows' event pixels in its box grown by r px reach
-m + floor(c A E / (H W)) and it lies apart from every object) or
+m + floor(c A E / (H W)) and it lies apart from every object; with `faint_objects` [L, z]
+(`input_support` only) a slow object no stage reported is found where the event pixels of the
+last L windows, each pixel counted at most 3 times, stand z noise standard deviations above the
+sensor's density in a 32 px box, and now too: it is reported with `"faint": true`, bin 1 and its
+representative speed, its direction a rough guess; `toffe_deploy.faint_objects`) or
 `"boxes"` (a fixed +-`dedupe_px` box, older checkpoints); with blobs, `config.ofpd.stages`
 says how the stage frames meet: `"union"`, the blobs of all stages' pixels together (an
 object's edges that the cascade gave to several stages are one outline; its stage is the

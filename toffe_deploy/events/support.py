@@ -167,6 +167,18 @@ def _shift_counts(counts, add, sub):
         counts[add[i]] += 1
 
 
+def skipped_windows(last_t0: int | None, t0: int, dt_us: int, cap: int) -> int | None:
+    """How many empty windows a history that holds windows up to ``last_t0`` shifts in before the
+    window at t0 (at most ``cap``; 0 for the next window or a fresh history), or None when t0 is
+    no later window on its grid (a jump back, a gap that is no multiple of dt): start afresh."""
+    if last_t0 is None:
+        return 0
+    gap = int(t0) - int(last_t0)
+    if gap <= 0 or gap % int(dt_us):
+        return None
+    return min(gap // int(dt_us) - 1, int(cap))
+
+
 @dataclass(frozen=True)
 class Latest:
     """SupportHistory.latest: counts (H * W,) uint8 = sum over the latest K windows of their
@@ -199,15 +211,19 @@ class SupportHistory:
         self.last_t0: int | None = None
 
     def advance(self, t0: int) -> None:
-        if self.last_t0 is None:
-            return
-        gap = int(t0) - self.last_t0
-        if gap <= 0 or gap % self.dt_us:
+        skipped = skipped_windows(self.last_t0, t0, self.dt_us, self.k)
+        if skipped is None:
             self.reset()
             return
-        for _ in range(min(gap // self.dt_us - 1, self.k)):
+        for _ in range(skipped):
             self._push(_NONE)
-        self.last_t0 = int(t0) - self.dt_us      # the skipped windows are in: advancing again to t0 adds none
+        if self.last_t0 is not None:
+            self.last_t0 = int(t0) - self.dt_us      # the skipped windows are in: advancing again to t0 adds none
+
+    @property
+    def latest_pixels(self) -> np.ndarray:
+        """The event pixels of the latest window pushed (unique y * W + x; empty when none)."""
+        return self._ring[-1] if self._ring else _NONE
 
     def latest(self) -> "Latest":
         """A copy of what it holds now (counts, total): what ofpd.recent_events reads for this

@@ -38,6 +38,8 @@ import numpy as np
 from ..camera import SpeedScale
 from ..config import MAX_SENSOR_PIXELS, ToffeConfig, sensor_too_large
 from ..errors import InputError
+from ..faint_objects import FaintDensity, faint_settings
+from ..faint_objects import warm_up as faint_warm_up
 from ..events.support import SupportHistory, front_end
 from ..events.validate import whole_number
 from ..events.support import warm_up as support_warm_up
@@ -48,7 +50,7 @@ from ..outline_centre import outline_positions, outline_settings
 from ..outline_centre import warm_up as outline_warm_up
 from ..time_surface import OnesHistory, fuse_history
 from ..time_surface import warm_up as history_warm_up
-from ..tracking import Tracker, TrackerConfig, TrackState
+from ..tracking import Tracker, TrackerConfig, TrackState, raw_detections
 from . import ofpd_input
 from ..compiled import warm_up
 from ..events.frontend import slots_for
@@ -90,6 +92,7 @@ class ObjectFlow:
     speed_clipped: bool = False
     track_id: int | None = None
     track: Any = None        # tracking.TrackState (a read-only mapping) or None
+    faint: bool = False      # found by ofpd.faint_objects (position only: bin 1's speed, a rough direction)
 
     @property
     def direction_deg(self) -> float:
@@ -105,6 +108,8 @@ class ObjectFlow:
              "direction_rad": self.direction_rad, "n_events": self.n_events, "direction_deg": self.direction_deg}
         if self.speed_clipped is not None:
             d["speed_clipped"] = self.speed_clipped
+        if self.faint:
+            d["faint"] = True
         if self.track_id is not None:
             d["track_id"] = self.track_id
         out = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in d.items()}
@@ -268,6 +273,8 @@ class Pipeline:
         self.ones_history = (OnesHistory(h[1], self.sensor_size, self.config.n_bins, self.config.dt_us)
                              if h is not None and (self._fusion.on or self._outline is not None)
                              else None)   # the plane fit's windows (time_surface), also the outline's
+        faint = faint_settings(self.config)                  # faint slow objects from the windows' density
+        self.faint = FaintDensity(faint, self.sensor_size, self.config.dt_us) if faint is not None else None
         self.reset_tracks()
         self._entered = False
 
@@ -278,18 +285,22 @@ class Pipeline:
             self.support.reset()
         if self.ones_history is not None:
             self.ones_history.reset()
+        if self.faint is not None:
+            self.faint.reset()
         settings = self._track if isinstance(self._track, TrackerConfig) else None
         self.tracker = (Tracker(self.config, self.config.dt_us, settings, self.speed_scale.px_ms_per_mps)
                         if self._track is not False and self._track is not None else None)
 
-    def _result(self, t0: int, volume: SpikeVolume, frames, recent=None, **kw) -> "WindowResult":
+    def _result(self, t0: int, volume: SpikeVolume, frames, recent=None, pixels=None, **kw) -> "WindowResult":
         """The WindowResult of window t0 (its objects tracked, with the tracker's coasting list);
-        recent: the front end's history after it (objects_of). Windows come here in time order on
-        every target, so the plane fit's history takes this window's ones here."""
+        recent: the front end's history after it (objects_of); pixels: the window's event pixels
+        before the front end (ofpd.faint_objects). Windows come here in time order on every
+        target, so the plane fit's history and the faint objects' density take this window here."""
         if self.ones_history is not None:
             self.ones_history.push(t0, volume.idx, (volume.bc, volume.pix))
         tracker = self.tracker
-        objects = self.objects_of(volume, frames, None if tracker is None else t0, recent)
+        objects = self.objects_of(volume, frames, None if tracker is None else t0, recent,
+                                  faint=None if self.faint is None else (t0, pixels))
         return WindowResult(t0, t0 + self.config.dt_us, objects,
                             coasting=None if tracker is None else tracker.coasting(), **kw)
 
@@ -318,6 +329,8 @@ class Pipeline:
             plane_fit_warm_up()
         if self._outline is not None:
             outline_warm_up()
+        if self.faint is not None:
+            faint_warm_up()
         self.cascade.__enter__()
         self._entered = True
         return self
@@ -361,23 +374,34 @@ class Pipeline:
         return x
 
     def objects_of(self, volume: SpikeVolume, frames: list[np.ndarray], t0_us: int | None = None,
-                   recent=None) -> list[ObjectFlow]:
+                   recent=None, faint=None) -> list[ObjectFlow]:
         """Object flow of one window from its ones and its stage frames (bool masks over
         volume.idx, index k - 1): ofpd_io's object grouping, then one batched OFPD call. t0_us
         (with a tracker): the window's start; the objects come back tracked (the tracker takes
         the decoded columns, and ids and states go into the objects' constructor: reading the
         fields back off the objects and setting them afterwards cost more than the tracking).
-        recent: the front end's SupportHistory after this window (ofpd.recent_events)."""
+        recent: the front end's SupportHistory after this window (ofpd.recent_events). faint:
+        (t0, the window's event pixels before the front end) for ofpd.faint_objects (this
+        window's faint slow objects follow the others; toffe_deploy/faint_objects.py)."""
         ks, x, n_events, ones = ofpd_input.batch(volume, frames, self.config, self._scratch, recent, self._batch)
         if not ks.size:
-            if t0_us is not None:
-                self.tracker.columns(_NO_DETECTIONS, t0_us)
-            return []
+            fx = self._faint_columns(faint, ones, [], [], [])
+            if fx is None:
+                if t0_us is not None:
+                    self.tracker.columns(_NO_DETECTIONS, t0_us)
+                return []
+            return self._with_faint([], fx, t0_us)
         pose, direction, speed = self.ofpd.run(x)
         speed, direction = self.fuse(speed, direction, ones, ks.size)          # plane_fit
         dec = self.place(self._decode.columns(pose, direction, speed, ks), ones)   # lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         px_s = [v * 1000.0 for v in px_ms]
+        fx = self._faint_columns(faint, ones, dec["speed_bin"], dec["x_px"], dec["y_px"])
+        if fx is not None:
+            return self._with_faint([ObjectFlow(sb, k, v, vb, v_px, cx, cy, d, n, c) for sb, k, v, vb, v_px, cx, cy, d, n, c
+                                     in zip(dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"],
+                                            dec["y_px"], dec["direction_rad"], n_events.tolist(),
+                                            dec["speed_clipped"])], fx, t0_us)
         # track_id and track per object; the tracker takes raw_detections' columns: x, y, direction_rad, speed_px_s,
         # bin, n_events
         n_events = n_events.tolist()
@@ -388,6 +412,31 @@ class Pipeline:
                 for sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st in zip(
             dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"], dec["y_px"], dec["direction_rad"],
             n_events, dec["speed_clipped"], ids, states)]
+
+    def _faint_columns(self, faint, ones, bins, xs, ys):
+        """This window's faint objects (x, y, direction, n_events arrays) when ofpd.faint_objects
+        is on and found any, else None (the window is added to the density either way)."""
+        if faint is None:
+            return None
+        t0, pixels = faint
+        fx = self.faint.step(t0, np.zeros(0, np.int64) if pixels is None else pixels, ones, bins, xs, ys)
+        return fx if fx[0].size else None
+
+    def _with_faint(self, objects: list, fx, t0_us) -> list[ObjectFlow]:
+        """``objects`` with the faint ones appended (speed bin 1 at its representative speed, the
+        density's drift as direction, ``faint`` true), all tracked when t0_us is given (a faint
+        object's position only: its direction goes to the tracker as NaN, tracking.Detections)."""
+        cfg = self.config
+        k_bundle = cfg.focal_px / (1000.0 * cfg.depth_m)          # px/ms per m/s of the bundle's camera
+        px_ms = float(cfg.representative_speeds[0]) * k_bundle
+        mps = px_ms / self.speed_scale.px_ms_per_mps
+        for x, y, d, n in zip(*(a.tolist() for a in fx)):
+            objects.append(ObjectFlow(1, 1, mps, mps, px_ms * 1000.0, x, y, d, int(round(n)), False, faint=True))
+        if t0_us is not None:
+            ids, states = self.tracker.columns(raw_detections(objects), t0_us)
+            for o, tid, st in zip(objects, ids, states):
+                o.track_id, o.track = tid, st
+        return objects
 
     def place(self, dec: dict, ones) -> dict:
         """Decoded columns ``dec`` with slow objects' positions from their outlines over the
@@ -423,6 +472,7 @@ class Pipeline:
                 x = self._check(x)
                 vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(x > 0)
                 vol = front_end(vol, cfg, hist, int(t0))
+                pixels = hist.latest_pixels if self.faint is not None else None
                 if pool > 1 and not self.keep_stages:       # pool, cascade and Up_p in one compiled call
                     frames, stages = self.cascade.pooled_frames(vol, pool), None
                 else:
@@ -430,7 +480,7 @@ class Pipeline:
                     res = self.cascade.cascade_sparse(grid)
                     frames = up_frames(res.frames, inverse)
                     stages = _stage_arrays(res.to_dense()) if self.keep_stages else None
-                yield self._result(int(t0), vol, frames, hist, stages=stages)
+                yield self._result(int(t0), vol, frames, hist, pixels, stages=stages)
             return
         # Lava backends take dense windows and may pipeline them: remember each window's t0 (and,
         # for ofpd.recent_events, a copy of the front end's history after it: the next windows move it on).
@@ -443,13 +493,14 @@ class Pipeline:
                 vol = (front_end(x, cfg, hist, int(t0)) if isinstance(x, SpikeVolume)
                        else SpikeVolume.from_dense(front_end(x, cfg, hist, int(t0))))
                 grid, inverse = vol.pool(pool)               # the OFS grid (cascade.py)
-                starts.append((int(t0), vol, grid, inverse, hist.latest() if keep_recent else None))
+                starts.append((int(t0), vol, grid, inverse, hist.latest() if keep_recent else None,
+                               hist.latest_pixels if self.faint is not None else None))
                 yield grid.to_dense(np.uint8)
 
         for res in self.cascade.cascade_stream(dense()):
-            t0, vol, grid, inverse, recent = starts.popleft()
+            t0, vol, grid, inverse, recent, pixels = starts.popleft()
             frames = up_frames([np.asarray(f).reshape(-1)[grid.idx] for f in res.frames], inverse)
-            yield self._result(t0, vol, frames, recent, cascade=res,
+            yield self._result(t0, vol, frames, recent, pixels, cascade=res,
                                stages=_stage_arrays(res) if self.keep_stages else None)
 
 
