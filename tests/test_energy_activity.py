@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from toffe_deploy.baselines.dotie import dotie_separate
 from toffe_deploy.cascade import run_cascade
@@ -127,3 +128,21 @@ def test_both_models_list_frame_pixels_by_the_same_rule(rng):
     ones = sum(int(np.count_nonzero(f)) for f in res.frames)
     g = grouping_ops(stage_px, ones)
     assert mc.host_hybrid.add_int32 >= g.add_int32 > 0 and mc.work.post.mul_int32 >= g.mul_int32 > 0
+
+
+def test_faint_objects_rule_is_counted_as_the_hosts_work(rng):
+    """ofpd.faint_objects' density and search run on the host on every target: counted (as an
+    upper bound, faint_ops) when the config has the rule, and only then."""
+    from toffe_deploy.energy.activity import faint_ops
+
+    base = dict(sensor_size=(32, 24), input_support=(4, 2, 5, 2))
+    raw = _window(rng)
+    counts = {}
+    for on in (False, True):
+        cfg = ToffeConfig(**base, ofpd={"faint_objects": [20, 7]} if on else {})
+        _r, counts[on] = count_toffe(raw, _params(), cfg, ofpd_macs=0, ofpd_in_elems=0, raw=raw)
+    pixels = int(np.count_nonzero((raw > 0).any(axis=(0, 1))))
+    f = faint_ops(pixels, 24, 32)
+    assert f.add_int32 > 6 * 3 * pixels > 0
+    gap = counts[True].host_hybrid.energy_j() - counts[False].host_hybrid.energy_j()
+    assert gap == pytest.approx(f.energy_j())

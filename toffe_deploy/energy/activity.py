@@ -81,6 +81,21 @@ def grouping_ops(stage_pixels: int, object_ones: int) -> HostOps:
                    sram_bytes=(8 * 9 + 16) * stage_pixels + 56 * object_ones)
 
 
+def faint_ops(event_pixels: int, height: int, width: int) -> HostOps:
+    """Upper bound of ofpd.faint_objects on a window (faint_objects.FaintDensity.step): the
+    window's event pixels into the counts of the last L and K windows and as many leaving each
+    (a compare, an add and the cell's add per pixel and ring: ~6 int ops, 2 + 16 bytes), then the
+    whole search as if every window ran it (most stop after one pass over the cells): per cell
+    its candidate test and four summed-area tables (~6 ops), per box its four box sums (~16)."""
+    from ..faint_objects import BOX, CELL
+
+    hc, wc = -(-int(height) // CELL), -(-int(width) // CELL)
+    cells, boxes = hc * wc, max(0, hc - BOX + 1) * max(0, wc - BOX + 1)
+    moved = 3 * int(event_pixels)                 # in, out of the L ring, out of the K ring
+    return HostOps(add_int32=6 * moved + 6 * cells + 16 * boxes,
+                   sram_bytes=18 * moved + 8 * 5 * cells + 8 * 16 * boxes)
+
+
 #: the plane fit's and outline's bounds per object (time_surface.MAX_PLANES, plane_fit.IRLS_PASSES)
 PLANES_MAX, IRLS_PASSES_COUNTED = 256, 4
 
@@ -161,8 +176,13 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
     if raw is not None:                            # the front end
         raw_ones = np.asarray(raw) > 0
         support = config.input_support
-        extras = extras + front_end_ops(int(np.count_nonzero(raw_ones)), int(np.count_nonzero(raw_ones.any(axis=(0, 1)))),
+        raw_pixels = int(np.count_nonzero(raw_ones.any(axis=(0, 1))))
+        extras = extras + front_end_ops(int(np.count_nonzero(raw_ones)), raw_pixels,
                                         None if support is None else support[1])
+        from ..faint_objects import faint_settings
+
+        if faint_settings(config) is not None:             # the faint objects' density and search
+            extras = extras + faint_ops(raw_pixels, *raw_ones.shape[-2:])
     if objects:
         from ..outline_centre import outline_settings
         from ..plane_fit import history_settings
