@@ -455,8 +455,16 @@ class FaintDensity:
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) the kernels before the first window is timed."""
+    """Compile (or load from numba's cache) every kernel ``step`` may call, with the argument
+    types it calls them with, before the first window is timed: the search runs in few windows,
+    and its first one would pay for the compile (tests/test_run_pipeline.py checks)."""
     d = FaintDensity(FaintSettings(K_RECENT, 7.0), (40, 40), 500)
+    ones = (np.zeros(2, np.int64), np.array([5, 6], np.int64), np.array([5, 6], np.int64))
     for t in range(K_RECENT):
-        d.step(t * 500, np.arange(0, 1600, 3, dtype=np.int64), (np.zeros(2, np.int64), np.array([5, 6]),
-                                                                  np.array([5, 6])), [2], [5.0], [5.0])
+        d.step(t * 500, np.arange(0, 1600, 3, dtype=np.int64), ones, [2], [5.0], [5.0])
+    cur, _fast = _ones_cells(*ones, np.array([2], np.int64), d.hc, d.wc)
+    excl = _excluded(cur, d._fast, d.hc, d.wc)
+    pos = np.array([5.0])
+    discs = _discs(*ones, 1, pos, pos)
+    _detect(d._cells[0], d._cells[1], float(d._tot[0]), float(d._tot[1]), excl, d.hc, d.wc, 1600.0,
+            float(K_RECENT), 7.0, pos, pos, discs)
