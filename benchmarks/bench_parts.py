@@ -17,6 +17,7 @@ took from it, so parts compare across runs on a busy machine better than wall ti
     decode   the plane fit of the fast objects and its fusion (ofpd.plane_fit_weight > 0: plane_fit),
              ofpd_io.Decoder.columns, slow objects' positions from their outlines
              (ofpd.outline_centre: Pipeline.place) and pipeline.speeds_of
+    faint    ofpd.faint_objects' density and search (faint_objects.FaintDensity.step; 0 when off)
 
 Prints one JSON line: the median of each part over windows and repeats (us), the median and
 mean of their sum, ``windows``: the number of timed windows (the recording's windows times
@@ -38,7 +39,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from _args import OneLineParser, cpu_core, existing_file, guarded, positive_int  # noqa: E402
 
-PARTS = ("bin", "front", "cascade", "batch", "ort", "decode")
+PARTS = ("bin", "front", "cascade", "batch", "ort", "decode", "faint")
 
 
 def main(argv=None) -> int:
@@ -76,6 +77,7 @@ def run(args) -> int:
                 vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size)
                 t.append(clock())
                 vol = front_end(vol, cfg, pipe.support, t0)       # the Pipeline's own windows before (input_support)
+                pixels = pipe.support.latest_pixels if pipe.faint is not None else None
                 if pipe.ones_history is not None:
                     pipe.ones_history.push(t0, vol.idx, (vol.bc, vol.pix))   # the plane fit's windows (plane_fit_history)
                 t.append(clock())
@@ -89,8 +91,12 @@ def run(args) -> int:
                 if ks.size:
                     pose, direction, speed = out                                 # as Pipeline.objects_of
                     speed, direction = pipe.fuse(speed, direction, ones, ks.size)          # as Pipeline.objects_of
-                    speeds_of(pipe.place(pipe._decode.columns(pose, direction, speed, ks), ones), cfg,
-                              pipe.speed_scale)                                            # as Pipeline.objects_of
+                    dec = pipe.place(pipe._decode.columns(pose, direction, speed, ks), ones)   # as Pipeline.objects_of
+                    speeds_of(dec, cfg, pipe.speed_scale)                                      # as Pipeline.objects_of
+                t.append(clock())
+                if pipe.faint is not None:                                                     # as Pipeline._faint_columns
+                    xy = (dec["speed_bin"], dec["x_px"], dec["y_px"]) if ks.size else ([], [], [])
+                    pipe.faint.step(t0, pixels, ones, *xy)
                 t.append(clock())
                 for name, a, b in zip(PARTS, t[:-1], t[1:]):
                     parts[name].append((b - a) / 1e3)

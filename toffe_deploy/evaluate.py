@@ -167,7 +167,8 @@ def evaluate(opts: EvalOptions) -> dict:
              "windows lack the reported objects of the windows before, which the rule excludes); "
              "benchmarks/bench_tracking.py scores the deployed pipeline with it")
     results = {"checkpoint": str(opts.ckpt), "trained_dt_us": cfg.dt_us, "split": opts.split, "ofs": opts.ofs,
-               "faint_objects_applied": False, "sequences": len(files), "max_windows_per_sequence": opts.max_windows, "gate_px": opts.gate_px,
+               "faint_objects_applied": False, "sequences": len(files),
+               "max_windows_per_sequence": opts.max_windows, "gate_px": opts.gate_px,
                "track_windows": opts.track_windows, "skip_stream_start": opts.skip_stream_start, "per_dt": []}
 
     def new_errors():

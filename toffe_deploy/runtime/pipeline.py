@@ -38,11 +38,11 @@ import numpy as np
 from ..camera import SpeedScale
 from ..config import MAX_SENSOR_PIXELS, ToffeConfig, sensor_too_large
 from ..errors import InputError
-from ..faint_objects import FaintDensity, faint_settings
-from ..faint_objects import warm_up as faint_warm_up
 from ..events.support import SupportHistory, front_end
 from ..events.validate import whole_number
 from ..events.support import warm_up as support_warm_up
+from ..faint_objects import FaintDensity, faint_settings
+from ..faint_objects import warm_up as faint_warm_up
 from ..ofpd_io import Decoder, input_shape, ofpd_settings
 from ..plane_fit import PlaneFusion, object_planes_flow
 from ..plane_fit import warm_up as plane_fit_warm_up
