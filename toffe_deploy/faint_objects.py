@@ -46,8 +46,10 @@ trail pixels got support too (`pairs` false positives 0.033 -> 0.065-0.092 per w
 
 State (``FaintDensity``) streams like the front end's SupportHistory: windows in time order,
 a gap of whole windows shifts in empty ones, anything else starts afresh; a fresh density holds
-no windows, and the rule waits for L_MIN of them. The per-window work is O(events) for the
-counts plus O(cells) for the box sums (4,800 cells at 640x480), one compiled call each.
+no windows, and the rule waits for max(K, L / 2) of them. The per-window work is O(events) for
+the counts plus one pass over the cells (4,800 at 640x480) that stops the window unless a cell
+outside the exclusions holds need_K / BOX^2 over its share over the latest K windows (no box can
+stand out otherwise: most windows of a quiet scene stop there); then the box sums, O(cells).
 """
 from __future__ import annotations
 
