@@ -17,8 +17,9 @@ does (metrics.FlowErrors) and its confirmed tracks by tracking_metrics.TrackingE
 IDF1 through motmetrics). Also counted: speed-bin changes between consecutive windows of one
 ground-truth object, as the detections report them and as its track reports them (flicker),
 and per ground-truth speed bin the mean direction error of the matched detections, as the
-detection reports it (this window only) and as its confirmed track's smoothed velocity does
-(tracked, causal: from past and current windows only). Prints one markdown row per split and
+detection reports it (this window only; faint objects left out: their direction is a guess)
+and as its confirmed track's heading does (tracked, causal: from past and current windows only;
+tracks with no measured motion, speed 0, left out: a track started by faint objects). Prints one markdown row per split and
 a direction table; the JSON holds every figure and the settings, and each sequence's detection
 recall and false positives per window, MOTA, IDF1, ID switches, misses and false positives
 (per_sequence), and each object's windows, detected windows (a detection within the score
@@ -229,7 +230,7 @@ def run_split(bundle, files, settings, max_windows, gate, saved=None, keep=None)
                             dir_det[b].append(angle_err_deg(o.direction_rad, gt[i].direction))
                         if o.track is not None:
                             trk_bins.append((key, w, o.track["speed_bin"]))
-                            if b in dir_trk and o.track.confirmed:
+                            if b in dir_trk and o.track.confirmed and o.track["speed_px_s"] > 0:   # 0: no measured motion
                                 dir_trk[b].append(angle_err_deg(math.radians(o.track["direction_deg"]),
                                                                 gt[i].direction))
                     n_win += 1
@@ -654,7 +655,8 @@ def run(a, settings) -> int:
                       r["recall_by_events_per_edge"].items() if v["recall"] is not None))
     bins = sorted({k for r in out["splits"].values() for k in r["direction_error_deg"]})
     print("\nDirection error per ground-truth speed bin (deg, mean over detections matched to the truth, faint ones left out: their direction is a guess): "
-          "the detection's own (this window) / its confirmed track's (tracked, causal: from past windows only)\n")
+          "the detection's own (this window) / its confirmed track's (tracked, causal: from past windows only; "
+          "tracks with no measured motion, speed 0, left out)\n")
     print("| split | " + " | ".join(f"bin {k}" for k in bins) + " |\n|---|" + "---|" * len(bins))
 
     def cell(e):

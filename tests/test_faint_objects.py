@@ -167,21 +167,28 @@ def faint_bundle(make_bundle, root):
     return dataclasses.replace(bundle, ofs=[dataclasses.replace(p, vth_mant=VTH_MANT_MAX) for p in bundle.ofs])
 
 
-def faint_windows(n_bins, n=40, seed=5):
-    """(t0, SpikeVolume) windows of a faint slow square in 34 Hz noise (window_pixels), events
-    spread over each window with random polarities."""
-    from toffe_deploy.runtime.spikes import SpikeVolume
+def faint_events(n=40, seed=5):
+    """Per window, the events of a faint slow square in 34 Hz noise (window_pixels), spread over
+    the window with random polarities."""
+    from toffe_deploy.events.core import EVENT_DTYPE
 
     rng = np.random.default_rng(seed)
     out = []
     for w in range(n):
         pix = window_pixels(rng, w)
-        ev = np.zeros(pix.size, dtype=[("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "u1")])
+        ev = np.zeros(pix.size, dtype=EVENT_DTYPE)
         ev["x"], ev["y"], ev["p"] = pix % SENSOR[0], pix // SENSOR[0], rng.integers(0, 2, pix.size)
         ev["t"] = w * DT + rng.integers(0, DT, pix.size)
-        ev = ev[np.argsort(ev["t"], kind="stable")]
-        out.append((w * DT, SpikeVolume.from_events(ev, w * DT, DT, n_bins, SENSOR)))
+        out.append(ev[np.argsort(ev["t"], kind="stable")])
     return out
+
+
+def faint_windows(n_bins, n=40, seed=5):
+    """(t0, SpikeVolume) windows of faint_events."""
+    from toffe_deploy.runtime.spikes import SpikeVolume
+
+    return [(w * DT, SpikeVolume.from_events(ev, w * DT, DT, n_bins, SENSOR))
+            for w, ev in enumerate(faint_events(n, seed))]
 
 
 def test_pipeline_reports_a_faint_object_and_its_line_validates(tmp_path, make_bundle):
@@ -218,3 +225,79 @@ def test_loihi_sim_reports_the_same_faint_objects_as_cpu(tmp_path, make_bundle, 
     lines = lines_per_target(bundle, faint_windows(bundle.config.n_bins, n=24))
     assert lines["cpu"] == lines["loihi-sim"]
     assert sum('"faint": true' in ln for ln in lines["cpu"]) >= 5
+
+
+def edges_pixels(rng, w, *, cx=80, cy=60, half=24, edge_p=0.5, noise_p=0.017):
+    """One window of a big slow square moving sideways (< 0.1 px a window): only its two edges
+    across the motion fire (2 px wide each), 2 half apart; noise as window_pixels'."""
+    w_, h_ = SENSOR
+    ys = np.arange(cy - half, cy + half + 1)
+    xs = np.concatenate([np.full(ys.size, cx + d) for d in (-half, 1 - half, half - 1, half)])
+    ys = np.tile(ys, 4)
+    keep = rng.random(xs.size) < edge_p
+    pix = np.concatenate([np.flatnonzero(rng.random(w_ * h_) < noise_p), ys[keep] * w_ + xs[keep]])
+    return np.unique(pix).astype(np.int64)
+
+
+def test_a_big_object_reported_from_one_edge_is_not_reported_again_from_the_other():
+    """A 48 px square whose two edges are regions of their own, reported by the cascade at its
+    centre from its left edge's ones in some windows only: in the windows between, the rule does not
+    report it again at an edge (a second track 24 px off its centre); without the reports it
+    does. A small object reported a window before is still reported (the cascade's misses)."""
+    left = (np.zeros(49, np.int64), np.full(49, 56), np.arange(36, 85))          # its left edge's ones
+    found = {}
+    for reported in (False, True):
+        rng = np.random.default_rng(7)
+        dens = FaintDensity(SETTINGS, SENSOR, DT)
+        xs = []
+        for w in range(40):
+            rep = reported and w % 3 == 0
+            fx = dens.step(w * DT, edges_pixels(rng, w), left if rep else NOTHING, [1] if rep else [],
+                           [80.0] if rep else [], [60.0] if rep else [])   # the OFPD's position: its centre
+            if w >= 25 and not rep:
+                xs.extend(fx[0].tolist())
+        found[reported] = xs
+    assert len(found[False]) >= 8 and all(abs(abs(x - 80) - 24) < 8 for x in found[False])   # at an edge
+    assert found[True] == []
+    rng = np.random.default_rng(8)
+    dens = FaintDensity(SETTINGS, SENSOR, DT)
+    small = (np.zeros(4, np.int64), np.array([72, 88, 80, 80]), np.array([60, 60, 52, 68]))   # 16 px: a small box
+    hits = 0
+    for w in range(40):
+        rep = w % 2 == 0
+        fx = dens.step(w * DT, window_pixels(rng, w, half=8, edge_p=0.6), small if rep else NOTHING,
+                       [1] if rep else [], [80.0] if rep else [], [60.0] if rep else [])
+        hits += int(w >= 25 and not rep and fx[0].size > 0)
+    assert hits >= 5                                  # of the 7 windows between reports
+
+
+def test_evals_reference_reports_the_pipelines_faint_objects(tmp_path, make_bundle):
+    """eval's tracking pass (model.reference.predict_window over a stream's windows, a
+    FaintDensity per sequence) reports the cpu Pipeline's faint objects, to the bit, position
+    only."""
+    from toffe_deploy.deploy.onnx_export import ort_session, run_onnx
+    from toffe_deploy.events.fmt_toffe import write_events_h5
+    from toffe_deploy.events.io import open_events
+    from toffe_deploy.events.support import WindowHistories
+    from toffe_deploy.model.reference import fixed_stage_fn, predict_window
+    from toffe_deploy.runtime.pipeline import Pipeline
+
+    bundle = faint_bundle(make_bundle, tmp_path)
+    cfg = bundle.config
+    events = faint_events(n=32)
+    rec = tmp_path / "faint.h5"
+    write_events_h5(rec, np.concatenate(events), SENSOR, t_range=(0, 32 * DT))
+    with Pipeline(bundle, "cpu", sensor_size=SENSOR, track=False) as pipe:
+        got = [[(o.x, o.y, o.direction_rad) for o in r.objects if o.faint]
+               for r in pipe.process_stream(faint_windows(cfg.n_bins, n=32))]
+    sess, run = ort_session(bundle.ofpd_onnx), fixed_stage_fn(bundle.ofs)
+    density = FaintDensity(faint_settings(cfg), SENSOR, DT)
+    ref = []
+    with open_events(rec) as src:
+        stream = WindowHistories(src.read, DT, cfg, SENSOR, src.t_start_us)
+        for w in range(32):
+            binned, recent, history = stream(w * DT)
+            preds = predict_window(binned, run, lambda x: run_onnx(sess, x), cfg, recent, history, (density, w * DT))[0]
+            assert all(not p.measured and p.stage == 1 for p in preds)
+            ref.append([(p.x, p.y, p.direction_rad) for p in preds])
+    assert got == ref and sum(map(len, got)) >= 5

@@ -311,3 +311,18 @@ def test_untracked_report_counts_windows_not_detections_and_names_its_series(tmp
                                          ((1280, 720), 1)])
 def test_small_sensors_are_drawn_at_least_360_px_on_the_shorter_side(size, scale):
     assert draw.frame_scale(size) == scale and min(size) * scale >= min(360, min(size))
+
+
+def test_a_faint_object_is_a_grey_ring_without_arrow_or_speed():
+    """ofpd.faint_objects: the position is measured, the direction a guess: no arrow, no hue."""
+    o = _obj(100, 100, 0.0, track_id=3, speed_bin=1)
+    plain = draw.compose(np.zeros((200, 300, 3), np.uint8), [draw.Mark.of(o)], scale=1, unit=20.0,
+                         theme=draw.theme_of("dark"), legend=False)
+    o["faint"] = True
+    m = draw.Mark.of(o)
+    assert m.faint and m.label() == "#3 faint"
+    img = draw.compose(np.zeros((200, 300, 3), np.uint8), [m], scale=1, unit=20.0,
+                       theme=draw.theme_of("dark"), legend=False)
+    hue = lambda im: int((im.max(axis=2).astype(int) - im.min(axis=2)).max())   # colour means direction
+    assert hue(plain) > 100 and hue(img) <= 2                   # no arrow, no direction colour anywhere
+    assert img[100, 86:91].max() >= 150 and img[100, 109:114].max() >= 150   # the ring, 12 px each side

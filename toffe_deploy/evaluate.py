@@ -74,7 +74,7 @@ def track_sequence(src, gt, dt: int, n_windows: int, predict, config, errors, fo
     for t0 in range(int(src.t_start_us), min(int(src.t_end_us) - dt + 1, int(src.t_start_us) + n_windows * dt), dt):
         objs = [ObjectFlow(p.stage, p.stage, p.speed_mps, p.speed_bin_mps,
                            1000.0 * (p.speed_px_ms if math.isfinite(p.speed_px_ms) else p.speed_mps * k_mps),
-                           p.x, p.y, p.direction_rad, 0) for p in predict(t0)]
+                           p.x, p.y, p.direction_rad, 0, faint=not p.measured) for p in predict(t0)]
         tracker.update(objs, t0)
         errors.add_result(WindowResult(t0, t0 + dt, objs, coasting=tracker.coasting()), window_truth(gt, t0, dt))
 
@@ -160,14 +160,18 @@ def evaluate(opts: EvalOptions) -> dict:
         labels = bucket_labels(values, b.edges)
         groups.append((sorted({f[0] for f in found if f}), labels, bucket_order(labels, values)))
 
-    from .faint_objects import faint_settings
+    from .faint_objects import FaintDensity, faint_settings
 
-    if faint_settings(cfg) is not None:
-        warn(f"{opts.ckpt}: ofpd.faint_objects is not applied by eval's reference models (its sampled "
-             "windows lack the reported objects of the windows before, which the rule excludes); "
-             "benchmarks/bench_tracking.py scores the deployed pipeline with it")
+    faint = faint_settings(cfg)
+    if faint is not None:
+        why = "(the rule needs the windows before and their reported objects)"
+        warn(f"{opts.ckpt}: ofpd.faint_objects is applied in the tracking pass over consecutive windows only, not to "
+             f"the sampled windows {why}" if opts.track_windows > 0 else
+             f"{opts.ckpt}: ofpd.faint_objects is not applied to the sampled windows {why}; --track-windows applies it "
+             "over consecutive windows, and benchmarks/bench_tracking.py scores the deployed pipeline with it")
     results = {"checkpoint": str(opts.ckpt), "trained_dt_us": cfg.dt_us, "split": opts.split, "ofs": opts.ofs,
-               "faint_objects_applied": False, "sequences": len(files),
+               "faint_objects_applied": False,
+               "faint_objects_in_tracking": faint is not None and opts.track_windows > 0, "sequences": len(files),
                "max_windows_per_sequence": opts.max_windows, "gate_px": opts.gate_px,
                "track_windows": opts.track_windows, "skip_stream_start": opts.skip_stream_start, "per_dt": []}
 
@@ -209,10 +213,12 @@ def evaluate(opts: EvalOptions) -> dict:
                             sep[k - 1].add(ofpd_io.has_object(frame[None], wcfg, recent), truth[0].speed_bin >= k)
                 if track_errs is not None:
                     stream = WindowHistories(src.read, dt, wcfg, sensor, src.t_start_us)
+                    density = None if faint is None else FaintDensity(faint, sensor, dt)
 
-                    def predict(t0, stream=stream):
+                    def predict(t0, stream=stream, density=density):
                         binned, recent, history = stream(t0)
-                        return predict_window(binned, run_stage, ofpd, wcfg, recent, history)[0]
+                        return predict_window(binned, run_stage, ofpd, wcfg, recent, history,
+                                              None if density is None else (density, int(t0)))[0]
 
                     track_sequence(src, gt, dt, opts.track_windows, predict, wcfg, track_errs)
         row = {"dt_us": dt, "same_dt_as_training": dt == cfg.dt_us, "all": errs.summary(),
@@ -282,7 +288,8 @@ def format_markdown(r: dict) -> str:
                              f"{_f(b['dirE'])} | {_f(b['speedE'])} | {_f(b.get('speedE_px_ms'), 3)} |")
     if any("tracking" in row for row in rows):
         lines += ["", f"Tracking (tracking.Tracker, default settings) over the first {r['track_windows']} consecutive "
-                  "windows of each sequence, confirmed and coasting tracks vs the truth within the gate (motmetrics):", "",
+                  "windows of each sequence, confirmed and coasting tracks vs the truth within the gate (motmetrics)"
+                  f"{', ofpd.faint_objects applied' if r.get('faint_objects_in_tracking') else ''}:", "",
                   "| dt (us) | MOTA | IDF1 | MOTP (px) | ID switches | fragmentations | misses | false positives "
                   "| objects | true tracks | mostly tracked |", "|---|---|---|---|---|---|---|---|---|---|---|"]
         for row in rows:

@@ -98,7 +98,8 @@ def window_outputs(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, rec
     return ks, merged, pose, direction, speed, res
 
 
-def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, recent=None, history=None):
+def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, recent=None, history=None,
+                   faint=None):
     """One window (B, 2, H, W) counts -> (list[Prediction], CascadeResult).
 
     Objects are the report groups of the stage frames (ofpd_io.merge_frames: speed bin = the
@@ -107,22 +108,42 @@ def predict_window(binned: np.ndarray, run_stage, ofpd, config: ToffeConfig, rec
     (toffe_deploy/plane_fit.py), and slow objects' positions from their outlines over the
     windows before (ofpd.outline_centre; toffe_deploy/outline_centre.py). recent:
     window_outputs'. history: the plane fit's windows up to this one (ofpd.plane_fit_history;
-    events.support.sampled_window_history gives both).
+    events.support.sampled_window_history gives both). faint: (faint_objects.FaintDensity, t0)
+    for ofpd.faint_objects on consecutive windows (the density takes this window's event pixels,
+    ``recent.latest_pixels``, and its objects' ones): the faint objects follow, position only
+    (Prediction.measured False), as the Pipeline reports them.
     """
     ks, merged, pose, direction, speed, res = window_outputs(binned, run_stage, ofpd, config, recent)
     if ks.size == 0:
-        return [], res
+        return _with_faint([], faint, config, recent, (), [], [], []), res
     fusion = PlaneFusion(config)
     speed, direction = fusion.apply(speed, direction, lambda want, k: (
         dense_flow(merged) if k is None else dense_history_flow(merged, history, want, k, fusion.history[2])),
         None if history is None else history.available)
     d = ofpd_io.decode(pose, direction, speed, ks, config)
     outline = outline_settings(config)
-    if outline is not None and history is not None:           # slow objects' positions from their outlines
+    ones = ()
+    if faint is not None or (outline is not None and history is not None):
         obj, _b, _c, ys, xs = np.nonzero(merged > 0)
-        d["x_px"], d["y_px"] = outline_positions(outline, history, (obj, xs, ys), d["x_px"], d["y_px"],
+        ones = (obj, xs, ys)
+    if outline is not None and history is not None:           # slow objects' positions from their outlines
+        d["x_px"], d["y_px"] = outline_positions(outline, history, ones, d["x_px"], d["y_px"],
                                                  d["speed_px_ms"], d["direction_rad"], config.dt_us)
     preds = [Prediction(int(k), float(d["x_px"][i]), float(d["y_px"][i]), float(d["direction_rad"][i]),
                         float(d["speed_mps"][i]), float(d["speed_bin_mps"][i]), float(d["speed_px_ms"][i]))
              for i, k in enumerate(d["speed_bin"].tolist())]
-    return preds, res
+    return _with_faint(preds, faint, config, recent, ones, d["speed_bin"].tolist(), [p.x for p in preds],
+                       [p.y for p in preds]), res
+
+
+def _with_faint(preds: list, faint, config: ToffeConfig, recent, ones, bins, xs, ys) -> list:
+    """``preds`` with this window's faint objects appended (``predict_window``'s ``faint``): bin 1
+    at its representative speed, the density's drift as direction, measured False."""
+    if faint is None:
+        return preds
+    density, t0 = faint
+    fx = density.step(t0, recent.latest_pixels, ones, bins, xs, ys)
+    mps = float(config.representative_speeds[0])
+    px_ms = mps * config.focal_px / (1000.0 * config.depth_m)
+    return preds + [Prediction(1, x, y, dr, mps, mps, px_ms, measured=False)
+                    for x, y, dr in zip(fx[0].tolist(), fx[1].tolist(), fx[2].tolist())]

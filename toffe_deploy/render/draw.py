@@ -12,6 +12,8 @@ Marks: a detected object is a thick arrow from its centre along its direction (`
 speed bin, unit = min(W, H) / 24 sensor px, 20 px on 640x480), a dot at the centre, an optional
 trail (its last centres; no segment longer than TRAIL_JUMP units) and a label "#id b<bin> <speed>
 m/s" placed beside it (the free side among four, away from its arrow, other labels and objects).
+A faint object (``ofpd.faint_objects``: its position measured, its direction a guess and its
+speed bin 1's) is a neutral grey ring and dot with no arrow, labelled "#id faint".
 Ground truth is a dashed outline in its direction's colour, 2 px + 1.5 sensor px outside the
 object (not over its edge events), and a thin arrow. Frames of small sensors are upscaled by an integer factor
 (``frame_scale``) so labels stay legible.
@@ -36,6 +38,8 @@ TRAIL_JUMP = 6
 LABEL_PAD = 3
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 HALO = (24, 24, 24)
+#: a faint object's colour: neutral grey (colour means direction, and its direction is a guess)
+FAINT = (190, 190, 190)
 
 
 @dataclass(frozen=True)
@@ -198,7 +202,8 @@ def place_label(size: tuple[int, int], centre: tuple[int, int], gap: int, tip: t
 @dataclass
 class Mark:
     """One object to draw, in sensor pixels: centre, direction (rad, y down), speed bin, speed
-    (m/s, or None), track id (None when the run has no tracker)."""
+    (m/s, or None), track id (None when the run has no tracker), and whether it is a faint object
+    (position only: drawn without direction or speed)."""
 
     x: float
     y: float
@@ -206,6 +211,7 @@ class Mark:
     speed_bin: int
     speed_mps: float | None = None
     track_id: int | None = None
+    faint: bool = False
 
     @classmethod
     def of(cls, obj) -> "Mark":
@@ -214,10 +220,12 @@ class Mark:
         tid = shown_track_id(get("track_id"), get("track"))
         sp = get("speed_mps")
         return cls(float(get("x")), float(get("y")), float(get("direction_rad")), int(get("speed_bin")),
-                   None if sp is None else float(sp), tid)
+                   None if sp is None else float(sp), tid, bool(get("faint", False)))
 
     def label(self) -> str:
         who = f"#{self.track_id} " if self.track_id is not None else ""
+        if self.faint:
+            return f"{who}faint"
         speed = f" {self.speed_mps:.0f} m/s" if self.speed_mps is not None else ""
         return f"{who}b{self.speed_bin}{speed}"
 
@@ -318,10 +326,16 @@ def draw_marks(img: np.ndarray, marks: Sequence[Mark], scale: int, unit: float, 
     heads = []
     for m in marks:
         c = to_px(m.x, m.y, scale)
-        length = unit * scale * max(m.speed_bin, 1)
-        tip = tip_of(c, length, m.direction_rad)
-        colour = bgr(m.direction_rad)
-        arrow(img, c, tip, colour, thick)
+        if m.faint:                               # no measured direction or speed: a ring, no arrow
+            colour, tip = FAINT, None
+            rr = int(unit * scale * 0.6)
+            cv2.circle(img, c, rr, HALO, thick + 2, cv2.LINE_AA)
+            cv2.circle(img, c, rr, colour, thick, cv2.LINE_AA)
+        else:
+            length = unit * scale * max(m.speed_bin, 1)
+            tip = tip_of(c, length, m.direction_rad)
+            colour = bgr(m.direction_rad)
+            arrow(img, c, tip, colour, thick)
         cv2.circle(img, c, thick + 1, HALO, -1, cv2.LINE_AA)
         cv2.circle(img, c, thick, colour, -1, cv2.LINE_AA)
         heads.append((m, c, tip, colour))

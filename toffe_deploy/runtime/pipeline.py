@@ -397,21 +397,17 @@ class Pipeline:
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
         px_s = [v * 1000.0 for v in px_ms]
         fx = self._faint_columns(faint, ones, dec["speed_bin"], dec["x_px"], dec["y_px"])
-        if fx is not None:
-            return self._with_faint([ObjectFlow(sb, k, v, vb, v_px, cx, cy, d, n, c) for sb, k, v, vb, v_px, cx, cy, d, n, c
-                                     in zip(dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"],
-                                            dec["y_px"], dec["direction_rad"], n_events.tolist(),
-                                            dec["speed_clipped"])], fx, t0_us)
-        # track_id and track per object; the tracker takes raw_detections' columns: x, y, direction_rad, speed_px_s,
-        # bin, n_events
         n_events = n_events.tolist()
-        ids, states = ((repeat(None), repeat(None)) if t0_us is None else self.tracker.columns(
+        # track_id and track per object; the tracker takes raw_detections' columns: x, y, direction_rad, speed_px_s,
+        # bin, n_events (with faint objects, _with_faint tracks them all)
+        ids, states = ((repeat(None), repeat(None)) if t0_us is None or fx is not None else self.tracker.columns(
             np.array([*dec["x_px"], *dec["y_px"], *dec["direction_rad"], *px_s, *dec["speed_bin"], *n_events],
                      np.float64), t0_us))
-        return [ObjectFlow(sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st)
-                for sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st in zip(
-            dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"], dec["y_px"], dec["direction_rad"],
-            n_events, dec["speed_clipped"], ids, states)]
+        objects = [ObjectFlow(sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st)
+                   for sb, k, v, vb, v_px, cx, cy, d, n, c, tid, st in zip(
+                       dec["speed_bin"], ks.tolist(), mps, bin_mps, px_s, dec["x_px"], dec["y_px"], dec["direction_rad"],
+                       n_events, dec["speed_clipped"], ids, states)]
+        return objects if fx is None else self._with_faint(objects, fx, t0_us)
 
     def _faint_columns(self, faint, ones, bins, xs, ys):
         """This window's faint objects (x, y, direction, n_events arrays) when ofpd.faint_objects
@@ -426,12 +422,10 @@ class Pipeline:
         """``objects`` with the faint ones appended (speed bin 1 at its representative speed, the
         density's drift as direction, ``faint`` true), all tracked when t0_us is given (a faint
         object's position only: its direction goes to the tracker as NaN, tracking.Detections)."""
-        cfg = self.config
-        k_bundle = cfg.focal_px / (1000.0 * cfg.depth_m)          # px/ms per m/s of the bundle's camera
-        px_ms = float(cfg.representative_speeds[0]) * k_bundle
-        mps = px_ms / self.speed_scale.px_ms_per_mps
+        rep = [float(self.config.representative_speeds[0])]
+        (px_ms,), (mps,), (bin_mps,) = speeds_of({"speed_mps": rep, "speed_bin_mps": rep}, self.config, self.speed_scale)
         for x, y, d, n in zip(*(a.tolist() for a in fx)):
-            objects.append(ObjectFlow(1, 1, mps, mps, px_ms * 1000.0, x, y, d, int(round(n)), False, faint=True))
+            objects.append(ObjectFlow(1, 1, mps, bin_mps, px_ms * 1000.0, x, y, d, int(round(n)), False, faint=True))
         if t0_us is not None:
             ids, states = self.tracker.columns(raw_detections(objects), t0_us)
             for o, tid, st in zip(objects, ids, states):
