@@ -321,8 +321,12 @@ def test_a_faint_object_is_a_grey_ring_without_arrow_or_speed():
     o["faint"] = True
     m = draw.Mark.of(o)
     assert m.faint and m.label() == "#3 faint"
+    trails = draw.Trails()
+    for x in (80.0, 90.0):                           # two windows before, faint too: a grey trail
+        trails.update([draw.Mark(x, 100.0, 0.0, 1, None, 3, True)])
     img = draw.compose(np.zeros((200, 300, 3), np.uint8), [m], scale=1, unit=20.0,
-                       theme=draw.theme_of("dark"), legend=False)
+                       theme=draw.theme_of("dark"), legend=False, trails=trails.update([m]))
+    assert img[100, 81:85].max() >= 150                         # the trail is drawn
     hue = lambda im: int((im.max(axis=2).astype(int) - im.min(axis=2)).max())   # colour means direction
     assert hue(plain) > 100 and hue(img) <= 2                   # no arrow, no direction colour anywhere
     assert img[100, 86:91].max() >= 150 and img[100, 109:114].max() >= 150   # the ring, 12 px each side

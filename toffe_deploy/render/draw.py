@@ -13,7 +13,8 @@ speed bin, unit = min(W, H) / 24 sensor px, 20 px on 640x480), a dot at the cent
 trail (its last centres; no segment longer than TRAIL_JUMP units) and a label "#id b<bin> <speed>
 m/s" placed beside it (the free side among four, away from its arrow, other labels and objects).
 A faint object (``ofpd.faint_objects``: its position measured, its direction a guess and its
-speed bin 1's) is a neutral grey ring and dot with no arrow, labelled "#id faint".
+speed bin 1's) is a neutral grey ring and dot with no arrow, labelled "#id faint", and its
+trail's segment to it is grey.
 Ground truth is a dashed outline in its direction's colour, 2 px + 1.5 sensor px outside the
 object (not over its edge events), and a thin arrow. Frames of small sensors are upscaled by an integer factor
 (``frame_scale``) so labels stay legible.
@@ -322,7 +323,7 @@ def draw_marks(img: np.ndarray, marks: Sequence[Mark], scale: int, unit: float, 
                     continue                      # a jump of a whole object or more: an id switch, not motion
                 pa, pb = to_px(xa, ya, scale), to_px(xb, yb, scale)
                 cv2.line(img, pa, pb, HALO, thick + 1, cv2.LINE_AA)
-                cv2.line(img, pa, pb, bgr(db), thick - 1, cv2.LINE_AA)
+                cv2.line(img, pa, pb, FAINT if math.isnan(db) else bgr(db), thick - 1, cv2.LINE_AA)
     heads = []
     for m in marks:
         c = to_px(m.x, m.y, scale)
@@ -417,7 +418,7 @@ class Trails:
             if m.track_id is None:
                 continue
             pts = self.points.setdefault(m.track_id, [])
-            pts.append((m.x, m.y, m.direction_rad))
+            pts.append((m.x, m.y, math.nan if m.faint else m.direction_rad))   # NaN: no direction, a grey segment
             del pts[:-self.length]
             self._seen[m.track_id] = self._n
         for tid in [t for t, n in self._seen.items() if self._n - n >= self.length]:
