@@ -132,8 +132,10 @@ def run_netx_stage(path: str | os.PathLike, windows, reset_offset: int = NETX_RE
 
     Bin b of window i enters at Lava step i * B + b + 1 (lava.proc.io RingBuffer source); netx
     zeroes the neurons where step mod B == reset_offset (reset_interval = B); the spikes of that
-    bin leave ``output_delay`` steps later (the Conv synapse's delay). The runtime is stopped in
-    every case. Lava's I/O processes have no tagged models, so they are named explicitly.
+    bin leave ``output_delay`` steps later (the Conv synapse's delay) through a
+    ``lava.proc.io.extractor.Extractor`` (through ports: Var.get() moves data element by
+    element), its buffer one slot a step. The runtime is stopped in every case. Lava's I/O
+    processes have no tagged models, so they are named explicitly.
     """
     from ..runtime.loihi import import_lava
 
@@ -141,7 +143,7 @@ def run_netx_stage(path: str | os.PathLike, windows, reset_offset: int = NETX_RE
     Network = netx_network_class()
     from lava.magma.core.run_conditions import RunSteps
     from lava.magma.core.run_configs import Loihi2SimCfg
-    from lava.proc.io.sink import PyReceiveModelFixed, RingBuffer as Sink
+    from lava.proc.io.extractor import Extractor, PyLoihiExtractorModel
     from lava.proc.io.source import PySendModelFixed, RingBuffer as Source
 
     wins = [np.asarray(x) > 0 for x in windows]
@@ -151,14 +153,14 @@ def run_netx_stage(path: str | os.PathLike, windows, reset_offset: int = NETX_RE
     for i, x in enumerate(wins):
         data[..., i * b:(i + 1) * b] = x.transpose(3, 2, 1, 0)
     net = Network(net_config=str(path), reset_interval=b, reset_offset=reset_offset)
-    src, sink = Source(data=data), Sink(shape=net.out.shape, buffer=steps)
+    src, sink = Source(data=data), Extractor(shape=net.out.shape, buffer_size=steps)
     src.s_out.connect(net.inp)
-    net.out.connect(sink.a_in)
+    net.out.connect(sink.in_port)
     cfg = Loihi2SimCfg(select_tag="fixed_pt", exception_proc_model_map={Source: PySendModelFixed,
-                                                                         Sink: PyReceiveModelFixed})
+                                                                         Extractor: PyLoihiExtractorModel})
     try:
         net.run(condition=RunSteps(num_steps=steps), run_cfg=cfg)
-        out = np.asarray(sink.data.get())                                 # (W, H, 1, T)
+        out = np.stack([sink.receive() for _ in range(steps)], axis=-1)   # (W, H, 1, T)
     finally:
         net.stop()
     spikes = out[:, :, 0, output_delay:].transpose(2, 1, 0) != 0           # (T', H, W)

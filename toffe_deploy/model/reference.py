@@ -143,7 +143,6 @@ def _with_faint(preds: list, faint, config: ToffeConfig, recent, ones, bins, xs,
         return preds
     density, t0 = faint
     fx = density.step(t0, recent.latest_pixels, ones, bins, xs, ys)
-    mps = float(config.representative_speeds[0])
-    px_ms = mps * config.focal_px / (1000.0 * config.depth_m)
-    return preds + [Prediction(1, x, y, dr, mps, mps, px_ms, measured=False)
+    mps = float(config.representative_speeds[0])              # px/ms left NaN: derived from it (Prediction)
+    return preds + [Prediction(1, x, y, dr, mps, mps, measured=False)
                     for x, y, dr in zip(fx[0].tolist(), fx[1].tolist(), fx[2].tolist())]
