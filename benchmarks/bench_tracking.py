@@ -8,7 +8,7 @@
         [--no-shared-keeps-motion] [--shared-gate-grows] [--reid PX] [--reid-ratio R] [--coast-px PX] [--max-coast N]
         [--pos-beta B] [--pos-min PX] [--pos-max-rad RAD] [--blob-growth G] [--heading-cost PX] [--reid-growth G]
         [--no-reid-ratio-missed] [--hidden PX] [--handover PX] [--handover-reach K] [--handover-windows N]
-        [--handover-speed-ratio R] [--no-parting] [--parting-heading PX] [--parting-events PX]
+        [--handover-speed-ratio R] [--no-confirm-at-start] [--no-parting] [--parting-heading PX] [--parting-events PX]
         [--truth-blobs [--truth-merge F]] [--save-detections DIR | --detections DIR] [--json FILE]
 
 Each sequence runs from its start, window after window (dt of the bundle), through
@@ -442,7 +442,7 @@ def _settings(a):
                          parting=a.parting, parting_heading_px=a.parting_heading,
                          parting_events_px=a.parting_events, parting_turn_rad=a.parting_turn,
                          coast_turn_rad=a.coast_turn, occluded_px=a.occluded, occluded_travel_px=a.occluded_travel,
-                         occluded_min_hits=a.occluded_hits)
+                         occluded_min_hits=a.occluded_hits, confirm_at_start=a.confirm_at_start)
 
 
 def main(argv=None) -> int:
@@ -522,6 +522,8 @@ def main(argv=None) -> int:
                     help="parting_events_px: parting cost (px) per unit of ln(event ones) difference (0: off)")
     ap.add_argument("--parting-turn", type=float, default=d.parting_turn_rad,
                     help="parting_turn_rad: the most a track's state from before its blob turns when carried to now (rad)")
+    ap.add_argument("--no-confirm-at-start", dest="confirm_at_start", action="store_false",
+                    help="confirm_at_start off: births in a stream's first --confirm - 1 windows wait for --confirm hits too")
     ap.add_argument("--coast-turn", type=float, default=d.coast_turn_rad,
                     help="coast_turn_rad: the most a track's prediction turns over a run of windows without its own detection (rad)")
     ap.add_argument("--occluded", type=float, default=d.occluded_px,

@@ -107,7 +107,15 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
     births     an unmatched detection starts a tentative track (its own p, u, s, bin), unless it
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
-               track is confirmed at ``confirm_hits`` hits
+               track is confirmed at ``confirm_hits`` hits. With ``confirm_at_start``, a track
+               born in the stream's first confirm_hits - 1 windows (by time from the Tracker's
+               first window) is confirmed at birth: no track could have earned its hits there
+               yet, and an object in view when the stream starts is an object, not a birth to
+               doubt (ByteTrack activates the first frame's tracks, SORT reports tracks in the
+               first min_hits frames). Until it has confirm_hits hits it dies at a miss as a
+               tentative track would (no coasting, no occluded listing): a false detection or a
+               fragment of a slow object's edges in the first windows is reported only while it
+               lasts (a kept one held a second, occluded track on its object for 80 windows)
     deaths     a tentative track dies after more than ``tentative_misses`` misses in a row (0: at
                its first miss); a confirmed one coasts (predicted; listed as coasting, with
                its misses m_i, for the first ``report_misses``) through up to ``max_misses``
@@ -218,7 +226,9 @@ class TrackerConfig:
     of windows a blob can: carried at its full rate, a curving object's state swung far off;
     docs/tracking-log.md); coast_turn_rad: the same bound on a track's own prediction over a run
     of windows without its own detection (missed, or in a blob of two): beyond it the
-    prediction goes straight on."""
+    prediction goes straight on. confirm_at_start: births in the stream's first
+    confirm_hits - 1 windows are confirmed at birth (module doc, births; False: they wait for
+    confirm_hits hits like any other; docs/tracking-log.md, 2026-11-29)."""
 
     gate_px: float = 17.0
     gate_growth: float = 0.5
@@ -264,6 +274,7 @@ class TrackerConfig:
     parting_events_px: float = 60.0
     parting_turn_rad: float = 0.3
     coast_turn_rad: float = 0.6
+    confirm_at_start: bool = True
 
     def __post_init__(self):
         for f in fields(self):                  # kinds first: NaN, strings or 2.5 windows fail here
@@ -447,7 +458,7 @@ class BinEdges:
  P_MAX_OCCLUDED, P_HEADING_PX, P_HEADING_BETA, P_SHARED_KEEPS, P_TURN_BETA, P_MAX_TURN, P_MERGE_PX, P_MERGE_MOVE,
  P_REPORT, P_REID, P_SHARED_GROWS, P_REID_RATIO, P_COAST_PX, P_MAX_COAST, P_POS_BETA, P_POS_MIN, P_POS_MAX_RAD,
  P_BLOB_GROWTH, P_HEADING_COST, P_REID_GROWTH, P_REID_MISSED, P_HIDDEN, P_HANDOVER, P_HANDOVER_REACH,
- P_HANDOVER_WINDOWS, P_HANDOVER_RATIO, P_COAST_TURN, P_OCC_PX, P_OCC_TRAVEL, P_OCC_HITS) = range(41)
+ P_HANDOVER_WINDOWS, P_HANDOVER_RATIO, P_COAST_TURN, P_OCC_PX, P_OCC_TRAVEL, P_OCC_HITS, P_BORN_CONFIRMED) = range(42)
 
 
 def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
@@ -461,7 +472,8 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
                      cfg.pos_beta, cfg.pos_min_px, cfg.pos_max_rad, cfg.blob_growth, cfg.heading_cost_px,
                      cfg.reid_growth, float(cfg.reid_ratio_missed), cfg.hidden_px, cfg.handover_px,
                      cfg.handover_reach, cfg.handover_windows, cfg.handover_speed_ratio, cfg.coast_turn_rad,
-                     cfg.occluded_px, cfg.occluded_travel_px, cfg.occluded_min_hits],
+                     cfg.occluded_px, cfg.occluded_travel_px, cfg.occluded_min_hits,
+                     0.0],                    # P_BORN_CONFIRMED: Tracker sets it in a stream's first windows
                     dtype=_F)
 
 
@@ -700,8 +712,9 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost):
         if a[i, HITS] >= p[P_CONFIRM]:
             a[i, CONF] = 1.0
         lim = max(p[P_MAX_MISSES], p[P_MAX_OCCLUDED] * a[i, OCC])
-        keep[i] = a[i, MISS] <= (lim if a[i, CONF] > 0 else p[P_TENTATIVE])
-        if a[i, CONF] > 0 and a[i, MISS] * a[i, S] * dt_s <= p[P_COAST_PX] and a[i, MISS] <= p[P_MAX_COAST]:
+        held = a[i, CONF] > 0 and a[i, HITS] >= p[P_CONFIRM]     # not a track confirmed at birth, still short
+        keep[i] = a[i, MISS] <= (lim if held else p[P_TENTATIVE])  # of its hits: it dies as a tentative one
+        if held and a[i, MISS] * a[i, S] * dt_s <= p[P_COAST_PX] and a[i, MISS] <= p[P_MAX_COAST]:
             keep[i] = True                                   # a slow track's prediction is still near its object
         if a[i, CONF] > 0:                                   # no births next to a confirmed track
             for k in range(n_d):
@@ -767,7 +780,7 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost):
             out[row, BIN] = z[k, 5]
             out[row, EV] = z[k, 6]
             out[row, AGE] = out[row, HITS] = out[row, STREAK] = 1.0
-            out[row, CONF] = 1.0 if p[P_CONFIRM] <= 1 else 0.0
+            out[row, CONF] = 1.0 if p[P_CONFIRM] <= 1 or p[P_BORN_CONFIRMED] > 0 else 0.0
             assigned[k] = row
             next_id += 1
             row += 1
@@ -853,7 +866,7 @@ def _listing(out, assigned, p):
     return info
 
 
-N_P = P_OCC_HITS + 1
+N_P = P_BORN_CONFIRMED + 1
 
 
 @njit(cache=True, nogil=True)
@@ -869,13 +882,17 @@ def _window(t, zr, pe, next_id, lost):
 
 
 def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edges: BinEdges,
-         next_id: int, p: np.ndarray | None = None) -> tuple[Tracks, np.ndarray, int]:
+         next_id: int, p: np.ndarray | None = None, start: bool = False) -> tuple[Tracks, np.ndarray, int]:
     """One window of tracking (module doc): -> (live and lost tracks, assigned track row of each
     detection in the returned tracks (-1: a fragment, no track), next free id). Pure: the inputs
     are not modified. Compiled loops (numba, as compiled.py): a window has a handful of objects, so
     per-call overhead, not array size, would set the cost of numpy here. p: ``params(cfg,
-    dt_s)`` when the caller keeps it."""
+    dt_s)`` when the caller keeps it. start: a window of the stream's start, whose births are
+    confirmed at birth (``confirm_at_start``: Tracker passes it for the first confirm_hits - 1)."""
     p = params(cfg, dt_s) if p is None else p
+    if start:
+        p = p.copy()
+        p[P_BORN_CONFIRMED] = 1.0
     out, assigned, nid, lost = _step(tracks.a, dets.a, p, edges.lo, edges.hi, edges.inner, int(next_id), tracks.lost)
     return Tracks(out, lost), assigned, int(nid)
 
@@ -965,6 +982,11 @@ class Tracker:
         self._lost = Tracks().lost           # the dead confirmed ones that may hand their id over
         self.next_id = 0
         self.t0_last: int | None = None
+        self.t0_first: int | None = None     # the stream's first window (confirm_at_start)
+        # confirm_at_start: births of the stream's first confirm_hits - 1 windows are confirmed at
+        # birth (no track there could have earned it yet), the rest of the settings as they are
+        self._pe_start = self._pe.copy()
+        self._pe_start[P_BORN_CONFIRMED] = 1.0
         self._coasting: list = []
         self._before: dict = {}              # parting: id -> [its row before its blob, t_us, free windows]
         # compile (first run on a machine) or load the cached kernels now, not in the first window
@@ -1000,6 +1022,10 @@ class Tracker:
             raise ValueError(f"detections must be raw_detections' flat (6 n,) columns, got shape {zr.shape}")
         last, t0_us = self.t0_last, int(t0_us)
         self.t0_last = t0_us
+        if self.t0_first is None:
+            self.t0_first = t0_us
+        start = (self.settings.confirm_at_start
+                 and t0_us - self.t0_first < (self.settings.confirm_hits - 1) * self.dt_us)
         t, lost = self._a, self._lost
         n_win = 1 if last is None or t0_us - last == self.dt_us else max(1, round((t0_us - last) / self.dt_us))
         if n_win > 1 and len(t) + len(lost):    # windows never seen: coast the tracks through them
@@ -1012,10 +1038,10 @@ class Tracker:
             s = self.settings
             # who lives through the gap: _update's rule (an occluded track up to max_occluded, a
             # slow one while its coast stays within coast_px)
-            conf = a[:, CONF] > 0
-            live = a[:, MISS] <= np.where(conf, np.maximum(s.max_misses, s.max_occluded * (a[:, OCC] > 0)),
+            held = (a[:, CONF] > 0) & (a[:, HITS] >= s.confirm_hits)
+            live = a[:, MISS] <= np.where(held, np.maximum(s.max_misses, s.max_occluded * (a[:, OCC] > 0)),
                                           s.tentative_misses)
-            live |= conf & (a[:, MISS] * a[:, S] * self.dt_us * 1e-6 <= s.coast_px) & (a[:, MISS] <= s.max_coast)
+            live |= held & (a[:, MISS] * a[:, S] * self.dt_us * 1e-6 <= s.coast_px) & (a[:, MISS] <= s.max_coast)
             lost = lost.copy()
             lost[:, AGE] += n_win - 1
             lost[:, MISS] += n_win - 1
@@ -1024,7 +1050,8 @@ class Tracker:
             t, lost = a[live], lost[lost[:, MISS] <= s.handover_windows]
         # the usual window in one compiled call, the results handed out from one int array
         # (Python-level work, not the tracking, was most of the cost)
-        out, info, self.next_id, self._lost, entering = _window(t, zr, self._pe, self.next_id, lost)
+        out, info, self.next_id, self._lost, entering = _window(t, zr, self._pe_start if start else self._pe,
+                                                                self.next_id, lost)
         self._a = out
         n, k, info = zr.shape[0] // 6, self.k_mps, info.tolist()
         self._coasting = info[2 * n:]
