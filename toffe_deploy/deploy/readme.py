@@ -154,8 +154,11 @@ is an object when the latest K windows' event pixels in its box grown by r px re
 m + floor(c A E / (H W)) and it lies apart from every object; with `faint_objects` [L, z]
 (`input_support` only) a slow object no stage reported is found where the event pixels of the
 last L windows, each pixel counted at most 3 times, stand z noise standard deviations above the
-sensor's density in a 32 px box, and now too: it is reported with `"faint": true`, bin 1 and its
-representative speed, its direction a rough guess; `toffe_deploy.faint_objects`) or
+sensor's density in a 32 px box, and now too, apart from the objects reported and from the
+outer half of the extent disc of a big object (ones' box diagonal >= 32 px) reported in the 4
+windows before (such an object's edges are regions of their own): it is reported with
+`"faint": true`, bin 1 and its representative speed, its direction a rough guess;
+`toffe_deploy.faint_objects`) or
 `"boxes"` (a fixed +-`dedupe_px` box, older checkpoints); with blobs, `config.ofpd.stages`
 says how the stage frames meet: `"union"`, the blobs of all stages' pixels together (an
 object's edges that the cascade gave to several stages are one outline; its stage is the
