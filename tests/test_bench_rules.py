@@ -47,9 +47,9 @@ def test_time_blocks_interleave_and_count_cpu_time():
 
     def busy(i):
         calls.append("busy")
-        t = time.process_time()
-        while time.process_time() - t < 2e-4:
-            pass
+        t = time.thread_time()              # its own thread's time: the process's also counts threads
+        while time.thread_time() - t < 2e-4:    # that earlier tests left running, which made it spin
+            pass                                # less than 2e-4 of its own (a flaky failure under load)
 
     def sleepy(i):
         calls.append("sleepy")
