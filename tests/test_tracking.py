@@ -113,10 +113,11 @@ def test_births_need_confirmation_and_tracks_die_after_max_misses():
 
 def test_the_streams_first_windows_confirm_their_tracks_at_birth_and_those_die_at_a_miss_until_held():
     """confirm_at_start: an object in view in the stream's first confirm_hits - 1 windows (counted
-    from its first window's time, here 7 dt) is reported at once; one first seen later waits for
-    its hits; a start track missed before it has confirm_hits hits dies (a false detection of the
-    first window is not kept), one with them coasts as any confirmed track."""
-    s = TrackerConfig(confirm_hits=3, max_misses=4, coast_px=0.0)
+    from its first window, here at 7 dt) is reported at once; one first seen later waits for its
+    hits; a start track missed before it has confirm_hits hits dies at once (not coasting, not
+    listed: max_misses is long enough that coasting would show), one with them coasts as any
+    confirmed track."""
+    s = TrackerConfig(confirm_hits=3, max_misses=10, coast_px=0.0)
     assert s.confirm_at_start
     tr = Tracker(CFG, DT_US, s)
     a = [mover(50, 100, 0, 4000, w) for w in range(8)]
@@ -126,12 +127,53 @@ def test_the_streams_first_windows_confirm_their_tracks_at_birth_and_those_die_a
     wins = [[a[0], ghost], [a[1], b[1]], [a[2], b[2], c[2]], [a[3], b[3], c[3]], [a[4], b[4], c[4]], [b[5], c[5]]]
     for w, objs in enumerate(wins):
         tr.update(objs, (7 + w) * DT_US)
+        if w == 1:                                              # the ghost's first miss: gone, not coasting
+            assert ghost.track_id not in tr.tracks.id.tolist() and tr.coasting() == []
     assert a[0].track["confirmed"] and ghost.track["confirmed"] and b[1].track["confirmed"]
-    assert ghost.track_id not in tr.tracks.id.tolist()          # missed in window 1: died, never coasted
     assert [o.track["confirmed"] for o in (c[2], c[3], c[4])] == [False, False, True]   # after the start
     assert [x["track_id"] for x in tr.coasting()] == [a[0].track_id]   # held (5 hits): coasts when missed
     assert len({a[0].track_id, b[1].track_id, c[2].track_id, ghost.track_id}) == 4
     assert a[4].track_id == a[0].track_id and b[5].track_id == b[1].track_id
+
+
+def test_a_start_track_short_of_its_hits_does_not_survive_a_gap_and_its_id_goes_on_as_a_lost_one():
+    """A first-window detection missed through a gap of windows is not kept (no coasting, not
+    listed); the start windows are counted from the first window, the gap included, so a window
+    after the gap is no start window; the id it was reported with is a lost track's: the track
+    that continues it near there takes it at its confirmation (the hand-over), with
+    handover_px 0 it keeps its own."""
+    for handover, want in ((TrackerConfig().handover_px, [1, 1, 0, 0]), (0.0, [1, 1, 1, 1])):
+        tr = Tracker(CFG, DT_US, TrackerConfig(confirm_hits=3, max_misses=10, coast_px=0.0, handover_px=handover))
+        first = Obj(300, 200, 0.0, 3000, 2)
+        tr.update([first], 0)
+        assert first.track["confirmed"]
+        tr.update([], 4 * DT_US)                                # a gap of 3 windows, then an empty one
+        assert len(tr.tracks) == 0 and tr.coasting() == []
+        later = [Obj(310 + 2 * w, 205, 0.0, 4000, 2) for w in range(4)]
+        for w, o in enumerate(later):
+            tr.update([o], (5 + w) * DT_US)
+        assert [o.track["confirmed"] for o in later] == [False, False, True, True]
+        assert [o.track_id for o in later] == want
+
+
+def test_a_start_track_short_of_its_hits_does_not_re_identify():
+    """Re-identification (a missed confirmed track claims a detection left over outside its
+    gate) is for tracks with their hits: a first-window track missed in window 1 does not take a
+    detection 25 px off its prediction; a new track is born there instead (the dying track, no
+    longer confirmed, keeps no birth gap around it)."""
+    s = TrackerConfig(confirm_hits=3)
+    tr = Tracker(CFG, DT_US, s)
+    first = Obj(100, 100, 0.0, 8000, 3)                           # 4 px a window
+    tr.update([first], 0)
+    off = Obj(104, 125, 0.0, 8000, 3)                             # 25 px off the prediction (104, 100)
+    tr.update([off], DT_US)
+    assert off.track_id is not None and off.track_id != first.track_id   # born: the dead track holds no birth gap
+    assert first.track_id not in tr.tracks.id.tolist()
+    tr2 = Tracker(CFG, DT_US, TrackerConfig(confirm_hits=1))      # with its hits (1) it does
+    first2, off2 = Obj(100, 100, 0.0, 8000, 3), Obj(104, 125, 0.0, 8000, 3)
+    tr2.update([first2], 0)
+    tr2.update([off2], DT_US)
+    assert off2.track_id == first2.track_id
 
 
 def test_without_confirm_at_start_the_first_windows_wait_for_their_hits():

@@ -108,14 +108,17 @@ window of length dt (s), with track i's state (x_i, y_i, vx_i, vy_i) in px and p
                lies within birth_gap_px of a confirmed track (a fragment of that object: a slow
                object's leading and trailing edges; reported without a track); a tentative
                track is confirmed at ``confirm_hits`` hits. With ``confirm_at_start``, a track
-               born in the stream's first confirm_hits - 1 windows (by time from the Tracker's
-               first window) is confirmed at birth: no track could have earned its hits there
-               yet, and an object in view when the stream starts is an object, not a birth to
-               doubt (ByteTrack activates the first frame's tracks, SORT reports tracks in the
-               first min_hits frames). Until it has confirm_hits hits it dies at a miss as a
-               tentative track would (no coasting, no occluded listing): a false detection or a
-               fragment of a slow object's edges in the first windows is reported only while it
-               lasts (a kept one held a second, occluded track on its object for 80 windows)
+               born in the stream's first confirm_hits - 1 windows (counted from the Tracker's
+               first window, gaps included) is confirmed at birth: no track could have earned
+               its hits there yet, and an object in view when the stream starts is an object,
+               not a birth to doubt (ByteTrack activates the first frame's tracks, SORT reports
+               tracks in the first min_hits frames). Missed before it has confirm_hits hits, it
+               is tentative again (it does not re-identify either): with tentative_misses 0 it
+               dies, without coasting or occluded listing (its id, reported as confirmed, may
+               still go to the track that continues it: the hand-over's lost tracks). A false
+               detection or a fragment of a slow object's edges in the first windows is
+               reported only while it lasts (kept, one held a second, occluded track on its
+               object for 80 windows)
     deaths     a tentative track dies after more than ``tentative_misses`` misses in a row (0: at
                its first miss); a confirmed one coasts (predicted; listed as coasting, with
                its misses m_i, for the first ``report_misses``) through up to ``max_misses``
@@ -657,7 +660,7 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost):
         while True:
             best, bi, bk = np.inf, -1, -1
             for i in range(n_t):
-                if hit[i] or t[i, CONF] <= 0 or t[i, S] * p[P_DT] < p[P_MERGE_MOVE]:
+                if hit[i] or t[i, CONF] <= 0 or t[i, HITS] < p[P_CONFIRM] or t[i, S] * p[P_DT] < p[P_MERGE_MOVE]:
                     continue
                 lim = p[P_REID] + p[P_REID_GROWTH] * t[i, MISS] * t[i, S] * p[P_DT]
                 for k in range(n_d):
@@ -711,10 +714,11 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost):
         a[i, MISS] = 0.0 if hit[i] else t[i, MISS] + 1
         if a[i, HITS] >= p[P_CONFIRM]:
             a[i, CONF] = 1.0
+        elif not hit[i]:                                     # confirmed at birth (confirm_at_start), missed
+            a[i, CONF] = 0.0                                 # short of its hits: tentative again
         lim = max(p[P_MAX_MISSES], p[P_MAX_OCCLUDED] * a[i, OCC])
-        held = a[i, CONF] > 0 and a[i, HITS] >= p[P_CONFIRM]     # not a track confirmed at birth, still short
-        keep[i] = a[i, MISS] <= (lim if held else p[P_TENTATIVE])  # of its hits: it dies as a tentative one
-        if held and a[i, MISS] * a[i, S] * dt_s <= p[P_COAST_PX] and a[i, MISS] <= p[P_MAX_COAST]:
+        keep[i] = a[i, MISS] <= (lim if a[i, CONF] > 0 else p[P_TENTATIVE])
+        if a[i, CONF] > 0 and a[i, MISS] * a[i, S] * dt_s <= p[P_COAST_PX] and a[i, MISS] <= p[P_MAX_COAST]:
             keep[i] = True                                   # a slow track's prediction is still near its object
         if a[i, CONF] > 0:                                   # no births next to a confirmed track
             for k in range(n_d):
@@ -747,8 +751,8 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost):
     n_lost = 0                                               # lost: the dead confirmed tracks, for a while
     for m in range(lost.shape[0]):
         n_lost += not used[m] and lost[m, MISS] <= p[P_HANDOVER_WINDOWS]
-    for i in range(n_t):
-        n_lost += p[P_HANDOVER] > 0 and a[i, CONF] > 0 and not keep[i] and not gone[i]
+    for i in range(n_t):                                     # (a track confirmed at birth that dies short of
+        n_lost += p[P_HANDOVER] > 0 and t[i, CONF] > 0 and not keep[i] and not gone[i]   # its hits too)
     lost_out = np.empty((n_lost, a.shape[1]))
     row = 0
     for m in range(lost.shape[0]):
@@ -756,7 +760,7 @@ def _update(a, t, z, r, j, d, p, lo, hi, inner, next_id, lost):
             lost_out[row] = lost[m]
             row += 1
     for i in range(n_t):
-        if p[P_HANDOVER] > 0 and a[i, CONF] > 0 and not keep[i] and not gone[i]:
+        if p[P_HANDOVER] > 0 and t[i, CONF] > 0 and not keep[i] and not gone[i]:
             lost_out[row] = a[i]
             row += 1
     n_keep = int(keep.sum())
@@ -888,7 +892,8 @@ def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edge
     are not modified. Compiled loops (numba, as compiled.py): a window has a handful of objects, so
     per-call overhead, not array size, would set the cost of numpy here. p: ``params(cfg,
     dt_s)`` when the caller keeps it. start: a window of the stream's start, whose births are
-    confirmed at birth (``confirm_at_start``: Tracker passes it for the first confirm_hits - 1)."""
+    confirmed at birth (``confirm_at_start``: Tracker passes it for the first confirm_hits - 1;
+    step itself does not read cfg.confirm_at_start)."""
     p = params(cfg, dt_s) if p is None else p
     if start:
         p = p.copy()
@@ -982,7 +987,7 @@ class Tracker:
         self._lost = Tracks().lost           # the dead confirmed ones that may hand their id over
         self.next_id = 0
         self.t0_last: int | None = None
-        self.t0_first: int | None = None     # the stream's first window (confirm_at_start)
+        self.n_windows = 0                   # windows since the stream's first, gaps included (confirm_at_start)
         # confirm_at_start: births of the stream's first confirm_hits - 1 windows are confirmed at
         # birth (no track there could have earned it yet), the rest of the settings as they are
         self._pe_start = self._pe.copy()
@@ -1022,12 +1027,10 @@ class Tracker:
             raise ValueError(f"detections must be raw_detections' flat (6 n,) columns, got shape {zr.shape}")
         last, t0_us = self.t0_last, int(t0_us)
         self.t0_last = t0_us
-        if self.t0_first is None:
-            self.t0_first = t0_us
-        start = (self.settings.confirm_at_start
-                 and t0_us - self.t0_first < (self.settings.confirm_hits - 1) * self.dt_us)
         t, lost = self._a, self._lost
         n_win = 1 if last is None or t0_us - last == self.dt_us else max(1, round((t0_us - last) / self.dt_us))
+        self.n_windows += 1 if last is None else n_win
+        start = self.settings.confirm_at_start and self.n_windows < self.settings.confirm_hits
         if n_win > 1 and len(t) + len(lost):    # windows never seen: coast the tracks through them
             a, gap = t.copy(), (n_win - 1) * self.dt_us * 1e-6
             a[:, X] += a[:, VX] * gap
@@ -1038,15 +1041,17 @@ class Tracker:
             s = self.settings
             # who lives through the gap: _update's rule (an occluded track up to max_occluded, a
             # slow one while its coast stays within coast_px)
-            held = (a[:, CONF] > 0) & (a[:, HITS] >= s.confirm_hits)
-            live = a[:, MISS] <= np.where(held, np.maximum(s.max_misses, s.max_occluded * (a[:, OCC] > 0)),
+            was = a[:, CONF] > 0                            # confirmed before the gap (may hand its id over)
+            a[a[:, HITS] < s.confirm_hits, CONF] = 0.0        # confirmed at birth and missed: tentative again
+            conf = a[:, CONF] > 0
+            live = a[:, MISS] <= np.where(conf, np.maximum(s.max_misses, s.max_occluded * (a[:, OCC] > 0)),
                                           s.tentative_misses)
-            live |= held & (a[:, MISS] * a[:, S] * self.dt_us * 1e-6 <= s.coast_px) & (a[:, MISS] <= s.max_coast)
+            live |= conf & (a[:, MISS] * a[:, S] * self.dt_us * 1e-6 <= s.coast_px) & (a[:, MISS] <= s.max_coast)
             lost = lost.copy()
             lost[:, AGE] += n_win - 1
             lost[:, MISS] += n_win - 1
             if s.handover_px > 0:       # died in the gap
-                lost = np.concatenate([lost, a[~live & (a[:, CONF] > 0)]])
+                lost = np.concatenate([lost, a[~live & was]])
             t, lost = a[live], lost[lost[:, MISS] <= s.handover_windows]
         # the usual window in one compiled call, the results handed out from one int array
         # (Python-level work, not the tracking, was most of the cost)
