@@ -480,6 +480,14 @@ def params(cfg: TrackerConfig, dt_s: float) -> np.ndarray:
                     dtype=_F)
 
 
+def start_params(p: np.ndarray) -> np.ndarray:
+    """A copy of ``params``' vector for a window of the stream's start (confirm_at_start): its
+    births are confirmed at birth."""
+    q = p.copy()
+    q[P_BORN_CONFIRMED] = 1.0
+    return q
+
+
 @njit(cache=True, nogil=True)
 def _predict(t, z, p):
     """Predicted tracks, track x detection distances and the gate test (module doc), and whether
@@ -895,9 +903,7 @@ def step(tracks: Tracks, dets: Detections, dt_s: float, cfg: TrackerConfig, edge
     confirmed at birth (``confirm_at_start``: Tracker passes it for the first confirm_hits - 1;
     step itself does not read cfg.confirm_at_start)."""
     p = params(cfg, dt_s) if p is None else p
-    if start:
-        p = p.copy()
-        p[P_BORN_CONFIRMED] = 1.0
+    p = start_params(p) if start else p
     out, assigned, nid, lost = _step(tracks.a, dets.a, p, edges.lo, edges.hi, edges.inner, int(next_id), tracks.lost)
     return Tracks(out, lost), assigned, int(nid)
 
@@ -990,8 +996,7 @@ class Tracker:
         self.n_windows = 0                   # windows since the stream's first, gaps included (confirm_at_start)
         # confirm_at_start: births of the stream's first confirm_hits - 1 windows are confirmed at
         # birth (no track there could have earned it yet), the rest of the settings as they are
-        self._pe_start = self._pe.copy()
-        self._pe_start[P_BORN_CONFIRMED] = 1.0
+        self._pe_start = start_params(self._pe)     # the bin edges after the params: untouched
         self._coasting: list = []
         self._before: dict = {}              # parting: id -> [its row before its blob, t_us, free windows]
         # compile (first run on a machine) or load the cached kernels now, not in the first window
