@@ -28,14 +28,14 @@ timed with the thread's CPU time; a drift hits every variant alike. The order ro
 to window (``rotation``: over a pass each variant runs first, second, ... equally often), because
 the position matters by itself: a variant run right after another finds the caches as that one
 left them (measured: "all" 0.70 of default when default ran first on every window, 0.72 when it
-ran last). The passes' ratios then agree to about 0.01-0.03 where whole passes minutes apart
+ran last). The passes' ratios then agree to about 0.01-0.05 where whole passes minutes apart
 differ by 20 % and more.
 
 Prints one JSON line: per variant the median and mean CPU time per window (us), the ratio of its
 summed time to default's (``ratio``) with the lowest and highest ratio of a single pass, the
 windows per second that CPU time gives, and the objects it reported (switching a feature off
 changes what is found: the accuracy side of the trade is eval's and bench_tracking.py's, README
-"Where the window's time goes"). What it does not say: the cost on another machine; rerun it there.
+"What the goal would take"). What it does not say: the cost on another machine; rerun it there.
 """
 from __future__ import annotations
 
