@@ -49,11 +49,11 @@ def test_each_switch_turns_its_feature_off_in_the_pipeline(shipped_tiny):
         cfg = apply_overrides(bundle.config, list(overrides.items()), [])
         return Pipeline(dataclasses.replace(bundle, config=cfg), "cpu", track=track)
 
-    on = pipeline("faint")
+    no_faint = pipeline("faint")
     base = Pipeline(bundle, "cpu")
     assert base.faint is not None and base.ones_history is not None and base._outline is not None
     assert base.tracker is not None and base._fusion.on
-    assert on.faint is None and on.ones_history is not None and on._outline is not None
+    assert no_faint.faint is None and no_faint.ones_history is not None and no_faint._outline is not None
     assert pipeline("outline")._outline is None and pipeline("outline").ones_history is not None
     hist = pipeline("history")
     assert hist.ones_history is None and hist._outline is None and hist._fusion.on     # the one-window fit
