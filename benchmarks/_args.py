@@ -25,7 +25,7 @@ except ImportError:           # a checkout older than the CLI's one-line parser 
     os_error_line = str
 
 __all__ = ["OneLineParser", "positive_int", "nonneg_int", "positive_float", "nonneg_float", "share", "int_in",
-           "comma_list", "existing_file", "existing_dir", "json_output", "cpu_core", "guarded", "key_value",
+           "comma_list", "existing_file", "existing_dir", "json_output", "cpu_core", "default_core", "guarded", "key_value",
            "apply_overrides"]
 
 positive_int = _number(int, 1, strict=False)        # an integer >= 1
@@ -113,6 +113,12 @@ def cpu_core(text: str) -> int:
         raise argparse.ArgumentTypeError(f"no CPU core {v} here (cores this process may use: "
                                          f"{', '.join(map(str, cores))})")
     return v
+
+
+def default_core() -> str:
+    """The --core default of bench_parts.py and bench_features.py: core 1, the core the README's
+    figures were taken on, or 0 when the highest core this process may use is 0 (one core)."""
+    return str(min(1, max(os.sched_getaffinity(0))))
 
 
 def guarded(prog: str, fn, *args) -> int:

@@ -39,6 +39,7 @@ changes what is found: the accuracy side of the trade is eval's and bench_tracki
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
@@ -51,7 +52,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _args import OneLineParser, comma_list, cpu_core, existing_file, guarded, positive_int  # noqa: E402
+from _args import OneLineParser, comma_list, cpu_core, default_core, existing_file, guarded, positive_int  # noqa: E402
 
 #: each switch: (config.ofpd overrides, whether the Pipeline keeps its tracker)
 SWITCHES = {
@@ -67,8 +68,6 @@ FEATURES = (*SWITCHES, "all")
 
 def feature(text: str) -> str:
     """An argparse type: one of FEATURES."""
-    import argparse
-
     if text not in FEATURES:
         raise argparse.ArgumentTypeError(f"unknown feature {text!r} (choose from {', '.join(FEATURES)})")
     return text
@@ -103,7 +102,7 @@ def main(argv=None) -> int:
                        description="CPU time per window of the cpu target with each host feature off, interleaved.")
     ap.add_argument("--bundle", default=str(ROOT / "export"), help="deploy bundle (toffe-deploy export ckpt/)")
     ap.add_argument("--events", type=existing_file, default=None, help="recording (default: the shipped sample)")
-    ap.add_argument("--core", type=cpu_core, default=str(min(1, max(os.sched_getaffinity(0)))),
+    ap.add_argument("--core", type=cpu_core, default=default_core(),
                     help="CPU core to pin to (default 1, or 0 on a one-core machine)")
     ap.add_argument("--repeats", type=positive_int, default=4, help="passes over the recording (default 4)")
     ap.add_argument("--features", type=comma_list(feature), default=list(FEATURES),

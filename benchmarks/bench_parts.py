@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _args import OneLineParser, cpu_core, existing_file, guarded, positive_int  # noqa: E402
+from _args import OneLineParser, cpu_core, default_core, existing_file, guarded, positive_int  # noqa: E402
 
 PARTS = ("bin", "front", "cascade", "batch", "ort", "decode", "faint")
 
@@ -46,7 +46,7 @@ def main(argv=None) -> int:
     ap = OneLineParser(prog="bench_parts.py", description="CPU time per window of the cpu target, by part.")
     ap.add_argument("--bundle", default=str(ROOT / "export"), help="deploy bundle (toffe-deploy export ckpt/)")
     ap.add_argument("--events", type=existing_file, default=None, help="recording (default: the shipped sample)")
-    ap.add_argument("--core", type=cpu_core, default=str(min(1, max(os.sched_getaffinity(0)))),
+    ap.add_argument("--core", type=cpu_core, default=default_core(),
                     help="CPU core to pin to (default 1, or 0 on a one-core machine)")
     ap.add_argument("--repeats", type=positive_int, default=5, help="passes over the recording")
     args = ap.parse_args(argv)
