@@ -215,6 +215,35 @@ def test_dat_polarity_order_and_sensor_checks(prophesee_files, events, tmp_path,
     assert "outside the 16x16 sensor" in _cli_error(capsys, src, "--sensor-size", "16", "16")
 
 
+
+def test_dat_whose_last_events_go_back_is_an_order_error_in_run_too(prophesee_files, events, tmp_path, capsys,
+                                                                    make_bundle):
+    """Its span (first event to last + 1) is negative: `run` named the order, not "no events"."""
+    src = prophesee_files["dat"]
+    data = bytearray(src.read_bytes())
+    start = _header_end(src) + 2
+    n = len(events)
+    for i in range(n - 3, n):                       # the last three events before the first
+        data[start + 8 * i: start + 8 * i + 4] = np.uint32(int(events["t"][0]) - 10).tobytes()
+    bad = tmp_path / "lastback.dat"
+    bad.write_bytes(bytes(data))
+    assert f"timestamps decrease at event {n - 3}" in _cli_error(capsys, bad)
+    bundle = make_bundle(tmp_path)
+    assert main(["run", str(bundle.root), "--events", str(bad), "--max-windows", "2", "--no-progress",
+                 "--out", str(tmp_path / "o.jsonl")]) == 2
+    err = capsys.readouterr().err
+    assert f"timestamps decrease at event {n - 3}" in err and "no events" not in err
+
+
+def test_raw_cut_inside_its_header_is_an_error_not_an_empty_recording(prophesee_files, tmp_path, capsys):
+    src = prophesee_files["evt3"]
+    cut = tmp_path / "cut.raw"
+    cut.write_bytes(src.read_bytes()[: _header_end(src) // 2])
+    assert cut.read_bytes().startswith(b"%") and not cut.read_bytes().endswith(b"\n")
+    assert "ends inside its header" in _cli_error(capsys, cut)
+    assert main(["events", "convert", str(cut), str(tmp_path / "out.npz")]) == 2
+    assert not (tmp_path / "out.npz").exists()
+
 # ------------------------------------------------------------------ Metavision HDF5
 
 def _metavision_h5(path, ev, size=SIZE, **ds_kw):
@@ -481,19 +510,36 @@ def test_prophesee_files_without_their_extension_are_recognised_by_header(prophe
         read_events(text)
 
 
-def test_evt3_time_high_drops_wrap_unless_tiny():
-    def words(*w):
-        return np.array(w, "<u2").tobytes()
+def test_evt_time_high_wraps_only_past_half_its_range():
+    """A time-high drop of more than half the counter's range is a wrap; a smaller one (a glitch,
+    a camera clock reset, a jump back of 100 ms) stays a drop that the order check reports. Under
+    the old 10-step rule a 24-step (100 ms) EVT3 drop read as 16.8 s later, silently."""
+    def words(dtype, *w):
+        return np.array(w, dtype).tobytes()
 
     TH, TL, Y, X = 0x8000, 0x6000, 0x0000, 0x2000
     dec = fmt_prophesee.Evt3Decoder()
-    x, y, t, p = dec.feed(words(X | 1, TH | 100, TL | 7, Y | 3, X | 0x800 | 5,   # before the time base: dropped
+    x, y, t, p = dec.feed(words("<u2", X | 1, TH | 100, TL | 7, Y | 3, X | 0x800 | 5,   # before the time base: dropped
                                 TH | 95, X | 6,                                 # a 5-step drop: a glitch
-                                TH | 50, X | 7))                                # a 45-step drop: a wrap
-    assert x.tolist() == [5, 6, 7] and y.tolist() == [3, 3, 3] and p.tolist() == [1, 0, 0]
-    assert t.tolist() == [100 << 12 | 7, 95 << 12 | 7, (4096 + 50) << 12 | 7]
+                                TH | 76, X | 7,                                 # 100 ms back: a drop, not a wrap
+                                TH | 4000, X | 8, TH | 50, X | 9))              # 4000 -> 50: a wrap (~200 ms on)
+    assert x.tolist() == [5, 6, 7, 8, 9] and y.tolist() == [3] * 5 and p.tolist() == [1, 0, 0, 0, 0]
+    assert t.tolist() == [100 << 12 | 7, 95 << 12 | 7, 76 << 12 | 7, 4000 << 12 | 7, (4096 + 50) << 12 | 7]
     with pytest.raises(ValueError, match="word type 0x9 at byte 2"):
-        fmt_prophesee.Evt3Decoder().feed(words(TH, 0x9000))
+        fmt_prophesee.Evt3Decoder().feed(words("<u2", TH, 0x9000))
+    with pytest.raises(ValueError, match=r"ends inside an EVT 3\.0 word \(1 trailing byte: truncated\?\)"):
+        dec = fmt_prophesee.Evt3Decoder()
+        dec.feed(words("<u2", TH | 1) + b"\x01")
+        dec.finish()
+
+    def evt2(th, *cd):                       # a time high, then CD_ON events at x = cd, y = 2, t low 3
+        return [0x80000000 | th] + [0x10000000 | 3 << 22 | c << 11 | 2 for c in cd]
+
+    reset = (5_010_123 >> 6) & 0x0FFFFFFF    # a camera whose clock restarts at ~0 after 5.01 s
+    x, _, t, _ = fmt_prophesee.Evt2Decoder().feed(words("<u4", *evt2(reset, 1), *evt2(2, 2),
+                                                        *evt2((1 << 28) - 5, 3), *evt2(4, 4)))
+    assert x.tolist() == [1, 2, 3, 4]
+    assert t.tolist() == [reset << 6 | 3, 2 << 6 | 3, ((1 << 28) - 5) << 6 | 3, ((1 << 28) + 4) << 6 | 3]
 
 
 def test_prophesee_files_are_known_by_their_header_not_their_extension(prophesee_files, events, tmp_path):
@@ -504,3 +550,23 @@ def test_prophesee_files_are_known_by_their_header_not_their_extension(prophesee
         shutil.copy(prophesee_files[kind], path)
         assert detect_format(path) == ("raw" if kind == "evt3" else "dat")
         np.testing.assert_array_equal(read_events(path).events, events)
+
+
+def test_bag_whose_times_go_back_mid_file_is_an_order_error_not_a_short_recording(events, tmp_path, capsys):
+    """A sequential format's metadata pass does not check order; its span ended at the last event
+    (+ 1), and reading stopped at the first message starting past it, before the message going back
+    in time: info, convert and run then dropped every event after it with exit 0."""
+    pytest.importorskip("rosbags")
+    ev = events[:900].copy()                         # 3 messages of 300; the camera's clock restarts
+    ev["t"][600:] = 100 + np.arange(300)             # in the third, before the second's first event
+    assert ev["t"][-1] < ev["t"][300]
+    messages = [(10 ** 9 + k, make) for k, (_, make) in enumerate(_dvs_messages(ev, 300))]   # logged in order
+    path = _write_bag(tmp_path / "back.bag", "dvs_msgs/msg/EventArray", messages, True)
+    assert "timestamps decrease at event 600" in _cli_error(capsys, path)
+    assert main(["events", "convert", str(path), str(tmp_path / "out.npz")]) == 2
+    assert "timestamps decrease at event 600" in capsys.readouterr().err
+    assert not (tmp_path / "out.npz").exists()
+    with open_events(path) as src:                   # the metadata first, then a read by time
+        assert src.num_events == len(ev)
+        with pytest.raises(InputError, match="timestamps decrease at event 600"):
+            list(src.iter_chunks())

@@ -3,6 +3,7 @@ import h5py
 import numpy as np
 import pytest
 
+from toffe_deploy.cli import main
 from toffe_deploy.events import EVENT_DTYPE, make_events, open_events, read_events, write_events_h5, write_events_npz
 from toffe_deploy.events.fmt_toffe import ToffeH5Source, ms_index
 from toffe_deploy.events.io import detect_format
@@ -152,6 +153,26 @@ def test_dsec_reader_uses_offset_and_default_size(tmp_path, random_events):
     sel = ev[(ev["t"] >= 10_000) & (ev["t"] < 20_000)]
     np.testing.assert_array_equal(got["t"] - off, sel["t"])
     np.testing.assert_array_equal(got[["x", "y", "p"]], sel[["x", "y", "p"]])
+
+
+def test_dsec_reader_reads_blosc_compressed_files_as_dsec_ships_them(tmp_path, random_events):
+    """DSEC's events.h5 are Blosc-compressed: hdf5plugin (a dependency) writes such a file here
+    and the reader opens it with no HDF5_PLUGIN_PATH set by hand."""
+    import hdf5plugin                                 # a dependency: no skip when it is missing
+    ev = random_events(3000, SIZE, 40_000)
+    path = tmp_path / "events.h5"
+    blosc = hdf5plugin.Blosc(cname="zstd", clevel=5, shuffle=hdf5plugin.Blosc.SHUFFLE)
+    with h5py.File(path, "w") as f:
+        for n in "xyp":
+            f.create_dataset(f"events/{n}", data=ev[n], chunks=(1024,), **blosc)
+        f.create_dataset("events/t", data=ev["t"].astype(np.uint32), chunks=(1024,), **blosc)
+        f.create_dataset("t_offset", data=np.int64(0))
+        f.create_dataset("ms_to_idx", data=ms_index(ev["t"], 0).astype(np.uint64))
+        assert f["events/t"].id.get_create_plist().get_filter(0)[0] == 32001      # Blosc
+    assert main(["events", "info", "--no-progress", str(path)]) == 0
+    with open_events(path) as src:
+        assert src.format_name == "dsec"
+        np.testing.assert_array_equal(src.read_all().events, ev)
 
 
 def test_mvsec_reader_maps_seconds_and_polarity(tmp_path, random_events):

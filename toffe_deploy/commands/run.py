@@ -345,8 +345,8 @@ def run_command(args) -> int:
             span = src.t_end_us - t_start
             n_total = max(0, -(-span // cfg.dt_us) if args.include_incomplete else span // cfg.dt_us)
             if n_total == 0:
-                if span > 0:        # a last event back in time makes the span short: its order's error, not this one
-                    for _chunk in src.iter_chunks():
+                if span > 0 or src.num_events:   # a last event back in time makes the span short, or
+                    for _chunk in src.iter_chunks():   # negative: its order's error, not this one
                         pass
                 raise ToffeError(f"{args.events or 'the recording'}: " + (
                     f"{span} us from the first window's start to the recording's end, shorter than one window "

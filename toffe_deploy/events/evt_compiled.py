@@ -18,12 +18,17 @@ from ..jit import njit
 
 Y, TL, TH, TH_RAW, LOOPS, BASE, POL, BAD = range(8)
 STATE_LEN = 8
-#: A time-high word that drops by more than this many steps is a wrap of the counter; a smaller
-#: drop stays a drop (a glitch, which the time-order check reports). Prophesee's reference decoders
-#: count a wrap only for a drop of nearly the whole range, which a camera's time-high every
-#: 4096 us gives; a file or a ROS stream with gaps between time-high words (faery's encoder, lost
-#: packets) wraps with any drop, so any clear drop counts here.
-LOOP_MARGIN = 10
+#: A time-high word more than half its counter's range below the last one is a wrap of the
+#: counter (EVT3: 2,048 of its 4,096 steps, 8.4 s; EVT2: 2**27 of 2**28, 2.4 h); a smaller drop
+#: stays a drop (a glitch or a camera clock reset, which the time-order check reports as
+#: decreasing timestamps). The reading closest in time wins: a drop of d steps is either d steps
+#: back or (range - d) forward. Prophesee's reference decoders count a wrap only for a drop of
+#: nearly the whole range, which a camera's time high every 4,096 us gives; a file or a ROS stream
+#: with gaps between time-high words (faery's encoder, lost packets) can wrap with a smaller drop,
+#: and does so here up to a gap of half the range. A drop of 10 steps (640 us in EVT2) had been
+#: the rule: a clock reset or a 100 ms jump back then read as a wrap, 16.8 s or 4.8 h later.
+EVT3_HALF_RANGE = 1 << 11
+EVT2_HALF_RANGE = 1 << 27
 
 
 def new_state() -> np.ndarray:
@@ -90,7 +95,7 @@ def evt3_decode(w, state, x, y, t, p):
         elif typ == 6:                    # EVT_TIME_LOW
             tl = pay
         elif typ == 8:                    # EVT_TIME_HIGH (12 bits of 24: unwrap)
-            if thraw >= 0 and thraw - pay > LOOP_MARGIN:
+            if thraw >= 0 and thraw - pay > EVT3_HALF_RANGE:
                 loops += 1
             thraw = pay
             th = pay + 4096 * loops
@@ -125,7 +130,7 @@ def evt2_decode(w, state, x, y, t, p):
                 n += 1
         elif typ == 8:                    # EVT_TIME_HIGH (28 bits of 34: unwrap)
             raw = v & 0x0FFFFFFF
-            if thraw >= 0 and thraw - raw > LOOP_MARGIN:
+            if thraw >= 0 and thraw - raw > EVT2_HALF_RANGE:
                 loops += 1
             thraw = raw
             th = raw + (loops << 28)

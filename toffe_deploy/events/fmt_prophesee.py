@@ -23,8 +23,8 @@ EVT3;height=H;width=W`` or DAT's ``% Width W`` / ``% Height H``; a file with non
   x | y << 9 | p << 17 (version 1, and files that name no version, as Prophesee's loader reads them).
 
 Timestamps are in microseconds; a counter that wraps (EVT3's 24 bits every 16.8 s, EVT2's 34
-bits, DAT's 32 bits) is unwrapped (EVT: a time-high drop of more than evt_compiled.LOOP_MARGIN
-steps; DAT: a drop of more than half the range). Events before the first time base (EVT_TIME_HIGH) are dropped,
+bits, DAT's 32 bits) is unwrapped: a drop of more than half the counter's range is a wrap, a
+smaller one is reported as decreasing timestamps (evt_compiled.EVT3_HALF_RANGE, _Unwrap). Events before the first time base (EVT_TIME_HIGH) are dropped,
 as Prophesee's decoders do. A word type that the encoding does not define, or a truncated last
 word or record, is an InputError naming the byte offset.
 """
@@ -69,6 +69,9 @@ def read_header(path, fh) -> tuple[dict[str, str], int]:
         if not _header_line(line):
             if line.startswith(b"%") and len(line) >= MAX_HEADER_BYTES:
                 raise InputError(path, "header of '%' lines longer than 1 MiB: not a Prophesee file")
+            if not line.endswith(b"\n") and _header_line(line + b"\n") and not fh.read(1):
+                # the file ends inside a header line (a copy cut short): not an empty recording
+                raise InputError(path, f"ends inside its header, at byte {pos + len(line)} (truncated?)")
             break
         pos += len(line)
         if pos > MAX_HEADER_BYTES:
@@ -154,7 +157,8 @@ class _WordDecoder:
 
     def finish(self) -> None:
         if self._rest:
-            raise ValueError(f"ends inside a {self.name} word ({len(self._rest)} trailing bytes: truncated?)")
+            n = len(self._rest)
+            raise ValueError(f"ends inside an {self.name} word ({n} trailing byte{'s' if n != 1 else ''}: truncated?)")
 
 
 class Evt2Decoder(_WordDecoder):

@@ -33,6 +33,8 @@ class SequentialSource(EventSource):
     _cursor = None
     #: per packet with events: (restart point, events before it, last time before it, its last time)
     _points = None
+    #: whether the metadata pass found the events in time order (None: no pass yet)
+    _ordered = None
 
     @abc.abstractmethod
     def _packets(self, resume=None) -> Iterator[np.ndarray]:
@@ -78,8 +80,9 @@ class SequentialSource(EventSource):
             prev_t = int(ev["t"][-1])
             if prev_t < t_start:
                 continue
-            if int(ev["t"][0]) >= t_end:
-                return
+            if int(ev["t"][0]) >= t_end and self._ordered is not False:
+                return          # out of order (found unchecked by the metadata pass): read on, so the
+                                # check above names the disorder instead of the span ending early
             i0, i1 = np.searchsorted(ev["t"], [t_start, t_end], side="left")
             if i1 > i0:
                 yield ev[i0:i1]
@@ -100,6 +103,7 @@ class SequentialSource(EventSource):
                 offset += int(ev.shape[0])
                 yield ev
         self._meta = (offset, first if first is not None else 0, prev_t + 1 if prev_t is not None else 0)
+        self._ordered = ordered
         self._points = points if ordered and points and all(pt[0] is not None for pt in points) else None
 
     def read(self, t0, t1):
