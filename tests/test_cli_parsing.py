@@ -66,6 +66,12 @@ def test_run_refuses_an_unknown_live_scheme_and_nan_timeouts(capsys):
     rc, err = _error(capsys, ["run", "--events", "udp://127.0.0.1:9", "--sensor-size", "64x48", "--idle-timeout",
                               "nan"])
     assert rc == 2 and "finite" in err
+    rc, err = _error(capsys, ["run", "--events", "udp://127.0.0.1:99999", "--sensor-size", "64x48"])
+    assert rc == 2 and err.strip() == "toffe-deploy: error: udp://127.0.0.1:99999: port 99999 is out of range (0..65535)"
+    rc, err = _error(capsys, ["run", "--events", "udp://127.0.0.1:9", "--sensor-size", "64x48", "--queue-events", "0"])
+    assert rc == 2 and err.strip() == "toffe-deploy: error: --queue-events must be >= 1, got 0"
+    rc, err = _error(capsys, ["run", "--events", "udp://127.0.0.1:0", "--sensor-size", "40000x40000"])
+    assert rc == 2 and "reading" not in err and "larger than" in err and err.count("\n") == 1
 
 
 def test_convert_to_npz_says_what_it_cannot_keep(tmp_path, capsys):

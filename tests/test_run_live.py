@@ -131,12 +131,59 @@ def test_aer_words_round_trip_with_32_bit_wrap_and_without_timestamps():
         t = np.array([2**32 - 20, 2**32 - 1, 2**32 + 5, 2**33 - 3, 2**33 + 7], np.int64)
         ev = make_events([1, 63, 0, 17, 2], [47, 0, 5, 9, 3], t, [1, 0, 1, 0, 1])
         parts = [ev[:2], ev[2:3], ev[3:4], ev[4:]]                   # wraps between packets, twice
-        got = np.concatenate([src.decode(aer_words(p).tobytes(), 0.0) for p in parts])
+        arrivals = [0.0, 0.001, 4294.967, 4294.968]         # the third after 71.6 min of silence:
+        got = np.concatenate([src.decode(aer_words(p).tobytes(), a)   # forward, by the host's clock
+                              for p, a in zip(parts, arrivals)])
         for k in ("x", "y", "p"):
             assert np.array_equal(got[k], ev[k])
         assert np.array_equal(got["t"], t)                     # times unwrapped exactly
+    finally:
+        src.close()
+    src = UdpAerSource("udp://127.0.0.1:0", SENSOR)
+    try:
         plain = src.decode(aer_words(ev, timestamps=False).tobytes(), src._t0_host + 0.002)
         assert np.array_equal(plain["x"], ev["x"]) and (plain["t"] == 2000).all()
+    finally:
+        src.close()
+
+
+def test_udp_packets_reordered_across_the_32_bit_wrap_keep_their_times():
+    """A packet from before the wrap that arrives after one from after it: its times go back a
+    little, not 71.6 min on (which had counted the wrap twice: every later window 2**32 us late)."""
+    src = UdpAerSource("udp://127.0.0.1:0", SENSOR)
+    try:
+        t = 2**32 - 3000 + np.arange(0, 6000, 500, dtype=np.int64)      # 12 events across the wrap
+        ev = make_events(np.arange(12), np.arange(12), t, np.zeros(12, int))
+        parts = [ev[i:i + 2] for i in range(0, 12, 2)]
+        order = [0, 1, 3, 2, 4, 5]                                     # part 2 (before the wrap) comes after 3
+        assert t[5] < 2**32 <= t[6]
+        got = np.concatenate([src.decode(aer_words(parts[k]).tobytes(), 0.0) for k in order])
+        np.testing.assert_array_equal(got["t"], np.concatenate([parts[k]["t"] for k in order]))
+        started_after = UdpAerSource("udp://127.0.0.1:0", SENSOR)     # the stream began after the wrap:
+        try:                                                           # a late packet from before it is late
+            assert started_after.decode(aer_words(parts[3]).tobytes(), 0.0)["t"].tolist() == (t[6:8] - 2**32).tolist()
+            assert started_after.decode(aer_words(parts[0]).tobytes(), 0.0).shape[0] == 0
+            assert started_after.stats.late_events == 2
+        finally:
+            started_after.close()
+    finally:
+        src.close()
+
+
+def test_stray_udp_datagrams_are_dropped_and_counted_not_fatal():
+    """A datagram socket takes packets from anyone: a 4-byte word without its timestamp in a
+    timestamped stream failed the run (an index error), and a stray packet of the other form
+    moved the stream's clock (every later event late). Both are now invalid_events."""
+    src = UdpAerSource("udp://127.0.0.1:0", SENSOR)
+    try:
+        ev = make_events([1, 2, 3], [4, 5, 6], [5_000_000, 5_000_100, 5_000_200], [0, 1, 0])
+        assert src.decode(aer_words(ev[:1]).tobytes(), 0.0)["t"].tolist() == [5_000_000]
+        assert src.decode(np.array([0x00010002], "<u4").tobytes(), 0.0).shape[0] == 0       # one word, no time
+        assert src.decode(aer_words(ev[:1], timestamps=False).tobytes(), 1.0).shape[0] == 0   # the other form
+        odd = np.concatenate([aer_words(ev[1:2]), np.array([0x00030004], "<u4")])         # a pair + a word
+        assert src.decode(odd.tobytes(), 0.0)["t"].tolist() == [5_000_100]
+        assert src.decode(aer_words(ev[2:]).tobytes(), 0.0)["t"].tolist() == [5_000_200]
+        assert src.stats.invalid_events == 3
     finally:
         src.close()
 
@@ -300,24 +347,44 @@ def test_stdin_run_equals_the_file_run_from_the_first_event(env, tmp_path):
     assert b"toffe-deploy: reading - (stdin)" in r.stderr and b"no events arrived" not in r.stderr
 
 
-def test_a_live_run_that_gets_no_event_says_so(env, tmp_path):
-    """A sender started before the socket was open sends into nothing: the run says when it
-    reads (the line to wait for) and warns at the end that nothing came; --out holds the header."""
+def test_a_live_run_that_gets_no_event_is_an_error_that_leaves_out_as_it_was(env, tmp_path):
+    """A sender started before the socket was open sends into nothing: the run says when it reads
+    (the line to wait for), and a run that got no event is a one-line error, exit 2, with an
+    existing --out left as it was (it was replaced by a header-only file, exit 0)."""
     port = free_port()
+    out = tmp_path / "o.jsonl"
+    out.write_text("earlier results\n")
     r = subprocess.run(cli(env["bundle"], "--events", f"udp://127.0.0.1:{port}", "--sensor-size", "64x48",
-                           "--idle-timeout", "0.3", "--out", tmp_path / "o.jsonl"),
+                           "--idle-timeout", "0.3", "--out", out, "--summary-json", tmp_path / "s.json"),
                        capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
-    assert r.returncode == 0, r.stderr
-    err = r.stderr.decode()
-    assert f"toffe-deploy: reading udp://127.0.0.1:{port} (udp port {port})" in err
-    assert f"toffe-deploy: warning: no events arrived from udp://127.0.0.1:{port}" in err
-    assert "latency per window p50 -" in r.stdout.decode() + err
-    (head,) = (tmp_path / "o.jsonl").read_text().splitlines()
-    assert json.loads(head)["type"] == "header"
+    err = r.stderr.decode().strip().splitlines()
+    assert r.returncode == 2, err
+    assert f"toffe-deploy: reading udp://127.0.0.1:{port} (udp port {port})" in err[0]
+    assert err[-1] == (f"toffe-deploy: error: udp://127.0.0.1:{port}: no events arrived (a sender started before "
+                       "'reading ...' was printed sends into nothing) within --idle-timeout 0.3 s")
+    assert out.read_text() == "earlier results\n" and not (tmp_path / "s.json").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name not in ("o.jsonl",)]          # no temp file left
     r = subprocess.run(cli(env["bundle"], "--events", "-"), input=stdin_header(SENSOR),
                        capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
-    assert r.returncode == 0 and "toffe-deploy: warning: no events arrived from - (the stream held its header only)" \
-        in r.stderr.decode().splitlines()
+    assert r.returncode == 2 and r.stderr.decode().strip().splitlines()[-1] == \
+        "toffe-deploy: error: -: no events arrived (the stream held its header only)"
+
+
+def test_idle_timeout_ends_a_stdin_run_whose_producer_never_starts(env):
+    """--idle-timeout counts from the "reading" line; on stdin that line comes after the header,
+    so a producer that never writes one hung the run until it exited."""
+    p = subprocess.Popen(cli(env["bundle"], "--events", "-", "--idle-timeout", "0.5"), stdin=subprocess.PIPE,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=cli_env(), cwd=ROOT)
+    try:
+        p.wait(timeout=120)                                 # stdin stays open, nothing written
+        err = p.stderr.read()
+    finally:
+        p.kill()
+        p.stdin.close()
+        p.stderr.close()
+    assert p.returncode == 2 and err.decode().strip().splitlines() == [
+        "toffe-deploy: error: -: nothing arrived on stdin within --idle-timeout 0.5 s (expected a binary "
+        "event stream: README, Live sources)"]
 
 
 def _paced_stdin(ev, pieces, pause_s, stall_after=None):

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from ..config import MAX_SENSOR_PIXELS, sensor_too_large
-from ..errors import InputError, ToffeError, warn
+from ..errors import InputError, ToffeError
 from ..events.live import GRACE_S, QUEUE_EVENTS, is_live
 from ..signals import signal_behind, signals_deferred
 from . import add_progress_flag, show_progress, slow_notice
@@ -300,6 +300,8 @@ def run_command(args) -> int:
         raise ToffeError(f"{', '.join(live_only)} appl{'ies' if len(live_only) == 1 else 'y'} to live sources "
                          f"(--events -, udp://, dv://, dv-camera); a file is read at its own pace")
     args.queue_events = QUEUE_EVENTS if args.queue_events is None else args.queue_events
+    if args.queue_events < 1:
+        raise ToffeError(f"--queue-events must be >= 1, got {args.queue_events}")
     args.idle_timeout = 0.0 if args.idle_timeout is None else args.idle_timeout
     args.window_grace_ms = GRACE_S * 1e3 if args.window_grace_ms is None else args.window_grace_ms
     if not all(math.isfinite(v) and v >= 0 for v in (args.idle_timeout, args.window_grace_ms)):
@@ -322,6 +324,9 @@ def run_command(args) -> int:
     src = open_source(args, cfg.sensor_size)
     live = getattr(src, "live", False)
     with src:
+        sensor = tuple(src.sensor_size)
+        if sensor[0] * sensor[1] > MAX_SENSOR_PIXELS:       # before a live source says it reads
+            raise ToffeError(f"{args.events or 'the recording'}: {sensor_too_large(sensor)}")
         if live:        # read from now on, into the bounded queue: not into a socket buffer that
             src.start()  # overflows while the pipeline starts, nor with a clock anchored late
             udp = hasattr(src, "port")
@@ -329,9 +334,6 @@ def run_command(args) -> int:
             # a datagram sent before the socket is open is gone; a pipe keeps what was written early
             print(f"toffe-deploy: reading {args.events} ({where})"
                   + ("; events sent before this line are lost" if udp else ""), file=sys.stderr, flush=True)
-        sensor = tuple(src.sensor_size)
-        if sensor[0] * sensor[1] > MAX_SENSOR_PIXELS:
-            raise ToffeError(f"{args.events or 'the recording'}: {sensor_too_large(sensor)}")
         camera = resolve_camera(cfg, sensor, depth_m=args.depth_m, focal_px=args.focal_px, hfov_deg=args.hfov_deg,
                                 synthetic_focal_px=src.attrs.get("focal_px") if args.synthetic else None,
                                 sensor_from=sensor_origin(args, src))
@@ -465,7 +467,8 @@ def run_command(args) -> int:
                             bar.update(1)
                 interrupted = stop.interrupted
                 summary.wall_s = time.perf_counter() - t_run
-                head = head and write_header(sink, head)
+                never_sent = live and not src.stats.received_events     # --out stays as it was
+                head = head and not never_sent and write_header(sink, head)
                 if dump is not None:
                     dump.write()
             ok = True
@@ -474,9 +477,13 @@ def run_command(args) -> int:
                 renderer.close(ok)
         if live:
             summary.live = src.stats_json()
-            if not summary.live.get("received_events"):
-                warn(f"no events arrived from {args.events}" + (" (the stream held its header only)" if args.events == "-"
-                     else " (a sender started before 'reading ...' was printed sends into nothing)"))
+            if never_sent and not interrupted:       # a sender that never started, or sent before the socket was open
+                invalid = summary.live.get("invalid_events", 0)
+                raise InputError(args.events, "no events arrived" + (
+                    f" ({invalid:,} invalid ones dropped: addresses outside the {sensor[0]}x{sensor[1]} sensor, "
+                    "stray datagrams)" if invalid else " (the stream held its header only)" if args.events == "-"
+                    else " (a sender started before 'reading ...' was printed sends into nothing)")
+                    + (f" within --idle-timeout {args.idle_timeout:g} s" if args.idle_timeout else ""))
     if errors is not None:
         summary.errors = errors.summary()
         if tracking is not None:

@@ -247,7 +247,10 @@ class LiveSource(abc.ABC):
             self.queue.close()
 
     def start(self) -> None:
+        """Start reading into the queue; ``idle_timeout_s`` counts from here until the first event
+        (`run` prints its "reading ..." line right after)."""
         if self._thread is None:
+            self._opened = time.perf_counter()
             self._thread = threading.Thread(target=self._run, name=f"live {self.path}", daemon=True)
             self._thread.start()
 
@@ -294,7 +297,6 @@ class LiveSource(abc.ABC):
         part of a window, so `run` passes ``include_incomplete=False`` to drop it (counted in
         ``stats.incomplete_events``), as it drops a file's last partial window."""
         dt_us = int(dt_us)
-        self._opened = time.perf_counter()
         self.start()
         buf = np.empty(0, EVENT_DTYPE)
         exhausted = False
@@ -401,6 +403,10 @@ class StdinSource(LiveSource):
         self.fd = sys.stdin.fileno() if fd is None else fd
         if os.isatty(self.fd):
             raise InputError("-", "stdin is a terminal: pipe a binary event stream in (README: Live sources)")
+        wait = float(kw.get("idle_timeout_s") or 0.0)
+        if wait and not select.select([self.fd], [], [], wait)[0]:   # a producer that never starts
+            raise InputError("-", f"nothing arrived on stdin within --idle-timeout {wait:g} s "
+                                  "(expected a binary event stream: README, Live sources)")
         head = self._read_exact(STDIN_HEADER.size)
         if not head:
             raise InputError("-", "stdin is empty: expected a binary event stream (README: Live sources)")
@@ -445,6 +451,8 @@ def _host_port(spec: str, scheme: str) -> tuple[str, int]:
         port_n = int(port)
     except ValueError:
         port_n = -1
+    if sep and host and port.isdigit() and port_n >= 65536:
+        raise InputError(spec, f"port {port_n} is out of range (0..65535)")
     if not sep or not host or not 0 <= port_n < 65536:
         raise InputError(spec, f"expected {scheme}HOST:PORT, e.g. {scheme}127.0.0.1:3333")
     return host.strip("[]"), port_n
@@ -474,25 +482,54 @@ class UdpAerSource(LiveSource):
             raise InputError(spec, f"cannot listen: {exc.strerror or exc}") from None
         self.sock.settimeout(_POLL_S)
         self.port = self.sock.getsockname()[1]
-        self._wraps = 0
-        self._last32: int | None = None
+        self._stamped: bool | None = None      # the stream's form, from its first datagram
+        self._last32: int | None = None        # the last word's raw 32-bit time, and unwrapped
+        self._last_unwrapped = 0
+        self._last_datagram = 0.0              # host time of the last timestamped datagram
         self._t0_host = time.perf_counter()
 
     def decode(self, packet: bytes, arrival: float) -> np.ndarray:
-        """One packet's words as EVENT_DTYPE (a trailing partial word is ignored)."""
+        """One packet's words as EVENT_DTYPE (a trailing partial word is ignored).
+
+        The stream's first datagram fixes its form (bit 31 of its first word: 1 = no timestamps);
+        a later datagram of the other form, and a timestamped one's last word without its
+        timestamp, are dropped and counted as ``invalid_events`` (a datagram socket takes packets
+        from anyone: one stray packet ended the run, or moved the stream's clock so that every
+        later event came late). Timestamps are unwrapped word by word: each step from the
+        previous word is taken as the one of the two readings, forward or back, under half the
+        32-bit range, so a packet from before a wrap that comes after one is put back before it
+        (taking every drop of more than 2**31 as a wrap had counted that wrap twice: every later
+        window 71.6 min late); across a silence of more than half the range the host's arrival
+        times decide (``arrival``, perf_counter seconds). Events that fall before 0 (a packet
+        from before a wrap the stream began after) are dropped as ``late_events``."""
         words = np.frombuffer(packet, "<u4", count=len(packet) // 4)
         if not words.size:
             return np.empty(0, EVENT_DTYPE)
-        if words[0] >> 31:                                  # no timestamps: arrival time
+        stamped = not words[0] >> 31
+        if self._stamped is None:
+            self._stamped = stamped
+        if stamped != self._stamped:
+            self.stats.invalid_events += int(words.size if not stamped else words.size // 2)
+            return np.empty(0, EVENT_DTYPE)
+        if not stamped:                                     # no timestamps: arrival time
             addr = words
             t = np.full(words.size, round((arrival - self._t0_host) * 1e6), np.int64)
         else:
+            self.stats.invalid_events += int(words.size % 2)   # an address without its time
             addr, t32 = words[0:words.size // 2 * 2:2], words[1::2].astype(np.int64)
-            prev = t32[0] if self._last32 is None else self._last32
-            wrapped = np.diff(np.concatenate([[prev], t32])) < -(1 << 31)
-            t = t32 + (self._wraps + np.cumsum(wrapped)) * (1 << 32)
-            self._wraps += int(wrapped.sum())
-            self._last32 = int(t32[-1])
+            if not t32.size:
+                return np.empty(0, EVENT_DTYPE)
+            prev, base = (int(t32[0]), int(t32[0])) if self._last32 is None else (self._last32, self._last_unwrapped)
+            step = (np.diff(t32, prepend=prev) + (1 << 31)) % (1 << 32) - (1 << 31)
+            if self._last32 is not None:        # after a silence of over half the range (35.8 min) the
+                silent_us = (arrival - self._last_datagram) * 1e6     # host clock says which way it went
+                step[0] += round((silent_us - step[0]) / (1 << 32)) * (1 << 32)
+            t = base + np.cumsum(step)
+            self._last32, self._last_unwrapped, self._last_datagram = int(t32[-1]), int(t[-1]), arrival
+            if t[0] < 0 or t.min() < 0:                     # from before a wrap that the stream began after:
+                keep = t >= 0                               # before its first event, so late
+                self.stats.late_events += int((~keep).sum())
+                addr, t = addr[keep], t[keep]
         out = np.empty(addr.size, EVENT_DTYPE)
         out["x"] = (addr >> 16) & 0x7FFF
         out["y"] = addr & 0x7FFF
