@@ -177,13 +177,24 @@ def test_stray_udp_datagrams_are_dropped_and_counted_not_fatal():
     src = UdpAerSource("udp://127.0.0.1:0", SENSOR)
     try:
         ev = make_events([1, 2, 3], [4, 5, 6], [5_000_000, 5_000_100, 5_000_200], [0, 1, 0])
+        stray = make_events([500], [1], [0], [0])             # outside the 64x48 sensor: fixes nothing
+        assert src.decode(aer_words(stray, timestamps=False).tobytes(), 0.0).shape[0] == 0
         assert src.decode(aer_words(ev[:1]).tobytes(), 0.0)["t"].tolist() == [5_000_000]
         assert src.decode(np.array([0x00010002], "<u4").tobytes(), 0.0).shape[0] == 0       # one word, no time
         assert src.decode(aer_words(ev[:1], timestamps=False).tobytes(), 1.0).shape[0] == 0   # the other form
         odd = np.concatenate([aer_words(ev[1:2]), np.array([0x00030004], "<u4")])         # a pair + a word
         assert src.decode(odd.tobytes(), 0.0)["t"].tolist() == [5_000_100]
         assert src.decode(aer_words(ev[2:]).tobytes(), 0.0)["t"].tolist() == [5_000_200]
-        assert src.stats.invalid_events == 3
+        assert src.stats.invalid_events == 4
+    finally:
+        src.close()
+    src = UdpAerSource("udp://127.0.0.1:0", SENSOR)      # a stray first datagram inside the sensor:
+    try:                                                 # outvoted by the stream's first one
+        assert src.decode(aer_words(ev[:1], timestamps=False).tobytes(), src._t0_host + 0.5)["t"].tolist() == [500_000]
+        assert src.decode(aer_words(ev[:2]).tobytes(), 0.0)["t"].tolist() == [5_000_000, 5_000_100]
+        assert src.decode(aer_words(ev[:1], timestamps=False).tobytes(), 0.0).shape[0] == 0
+        assert src.decode(aer_words(ev[2:]).tobytes(), 0.0)["t"].tolist() == [5_000_200]
+        assert src.stats.invalid_events == 1
     finally:
         src.close()
 

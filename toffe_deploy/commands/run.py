@@ -85,9 +85,10 @@ def register(sub) -> None:
                         f"arrive the oldest chunks are dropped and counted, except on stdin, whose reader "
                         f"waits (a pipe pushes back; a larger read goes in alone) (default: {QUEUE_EVENTS})")
     p.add_argument("--idle-timeout", type=float, default=None, metavar="S",
-                   help="live sources: end the run after S seconds without an event, counted from the source's "
-                        "opening until its first event, then from the latest (default: 0, never; stdin ends at "
-                        "end of file, dv:// when the sender stops, every source on Ctrl-C)")
+                   help="live sources: end the run after S seconds without an event, counted from the end of "
+                        "the run's start-up until the first event, then from the latest; on stdin also the wait "
+                        "for the stream's header (default: 0, never; stdin ends at end of file, dv:// when the "
+                        "sender stops, every source on Ctrl-C)")
     p.add_argument("--window-grace-ms", type=float, default=None, metavar="MS",
                    help=f"live sources: how long past a window's end (in host time, the source's clock mapped "
                         f"at its first event) the run waits for late events when nothing newer came; events "

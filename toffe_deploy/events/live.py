@@ -107,7 +107,7 @@ class LiveStats:
     dropped_windows: int = 0        # windows jumped over after a drop (their events are gone: no line)
     late_events: int = 0
     reordered_events: int = 0       # came after a later-stamped event but in time: sorted into their window
-    invalid_events: int = 0         # UDP: addresses outside the sensor (dropped, not fatal)
+    invalid_events: int = 0         # UDP: addresses outside the sensor, stray datagrams (dropped, not fatal)
     socket_drops: int = 0           # UDP: datagrams the kernel dropped (socket buffer full; Linux)
     incomplete_events: int = 0      # the stream ended inside its last window: its events, not processed
     queue_events: int = 0
@@ -247,10 +247,7 @@ class LiveSource(abc.ABC):
             self.queue.close()
 
     def start(self) -> None:
-        """Start reading into the queue; ``idle_timeout_s`` counts from here until the first event
-        (`run` prints its "reading ..." line right after)."""
         if self._thread is None:
-            self._opened = time.perf_counter()
             self._thread = threading.Thread(target=self._run, name=f"live {self.path}", daemon=True)
             self._thread.start()
 
@@ -297,7 +294,8 @@ class LiveSource(abc.ABC):
         part of a window, so `run` passes ``include_incomplete=False`` to drop it (counted in
         ``stats.incomplete_events``), as it drops a file's last partial window."""
         dt_us = int(dt_us)
-        self.start()
+        self._opened = time.perf_counter()      # idle_timeout_s counts from here: the run is ready (its
+        self.start()                            # start-up, after the "reading" line, does not count)
         buf = np.empty(0, EVENT_DTYPE)
         exhausted = False
         t0 = None if t_start is None else int(t_start)
@@ -482,7 +480,7 @@ class UdpAerSource(LiveSource):
             raise InputError(spec, f"cannot listen: {exc.strerror or exc}") from None
         self.sock.settimeout(_POLL_S)
         self.port = self.sock.getsockname()[1]
-        self._stamped: bool | None = None      # the stream's form, from its first datagram
+        self._form_events = {True: 0, False: 0}   # events taken in datagrams with / without timestamps
         self._last32: int | None = None        # the last word's raw 32-bit time, and unwrapped
         self._last_unwrapped = 0
         self._last_datagram = 0.0              # host time of the last timestamped datagram
@@ -491,34 +489,47 @@ class UdpAerSource(LiveSource):
     def decode(self, packet: bytes, arrival: float) -> np.ndarray:
         """One packet's words as EVENT_DTYPE (a trailing partial word is ignored).
 
-        The stream's first datagram fixes its form (bit 31 of its first word: 1 = no timestamps);
-        a later datagram of the other form, and a timestamped one's last word without its
-        timestamp, are dropped and counted as ``invalid_events`` (a datagram socket takes packets
-        from anyone: one stray packet ended the run, or moved the stream's clock so that every
-        later event came late). Timestamps are unwrapped word by word: each step from the
-        previous word is taken as the one of the two readings, forward or back, under half the
-        32-bit range, so a packet from before a wrap that comes after one is put back before it
-        (taking every drop of more than 2**31 as a wrap had counted that wrap twice: every later
-        window 71.6 min late); across a silence of more than half the range the host's arrival
-        times decide (``arrival``, perf_counter seconds). Events that fall before 0 (a packet
-        from before a wrap the stream began after) are dropped as ``late_events``."""
+        A datagram socket takes packets from anyone, so what cannot be the stream's is dropped
+        and counted as ``invalid_events``: addresses outside the sensor, a timestamped datagram's
+        last word without its time, and a datagram of the stream's other form (bit 31 of its
+        first word: 1 = no timestamps) unless it brings that form more events than the stream's
+        form has had so far (the first datagrams decide, and a stray first one is outvoted by
+        the stream's next one; one stray packet had ended the run, or moved the stream's clock so
+        that every later event came late). A datagram of the stream's own form with a wrong time
+        cannot be told from a real one. The times of the kept words are
+        unwrapped step by step: each step from the previous kept word is taken as the one of its
+        two readings, forward or back, under half the 32-bit range, so a datagram from before a
+        wrap that comes after one is put back before it (taking every drop of more than 2**31 as
+        a wrap had counted that wrap twice: every later window 71.6 min late); across a silence
+        of more than half the range the host's arrival times decide (``arrival``, perf_counter
+        seconds). Events that fall before 0 (a datagram from before a wrap the stream began
+        after) are dropped as ``late_events``."""
         words = np.frombuffer(packet, "<u4", count=len(packet) // 4)
         if not words.size:
             return np.empty(0, EVENT_DTYPE)
         stamped = not words[0] >> 31
-        if self._stamped is None:
-            self._stamped = stamped
-        if stamped != self._stamped:
-            self.stats.invalid_events += int(words.size if not stamped else words.size // 2)
-            return np.empty(0, EVENT_DTYPE)
-        if not stamped:                                     # no timestamps: arrival time
-            addr = words
-            t = np.full(words.size, round((arrival - self._t0_host) * 1e6), np.int64)
-        else:
+        addr = words[0:words.size // 2 * 2:2] if stamped else words
+        if stamped:
             self.stats.invalid_events += int(words.size % 2)   # an address without its time
-            addr, t32 = words[0:words.size // 2 * 2:2], words[1::2].astype(np.int64)
-            if not t32.size:
+            if not addr.size:
                 return np.empty(0, EVENT_DTYPE)
+        x, y = (addr >> 16) & 0x7FFF, addr & 0x7FFF
+        ok = (x < self.sensor_size[0]) & (y < self.sensor_size[1])
+        if not ok.all():
+            self.stats.invalid_events += int((~ok).sum())
+            if not ok.any():
+                return np.empty(0, EVENT_DTYPE)     # neither the stream's form nor its clock comes from it
+            addr, x, y = addr[ok], x[ok], y[ok]
+        mine, other = self._form_events[stamped], self._form_events[not stamped]
+        if other and mine + addr.size <= other:             # the other form's stream: a stray
+            self.stats.invalid_events += int(addr.size)
+            return np.empty(0, EVENT_DTYPE)
+        self._form_events[stamped] = mine + int(addr.size)
+        if not stamped:                                     # no timestamps: arrival time
+            t = np.full(addr.size, round((arrival - self._t0_host) * 1e6), np.int64)
+        else:
+            t32 = words[1::2].astype(np.int64)
+            t32 = t32 if t32.size == ok.size and ok.all() else t32[ok]
             prev, base = (int(t32[0]), int(t32[0])) if self._last32 is None else (self._last32, self._last_unwrapped)
             step = (np.diff(t32, prepend=prev) + (1 << 31)) % (1 << 32) - (1 << 31)
             if self._last32 is not None:        # after a silence of over half the range (35.8 min) the
@@ -526,19 +537,12 @@ class UdpAerSource(LiveSource):
                 step[0] += round((silent_us - step[0]) / (1 << 32)) * (1 << 32)
             t = base + np.cumsum(step)
             self._last32, self._last_unwrapped, self._last_datagram = int(t32[-1]), int(t[-1]), arrival
-            if t[0] < 0 or t.min() < 0:                     # from before a wrap that the stream began after:
+            if t.min() < 0:                                 # from before a wrap that the stream began after:
                 keep = t >= 0                               # before its first event, so late
                 self.stats.late_events += int((~keep).sum())
-                addr, t = addr[keep], t[keep]
+                addr, x, y, t = addr[keep], x[keep], y[keep], t[keep]
         out = np.empty(addr.size, EVENT_DTYPE)
-        out["x"] = (addr >> 16) & 0x7FFF
-        out["y"] = addr & 0x7FFF
-        out["p"] = (addr >> 15) & 1
-        out["t"] = t
-        ok = (out["x"] < self.sensor_size[0]) & (out["y"] < self.sensor_size[1])
-        if not ok.all():
-            self.stats.invalid_events += int((~ok).sum())
-            out = out[ok]
+        out["x"], out["y"], out["p"], out["t"] = x, y, (addr >> 15) & 1, t
         return out
 
     def _produce(self) -> None:

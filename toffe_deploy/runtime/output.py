@@ -280,7 +280,7 @@ def live_line(stats: dict, latencies_s: list[float]) -> str:
                else "")
             + (f"; {stats['dropped_windows']} windows whose events were dropped jumped over (no JSON line, "
                "not counted as sensor time done)" if stats.get("dropped_windows") else "")
-            + (f", {stats['invalid_events']} outside the sensor" if stats.get("invalid_events") else "")
+            + (f", {stats['invalid_events']} invalid (outside the sensor, stray datagrams)" if stats.get("invalid_events") else "")
             + (f"; the stream ended inside its last window: its {stats['incomplete_events']} events not processed "
                "(--include-incomplete processes them)" if stats.get("incomplete_events") else "")
             + (f", {stats['socket_drops']} datagrams dropped by the kernel (socket buffer full)"
