@@ -188,13 +188,24 @@ def test_stray_udp_datagrams_are_dropped_and_counted_not_fatal():
         assert src.stats.invalid_events == 4
     finally:
         src.close()
-    src = UdpAerSource("udp://127.0.0.1:0", SENSOR)      # a stray first datagram inside the sensor:
-    try:                                                 # outvoted by the stream's first one
-        assert src.decode(aer_words(ev[:1], timestamps=False).tobytes(), src._t0_host + 0.5)["t"].tolist() == [500_000]
-        assert src.decode(aer_words(ev[:2]).tobytes(), 0.0)["t"].tolist() == [5_000_000, 5_000_100]
-        assert src.decode(aer_words(ev[:1], timestamps=False).tobytes(), 0.0).shape[0] == 0
-        assert src.decode(aer_words(ev[2:]).tobytes(), 0.0)["t"].tolist() == [5_000_200]
-        assert src.stats.invalid_events == 1
+    src = UdpAerSource("udp://127.0.0.1:0", SENSOR)      # a stray first datagram inside the sensor: held,
+    try:                                                 # then outvoted by the stream's first one
+        t0 = src._t0_host
+        assert src.receive(aer_words(ev[:1], timestamps=False).tobytes(), t0 + 0.5) == []
+        (got,) = src.receive(aer_words(ev[:2]).tobytes(), t0 + 0.51)
+        assert got["t"].tolist() == [5_000_000, 5_000_100] and src.stats.invalid_events == 1
+        assert src.receive(None, t0 + 0.6) == []
+        assert [e.shape[0] for e in src.receive(aer_words(ev[:1], timestamps=False).tobytes(), t0 + 0.7)] == [0]
+        assert [e["t"].tolist() for e in src.receive(aer_words(ev[2:]).tobytes(), t0 + 0.8)] == [[5_000_200]]
+        assert src.stats.invalid_events == 2
+    finally:
+        src.close()
+    src = UdpAerSource("udp://127.0.0.1:0", SENSOR)      # a real first datagram: confirmed by the next
+    try:                                                 # one, or pushed after FIRST_HOLD_S alone
+        t0 = src._t0_host
+        assert src.receive(aer_words(ev[:1]).tobytes(), t0) == [] and src.receive(None, t0 + 0.01) == []
+        assert [e["t"].tolist() for e in src.receive(None, t0 + 1.0)] == [[5_000_000]]
+        assert [e["t"].tolist() for e in src.receive(aer_words(ev[1:]).tobytes(), t0 + 1.1)] == [[5_000_100, 5_000_200]]
     finally:
         src.close()
 

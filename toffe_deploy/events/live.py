@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import abc
 import collections
+import math
 import os
 import select
 import socket
@@ -456,6 +457,21 @@ def _host_port(spec: str, scheme: str) -> tuple[str, int]:
     return host.strip("[]"), port_n
 
 
+#: How long `udp://` holds its first datagram for the next one to confirm its form (UdpAerSource.receive).
+FIRST_HOLD_S = 0.05
+
+
+def _form(packet: bytes) -> bool:
+    """Whether an AER datagram carries timestamps (bit 31 of its first word clear)."""
+    return len(packet) >= 4 and not packet[3] >> 7
+
+
+def _addresses(packet: bytes) -> int:
+    """The number of event addresses in an AER datagram (pairs of words when timestamped)."""
+    n = len(packet) // 4
+    return n // 2 if _form(packet) else n
+
+
 class UdpAerSource(LiveSource):
     """``--events udp://HOST:PORT``: listens on HOST:PORT for aestream's UDP AER packets
     (``aestream input ... output udp HOST PORT [--include-timestamp true]``; see ``aer_words``).
@@ -481,6 +497,7 @@ class UdpAerSource(LiveSource):
         self.sock.settimeout(_POLL_S)
         self.port = self.sock.getsockname()[1]
         self._form_events = {True: 0, False: 0}   # events taken in datagrams with / without timestamps
+        self._held: tuple[bytes, float] | None = None   # the first datagram, until the next (receive)
         self._last32: int | None = None        # the last word's raw 32-bit time, and unwrapped
         self._last_unwrapped = 0
         self._last_datagram = 0.0              # host time of the last timestamped datagram
@@ -545,17 +562,41 @@ class UdpAerSource(LiveSource):
         out["x"], out["y"], out["p"], out["t"] = x, y, (addr >> 15) & 1, t
         return out
 
+    def receive(self, packet: bytes | None, arrival: float) -> list[np.ndarray]:
+        """The events to push for a datagram (``packet``; None: a poll with none). The stream's
+        first datagram with an event is held until the next one, or FIRST_HOLD_S: if the next is
+        of the other form and brings more events, the first was a stray and is dropped (it would
+        have been the stream's first event, and every real one after it late or far off)."""
+        if self._held is not None:
+            held, at = self._held
+            if packet is None and arrival - at < FIRST_HOLD_S:
+                return []
+            self._held = None
+            if packet is not None and _form(packet) != _form(held) and _addresses(packet) > _addresses(held):
+                self.stats.invalid_events += _addresses(held)      # outvoted before it was decoded
+                return [self.decode(packet, arrival)]
+            return [self.decode(held, at)] + ([] if packet is None else [self.decode(packet, arrival)])
+        if packet is None:
+            return []
+        if not any(self._form_events.values()) and _addresses(packet):
+            self._held = (packet, arrival)
+            return []
+        return [self.decode(packet, arrival)]
+
     def _produce(self) -> None:
         while not self._stop.is_set():
             try:
                 packet = self.sock.recv(1 << 16)
             except socket.timeout:
-                continue
+                packet = None
             except OSError:
                 if self._stop.is_set():
                     return
                 raise
-            self._push(self.decode(packet, time.perf_counter()))
+            for ev in self.receive(packet, time.perf_counter()):
+                self._push(ev)
+        for ev in self.receive(None, math.inf):          # a held first datagram, at the end
+            self._push(ev)
 
     def _socket_drops(self) -> int:
         """Datagrams the kernel dropped on our socket (/proc/net/udp's last column; 0 elsewhere)."""
