@@ -125,6 +125,8 @@ CASES = [
     ("bench_parts", ["--repeats", "0"]), ("bench_parts", ["--core", "-1"]), ("bench_parts", ["--core", "100000"]),
     ("bench_features", ["--repeats", "0"]), ("bench_features", ["--features", "faint,nosuch"]),
     ("bench_features", ["--features", ""]), ("bench_features", ["--events", MISSING]),
+    ("bench_processes", ["--rounds", "0"]), ("bench_processes", ["--seconds", "0"]),
+    ("bench_processes", ["--events", MISSING]), ("bench_processes", ["--out", "/tmp"]),
     ("train_asnet", ["--eval-only", "--eval-windows", "0"]), ("train_asnet", ["--cost-windows", "0"]),
     ("train_asnet", ["--limit", "0"]), ("train_asnet", ["--downsample", "0"]),
     ("bench_run", ["--targets", "foo"]), ("bench_run", ["--repeats", "0"]), ("bench_run", ["--dense-windows", "0"]),
@@ -169,6 +171,7 @@ def test_bench_lava_bad_options(capsys):
 def test_missing_bundle_is_one_line(tmp_path, capsys):
     for script, argv in (("bench_parts", ["--bundle", str(tmp_path)]), ("bench_run", ["--bundle", str(tmp_path)]),
                          ("bench_features", ["--bundle", str(tmp_path)]),
+                         ("bench_processes", ["--bundle", str(tmp_path)]),
                          ("bench_tracking", ["--bundle", str(tmp_path)]),
                          ("live_latency", ["--bundle", str(tmp_path)]), ("nir_check", [str(tmp_path)])):
         rc = _main_rc(_load(script), argv)

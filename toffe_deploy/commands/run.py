@@ -119,6 +119,11 @@ def register(sub) -> None:
     p.add_argument("--ofpd", choices=("fp32", "fp16", "int8"), default="fp32",
                    help="OFPD model of the bundle: fp32 (default, the reference) or the fp16 / int8 variant "
                         "written by `toffe-deploy export --variants`")
+    p.add_argument("--processes", type=int, choices=(1, 2), default=1,
+                   help="host processes for the cpu and cuda targets: 2 runs the front end, the OFS cascade and "
+                        "the grouping of the next window in a second process while this one runs the OFPD, the "
+                        "plane fit, the tracker and the output of the window before; bit exact with 1, about "
+                        "1.5x the windows/s on two free cores (README: Speed); default: 1")
     p.add_argument("--no-track", action="store_true",
                    help="do not track objects over the windows (no track_id / track in the JSON lines, no "
                         "tracking metrics); tracking is on by default (toffe_deploy/tracking.py)")
@@ -316,6 +321,10 @@ def run_command(args) -> int:
         raise ToffeError("--theme sets the --render frames' background: add --render DIR")
     if args.out == "-" or _is_stdout(args.out):
         args.out = None                              # stdout, as --events - is stdin (the summary goes to stderr)
+    if args.processes == 2 and (args.target not in ("cpu", "cuda") or args.dump_spikes):
+        raise ToffeError("--processes 2 splits the host steps of --target cpu and cuda" +
+                         (", without --dump-spikes" if args.target in ("cpu", "cuda") else
+                          f"; the {args.target} target's cascade runs in Lava's own processes"))
     if args.tag != "fixed_pt" and args.target in ("cpu", "cuda"):
         raise ToffeError(f"--tag {args.tag} selects Lava process models: it applies to --target loihi-sim or loihi2; "
                          f"the {args.target} target runs the fixed-point OFS")
@@ -422,7 +431,8 @@ def run_command(args) -> int:
         with slow_notice(args, "toffe-deploy: loading the compiled kernels (the first run on a machine "
                                "compiles them: about 2 minutes, once)"):
             pipe = Pipeline(bundle, args.target, tag=args.tag, ofpd_variant=args.ofpd, sensor_size=sensor,
-                            speed_scale=camera.scale, keep_stages=dump is not None, track=not args.no_track)
+                            speed_scale=camera.scale, keep_stages=dump is not None, track=not args.no_track,
+                            processes=args.processes)
         tracking = None
         if errors is not None and pipe.tracker is not None:
             from ..tracking_metrics import TrackingErrors

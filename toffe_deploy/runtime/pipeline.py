@@ -222,16 +222,25 @@ class Pipeline:
     def __init__(self, bundle, target: str = "cpu", tag: str = "fixed_pt", ofpd_threads: int | None = 1,
                  ofpd_variant: str = "fp32", sensor_size: tuple[int, int] | None = None,
                  speed_scale: SpeedScale | None = None, keep_stages: bool = False,
-                 track: "bool | TrackerConfig" = True):
+                 track: "bool | TrackerConfig" = True, processes: int = 1):
         """keep_stages: each WindowResult also carries the masked input and the output spikes of
         every OFS stage as dense arrays (``stages``; for `run --dump-spikes`: about 18 MB per
-        640x480 window, so for short runs only)."""
+        640x480 window, so for short runs only). processes: 2 runs the front end, the cascade
+        and the grouping of the next window in a second process while this one runs the OFPD
+        and what follows (cpu and cuda targets; runtime/split.py), bit exact with 1."""
         if target not in TARGETS:
             raise ValueError(f"unknown target {target!r}; choose one of {', '.join(TARGETS)}")
         if tag not in TAGS:
             raise ValueError(f"unknown tag {tag!r}; choose one of {', '.join(TAGS)}")
         if not (isinstance(track, (bool, np.bool_, TrackerConfig)) or track is None):
             raise ValueError(f"track must be True, False or a TrackerConfig, got {track!r}")
+        if processes not in (1, 2) or isinstance(processes, bool):
+            raise ValueError(f"processes must be 1 or 2, got {processes!r}")
+        if processes == 2 and (target not in ("cpu", "cuda") or keep_stages):
+            raise ValueError("processes=2 splits the host steps of the cpu and cuda targets (not the Lava "
+                             "targets, and not with keep_stages / --dump-spikes)")
+        self.processes = int(processes)
+        self._split = None
         if speed_scale is not None and not isinstance(speed_scale, SpeedScale):
             raise ValueError(f"speed_scale must be a toffe_deploy.camera.SpeedScale(focal_px, depth_m), got {speed_scale!r}")
         if not hasattr(bundle, "config"):              # a bundle's directory, as FlowStream takes
@@ -287,6 +296,8 @@ class Pipeline:
             self.ones_history.reset()
         if self.faint is not None:
             self.faint.reset()
+        if getattr(self, "_split", None) is not None:
+            self._split.reset()                  # the front end's history lives in the second process
         settings = self._track if isinstance(self._track, TrackerConfig) else None
         self.tracker = (Tracker(self.config, self.config.dt_us, settings, self.speed_scale.px_ms_per_mps)
                         if self._track is not False and self._track is not None else None)
@@ -296,11 +307,25 @@ class Pipeline:
         recent: the front end's history after it (objects_of); pixels: the window's event pixels
         before the front end (ofpd.faint_objects). Windows come here in time order on every
         target, so the plane fit's history and the faint objects' density take this window here."""
+        return self._result_of_batch(t0, volume, self.batch(volume, frames, recent), pixels, **kw)
+
+    def batch(self, volume: SpikeVolume, frames, recent=None) -> tuple:
+        """ofpd_input.batch of a window's ones and stage frames with this Pipeline's settings:
+        (stage_k, OFPD input, n_events, ones) of its objects (what objects_of runs first)."""
+        return ofpd_input.batch(volume, frames, self.config, self._scratch, recent, self._batch)
+
+    def _result_of_batch(self, t0: int, volume: SpikeVolume, batch: tuple, pixels=None, ofpd_out=None,
+                         **kw) -> "WindowResult":
+        """_result from the window's ``batch`` (Pipeline.batch): the OFPD (or its output
+        ``ofpd_out``, where the batch's OFPD input stayed in split.py's second process), the plane
+        fit, the faint objects and the tracker, in window order."""
         if self.ones_history is not None:
             self.ones_history.push(t0, volume.idx, (volume.bc, volume.pix))
         tracker = self.tracker
-        objects = self.objects_of(volume, frames, None if tracker is None else t0, recent,
-                                  faint=None if self.faint is None else (t0, pixels))
+        t_track, faint = None if tracker is None else t0, None if self.faint is None else (t0, pixels)
+        ks, x, n_events, ones = batch
+        objects = (self.objects_of_batch(ks, x, n_events, ones, t_track, faint) if ofpd_out is None else
+                   self.objects_of_ofpd(ks, ofpd_out, n_events, ones, t_track, faint))
         return WindowResult(t0, t0 + self.config.dt_us, objects,
                             coasting=None if tracker is None else tracker.coasting(), **kw)
 
@@ -316,6 +341,19 @@ class Pipeline:
         return ("binning", "front_end", "pooled", "objects_recent" if recent else "objects")
 
     def __enter__(self) -> "Pipeline":
+        if self.processes == 2:
+            from .split import SplitHost
+
+            self._split = SplitHost(self)        # it loads its kernels while this process loads its own
+        try:
+            return self._enter()
+        except BaseException:
+            if self._split is not None:
+                self._split.close()
+                self._split = None
+            raise
+
+    def _enter(self) -> "Pipeline":
         groups = self.warm_groups()
         if isinstance(self.cascade, CpuCascade):
             self.cascade.warm_groups = groups   # its __enter__ below loads them (once, not here and there)
@@ -332,13 +370,24 @@ class Pipeline:
         if self.faint is not None:
             faint_warm_up()
         self.cascade.__enter__()
+        if self._split is not None:
+            try:
+                self._split.wait_ready()
+            except BaseException:
+                self.cascade.__exit__(None, None, None)
+                raise
         self._entered = True
         return self
 
     def __exit__(self, *exc) -> None:
         if self._entered:
             self._entered = False
-            self.cascade.__exit__(*exc)
+            try:
+                if self._split is not None:
+                    self._split.close()
+                    self._split = None
+            finally:
+                self.cascade.__exit__(*exc)
 
     def close(self) -> None:
         self.__exit__(None, None, None)
@@ -383,7 +432,16 @@ class Pipeline:
         recent: the front end's SupportHistory after this window (ofpd.recent_events). faint:
         (t0, the window's event pixels before the front end) for ofpd.faint_objects (this
         window's faint slow objects follow the others; toffe_deploy/faint_objects.py)."""
-        ks, x, n_events, ones = ofpd_input.batch(volume, frames, self.config, self._scratch, recent, self._batch)
+        return self.objects_of_batch(*self.batch(volume, frames, recent), t0_us, faint=faint)
+
+    def objects_of_batch(self, ks: np.ndarray, x: np.ndarray, n_events: np.ndarray, ones: tuple,
+                         t0_us: int | None = None, faint=None) -> list[ObjectFlow]:
+        """objects_of from the window's batch (Pipeline.batch): the OFPD call and what follows it."""
+        return self.objects_of_ofpd(ks, self.ofpd.run(x) if ks.size else None, n_events, ones, t0_us, faint)
+
+    def objects_of_ofpd(self, ks: np.ndarray, out, n_events: np.ndarray, ones: tuple,
+                        t0_us: int | None = None, faint=None) -> list[ObjectFlow]:
+        """objects_of_batch from the OFPD's (pose, direction, speed) ``out`` of the batch."""
         if not ks.size:
             fx = self._faint_columns(faint, ones, [], [], [])
             if fx is None:
@@ -391,7 +449,7 @@ class Pipeline:
                     self.tracker.columns(_NO_DETECTIONS, t0_us)
                 return []
             return self._with_faint([], fx, t0_us)
-        pose, direction, speed = self.ofpd.run(x)
+        pose, direction, speed = out
         speed, direction = self.fuse(speed, direction, ones, ks.size)          # plane_fit
         dec = self.place(self._decode.columns(pose, direction, speed, ks), ones)   # lists: no numpy scalar per field
         px_ms, mps, bin_mps = speeds_of(dec, self.config, self.speed_scale)
@@ -449,6 +507,23 @@ class Pipeline:
             return fuse_history(self._fusion, self.ones_history, speed, direction, ones)
         return self._fusion.apply(speed, direction, lambda want, _k: object_planes_flow(*ones, n_obj, want))
 
+    def front(self, t0: int, x: Window) -> tuple:
+        """The host's first steps on one raw window of a sparse target (cpu, cuda), in time order:
+        (volume after the front end, stage frames over its ones, the dense stages with
+        keep_stages else None, the window's event pixels before the front end for the faint
+        objects else None). Moves the front end's history (``self.support``) on."""
+        x = self._check(x)
+        vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(x > 0)
+        vol = front_end(vol, self.config, self.support, int(t0))
+        pixels = self.support.latest_pixels if self.faint is not None else None
+        pool = self.config.ofs_pool
+        if pool > 1 and not self.keep_stages:       # pool, cascade and Up_p in one compiled call
+            return vol, self.cascade.pooled_frames(vol, pool), None, pixels
+        grid, inverse = vol.pool(pool)               # the OFS grid (cascade.py)
+        res = self.cascade.cascade_sparse(grid)
+        stages = _stage_arrays(res.to_dense()) if self.keep_stages else None
+        return vol, up_frames(res.frames, inverse), stages, pixels
+
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
         """(t0_us, window) pairs in, WindowResult per window out, in order, streaming. Windows are
         raw (the front end runs here); with ``input_support`` they come in time order, and the
@@ -462,18 +537,11 @@ class Pipeline:
         cfg, hist = self.config, self.support
         pool = self.config.ofs_pool
         if self.sparse:
+            if self._split is not None:
+                yield from self._split.stream(self, _pairs(windows))
+                return
             for t0, x in _pairs(windows):
-                x = self._check(x)
-                vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(x > 0)
-                vol = front_end(vol, cfg, hist, int(t0))
-                pixels = hist.latest_pixels if self.faint is not None else None
-                if pool > 1 and not self.keep_stages:       # pool, cascade and Up_p in one compiled call
-                    frames, stages = self.cascade.pooled_frames(vol, pool), None
-                else:
-                    grid, inverse = vol.pool(pool)           # the OFS grid (cascade.py)
-                    res = self.cascade.cascade_sparse(grid)
-                    frames = up_frames(res.frames, inverse)
-                    stages = _stage_arrays(res.to_dense()) if self.keep_stages else None
+                vol, frames, stages, pixels = self.front(int(t0), x)
                 yield self._result(int(t0), vol, frames, hist, pixels, stages=stages)
             return
         # Lava backends take dense windows and may pipeline them: remember each window's t0 (and,
