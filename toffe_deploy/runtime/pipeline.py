@@ -225,9 +225,9 @@ class Pipeline:
                  track: "bool | TrackerConfig" = True, processes: int = 1):
         """keep_stages: each WindowResult also carries the masked input and the output spikes of
         every OFS stage as dense arrays (``stages``; for `run --dump-spikes`: about 18 MB per
-        640x480 window, so for short runs only). processes: 2 runs the front end, the cascade
-        and the grouping of the next window in a second process while this one runs the OFPD
-        and what follows (cpu and cuda targets; runtime/split.py), bit exact with 1."""
+        640x480 window, so for short runs only). processes: 2 runs the front end, the cascade,
+        the grouping and the OFPD of the next window in a second process while this one runs
+        what follows (cpu and cuda targets; runtime/split.py), bit exact with 1."""
         if target not in TARGETS:
             raise ValueError(f"unknown target {target!r}; choose one of {', '.join(TARGETS)}")
         if tag not in TAGS:
