@@ -71,13 +71,14 @@ def test_a_stream_left_early_keeps_both_halves_in_step(shipped_tiny):
     later stream goes on with both processes' state as one process that ran them has it."""
     bundle, _, windows = shipped_tiny
     with Pipeline(bundle, "cpu") as one:
-        head = _lines(one.process_stream(windows[:8]))[:6]     # 6 and 7: read ahead below
+        head = _lines(one.process_stream(windows[:7]))[:6]     # 6: read ahead below
         tail = _lines(one.process_stream(windows[8:]))
     with Pipeline(bundle, "cpu", processes=2) as two:
-        stream = two.process_stream(windows[:8])
+        given = iter(windows[:8])
+        stream = two.process_stream(given)
         got = [json.dumps(next(stream).to_json(), sort_keys=True) for _ in range(6)]
-        stream.close()                                # 6 and 7 were read: finished, dropped
-        assert got == head
+        stream.close()                                # 6 was read: finished, dropped
+        assert got == head and [t0 for t0, _ in given] == [windows[7][0]]     # 7 was not read
         assert _lines(two.process_stream(windows[8:])) == tail
 
 
@@ -138,3 +139,55 @@ def test_bench_processes_reports_identical_lines_and_both_rates(shipped_tiny, tm
     assert res["identical_lines"] and r["identical_lines"] and r["one"]["windows"] == r["two"]["windows"] == 120
     assert r["one"]["windows_per_s"] > 0 and r["two"]["windows_per_s"] > 0 and r["two"]["cpu_s"] > 0
     assert json.loads(capsys.readouterr().out) == res
+
+
+def test_an_input_error_comes_after_the_windows_read_before_it(shipped_tiny):
+    """A bad window (or a failing source) mid-stream: every window before it is yielded first,
+    as with one process (two lines had been lost with the windows in flight)."""
+    bundle, _, windows = shipped_tiny
+
+    def with_bad(n):
+        yield from windows[:n]
+        yield windows[n][0], np.zeros((2, 2))           # not a (B, 2, H, W) window
+
+    got = {}
+    for procs in (1, 2):
+        with Pipeline(bundle, "cpu", processes=procs) as pipe:
+            out = []
+            with pytest.raises(ValueError, match="window must be"):
+                for r in pipe.process_stream(with_bad(9)):
+                    out.append(json.dumps(r.to_json(), sort_keys=True))
+            got[procs] = out
+    assert len(got[1]) == 9 and got[2] == got[1]
+
+
+def test_reset_or_a_second_stream_inside_a_running_stream_is_refused(shipped_tiny):
+    bundle, _, windows = shipped_tiny
+    with Pipeline(bundle, "cpu", processes=2) as two:
+        stream = two.process_stream(windows)
+        next(stream)
+        with pytest.raises(ToffeError, match="between streams"):
+            two.reset_tracks()
+        with pytest.raises(ToffeError, match="one process_stream at a time"):
+            next(two.process_stream(windows))
+        stream.close()
+        two.reset_tracks()                                 # between streams: fine
+        assert len(_lines(two.process_stream(windows[:3]))) == 3
+
+
+def test_the_ofpd_variant_runs_in_the_second_process_too(shipped_tiny, tmp_path):
+    pytest.importorskip("onnx")
+    import dataclasses
+
+    from toffe_deploy.deploy.onnx_export import make_variant
+
+    bundle, _, windows = shipped_tiny
+    fp16 = make_variant("fp16", bundle.ofpd_onnx, tmp_path / "ofpd_fp16.onnx")
+    bundle16 = dataclasses.replace(bundle, ofpd_variants={"fp16": fp16})
+    lines = {}
+    for procs in (1, 2):
+        with Pipeline(bundle16, "cpu", processes=procs, ofpd_variant="fp16", track=False) as pipe:
+            lines[procs] = _lines(pipe.process_stream(windows))
+    with Pipeline(bundle, "cpu", track=False) as pipe:
+        fp32 = _lines(pipe.process_stream(windows))
+    assert lines[2] == lines[1] != fp32

@@ -250,6 +250,7 @@ class Pipeline:
         self.config = bundle.config
         self.target = target
         self.tag = tag
+        self.ofpd_variant, self.ofpd_threads = ofpd_variant, ofpd_threads     # (split.py's worker builds the same)
         self.ofpd = OFPDRunner(ofpd_model(bundle, ofpd_variant), "cuda" if target == "cuda" else "cpu",
                                threads=ofpd_threads)
         size = self.config.sensor_size if sensor_size is None else sensor_size
@@ -298,6 +299,7 @@ class Pipeline:
             self.faint.reset()
         if getattr(self, "_split", None) is not None:
             self._split.reset()                  # the front end's history lives in the second process
+                                                 # (refused inside a stream: windows ahead went through it)
         settings = self._track if isinstance(self._track, TrackerConfig) else None
         self.tracker = (Tracker(self.config, self.config.dt_us, settings, self.speed_scale.px_ms_per_mps)
                         if self._track is not False and self._track is not None else None)
@@ -355,6 +357,8 @@ class Pipeline:
 
     def _enter(self) -> "Pipeline":
         groups = self.warm_groups()
+        if self._split is not None and groups is not None:
+            groups = ("binning",)                # the rest of the fast path runs in the second process
         if isinstance(self.cascade, CpuCascade):
             self.cascade.warm_groups = groups   # its __enter__ below loads them (once, not here and there)
         else:

@@ -12,17 +12,23 @@ between their compiled calls, two threads gave 1.1-1.2x the throughput for 1.2x 
 (docs/speed-log.md).
 
 Bit exact: each half runs the same code on the same state in the same order as one process does
-(tests/test_split.py compares every line). A consumer that stops early has had one window more
-read from its iterator and run through the first half; its second half runs too (its result is
-dropped), so the state of both halves stays that of the windows read.
+(tests/test_split.py compares every line). When the stream yields window n it has read window
+n + 1 (the worker runs it meanwhile) and reads n + 2 when asked for the next result, so that a
+live source's wait for n + 2 does not hold n back. A consumer that stops early has had n + 1 read
+and run through the first half; its second half runs too (its result dropped), so the state of
+both halves stays that of the windows read. An error from the input (a bad event in a
+file, a live source that fails) is raised after the windows read before it are yielded, as with
+one process. ``reset_tracks`` and a second stream are refused while a stream is running.
 
-The second process is ``python -m toffe_deploy.runtime.split`` (no multiprocessing start method:
-nothing of the caller's ``__main__`` is imported again). It talks over a socket pair (a
+The second process is this module's ``main`` under ``sys.executable`` with this process's
+``sys.path`` (no multiprocessing start method: nothing of the caller's ``__main__`` is imported
+again, nor anything from the working directory). It talks over a socket pair (a
 ``multiprocessing.connection.Connection``: pickled tuples between our own two processes, never
 a user's file) and hands the arrays over in a memfd shared by both (two slots of SLOT_BYTES each
 way; a window too large for its slot goes through the socket instead):
 
-    main -> worker   ("window", slot, t0, layout | payload)   the window's ones (SpikeVolume.idx)
+    main -> worker   ("init", bundle root, config dict, target, sensor size, OFPD variant, its file, threads)
+                     ("window", slot, t0, layout | payload)   the window's ones (SpikeVolume.idx)
                      ("reset",)   ("stop",)
     worker -> main   ("ready",)   ("batch", slot, layout | payload, has_pixels)   ("error", message)
     batch arrays     idx, bc, pix of the window after the front end, then stage_k, n_events and
@@ -35,6 +41,7 @@ closes, so a main process that is killed leaves no orphan.
 from __future__ import annotations
 
 import collections
+import json
 import mmap
 import os
 import signal
@@ -42,6 +49,7 @@ import socket
 import subprocess
 import sys
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Iterator
 
 import numpy as np
@@ -51,8 +59,12 @@ from ..errors import ToffeError
 #: Bytes per slot and direction (2 slots: the window being prepared and the one being finished).
 SLOT_BYTES = 8 << 20
 SLOTS = 2
-#: Seconds to wait for the worker to start (it loads the compiled kernels) and to stop.
-START_S, STOP_S = 300.0, 10.0
+#: Seconds to wait for the worker to start (it loads the compiled kernels: minutes on a first run,
+#: which compiles them), for one window's answer, and for it to stop after "stop" and SIGTERM.
+START_S, WINDOW_S, STOP_S = 600.0, 60.0, 2.0
+#: The worker's bootstrap: this process's sys.path, then split.main(argv).
+_BOOT = ("import json, sys; sys.path[:] = json.loads(sys.argv[1]); "
+         "from toffe_deploy.runtime.split import main; sys.exit(main(sys.argv[2:]))")
 
 
 def pack(arrays: list[np.ndarray], buf: memoryview | None) -> tuple[tuple, bytes | None]:
@@ -95,15 +107,18 @@ class _Slots:
 
     def close(self) -> None:
         if self.view is not None:
-            self.view.release()
-            self.map.close()
+            try:
+                self.view.release()
+                self.map.close()
+            except BufferError:                   # a slice still held (an exception's frame): the
+                pass                              # mapping goes with its last reference
             self.view = self.map = None
 
 
 def _memfd(size: int) -> int | None:
     if not hasattr(os, "memfd_create"):
         return None
-    fd = os.memfd_create("toffe-split", 0)
+    fd = os.memfd_create("toffe-split")          # close-on-exec: only pass_fds hands it on
     os.ftruncate(fd, size)
     return fd
 
@@ -114,29 +129,34 @@ class SplitHost:
     stopped by its ``__exit__``."""
 
     def __init__(self, pipe, slot_bytes: int | None = None, ahead: int = SLOTS):
+        if not 1 <= ahead <= SLOTS:
+            raise ValueError(f"ahead must be 1..{SLOTS}, got {ahead}")
         slot_bytes = SLOT_BYTES if slot_bytes is None else int(slot_bytes)
         ours, theirs = socket.socketpair()
-        fd = _memfd(2 * SLOTS * slot_bytes)
-        keep = [theirs.fileno()] + ([fd] if fd is not None else [])
-        env = dict(os.environ)
-        root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-        env["PYTHONPATH"] = os.pathsep.join([root] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+        fd = None
         try:
+            fd = _memfd(2 * SLOTS * slot_bytes)
+            keep = [theirs.fileno()] + ([fd] if fd is not None else [])
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "toffe_deploy.runtime.split", str(theirs.fileno()),
-                 str(-1 if fd is None else fd), str(slot_bytes)], pass_fds=keep, env=env, stdin=subprocess.DEVNULL)
+                [sys.executable, "-c", _BOOT, json.dumps(sys.path), str(theirs.fileno()),
+                 str(-1 if fd is None else fd), str(slot_bytes)], pass_fds=keep, stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL)                # a library's print must not land in `--out -`
+            self.slots = _Slots(fd, slot_bytes)
+        except OSError as exc:
+            ours.close()
+            raise ToffeError(f"cannot start the second host process (--processes 2): {exc.strerror or exc}") from None
         finally:
             theirs.close()
+            if fd is not None:
+                os.close(fd)                              # the child has its copy, the mapping keeps ours
         self.conn = Connection(ours.detach())
-        self.slots = _Slots(fd, slot_bytes)
-        if fd is not None:
-            os.close(fd)                                  # the mapping keeps it
         self.broken: str | None = None
         self.ahead = int(ahead)                           # windows sent before the first result (<= SLOTS)
+        self.active = False                               # a stream is running (between its windows)
         self.shape = (pipe.config.n_bins, 2, pipe.sensor_size[1], pipe.sensor_size[0])
         try:
             self.conn.send(("init", str(pipe.bundle.root), pipe.config.to_dict(), pipe.target,
-                            tuple(pipe.sensor_size)))
+                            tuple(pipe.sensor_size), pipe.ofpd_variant, str(pipe.ofpd.path), pipe.ofpd_threads))
         except BaseException:
             self.close()
             raise
@@ -157,7 +177,11 @@ class SplitHost:
         try:
             msg = self.conn.recv()
         except (EOFError, OSError):
-            raise self._broken(f"it stopped (exit code {self.proc.poll()})") from None
+            try:
+                code = self.proc.wait(STOP_S)
+            except subprocess.TimeoutExpired:
+                code = None
+            raise self._broken(f"it stopped (exit code {code})") from None
         if msg[0] == "error":
             raise self._broken(msg[1])
         return msg
@@ -181,7 +205,7 @@ class SplitHost:
         None without objects) of the window in ``slot``."""
         from .spikes import SpikeVolume
 
-        _, got, layout, payload, has_pixels = self._expect("batch", START_S)
+        _, got, layout, payload, has_pixels = self._expect("batch", WINDOW_S)
         if got != slot:
             raise self._broken(f"answered slot {got} for slot {slot}")
         idx, bc, pix, ks, n_ev, o0, o1, o2, o3, pose, direction, speed, *pixels = unpack(
@@ -198,31 +222,47 @@ class SplitHost:
 
         if self.broken:
             raise ToffeError(f"the second host process (--processes 2) failed earlier: {self.broken}")
+        if self.active:
+            raise ToffeError("Pipeline(processes=2) runs one process_stream at a time: finish or close the "
+                             "running one first")
         inflight: collections.deque = collections.deque()     # (slot, t0)
         it = iter(pairs)
+        held: list[BaseException] = []             # the input's error, raised after the windows before it
         n = 0
 
-        def send_next() -> bool:
+        def send_next() -> None:
             nonlocal n
-            for t0, x in it:
+            if held:
+                return
+            try:
+                t0, x = next(it)
                 x = pipe._check(x)                 # its errors here, as with one process
-                vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(x > 0)
-                slot = n % SLOTS
-                self._send_window(slot, int(t0), vol)
-                inflight.append((slot, int(t0)))
-                n += 1
-                return True
-            return False
+            except StopIteration:
+                held.append(StopIteration())
+                return
+            except BaseException as exc:           # noqa: BLE001 (raised once the windows read are done)
+                held.append(exc)
+                return
+            vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(x > 0)
+            slot = n % SLOTS
+            self._send_window(slot, int(t0), vol)
+            inflight.append((slot, int(t0)))
+            n += 1
 
+        self.active = True
         try:
-            while len(inflight) < self.ahead and send_next():
-                pass
+            while len(inflight) < self.ahead and not held:
+                send_next()
             while inflight:
                 slot, t0 = inflight[0]
                 vol, batch, pixels, out = self._batch(slot)
                 inflight.popleft()
-                send_next()                        # the worker's next window, while this one finishes here
                 yield pipe._result_of_batch(t0, vol, batch, pixels, out)
+                send_next()                        # after the yield: a live source's read of the next
+                                                   # window does not hold this one back (the worker has
+                                                   # the window after this one meanwhile)
+            if held and not isinstance(held[0], StopIteration):
+                raise held[0]
         except GeneratorExit:                      # left early: finish what was read, drop its results
             while inflight and not self.broken:
                 slot, t0 = inflight.popleft()
@@ -233,8 +273,13 @@ class SplitHost:
             if inflight and not self.broken:       # still on the way, so this worker is done with
                 self.broken = "a stream stopped by an error with windows in the worker"
             raise
+        finally:
+            self.active = False
 
     def reset(self) -> None:
+        if self.active:
+            raise ToffeError("reset_tracks() inside a running process_stream of Pipeline(processes=2): the "
+                             "windows read ahead went through the front end already; call it between streams")
         if not self.broken:
             self.conn.send(("reset",))
 
@@ -270,10 +315,11 @@ def _serve(conn: Connection, slots: _Slots) -> None:
     from .spikes import SpikeVolume
 
     try:
-        _, root, cfg, target, sensor = conn.recv()
+        _, root, cfg, target, sensor, variant, model, threads = conn.recv()
         bundle = load_bundle(root)
-        bundle = dataclasses.replace(bundle, config=ToffeConfig.from_dict(cfg))
-        pipe = Pipeline(bundle, target, sensor_size=sensor, track=False)
+        bundle = dataclasses.replace(bundle, config=ToffeConfig.from_dict(cfg),     # the caller's, as given
+                                     ofpd_variants={**getattr(bundle, "ofpd_variants", {}), variant: Path(model)})
+        pipe = Pipeline(bundle, target, sensor_size=sensor, track=False, ofpd_variant=variant, ofpd_threads=threads)
         pipe.__enter__()                                    # the compiled kernels
     except (EOFError, OSError):
         return
