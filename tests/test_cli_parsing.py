@@ -60,17 +60,19 @@ def test_synth_warns_when_camera_options_skip_the_paper_splits(tmp_path, capsys)
     assert "warning: --focal-px applies to the random-appearance splits only: test keep" in err
 
 
-def test_run_refuses_an_unknown_live_scheme_and_nan_timeouts(capsys):
+def test_run_refuses_an_unknown_live_scheme_and_nan_timeouts(capsys, make_bundle, tmp_path):
     rc, err = _error(capsys, ["run", "--events", "tcp://127.0.0.1:7777"])
     assert rc == 2 and "unknown live source" in err
     rc, err = _error(capsys, ["run", "--events", "udp://127.0.0.1:9", "--sensor-size", "64x48", "--idle-timeout",
                               "nan"])
     assert rc == 2 and "finite" in err
-    rc, err = _error(capsys, ["run", "--events", "udp://127.0.0.1:99999", "--sensor-size", "64x48"])
+    bundle = str(make_bundle(tmp_path).root)
+    rc, err = _error(capsys, ["run", bundle, "--events", "udp://127.0.0.1:99999", "--sensor-size", "64x48"])
     assert rc == 2 and err.strip() == "toffe-deploy: error: udp://127.0.0.1:99999: port 99999 is out of range (0..65535)"
-    rc, err = _error(capsys, ["run", "--events", "udp://127.0.0.1:9", "--sensor-size", "64x48", "--queue-events", "0"])
+    rc, err = _error(capsys, ["run", bundle, "--events", "udp://127.0.0.1:9", "--sensor-size", "64x48",
+                              "--queue-events", "0"])
     assert rc == 2 and err.strip() == "toffe-deploy: error: --queue-events must be >= 1, got 0"
-    rc, err = _error(capsys, ["run", "--events", "udp://127.0.0.1:0", "--sensor-size", "40000x40000"])
+    rc, err = _error(capsys, ["run", bundle, "--events", "udp://127.0.0.1:0", "--sensor-size", "40000x40000"])
     assert rc == 2 and "reading" not in err and "larger than" in err and err.count("\n") == 1
 
 
