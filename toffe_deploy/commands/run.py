@@ -122,7 +122,7 @@ def register(sub) -> None:
     p.add_argument("--processes", type=int, choices=(1, 2), default=1,
                    help="host processes for the cpu and cuda targets: 2 runs the front end, the OFS cascade, the "
                         "grouping and the OFPD of the next window in a second process while this one runs the "
-                        "plane fit, the tracker and the output of the window before; bit exact with 1; 1.25-1.5x "
+                        "plane fit, the tracker and the output of the window before; bit exact with 1; 1.4-1.5x "
                         "the windows/s on a 2-core VM, for more CPU time and latency (README: Speed); default: 1")
     p.add_argument("--no-track", action="store_true",
                    help="do not track objects over the windows (no track_id / track in the JSON lines, no "
