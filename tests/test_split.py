@@ -64,6 +64,11 @@ def test_windows_too_large_for_a_slot_go_through_the_socket(shipped_tiny, monkey
     with Pipeline(bundle, "cpu", processes=2) as two:
         assert two._split.slots.slot_bytes == 256
         assert _lines(two.process_stream(windows)) == want
+    with Pipeline(bundle, "cpu") as one:               # a window larger than the socket's buffer both
+        dense = [(t0, np.ones((bundle.config.n_bins, 2, 48, 64), np.uint8)) for t0 in range(0, 3000, 500)]
+        want = _lines(one.process_stream(dense))       # ways (~250 KB of ones, a MB of answer): no deadlock
+    with Pipeline(bundle, "cpu", processes=2) as two:
+        assert _lines(two.process_stream(dense)) == want
 
 
 def test_a_stream_left_early_keeps_both_halves_in_step(shipped_tiny):

@@ -153,6 +153,7 @@ class SplitHost:
         self.broken: str | None = None
         self.ahead = int(ahead)                           # windows sent before the first result (<= SLOTS)
         self.active = False                               # a stream is running (between its windows)
+        self._early: dict = {}                            # answers taken before a window sent whole
         self.shape = (pipe.config.n_bins, 2, pipe.sensor_size[1], pipe.sensor_size[0])
         try:
             self.conn.send(("init", str(pipe.bundle.root), pipe.config.to_dict(), pipe.target,
@@ -196,8 +197,12 @@ class SplitHost:
         self.broken = why
         return ToffeError(f"the second host process (--processes 2) failed: {why}")
 
-    def _send_window(self, slot: int, t0: int, vol) -> None:
+    def _send_window(self, slot: int, t0: int, vol, inflight) -> None:
         layout, payload = pack([vol.idx], self.slots.region(slot, False))
+        if payload is not None:               # through the socket: first take every answer on the way,
+            for s, _ in inflight:             # which may be as large (two blocked writers: a deadlock)
+                if s not in self._early:
+                    self._early[s] = self._expect("batch", WINDOW_S)
         self.conn.send(("window", slot, int(t0), layout, payload))
 
     def _batch(self, slot: int):
@@ -205,7 +210,8 @@ class SplitHost:
         None without objects) of the window in ``slot``."""
         from .spikes import SpikeVolume
 
-        _, got, layout, payload, has_pixels = self._expect("batch", WINDOW_S)
+        msg = self._early.pop(slot, None) or self._expect("batch", WINDOW_S)
+        _, got, layout, payload, has_pixels = msg
         if got != slot:
             raise self._broken(f"answered slot {got} for slot {slot}")
         idx, bc, pix, ks, n_ev, o0, o1, o2, o3, pose, direction, speed, *pixels = unpack(
@@ -245,7 +251,7 @@ class SplitHost:
                 return
             vol = x if isinstance(x, SpikeVolume) else SpikeVolume.from_dense(x > 0)
             slot = n % SLOTS
-            self._send_window(slot, int(t0), vol)
+            self._send_window(slot, int(t0), vol, inflight)
             inflight.append((slot, int(t0)))
             n += 1
 
