@@ -55,7 +55,7 @@ from . import ofpd_input
 from ..compiled import warm_up
 from ..events.frontend import slots_for
 from .cpu import CpuCascade
-from .ofpd_runner import OFPDRunner
+from .ofpd_runner import OFPDRunner, providers_for
 from .run_camera import resolve_camera
 from .spikes import SpikeVolume
 
@@ -251,8 +251,11 @@ class Pipeline:
         self.target = target
         self.tag = tag
         self.ofpd_variant, self.ofpd_threads = ofpd_variant, ofpd_threads     # (split.py's worker builds the same)
-        self.ofpd = OFPDRunner(ofpd_model(bundle, ofpd_variant), "cuda" if target == "cuda" else "cpu",
-                               threads=ofpd_threads)
+        provider = "cuda" if target == "cuda" else "cpu"
+        if processes == 2 and provider == "cuda":     # the OFPD runs in split.py's worker: a CPU session
+            providers_for(provider)                   # here checks the model (no second CUDA context), and
+            provider = "cpu"                          # a missing CUDA provider is said here, not there
+        self.ofpd = OFPDRunner(ofpd_model(bundle, ofpd_variant), provider, threads=ofpd_threads)
         size = self.config.sensor_size if sensor_size is None else sensor_size
         try:
             w, h = (whole_number("sensor size", v) for v in size)
