@@ -585,6 +585,9 @@ class UdpAerSource(LiveSource):
 
     def _produce(self) -> None:
         while not self._stop.is_set():
+            wait = FIRST_HOLD_S / 5 if self._held is not None else _POLL_S   # a held first datagram goes
+            if self.sock.gettimeout() != wait:                               # on within FIRST_HOLD_S
+                self.sock.settimeout(wait)
             try:
                 packet = self.sock.recv(1 << 16)
             except socket.timeout:
