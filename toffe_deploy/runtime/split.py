@@ -8,8 +8,8 @@ them and writes the JSON line. The OFPD's input (a quarter MB a window) stays in
 The first half of window n + 1 needs only the front end's own history, the second half of window
 n only what came before it, so a second process runs the first half one window ahead while this
 one runs the second half. Python threads cannot do this: with both halves holding the GIL
-between their compiled calls, two threads gave 1.1-1.2x the throughput for 1.2x the CPU time
-(docs/speed-log.md).
+between their compiled calls, two threads gave 1.1-1.2x the throughput for 1.2x the CPU time;
+two processes give 1.38-1.53x for 1.24-1.28x (`run` on a 2-core VM; docs/speed-log.md).
 
 Bit exact: each half runs the same code on the same state in the same order as one process does
 (tests/test_split.py compares every line). When the stream yields window n it has read window
@@ -25,7 +25,8 @@ The second process is this module's ``main`` under ``sys.executable`` with this 
 again, nor anything from the working directory). It talks over a socket pair (a
 ``multiprocessing.connection.Connection``: pickled tuples between our own two processes, never
 a user's file) and hands the arrays over in a memfd shared by both (two slots of SLOT_BYTES each
-way; a window too large for its slot goes through the socket instead):
+way; a window too large for its slot goes through the socket instead, after the answers on the
+way are taken, so that two large writes never wait on each other):
 
     main -> worker   ("init", bundle root, config dict, target, sensor size, OFPD variant, its file, threads)
                      ("window", slot, t0, layout | payload)   the window's ones (SpikeVolume.idx)
@@ -36,7 +37,8 @@ way; a window too large for its slot goes through the socket instead):
                      the event pixels (with ofpd.faint_objects)
 
 It ignores SIGINT (Ctrl-C is the main process's, which stops it) and exits when the socket
-closes, so a main process that is killed leaves no orphan.
+closes, so a main process that is killed leaves no orphan (once the worker has loaded its
+kernels: it notices at its first message). A window unanswered for WINDOW_S is an error.
 """
 from __future__ import annotations
 
