@@ -24,8 +24,8 @@ EVT3;height=H;width=W`` or DAT's ``% Width W`` / ``% Height H``; a file with non
 
 Timestamps are in microseconds; a counter that wraps (EVT3's 24 bits every 16.8 s, EVT2's 34
 bits, DAT's 32 bits) is unwrapped: a drop of more than half the counter's range is a wrap, a
-smaller one is reported as decreasing timestamps (evt_compiled.EVT3_HALF_RANGE, _Unwrap). Events before the first time base (EVT_TIME_HIGH) are dropped,
-as Prophesee's decoders do. A word type that the encoding does not define, or a truncated last
+smaller one is reported as decreasing timestamps (evt_compiled.EVT3_HALF_RANGE, _Unwrap).
+Events before the first time base (EVT_TIME_HIGH) are dropped, as Prophesee's decoders do. A word type that the encoding does not define, or a truncated last
 word or record, is an InputError naming the byte offset.
 """
 from __future__ import annotations
