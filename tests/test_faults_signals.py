@@ -151,6 +151,36 @@ def test_a_ctrl_c_wrapped_by_compiled_code_still_ends_a_live_run_with_its_summar
         assert stop.__exit__(type(exc), exc, None) is swallowed and stop.interrupted is swallowed
 
 
+def test_a_ctrl_c_that_a_c_extension_import_turned_into_an_import_error_exits_130(capsys):
+    """A Ctrl-C in the first second of `run` can land while onnxruntime's or numba's C extension
+    initialises: it came out as "ImportError: initialization failed" (its cause the
+    KeyboardInterrupt) or, after numba's C code had printed the KeyboardInterrupt's traceback
+    itself (PyErr_Print), as "numba._devicearray failed to import" with no link to it: a
+    traceback, exit 1. Both are the Ctrl-C now: one line, exit 130."""
+    from toffe_deploy import cli
+    from toffe_deploy.signals import signal_behind
+
+    def swallowed_by_an_import():
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1)
+        except KeyboardInterrupt as exc:
+            sys.excepthook(type(exc), exc, exc.__traceback__)      # what PyErr_Print does
+        raise ImportError("numba._devicearray failed to import")
+
+    with exceptions_on_signals():
+        with pytest.raises(ImportError) as info:
+            swallowed_by_an_import()
+        assert isinstance(signal_behind(info.value), KeyboardInterrupt)
+        assert cli.exit_status(info.value) == 130
+    assert signal_behind(info.value) is None             # outside the block: an ImportError is an ImportError
+    err = capsys.readouterr().err
+    assert err == "toffe-deploy: interrupted\n", err     # no traceback printed by the hook
+    with exceptions_on_signals():                          # no signal: an error stays an error
+        with pytest.raises(ImportError):
+            cli.exit_status(ImportError("no module named x"))
+
+
 def test_reclaim_removes_only_our_segments_of_dead_hosts(tmp_path):
     dead = subprocess.Popen(["true"])
     dead.wait()

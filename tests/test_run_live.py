@@ -606,3 +606,21 @@ def test_stdin_refuses_polarities_other_than_0_1(env):
             collect(StdinSource(fd=r))
     finally:
         os.close(r)
+
+
+def test_stdin_refuses_a_header_whose_reserved_field_is_set(env):
+    """The header's last u16 is reserved (README: 0): a later version's flags there are refused
+    by name, not read as version 1's stream."""
+    from toffe_deploy.errors import InputError
+    from toffe_deploy.events.live import STDIN_HEADER, StdinSource
+
+    head = bytearray(stdin_header(SENSOR))
+    head[STDIN_HEADER.size - 2:] = (3).to_bytes(2, "little")
+    r, w = os.pipe()
+    os.write(w, bytes(head) + events_of(env)[:10].tobytes())
+    os.close(w)
+    try:
+        with pytest.raises(InputError, match="reserved field is 3; version 1 writes 0"):
+            StdinSource(fd=r)
+    finally:
+        os.close(r)

@@ -78,43 +78,43 @@ def main(argv: list[str] | None = None, process: bool = False) -> int:
                 parser.print_help()
                 return 2
             return int(args.func(args) or 0)
-        except ToffeError as exc:
-            print(f"toffe-deploy: error: {exc}", file=sys.stderr)
-            return exc.exit_code
-        except KeyboardInterrupt:
+        except (Exception, KeyboardInterrupt, Terminated) as exc:
+            return exit_status(exc)
+
+
+def exit_status(exc: BaseException) -> int:
+    """The one line on stderr and the exit status of an error that ended a command; an error
+    that is a bug (none of these) goes on as a traceback."""
+    sig = signal_behind(exc)
+    if sig is not None:
+        # Ctrl-C or a kill, also one that landed in compiled code or in a C extension's import
+        # (signals.signal_behind): the clean-ups ran
+        if isinstance(sig, KeyboardInterrupt):
             print("toffe-deploy: interrupted", file=sys.stderr)
             return 130
-        except Terminated as exc:
-            print(f"toffe-deploy: {exc}", file=sys.stderr)
-            return exc.exit_code
-        except SystemError as exc:
-            # a signal that landed in compiled code (signals.signal_behind): the clean-ups ran
-            sig = signal_behind(exc)
-            if isinstance(sig, KeyboardInterrupt):
-                print("toffe-deploy: interrupted", file=sys.stderr)
-                return 130
-            if isinstance(sig, Terminated):
-                print(f"toffe-deploy: {sig}", file=sys.stderr)
-                return sig.exit_code
-            raise
-        except MemoryError as exc:
-            # numpy's "Unable to allocate 16.0 GiB for an array ...": a size in the input (a
-            # sensor, a kernel, a noise rate, a frame count) beyond this machine
-            line = (str(exc).splitlines() or [""])[0]
-            print(f"toffe-deploy: error: out of memory{': ' + line if line else ''} (a size in the input or the "
-                  "options larger than this machine holds?)", file=sys.stderr)
-            return 2
-        except BrokenPipeError:
-            # the reader of our stdout went away (`| head`): stop quietly, and point stdout at
-            # /dev/null so the interpreter's final flush does not report the closed pipe
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-            return 0
-        except OSError as exc:
-            # A write (or read) the system refused: full disk (ENOSPC, EDQUOT), read-only file
-            # system (EROFS), permissions (EACCES). Writers are atomic, so nothing partial is left.
-            print(f"toffe-deploy: error: {os_error_line(exc)}", file=sys.stderr)
-            return 2
-
+        print(f"toffe-deploy: {sig}", file=sys.stderr)
+        return sig.exit_code
+    if isinstance(exc, ToffeError):
+        print(f"toffe-deploy: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    if isinstance(exc, MemoryError):
+        # numpy's "Unable to allocate 16.0 GiB for an array ...": a size in the input (a
+        # sensor, a kernel, a noise rate, a frame count) beyond this machine
+        line = (str(exc).splitlines() or [""])[0]
+        print(f"toffe-deploy: error: out of memory{': ' + line if line else ''} (a size in the input or the "
+              "options larger than this machine holds?)", file=sys.stderr)
+        return 2
+    if isinstance(exc, BrokenPipeError):
+        # the reader of our stdout went away (`| head`): stop quietly, and point stdout at
+        # /dev/null so the interpreter's final flush does not report the closed pipe
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+    if isinstance(exc, OSError):
+        # A write (or read) the system refused: full disk (ENOSPC, EDQUOT), read-only file
+        # system (EROFS), permissions (EACCES). Writers are atomic, so nothing partial is left.
+        print(f"toffe-deploy: error: {os_error_line(exc)}", file=sys.stderr)
+        return 2
+    raise exc
 
 if __name__ == "__main__":
     sys.exit(entry())

@@ -38,6 +38,8 @@ class Terminated(BaseException):
 
 
 _DEFER = {"depth": 0, "pending": None}
+#: the signal's exception that the innermost active exceptions_on_signals block raised, if any
+_RAISED: dict = {"exc": None}
 
 
 @contextlib.contextmanager
@@ -83,6 +85,7 @@ def exceptions_on_signals(ignore_after_signal: bool = False) -> Iterator[None]:
         fired.append(signum)
         exc = KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
         raised.append(exc)
+        _RAISED["exc"] = exc
         if _DEFER["depth"]:                 # signals_deferred: raised when that block ends
             _DEFER["pending"] = exc
             return
@@ -94,9 +97,20 @@ def exceptions_on_signals(ignore_after_signal: bool = False) -> Iterator[None]:
         if raised and info.exc_value is raised[-1]:        # swallowed: deliver the signal again
             signum = fired.pop()
             raised.clear()
+            _RAISED["exc"] = None
             _send_again(signum)
             return
         prev_hook(info)
+
+    prev_excepthook = sys.excepthook
+
+    def excepthook(etype, value, tb):
+        # A C extension's init that PyErr_Print()s the error of a nested import (numba's
+        # _dispatcher does, for numba._devicearray): our own signal's exception is not printed
+        # there; the ImportError that follows carries it up (signal_behind).
+        if raised and value is raised[-1]:
+            return
+        prev_excepthook(etype, value, tb)
 
     old = {}
     for sig in HANDLED:
@@ -104,12 +118,16 @@ def exceptions_on_signals(ignore_after_signal: bool = False) -> Iterator[None]:
             old[sig] = signal.signal(sig, handler)
     unraisable.redelivers_signals = True
     sys.unraisablehook = unraisable
+    sys.excepthook = excepthook
+    outer_raised, _RAISED["exc"] = _RAISED["exc"], None
     try:
         yield
     finally:
         signalled = bool(fired or raised)
         fired.append(0)                   # a signal from here on must not raise outside the caller's try
         sys.unraisablehook = prev_hook
+        sys.excepthook = prev_excepthook
+        _RAISED["exc"] = outer_raised
         for sig, prev in old.items():
             signal.signal(sig, signal.SIG_IGN if ignore_after_signal and signalled else prev)
 
@@ -149,9 +167,18 @@ def signal_behind(exc: BaseException | None) -> BaseException | None:
 
     A signal that lands while compiled code (numba's dispatcher) calls back into Python comes out
     as a SystemError ("returned a result with an exception set") with the signal's exception as
-    its cause, at the end of a chain of such SystemErrors, one per compiled frame. The unwinding
-    ran the clean-ups all the same, so callers treat it as the signal."""
+    its cause, at the end of a chain of such SystemErrors, one per compiled frame. One that lands
+    while a C extension initialises (onnxruntime's, numba's: an import in the first second of a
+    command) comes out as an ImportError ("initialization failed", "numba._devicearray failed to
+    import"), sometimes with no link to it. So any error that ends a block of
+    exceptions_on_signals after its signal was raised is that signal: the unwinding ran the
+    clean-ups all the same, and callers treat it as the signal."""
     seen = 0
+    first = exc
     while isinstance(exc, SystemError) and seen < 100:
         exc, seen = exc.__cause__ or exc.__context__, seen + 1
-    return exc if isinstance(exc, (KeyboardInterrupt, Terminated)) else None
+    if isinstance(exc, (KeyboardInterrupt, Terminated)):
+        return exc
+    if isinstance(first, Exception) and _RAISED["exc"] is not None:
+        return _RAISED["exc"]
+    return None

@@ -508,7 +508,8 @@ def run_command(args) -> int:
         report.write(args.report, summary.to_json())
     out = sys.stderr if stream_out else sys.stdout
     for line in summary.lines():
-        print(line, file=out)
+        print(line, file=sys.stderr if line.startswith("warning: ") else out)   # a warning is stderr's
+    sys.stderr.flush()
     out.flush()                            # a closed pipe is a BrokenPipeError here (cli: quiet exit 0), not at exit
     if interrupted:
         print("toffe-deploy: interrupted", file=sys.stderr)

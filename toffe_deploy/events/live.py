@@ -412,9 +412,12 @@ class StdinSource(LiveSource):
         if len(head) < STDIN_HEADER.size or not head.startswith(STDIN_MAGIC):
             raise InputError("-", f"stdin does not start with the {STDIN_MAGIC.decode()} header "
                                   "(16 bytes: magic, u16 version, width, height, reserved; README: Live sources)")
-        _, version, w, h, _ = STDIN_HEADER.unpack(head)
+        _, version, w, h, reserved = STDIN_HEADER.unpack(head)
         if version != STDIN_VERSION:
             raise InputError("-", f"stdin stream version {version}; this toffe-deploy reads version {STDIN_VERSION}")
+        if reserved:                    # kept for a later version's flags: not to be misread as none
+            raise InputError("-", f"stdin header's reserved field is {reserved}; version {STDIN_VERSION} writes 0 "
+                                  "(README: Live sources)")
         super().__init__("-", sensor_size or (w, h), **kw)
 
     def _read_exact(self, n: int) -> bytes:
@@ -524,7 +527,7 @@ class UdpAerSource(LiveSource):
         words = np.frombuffer(packet, "<u4", count=len(packet) // 4)
         if not words.size:
             return np.empty(0, EVENT_DTYPE)
-        stamped = not words[0] >> 31
+        stamped = _form(packet)
         addr = words[0:words.size // 2 * 2:2] if stamped else words
         if stamped:
             self.stats.invalid_events += int(words.size % 2)   # an address without its time
@@ -545,8 +548,9 @@ class UdpAerSource(LiveSource):
         if not stamped:                                     # no timestamps: arrival time
             t = np.full(addr.size, round((arrival - self._t0_host) * 1e6), np.int64)
         else:
-            t32 = words[1::2].astype(np.int64)
-            t32 = t32 if t32.size == ok.size and ok.all() else t32[ok]
+            t32 = words[1::2].astype(np.int64)       # one time per address, as ok
+            if not ok.all():
+                t32 = t32[ok]
             prev, base = (int(t32[0]), int(t32[0])) if self._last32 is None else (self._last32, self._last_unwrapped)
             step = (np.diff(t32, prepend=prev) + (1 << 31)) % (1 << 32) - (1 << 31)
             if self._last32 is not None:        # after a silence of over half the range (35.8 min) the

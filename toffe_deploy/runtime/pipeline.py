@@ -241,6 +241,10 @@ class Pipeline:
                              "targets, and not with keep_stages / --dump-spikes)")
         self.processes = int(processes)
         self._split = None
+        #: which half of the host steps this process runs, for the kernels its __enter__ loads:
+        #: "all"; "back" (run's process with processes=2: binning, plane fit, faint objects,
+        #: tracker); "front" (split.py's worker: front end, cascade, grouping)
+        self.half = "all"
         if speed_scale is not None and not isinstance(speed_scale, SpeedScale):
             raise ValueError(f"speed_scale must be a toffe_deploy.camera.SpeedScale(focal_px, depth_m), got {speed_scale!r}")
         if not hasattr(bundle, "config"):              # a bundle's directory, as FlowStream takes
@@ -360,22 +364,24 @@ class Pipeline:
 
     def _enter(self) -> "Pipeline":
         groups = self.warm_groups()
-        if self._split is not None and groups is not None:
+        half = "back" if self._split is not None else self.half
+        if half == "back" and groups is not None:
             groups = ("binning",)                # the rest of the fast path runs in the second process
         if isinstance(self.cascade, CpuCascade):
             self.cascade.warm_groups = groups   # its __enter__ below loads them (once, not here and there)
         else:
             warm_up(groups)          # the compiled kernels (every target de-duplicates pixels with them)
-        if self.support is not None:
+        if self.support is not None and half != "back":
             support_warm_up()
-        if self.ones_history is not None:
-            history_warm_up()
-        elif self._fusion.on:                # the one-window plane fit
-            plane_fit_warm_up()
-        if self._outline is not None:
-            outline_warm_up()
-        if self.faint is not None:
-            faint_warm_up()
+        if half != "front":                  # the steps after the OFPD
+            if self.ones_history is not None:
+                history_warm_up()
+            elif self._fusion.on:            # the one-window plane fit
+                plane_fit_warm_up()
+            if self._outline is not None:
+                outline_warm_up()
+            if self.faint is not None:
+                faint_warm_up()
         self.cascade.__enter__()
         if self._split is not None:
             try:

@@ -328,7 +328,8 @@ def _serve(conn: Connection, slots: _Slots) -> None:
         bundle = dataclasses.replace(bundle, config=ToffeConfig.from_dict(cfg),     # the caller's, as given
                                      ofpd_variants={**getattr(bundle, "ofpd_variants", {}), variant: Path(model)})
         pipe = Pipeline(bundle, target, sensor_size=sensor, track=False, ofpd_variant=variant, ofpd_threads=threads)
-        pipe.__enter__()                                    # the compiled kernels
+        pipe.half = "front"
+        pipe.__enter__()                                    # the compiled kernels of its half
     except (EOFError, OSError):
         return
     except BaseException as exc:                            # noqa: BLE001 (said to the main process)
