@@ -583,24 +583,35 @@ cfg = b.config
 with open_events(sys.argv[2]) as src:
     wins = [(t0, SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, cfg.sensor_size))
             for t0, ev in src.iter_windows(cfg.dt_us)]
-with Pipeline(b, "cpu") as pipe:
+half = sys.argv[3]
+pipe = Pipeline(b, "cpu", processes=2 if half == "back" else 1)
+pipe.half = "front" if half == "front" else "all"
+with pipe:
     print("groups", pipe.warm_groups())
     before = loaded()
-    n = sum(len(r.objects) for r in pipe.process_stream(wins))
+    if half == "front":                  # split.py's worker: front end, cascade, grouping, OFPD
+        n = 0
+        for t0, w in wins:
+            vol, frames, _, _ = pipe.front(t0, w)
+            n += len(pipe.ofpd.run(pipe.batch(vol, frames, pipe.support)[1])[0])
+    else:
+        n = sum(len(r.objects) for r in pipe.process_stream(wins))
     after = loaded()
 print("objects", n)
 print("loaded in windows", sorted(k for k in after if after[k] != before[k]))
 """
 
 
-@pytest.mark.parametrize("support, history", [(True, True), (False, True), (False, False)])
+@pytest.mark.parametrize("support, history, half", [(True, True, "all"), (False, True, "all"), (False, False, "all"),
+                                                    (True, True, "front"), (True, True, "back")])
 def test_the_pipelines_windows_load_no_kernel_after_its_warm_up(tmp_path, make_bundle, make_recording, support,
-                                                                 history):
+                                                                 history, half):
     """Pipeline.__enter__ loads only the compiled kernels its own path calls (compiled.warm_up's
     groups: ~0.9 s less start-up); in a fresh process, its windows then load nothing more (a
     kernel first loaded in a window would cost that window 0.1-0.3 s). The shipped ckpt/'s
     settings on a tiny sensor, with and without the front end's temporal support and the plane
-    fit's windows before."""
+    fit's windows before; and each process of processes=2 on its half alone (split.py's worker
+    "front", run's own process "back")."""
     shipped = json.loads((ROOT / "ckpt" / "config.json").read_text())
     ofpd = dict(shipped["ofpd"], crop_px=32, pool=2, min_events=4)
     extra = {k: shipped[k] for k in ("input_norm", "input_min_cluster")}
@@ -614,8 +625,8 @@ def test_the_pipelines_windows_load_no_kernel_after_its_warm_up(tmp_path, make_b
         ofpd.pop("outline_centre")
     b = make_bundle(tmp_path, ofs_pool=2, ofpd=ofpd, **extra)
     rec = make_recording(tmp_path / "rec.h5", duration=0.02)
-    p = subprocess.run([sys.executable, "-c", _LOADS_NOTHING, str(b.root), str(rec)], capture_output=True, text=True,
-                       timeout=600, cwd=ROOT)
+    p = subprocess.run([sys.executable, "-c", _LOADS_NOTHING, str(b.root), str(rec), half], capture_output=True,
+                       text=True, timeout=600, cwd=ROOT)
     assert p.returncode == 0, p.stderr
     out = p.stdout.splitlines()
     assert out[0].startswith("groups (") and int(out[1].split()[1]) > 0, out      # the fast path, real objects
