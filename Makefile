@@ -8,10 +8,10 @@ setup:
 # Lava simulator (Loihi 2 fixed point) with OFPD in onnxruntime, print and save the object flow.
 demo: setup
 	.venv/bin/toffe-deploy export ckpt/
-	.venv/bin/toffe-deploy run --target loihi-sim --out export/object_flow.jsonl
+	.venv/bin/toffe-deploy run --target loihi-sim --out runs/object_flow.jsonl
 	@echo "object flow, one JSON line per window: the header and the first two windows of" \
-	      "$$(wc -l < export/object_flow.jsonl) lines in export/object_flow.jsonl:"
-	@head -n 3 export/object_flow.jsonl
+	      "$$(wc -l < runs/object_flow.jsonl) lines in runs/object_flow.jsonl:"
+	@head -n 3 runs/object_flow.jsonl
 
 test: setup
 	.venv/bin/python -m pytest -q tests

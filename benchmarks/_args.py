@@ -24,12 +24,13 @@ except ImportError:           # a checkout older than the CLI's one-line parser 
     OneLineParser = argparse.ArgumentParser
     os_error_line = str
 
-__all__ = ["OneLineParser", "positive_int", "nonneg_int", "positive_float", "nonneg_float", "share", "int_in",
+__all__ = ["OneLineParser", "positive_int", "nonneg_int", "at_least_two", "positive_float", "nonneg_float", "share", "int_in",
            "comma_list", "existing_file", "existing_dir", "json_output", "cpu_core", "default_core", "guarded", "key_value",
            "apply_overrides"]
 
 positive_int = _number(int, 1, strict=False)        # an integer >= 1
 nonneg_int = _number(int, 0, strict=False)          # an integer >= 0
+at_least_two = _number(int, 2, strict=False)        # an integer >= 2
 positive_float = _number(float, 0, strict=True)     # a finite number > 0
 nonneg_float = _number(float, 0, strict=False)      # a finite number >= 0
 

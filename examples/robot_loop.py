@@ -41,7 +41,7 @@ def main(argv=None) -> int:
     ap.add_argument("--bundle", default=str(ROOT / "export"))
     ap.add_argument("--events", default=str(SAMPLE))
     ap.add_argument("--target", default="cpu", choices=api.TARGETS)
-    ap.add_argument("--packet-us", type=int, default=2000, help="events per packet, in us of recording")
+    ap.add_argument("--packet-us", type=int, default=2000, help="packet length, in us of recording (a camera driver's packet of events)")
     ap.add_argument("--max-ms", type=float, default=50.0, help="stop after this much recording (inf: all of it)")
     ap.add_argument("--sensor-size", default=None, metavar="WxH",
                     help="the camera's width and height in px, for files that do not record it (.npz, .npy, .txt)")

@@ -28,6 +28,19 @@ def test_a_bad_option_value_is_one_line_and_exit_2(capsys):
     assert err.startswith("toffe-deploy run: error: argument --target") and "--help for usage" in err
 
 
+@pytest.mark.parametrize("argv, prog", [(["run", "--bogus"], "toffe-deploy run"),
+                                        (["run", "a", "b"], "toffe-deploy run"),
+                                        (["events", "info", "x", "--bogus"], "toffe-deploy events info"),
+                                        (["events", "--bogus"], "toffe-deploy events"),
+                                        (["--bogus"], "toffe-deploy")])
+def test_an_unknown_option_names_the_command_it_was_given_to(capsys, argv, prog):
+    """An unknown option or a stray argument is the command's error, with its --help (it was
+    reported by the top-level parser: "toffe-deploy: error: unrecognized arguments")."""
+    rc, err = _error(capsys, argv)
+    assert rc == 2 and err.count("\n") == 1
+    assert err.startswith(f"{prog}: error: unrecognized arguments: ") and f"({prog} --help for usage)" in err
+
+
 def test_negative_ranges_and_two_word_sensor_sizes_are_read_as_typed():
     assert join_negative_values(["--object-contrast", "-1.5,-0.3", "--seed", "-2"]) == \
         ["--object-contrast=-1.5,-0.3", "--seed", "-2"]

@@ -70,7 +70,7 @@ def test_missing_file_and_broken_manifest(bundle_dir, tmp_path):
 
 
 def test_unlisted_files_are_tolerated(bundle_dir):
-    """run writes object_flow.jsonl into export/ by default; that must not break the bundle."""
+    """A run's --out or a user's notes beside the bundle's files do not break loading it."""
     (bundle_dir / "object_flow.jsonl").write_text("{}\n")
     load_bundle(bundle_dir)
 
@@ -95,6 +95,12 @@ def test_output_dir_rules(tmp_path, bundle_dir):
     (tmp_path / "empty").mkdir()
     check_output_dir(tmp_path / "empty")                     # empty: fine
     check_output_dir(bundle_dir)                             # a bundle: replaced
+    (bundle_dir / "object_flow.jsonl").write_text("{}\n")   # ... but not a bundle with files of others in it
+    (bundle_dir / "extra" / "notes.txt").write_text("mine")
+    with pytest.raises(InputError, match=r"also holds 2 file\(s\) that are not the bundle's \(extra/notes.txt, "
+                                         r"object_flow.jsonl\).*--force"):
+        check_output_dir(bundle_dir)
+    check_output_dir(bundle_dir, force=True)
     readme_only = tmp_path / "export"
     readme_only.mkdir()
     shutil.copy(bundle_dir / "README.md", readme_only / "README.md")

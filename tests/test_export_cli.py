@@ -53,6 +53,13 @@ def test_reexport_replaces_a_bundle_but_not_other_dirs(tmp_path, ckpt, capsys):
     out = tmp_path / "out"
     assert run_cli(ckpt, "-o", out, "--checks", "none") == 0
     assert run_cli(ckpt, "-o", out, "--checks", "none") == 0        # a bundle: replaced
+    (out / "object_flow.jsonl").write_text("{}\n")                  # a run's --out in it (make demo's, once)
+    capsys.readouterr()
+    assert run_cli(ckpt, "-o", out, "--checks", "none") == 2        # ... is not deleted with the bundle
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "object_flow.jsonl" in err and "--force" in err, err
+    assert (out / "object_flow.jsonl").read_text() == "{}\n"
+    load_bundle(out)
     other = tmp_path / "mine"
     other.mkdir()
     (other / "notes.txt").write_text("keep me")

@@ -390,6 +390,19 @@ def test_a_live_run_that_gets_no_event_is_an_error_that_leaves_out_as_it_was(env
                        capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
     assert r.returncode == 2 and r.stderr.decode().strip().splitlines()[-1] == \
         "toffe-deploy: error: -: no events arrived (the stream held its header only)"
+    ev = events_of(env)
+    few = ev[ev["t"] < ev["t"][0] + 300]                    # less than one window (dt 500 us), as a short file
+    r = subprocess.run(cli(env["bundle"], "--events", "-", "--out", out), input=stdin_header(SENSOR) + few.tobytes(),
+                       capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
+    assert r.returncode == 2 and r.stderr.decode().strip().splitlines()[-1] == (
+        f"toffe-deploy: error: -: the stream ended before its first window was whole (500 us): {len(few):,} of its "
+        f"{len(few):,} events not processed, nothing whole to process (--include-incomplete processes them as a "
+        "partial window)"), r.stderr
+    assert out.read_text() == "earlier results\n"
+    r = subprocess.run(cli(env["bundle"], "--events", "-", "--include-incomplete", "--out", out),
+                       input=stdin_header(SENSOR) + few.tobytes(), capture_output=True, env=cli_env(), cwd=ROOT,
+                       timeout=300)
+    assert r.returncode == 0 and len(window_lines(out.read_bytes())) == 1, r.stderr
 
 
 def test_idle_timeout_ends_a_stdin_run_whose_producer_never_starts(env):

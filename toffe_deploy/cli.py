@@ -13,12 +13,24 @@ from .errors import ToffeError
 from .signals import Terminated, exceptions_on_signals, signal_behind
 
 
+PROG = "toffe-deploy"
+
+
 class OneLineParser(argparse.ArgumentParser):
     """argparse with its errors on one line (``PROG: error: MESSAGE (PROG --help for usage)``,
     exit 2), like every other error of the command line, instead of the usage block first."""
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} ({self.prog} --help for usage)\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        """A command's parser (``toffe-deploy run``, ``toffe-deploy events info``) refuses what it
+        does not know itself, so that the error names the command and its --help (argparse hands
+        the leftovers up to the top-level parser, whose line named neither)."""
+        ns, extras = super().parse_known_args(args, namespace)
+        if extras and self.prog != PROG:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return ns, extras
 
 
 #: a negative number or range (``-1.5,-0.3``) that argparse would take for an option
@@ -42,7 +54,7 @@ def join_negative_values(argv: list[str]) -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
-        prog="toffe-deploy",
+        prog=PROG,
         description="Deploy TOFFE object flow (OFS spiking cascade + OFPD CNN) on Loihi 2 "
         "(Lava) and an edge GPU (onnxruntime); train, export, run and measure it.",
     )

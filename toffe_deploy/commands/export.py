@@ -18,9 +18,11 @@ def register(sub) -> None:
     p.add_argument("checkpoint", metavar="CKPT", help="checkpoint directory (config.json, ofs.safetensors, "
                                                       "ofpd.safetensors), e.g. ckpt/")
     p.add_argument("-o", "--out", default="export", metavar="DIR",
-                   help="bundle directory to write (default: export/); an existing bundle is replaced")
+                   help="bundle directory to write (default: export/); an existing bundle is replaced, unless it "
+                        "holds files that are not the bundle's (refused: --force)")
     p.add_argument("--force", action="store_true",
-                   help="replace the output directory even if it exists and is not a bundle")
+                   help="replace the output directory whole even if it is not a bundle or holds files that are not "
+                        "the bundle's")
     p.add_argument("--variants", default="", metavar="LIST",
                    help="comma-separated extra OFPD precisions for the edge GPU: fp16, int8 (default: none)")
     p.add_argument("--data", metavar="DIR", default=None,

@@ -479,7 +479,9 @@ def run_command(args) -> int:
                 interrupted = stop.interrupted
                 summary.wall_s = time.perf_counter() - t_run
                 never_sent = live and not src.stats.received_events     # --out stays as it was
-                head = head and not never_sent and write_header(sink, head)
+                none_whole = (live and not interrupted and not never_sent and not summary.windows  # and here
+                              and not src.stats.dropped_events)
+                head = head and not never_sent and not none_whole and write_header(sink, head)
                 if dump is not None:
                     dump.write()
             ok = True
@@ -495,6 +497,12 @@ def run_command(args) -> int:
                     "stray datagrams)" if invalid else " (the stream held its header only)" if args.events == "-"
                     else " (a sender started before 'reading ...' was printed sends into nothing)")
                     + (f" within --idle-timeout {args.idle_timeout:g} s" if args.idle_timeout else ""))
+            if none_whole:                           # as a file shorter than one window
+                st = summary.live
+                raise InputError(args.events, f"the stream ended before its first window was whole ({cfg.dt_us} us): "
+                                              f"{st.get('incomplete_events', 0):,} of its {st['received_events']:,} "
+                                              "events not processed, nothing whole to process (--include-incomplete "
+                                              "processes them as a partial window)")
     if errors is not None:
         summary.errors = errors.summary()
         if tracking is not None:

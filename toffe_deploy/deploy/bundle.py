@@ -232,17 +232,27 @@ def is_bundle_dir(path: str | os.PathLike) -> bool:
 
 
 def check_output_dir(path: str | os.PathLike, force: bool = False) -> None:
-    """Refuse to replace a directory that is not ours (unless force).
+    """Refuse to replace a directory that holds anything not ours (unless force): the bundle is
+    written beside it and replaces it whole, so whatever else it holds would be deleted.
 
-    Accepted: a missing path, an empty directory, an existing bundle, or a directory holding
-    only this project's bundle README (export/README.md as shipped in the repository).
+    Accepted: a missing path, an empty directory, an existing bundle holding only its own files
+    (manifest.json and those its manifest lists), or a directory holding only this project's
+    bundle README (export/README.md as shipped in the repository).
     """
     p = Path(path)
     if not p.exists():
         return
     if not p.is_dir():
         raise InputError(p, "output exists and is not a directory")
-    if force or is_bundle_dir(p):
+    if force:
+        return
+    if is_bundle_dir(p):
+        others = foreign_files(p)
+        if others:
+            shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+            raise InputError(p, f"the bundle directory also holds {len(others)} file(s) that are not the bundle's "
+                                f"({shown}): writing the new bundle replaces the directory whole and would delete "
+                                "them; move them out, choose another -o, or pass --force to replace it all")
         return
     entries = [e for e in p.iterdir()]
     if not entries:
@@ -256,6 +266,22 @@ def check_output_dir(path: str | os.PathLike, force: bool = False) -> None:
             pass
     raise InputError(p, "output directory exists and is not a toffe-deploy bundle "
                         "(holds other files); choose another -o or pass --force to replace it")
+
+
+def foreign_files(path: str | os.PathLike) -> list[str]:
+    """The files under bundle directory ``path`` (relative, sorted) that are neither its
+    manifest.json nor listed in it: a run's --out, a user's notes."""
+    root = Path(path)
+    try:
+        listed = set(json.loads((root / MANIFEST).read_text(encoding="utf-8")).get("files") or {})
+    except (OSError, AttributeError, *JSON_ERRORS):
+        listed = set()
+    own = listed | {MANIFEST}
+    found = []
+    for d, dirs, files in os.walk(root):          # symlinked directories are listed, not followed
+        rel = Path(d).relative_to(root)
+        found += [(rel / n).as_posix() for n in files + [x for x in dirs if (Path(d) / x).is_symlink()]]
+    return sorted(f for f in found if f not in own)
 
 
 # ----------------------------------------------------------------------------- writer

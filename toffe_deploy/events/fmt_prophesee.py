@@ -271,8 +271,9 @@ class PropheseeDatSource(SequentialSource):
                 if not data:
                     return
                 if len(data) % size:
-                    raise InputError(self.path, f"ends inside an event record ({len(data) % size} trailing "
-                                                "bytes: truncated?)")
+                    n = len(data) % size
+                    raise InputError(self.path, f"ends inside an event record ({n} trailing "
+                                                f"byte{'s' if n != 1 else ''}: truncated?)")
                 rec = np.frombuffer(data, np.dtype([("t", "<u4"), ("d", "<u4"), ("pad", f"V{size - 8}")])
                                     if size > 8 else np.dtype([("t", "<u4"), ("d", "<u4")]))
                 d = rec["d"].astype(np.int64)
