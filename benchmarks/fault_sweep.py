@@ -14,8 +14,8 @@ Everything left is removed afterwards (the sweep's own processes and segments on
     python benchmarks/fault_sweep.py --pythonpath /work/main --only run-loihi   # another checkout
 
 Exit status: 0 when every scenario run left nothing behind and its host exited; 1 when one
-hung (did not exit within its wait) or left processes, /dev/shm segments or temp files (the
-table says which); 2 for bad options (an unknown --only group, a --pythonpath without
+hung (did not exit within its wait), printed a traceback, or left processes, /dev/shm segments
+or temp files (the table says which); 2 for bad options (an unknown --only group, a --pythonpath without
 toffe_deploy/, a --match that selects nothing). The exit codes of the killed runs themselves
 are reported, not judged.
 
@@ -256,6 +256,16 @@ def n_children(n: int, after_s: float = 0.0) -> Callable[[subprocess.Popen], boo
     return trig
 
 
+def after(seconds: float) -> Callable[[subprocess.Popen], bool]:
+    """``seconds`` after the start: a stage by time (the imports of the first second, where a
+    signal can land inside a C extension's initialisation)."""
+    state: dict = {}
+
+    def trig(p):
+        return time.monotonic() - state.setdefault("t", time.monotonic()) >= seconds
+    return trig
+
+
 def catching(sig: int = signal.SIGTERM) -> Callable[[subprocess.Popen], bool]:
     """The host has a handler for ``sig`` (/proc/PID/status SigCgt) and no child yet: the CLI is
     past interpreter start-up (before that, a signal takes its default action)."""
@@ -359,6 +369,12 @@ def matrix(e: dict, pythonpath: str, out: Path):
                        "--no-progress", "--out", out / "cpu.jsonl")
     yield "run-cpu", "SIGTERM host @ writing output", run_cpu, env, lines_written(out / "cpu.jsonl"), \
         ACTIONS["SIGTERM host"], [str(out / ".cpu.jsonl.*")], 30.0
+    # Ctrl-C through start-up by time, two processes (more imports in flight): one landing inside
+    # onnxruntime's or numba's C initialisation came out as an ImportError traceback, exit 1
+    two = run_cpu[:run_cpu.index("--no-progress")] + ["--processes", "2", "--no-progress", "--out", str(out / "two.jsonl")]
+    for ms in range(200, 1500, 100):
+        yield "run-cpu", f"Ctrl-C group @ {ms} ms, 2 processes", two, env, after(ms / 1000), ACTIONS["Ctrl-C group"], \
+            [str(out / ".two.jsonl.*")], 30.0
     exp, env = cli(pythonpath, "export", e["ckpt"], "-o", out / "bundle", "--checks", "lava_vs_fixed",
                    "--windows", "2", "--lava-windows", "1", "--quiet")
     exp_tmp = [str(out / ".bundle.*")]
@@ -377,7 +393,8 @@ def main(argv: list[str] | None = None) -> int:
         return text
 
     ap = OneLineParser(prog="fault_sweep.py", description=__doc__.splitlines()[0] + " Exit 1 when a scenario "
-                       "hung or left processes, /dev/shm segments or temp files; 2 for bad options.")
+                       "hung, printed a traceback, or left processes, /dev/shm segments or temp files; 2 for bad "
+                       "options.")
     ap.add_argument("--pythonpath", type=existing_dir, default=str(ROOT),
                     help="checkout whose toffe_deploy runs (default: this one)")
     ap.add_argument("--only", type=comma_list(group), default=[], help=f"comma-separated groups: {', '.join(GROUPS)}")
@@ -404,7 +421,7 @@ def main(argv: list[str] | None = None) -> int:
         out = Path(tmp) / "out"
         out.mkdir()
         print(f"code: {a.pythonpath}")
-        print(f"{'group':10} {'scenario':34} {'rc':>5} {'exit s':>7} {'procs':>5} {'shm seg':>7} {'shm bytes':>10} temp")
+        print(f"{'group':10} {'scenario':40} {'rc':>5} {'exit s':>7} {'procs':>5} {'shm seg':>7} {'shm bytes':>10} temp")
         named = (Path(a.pythonpath) / "toffe_deploy" / "runtime" / "lava_host.py").is_file()
         for group_name, name, args, env, trig, act, globs, wait in matrix(e, a.pythonpath, out):
             if not chosen(group_name, name):
@@ -413,13 +430,16 @@ def main(argv: list[str] | None = None) -> int:
             o = run_scenario(name, args, trig, act, globs, env=env, settle_s=a.settle, exit_wait_s=wait,
                              count_psm=not named)
             rc = "hung" if o.rc is None else str(o.rc)
-            bad = o.rc is None or o.procs_left or o.shm_segments_left or o.temp_left
+            tb = "Traceback" in o.stderr
+            bad = o.rc is None or o.procs_left or o.shm_segments_left or o.temp_left or tb
             failed += bool(bad)
-            note = ("" if o.triggered else "  (ended before the stage)") + ("  FAILED" if bad else "")
-            print(f"{group_name:10} {name:34} {rc:>5} {o.exit_s:7.2f} {o.procs_left:5d} {o.shm_segments_left:7d} "
+            note = ("" if o.triggered else "  (ended before the stage)") + ("  traceback" if tb else "") + (
+                "  FAILED" if bad else "")
+            print(f"{group_name:10} {name:40} {rc:>5} {o.exit_s:7.2f} {o.procs_left:5d} {o.shm_segments_left:7d} "
                   f"{o.shm_bytes_left:10d} {len(o.temp_left)}{note}", flush=True)
     if failed:
-        print(f"fault_sweep.py: {failed} of {ran} scenarios hung or left something behind", file=sys.stderr)
+        print(f"fault_sweep.py: {failed} of {ran} scenarios hung, printed a traceback or left something behind",
+              file=sys.stderr)
         return 1
     return 0
 
