@@ -70,6 +70,10 @@ def test_reexport_replaces_a_bundle_but_not_other_dirs(tmp_path, ckpt, capsys):
     assert run_cli(ckpt, "-o", other, "--checks", "none", "--force") == 0
     assert not (other / "notes.txt").exists()
     load_bundle(other)
+    (tmp_path / "d").mkdir()
+    capsys.readouterr()
+    assert run_cli(ckpt, "-o", tmp_path / "b2", "--checks", "none", "--data", tmp_path / "d") == 0
+    assert "warning: --data " in capsys.readouterr().err                # not read without checks or variants
 
 
 def _break_missing(ck):

@@ -55,6 +55,24 @@ def test_missing_directory(tmp_path):
     _expect(tmp_path / "nope", "does not exist")
 
 
+def test_a_directory_without_a_checkpoint_or_a_bundle_says_what_it_is(tmp_path):
+    """An empty or unrelated directory is "not a checkpoint directory", a deploy bundle is named as
+    one (both said "config.json: missing file" or "ofs.safetensors: missing file")."""
+    _expect(tmp_path, r"not a checkpoint directory \(expected config.json, ofs.safetensors, ofpd.safetensors\)")
+    (tmp_path / "manifest.json").write_text("{}")
+    (tmp_path / "config.json").write_text("{}")
+    _expect(tmp_path, r"a deploy bundle \(export's output\), not a checkpoint")
+
+
+def test_a_json_error_names_its_line_once(tmp_path):
+    from toffe_deploy.fileio import read_json
+
+    p = tmp_path / "index.json"
+    p.write_text('{"a": "x\ny"}')
+    with pytest.raises(InputError, match=r"not valid JSON \(Invalid control character at line 1\)$"):
+        read_json(p)
+
+
 def test_corrupt_safetensors(ckpt):
     (ckpt / "ofs.safetensors").write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00{garbage")
     _expect(ckpt, r"ofs.safetensors: not a valid safetensors file")

@@ -99,6 +99,31 @@ def test_stage_ofpd_needs_trained_ofs(data, tmp_path, capsys):
     assert "--stage ofpd needs a checkpoint" in capsys.readouterr().err
 
 
+def test_stage_ofpd_and_resume_refuse_data_of_another_sensor_and_record_the_data(data, tmp_path, capsys):
+    """--stage ofpd (and --resume) go on training a checkpoint at its sensor size: data of
+    another size is refused, one line, the checkpoint as it was (it trained, exit 0, and kept
+    saying the old size and data set); another data set of that size is recorded."""
+    from toffe_deploy.checkpoint import init_checkpoint
+    from toffe_deploy.config import ToffeConfig
+
+    small = tmp_path / "small"
+    assert main(["dataset", "synth", "--out", str(small), "--split", "train", "--limit", "1", "--duration-s", "0.005",
+                 "--sensor-size", "64x48", "--no-progress"]) == 0
+    ck = tmp_path / "ck"
+    init_checkpoint(ck, ToffeConfig(dataset={"data_dir": "/elsewhere"}), seed=1)
+    before = (ck / "ofpd.safetensors").read_bytes()
+    capsys.readouterr()
+    assert main(["train", "--data", str(small), "--out", str(ck), "--epochs", "1", "--no-progress", "--stage",
+                 "ofpd"]) == 2                           # (--resume of a run goes through the same check)
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "its sequences are 64x48" in err and "is for 640x480" in err, err
+    assert (ck / "ofpd.safetensors").read_bytes() == before
+    assert main(["train", "--data", str(data), "--out", str(ck), "--stage", "ofpd", "--epochs", "1",
+                 "--windows-per-seq", "2", "--no-progress"]) == 0
+    got = load_checkpoint(ck).config.dataset
+    assert got["data_dir"] == str(data) and got["ofs_dataset"] == {"data_dir": "/elsewhere"}
+
+
 def test_ofpd_pool_retrains_only_the_ofpd(data, tmp_path, capsys):
     from toffe_deploy.checkpoint import init_checkpoint
     from toffe_deploy.config import ToffeConfig
@@ -224,15 +249,18 @@ def test_a_data_set_of_one_camera_states_the_bins_for_that_camera(tmp_path, rand
     """make_config: training files all recorded with one focal length (an EVK4's 1646 px) give a
     config stated for that camera (manifest and `run` without --focal-px then speak of it), with
     the same image-plane bins (px/ms) as the reference; files of several focal lengths (the
-    randomized data set) keep the reference camera."""
+    randomized data set) the reference camera's 60 deg field of view over the data's width (they
+    kept its 554 px at every width)."""
     from pathlib import Path
 
     from toffe_deploy.config import ToffeConfig
     from toffe_deploy.events.fmt_toffe import write_events_h5
     from toffe_deploy.model.train import make_config
 
+    from toffe_deploy.camera import focal_px_from_hfov
+
     ref = ToffeConfig()
-    for focals, want in (((1646.0, 1646.0), 1646.0), ((1646.0, 900.0), ref.focal_px)):
+    for focals, want in (((1646.0, 1646.0), 1646.0), ((1646.0, 900.0), focal_px_from_hfov(128, 60.0))):
         files = []
         for i, f in enumerate(focals):
             path = tmp_path / f"{len(focals)}_{f:g}_{i}.h5"
@@ -299,7 +327,11 @@ def test_an_interrupted_run_leaves_the_checkpoint_as_it_was_and_resume_finishes_
         raise KeyboardInterrupt
     with monkeypatch.context() as m:
         m.setattr(tr, "build_ofpd_set", stop)
+        capsys.readouterr()
         assert main(args + ["--seed", "4"]) == 130
+    err = capsys.readouterr().err.strip().splitlines()          # what is left, and how to go on
+    assert err[-2:] == [f"toffe-deploy: {ck}: left as it was; `train ... --resume` with the same options continues "
+                        "from the stages this run finished", "toffe-deploy: interrupted"], err
     assert {f: (ck / f).read_bytes() for f in files} == before
     pending = load_checkpoint(ck / ".train_state" / "checkpoint")
     old = load_checkpoint(ck)

@@ -146,7 +146,10 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
     root = Path(path)
     if not root.exists():
         raise InputError(root, "checkpoint directory does not exist")
-    if not root.is_dir():
+    if root.is_dir() and (root / "manifest.json").is_file() and not (root / OFS_FILE).exists():
+        raise InputError(root, "a deploy bundle (export's output), not a checkpoint: give the checkpoint "
+                               "directory it was exported from (e.g. ckpt/)")
+    if not root.is_dir() or not any((root / f).exists() for f in (CONFIG_FILE, OFS_FILE, "ofpd.safetensors")):
         raise InputError(root, "not a checkpoint directory (expected config.json, ofs.safetensors, ofpd.safetensors)")
     config = load_config(root / CONFIG_FILE)
     try:

@@ -234,7 +234,8 @@ def read_json(path: str | os.PathLike) -> Any:
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(path, f"cannot read: {exc}") from None
     except json.JSONDecodeError as exc:
-        raise InputError(path, f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
+        msg = exc.msg.removesuffix(" at")        # json's "Invalid control character at"
+        raise InputError(path, f"not valid JSON ({msg} at line {exc.lineno})") from None
     except RecursionError:
         raise InputError(path, "not valid JSON (nested too deeply)") from None
 

@@ -85,6 +85,9 @@ def run(args) -> int:
     if args.windows < 1 or args.lava_windows < 1:
         raise ToffeError("--windows and --lava-windows must be >= 1")
     check_export_output(args)
+    if args.data is not None and not checks and not _list(args.variants):     # (it was dropped silently)
+        print(f"toffe-deploy: warning: --data {args.data} is not read: it gives the windows of the parity checks "
+              "and of the OFPD variants' error, and --checks none without --variants runs neither", file=sys.stderr)
     with slow_notice(args, "\ntoffe-deploy: the parity checks run the pipeline, whose kernels the first run on a "
                            "machine compiles (about 2 minutes, once)", after_s=45.0):   # a warm export: ~22 s
         res = export_bundle(args.checkpoint, args.out, force=args.force, variants=_list(args.variants),

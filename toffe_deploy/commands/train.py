@@ -1,6 +1,7 @@
 """`toffe-deploy train`: train the OFS stages and the OFPD on a synthetic data set."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from ..config import MAX_DT_US, MAX_MASK_KERNEL
@@ -122,15 +123,23 @@ def run(args) -> int:
         raise ToffeError("--device cuda: no CUDA device available")
     from ..model.train import SpeedLoss, TrainOptions, train
 
+    from ..signals import signal_behind
+
     torch.set_num_threads(max(1, min(torch.get_num_threads(), 2)))
-    out = train(TrainOptions(data=args.data, out=args.out, stage=args.stage, ofs_epochs=args.ofs_epochs,
-                             ofpd_epochs=args.epochs, seed=args.seed, resume=args.resume, dt_us=args.dt,
-                             per_file=args.windows_per_seq, device=args.device, ofpd_pool=args.ofpd_pool,
-                             ofpd_kernels=kernels, progress=show_progress(args), input_norm=args.input_norm,
-                             ofs_kernel=args.ofs_kernel, min_cluster=args.min_cluster, reset=args.reset,
-                             init_from=args.init_from, ofs_pool=args.ofs_pool, mask_kernel=args.mask_kernel,
-                             input_support=support,
-                             speed_loss=SpeedLoss(args.speed_balance, float(args.speed_edge_weight))))
+    try:
+        out = train(TrainOptions(data=args.data, out=args.out, stage=args.stage, ofs_epochs=args.ofs_epochs,
+                                 ofpd_epochs=args.epochs, seed=args.seed, resume=args.resume, dt_us=args.dt,
+                                 per_file=args.windows_per_seq, device=args.device, ofpd_pool=args.ofpd_pool,
+                                 ofpd_kernels=kernels, progress=show_progress(args), input_norm=args.input_norm,
+                                 ofs_kernel=args.ofs_kernel, min_cluster=args.min_cluster, reset=args.reset,
+                                 init_from=args.init_from, ofs_pool=args.ofs_pool, mask_kernel=args.mask_kernel,
+                                 input_support=support,
+                                 speed_loss=SpeedLoss(args.speed_balance, float(args.speed_edge_weight))))
+    except BaseException as exc:
+        if signal_behind(exc) is not None:       # said before cli's "interrupted" line
+            print(f"toffe-deploy: {args.out}: left as it was; `train ... --resume` with the same options "
+                  "continues from the stages this run finished", file=sys.stderr)
+        raise
     if out is not None:                  # None: a --resume of a finished run (train said so)
         print(f"checkpoint written to {out}")
     return 0

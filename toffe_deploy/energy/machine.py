@@ -65,5 +65,9 @@ def describe_machine(counters: dict | None = None) -> dict:
 
 
 def short_name(machine: dict) -> str:
-    """One line for table headers: CPU model and usable cores."""
-    return f"{machine.get('cpu_model', '?')}, {machine.get('cpu_cores_usable', '?')} cores"
+    """One line for table headers: CPU model, the cores this process may use and the machine's
+    (the load average the reports compare with is the machine's: "1 cores" beside "load > 2
+    cores" read as a contradiction)."""
+    usable, total = machine.get("cpu_cores_usable", "?"), machine.get("cpu_cores", "?")
+    cores = f"{usable} core{'' if usable == 1 else 's'}" + (f" of {total}" if total not in ("?", usable) else "")
+    return f"{machine.get('cpu_model', '?')}, {cores}"

@@ -49,7 +49,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
-from ..camera import REFERENCE_FOCAL_PX
+from ..camera import REFERENCE_HFOV_DEG, focal_px_from_hfov
 from ..checkpoint import (CONFIG_FILE, load_checkpoint, random_ofpd_state, save_checkpoint, dotie_ofs)
 from ..config import ToffeConfig
 from ..errors import InputError, ToffeError, warn
@@ -502,7 +502,22 @@ def make_config(files, data: Path, dt_us: int, seed: int, input_norm: str, ofs_k
     config = ToffeConfig(sensor_size=sensor, dt_us=int(dt_us), ofpd=dict(ofpd_io.OFPD_DEFAULTS),
                          dataset=prov, input_norm=input_norm, ofs_kernel=int(ofs_kernel),
                          input_min_cluster=int(min_cluster))
-    return config if focal is None else for_camera(config, focal)
+    return for_camera(config, stated_focal(data, sensor, focal))
+
+
+def stated_focal(data: Path, sensor: tuple[int, int], focal: float | None) -> float:
+    """The focal length a checkpoint states its m/s for: the data's one camera, or, for
+    sequences of several (the randomized data set), the reference 60 deg field of view over the
+    data's width (554.3 px at 640 px; it was 554.3 px at every width: a 320 px data set's
+    checkpoint spoke of a 32 deg lens nobody used), said in a warning at other widths."""
+    if focal is not None:
+        return float(focal)
+    f = focal_px_from_hfov(sensor[0], REFERENCE_HFOV_DEG)
+    if sensor[0] != 640:
+        warn(f"{data}: its training sequences were recorded with several focal lengths: the checkpoint states "
+             f"speeds in m/s for a {REFERENCE_HFOV_DEG:g} deg field of view over its {sensor[0]} px "
+             f"(focal {f:.1f} px); `run --focal-px` / `--hfov-deg` state them for your camera")
+    return f
 
 
 def data_camera(files, data: Path, seed: int) -> tuple[tuple[int, int], float | None, dict]:
@@ -526,6 +541,28 @@ def data_camera(files, data: Path, seed: int) -> tuple[tuple[int, int], float | 
     return (int(sensor[0]), int(sensor[1])), focal, prov
 
 
+def same_camera_data(config: ToffeConfig, files, data: Path, seed: int, out: Path, resume: bool) -> ToffeConfig:
+    """``config`` of the checkpoint a --resume or --stage ofpd run goes on training, checked
+    against the data it now trains on: another sensor size is refused (its OFS stages and OFPD
+    were trained at the checkpoint's; such a run finished, exit 0, still saying the old size
+    and data set), and a --stage ofpd run on another data set records it (config.dataset, the
+    OFS stages' own data kept as ``ofs_dataset``)."""
+    sensor, _focal, prov = data_camera(files, data, seed)
+    if tuple(sensor) != tuple(config.sensor_size):
+        w, h = config.sensor_size
+        raise InputError(data, f"its sequences are {sensor[0]}x{sensor[1]}, the checkpoint in {out} is for {w}x{h} "
+                               f"(what {'the run --resume continues' if resume else '--stage ofpd trains on'} was "
+                               "trained at): train on data of that size, or fine-tune it on this data with "
+                               "--init-from into a new --out")
+    old = dict(config.dataset or {})
+    if os.path.realpath(old.get("data_dir", "")) == os.path.realpath(data):
+        return config
+    if resume:              # (a data set moved, or another of the same camera: the caller's to say)
+        warn(f"{data}: the run --resume continues began on {old.get('data_dir')}; it goes on with this data set")
+        return config
+    return dataclasses.replace(config, dataset={**prov, "ofs_dataset": old})
+
+
 def init_config(init: ToffeConfig, files, data: Path, seed: int, init_from) -> ToffeConfig:
     """The config of a run that starts from another checkpoint's (``--init-from``): its model
     settings, but the camera of the data it now trains on (sensor size; speed bins in m/s for
@@ -534,7 +571,7 @@ def init_config(init: ToffeConfig, files, data: Path, seed: int, init_from) -> T
     640x480 checkpoint on EVK4 data gives a bundle that says 1280x720 and 1646 px."""
     sensor, focal, prov = data_camera(files, data, seed)
     config = dataclasses.replace(init, sensor_size=sensor, dataset={**prov, "init_from": os.fspath(init_from)})
-    return for_camera(config, REFERENCE_FOCAL_PX if focal is None else focal)
+    return for_camera(config, stated_focal(data, sensor, focal))
 
 
 def for_camera(config: ToffeConfig, focal_px: float) -> ToffeConfig:
@@ -637,6 +674,7 @@ def train(opts: TrainOptions) -> Path | None:
         else:
             _check_kept_settings(opts, config, out, "the checkpoint --stage ofpd trains on",
                                  "drop the option, or train a new checkpoint (--stage all)")
+        config = same_camera_data(config, files, Path(opts.data), opts.seed, out, resume)
     elif init_ofs is not None:
         config = init_config(init.config, files, Path(opts.data), opts.seed, opts.init_from)
         _check_kept_settings(opts, config, opts.init_from, "the --init-from checkpoint",
