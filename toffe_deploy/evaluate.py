@@ -257,6 +257,8 @@ def format_markdown(r: dict) -> str:
                      f"{_f(a['fp_per_window'], 3)} ({a['false_positives']}/{a['n_windows']}) | {_f(a['bin_accuracy'], 3)} | "
                      f"{_f(a['pixE'], 3)} | {_f(a['dirE'], 3)} | {_f(a['speedE'], 3)} | {_f(a['speedE_px_ms'], 3)} | "
                      f"{_f(a['speedE_bin_only'], 3)} | {_f(p[0], 3)} | {_f(p[1], 3)} | {_f(p[2], 3)} |")
+    lines.append("\nspeedE bin-only: the paper's speed estimate, each object at its speed bin's representative "
+                 "speed (the OFS stage that fired), not the OFPD's regressed speed of the speedE columns.")
     if any(not row["same_dt_as_training"] for row in rows):
         lines.append(f"\n\\* evaluated with the weights trained at dt = {r['trained_dt_us']} us.")
     lines += ["", "Per ground-truth speed bin (errors over matched objects; bin acc. = cascade put it in its true bin; "
