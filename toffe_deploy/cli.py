@@ -128,5 +128,6 @@ def exit_status(exc: BaseException) -> int:
         return 2
     raise exc
 
+
 if __name__ == "__main__":
     sys.exit(entry())

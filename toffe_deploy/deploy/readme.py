@@ -209,8 +209,8 @@ bundle's graph reproduces it** (metadata `reproduces_bundle`; checked in snnTorc
 Norse 1.1 by `benchmarks/nir_check.py`) up to float rounding: a membrane within float32
 rounding of its threshold can fire where the integers do not, or not fire where they do (1
 spike of 12,045 on the shipped checkpoint's 4 held-out windows; 12 of about 524,000, all in
-stage 1, in a float32 forward-Euler run on dense random input); **NIR cannot express reset by subtraction**, so a
-`reset: subtract` bundle's graph says so in `metadata.reset` and its readers run a zero-reset
+stage 1, in a float32 forward-Euler run on dense random input); **NIR cannot express reset
+by subtraction**, so a `reset: subtract` bundle's graph says so in `metadata.reset` and its readers run a zero-reset
 network instead. `metadata` also holds the integer parameters and the cascade rule (stage N
 first, closing with mask_kernel, inversion), which NIR cannot express. Readers that open the
 file: snnTorch 1.0 (`snntorch.import_nir.import_from_nir`, one stage per subgraph is practical
