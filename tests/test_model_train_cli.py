@@ -29,6 +29,9 @@ def test_train_resume_and_eval(data, tmp_path, capsys):
     assert (ck / ".train_state" / "ofpd_partial.pt").is_file()        # what --resume continues from
     log = json.loads((ck / "train_log.json").read_text())
     assert len(log["ofs_separation_train"]) == 4 and log["train_windows"] > 0
+    done = capsys.readouterr().out.strip().splitlines()[-1]           # says more than where, without bars
+    assert done.startswith(f"checkpoint written to {ck} ({log['train_windows']:,} training windows; ") and \
+        "OFPD losses of its last epoch: pose " in done and done.endswith(f"{ck / 'train_log.json'})"), done
 
     assert main(args + ["--epochs", "2", "--resume"]) == 0          # continues: OFS kept, one more OFPD epoch
     second = load_checkpoint(ck)

@@ -141,5 +141,25 @@ def run(args) -> int:
                   "continues from the stages this run finished", file=sys.stderr)
         raise
     if out is not None:                  # None: a --resume of a finished run (train said so)
-        print(f"checkpoint written to {out}")
+        print(f"checkpoint written to {out}" + _log_summary(Path(out)))
     return 0
+
+
+def _log_summary(out: Path) -> str:
+    """`` (N training windows, T s; per stage and epoch: OUT/train_log.json)`` from the run's
+    log, so that a run without a terminal (no progress bars) says more than where it wrote."""
+    import json
+
+    try:
+        log = json.loads((out / "train_log.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return ""
+    if not isinstance(log, dict):
+        return ""
+    parts = [f"{log['train_windows']:,} training windows" if isinstance(log.get("train_windows"), int) else None,
+             f"{log['train_seconds']:.0f} s" if isinstance(log.get("train_seconds"), (int, float)) else None]
+    loss = log.get("ofpd_loss")
+    if isinstance(loss, list) and loss and isinstance(loss[-1], list) and len(loss[-1]) == 3:
+        parts.append("OFPD losses of its last epoch: pose {:.3g}, direction {:.3g}, log speed {:.3g}".format(
+            *map(float, loss[-1])))
+    return " (" + "; ".join([p for p in parts if p] + [f"per stage and epoch: {out / 'train_log.json'}"]) + ")"
