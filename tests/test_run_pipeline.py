@@ -585,7 +585,8 @@ with open_events(sys.argv[2]) as src:
             for t0, ev in src.iter_windows(cfg.dt_us)]
 half = sys.argv[3]
 pipe = Pipeline(b, "cpu", processes=2 if half == "back" else 1)
-pipe.half = "front" if half == "front" else "all"
+if half == "front":
+    pipe.half = "front"                  # as split.py's worker sets it (processes=2 sets "back")
 with pipe:
     print("groups", pipe.warm_groups())
     before = loaded()

@@ -76,15 +76,13 @@ def exceptions_on_signals(ignore_after_signal: bool = False) -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    fired: list[int] = []
-    raised: list[BaseException] = []
+    fired: list[int] = []             # the signal this block took (its exception: _RAISED["exc"])
 
     def handler(signum, frame):
         if fired:
             return
         fired.append(signum)
         exc = KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
-        raised.append(exc)
         _RAISED["exc"] = exc
         if _DEFER["depth"]:                 # signals_deferred: raised when that block ends
             _DEFER["pending"] = exc
@@ -94,9 +92,8 @@ def exceptions_on_signals(ignore_after_signal: bool = False) -> Iterator[None]:
     prev_hook = sys.unraisablehook
 
     def unraisable(info):           # (marked: redeliver_swallowed leaves a swallowed signal to it)
-        if raised and info.exc_value is raised[-1]:        # swallowed: deliver the signal again
+        if info.exc_value is not None and info.exc_value is _RAISED["exc"]:   # swallowed: deliver it again
             signum = fired.pop()
-            raised.clear()
             _RAISED["exc"] = None
             _send_again(signum)
             return
@@ -108,10 +105,11 @@ def exceptions_on_signals(ignore_after_signal: bool = False) -> Iterator[None]:
         # A C extension's init that PyErr_Print()s the error of a nested import (numba's
         # _dispatcher does, for numba._devicearray): our own signal's exception is not printed
         # there; the ImportError that follows carries it up (signal_behind).
-        if raised and value is raised[-1]:
+        if value is not None and value is _RAISED["exc"]:
             return
         prev_excepthook(etype, value, tb)
 
+    outer_raised, _RAISED["exc"] = _RAISED["exc"], None     # (before the handlers: they set it)
     old = {}
     for sig in HANDLED:
         if signal.getsignal(sig) is not signal.SIG_IGN:
@@ -119,11 +117,10 @@ def exceptions_on_signals(ignore_after_signal: bool = False) -> Iterator[None]:
     unraisable.redelivers_signals = True
     sys.unraisablehook = unraisable
     sys.excepthook = excepthook
-    outer_raised, _RAISED["exc"] = _RAISED["exc"], None
     try:
         yield
     finally:
-        signalled = bool(fired or raised)
+        signalled = bool(fired)
         fired.append(0)                   # a signal from here on must not raise outside the caller's try
         sys.unraisablehook = prev_hook
         sys.excepthook = prev_excepthook

@@ -148,11 +148,12 @@ def run(args) -> int:
 def _log_summary(out: Path) -> str:
     """`` (N training windows, T s; per stage and epoch: OUT/train_log.json)`` from the run's
     log, so that a run without a terminal (no progress bars) says more than where it wrote."""
-    import json
+    from ..errors import InputError
+    from ..fileio import read_json
 
     try:
-        log = json.loads((out / "train_log.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        log = read_json(out / "train_log.json")
+    except InputError:
         return ""
     if not isinstance(log, dict):
         return ""

@@ -223,12 +223,16 @@ def ofs_from_json(d: Any, path: str | os.PathLike, expect_channels: int | None =
 
 def is_bundle_dir(path: str | os.PathLike) -> bool:
     """True when ``path`` holds a manifest.json of our bundle format (any version)."""
-    m = Path(path) / MANIFEST
+    return _bundle_manifest(path) is not None
+
+
+def _bundle_manifest(path: str | os.PathLike) -> dict | None:
+    """``path``'s manifest.json when it is one of our bundle format (any version), else None."""
     try:
-        d = json.loads(m.read_text(encoding="utf-8"))
+        d = json.loads((Path(path) / MANIFEST).read_text(encoding="utf-8"))
     except (OSError, *JSON_ERRORS):
-        return False
-    return isinstance(d, dict) and d.get("format") == BUNDLE_FORMAT
+        return None
+    return d if isinstance(d, dict) and d.get("format") == BUNDLE_FORMAT else None
 
 
 def check_output_dir(path: str | os.PathLike, force: bool = False) -> None:
@@ -246,8 +250,9 @@ def check_output_dir(path: str | os.PathLike, force: bool = False) -> None:
         raise InputError(p, "output exists and is not a directory")
     if force:
         return
-    if is_bundle_dir(p):
-        others = foreign_files(p)
+    manifest = _bundle_manifest(p)
+    if manifest is not None:
+        others = foreign_files(p, manifest)
         if others:
             shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
             raise InputError(p, f"the bundle directory also holds {len(others)} file(s) that are not the bundle's "
@@ -268,15 +273,12 @@ def check_output_dir(path: str | os.PathLike, force: bool = False) -> None:
                         "(holds other files); choose another -o or pass --force to replace it")
 
 
-def foreign_files(path: str | os.PathLike) -> list[str]:
+def foreign_files(path: str | os.PathLike, manifest: dict) -> list[str]:
     """The files under bundle directory ``path`` (relative, sorted) that are neither its
-    manifest.json nor listed in it: a run's --out, a user's notes."""
+    manifest.json nor listed in its ``manifest``: a run's --out, a user's notes."""
     root = Path(path)
-    try:
-        listed = set(json.loads((root / MANIFEST).read_text(encoding="utf-8")).get("files") or {})
-    except (OSError, AttributeError, *JSON_ERRORS):
-        listed = set()
-    own = listed | {MANIFEST}
+    listed = manifest.get("files")
+    own = set(listed if isinstance(listed, dict) else ()) | {MANIFEST}
     found = []
     for d, dirs, files in os.walk(root):          # symlinked directories are listed, not followed
         rel = Path(d).relative_to(root)

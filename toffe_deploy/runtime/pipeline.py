@@ -243,8 +243,8 @@ class Pipeline:
         self._split = None
         #: which half of the host steps this process runs, for the kernels its __enter__ loads:
         #: "all"; "back" (run's process with processes=2: binning, plane fit, faint objects,
-        #: tracker); "front" (split.py's worker: front end, cascade, grouping)
-        self.half = "all"
+        #: tracker); "front" (split.py's worker: front end, cascade, grouping; it sets it)
+        self.half = "back" if self.processes == 2 else "all"
         if speed_scale is not None and not isinstance(speed_scale, SpeedScale):
             raise ValueError(f"speed_scale must be a toffe_deploy.camera.SpeedScale(focal_px, depth_m), got {speed_scale!r}")
         if not hasattr(bundle, "config"):              # a bundle's directory, as FlowStream takes
@@ -364,7 +364,7 @@ class Pipeline:
 
     def _enter(self) -> "Pipeline":
         groups = self.warm_groups()
-        half = "back" if self._split is not None else self.half
+        half = self.half
         if half == "back" and groups is not None:
             groups = ("binning",)                # the rest of the fast path runs in the second process
         if isinstance(self.cascade, CpuCascade):
