@@ -808,6 +808,22 @@ def test_an_ofpd_model_giving_nan_is_one_line_error(env, capsys, tmp_path):
     assert lines[0]["type"] == "header" and not any(line.get("objects") for line in lines)
 
 
+def test_the_finite_check_of_the_ofpd_output_is_exact():
+    """OFPDRunner.run's fast check (one float64 sum of the outputs) is True exactly when every
+    float32 value is finite; for float64 outputs it may say False on huge finite values, which
+    the runner then confirms with np.isfinite before it refuses anything."""
+    from toffe_deploy.runtime.ofpd_runner import _finite_sum
+
+    big = np.finfo(np.float32).max
+    assert _finite_sum(np.full((64, 2), big, np.float32), np.full((64, 2), -big, np.float32), np.zeros((64, 1), np.float32))
+    assert _finite_sum(np.zeros((0, 2), np.float32))
+    for bad in (np.nan, np.inf, -np.inf):
+        x = np.ones((3, 2), np.float32)
+        x[2, 1] = bad
+        assert not _finite_sum(np.ones((3, 2), np.float32), x)
+    assert not _finite_sum(np.array([1e308, 1e308]))          # finite, so the runner's np.isfinite decides
+
+
 def test_ground_truth_time_running_backwards_is_refused(env, capsys, tmp_path):
     """A /ground_truth/t that runs backwards for an object gave wrong truth per window with exit 0;
     rows grouped by object (each object's in time order) stay fine."""

@@ -87,3 +87,8 @@ def test_decoder_rows_are_the_whole_array_definition_bit_for_bit(layout):
     assert all(v.shape == (0,) and v.dtype == want[key].dtype for key, v in empty.items())
     with pytest.raises(ValueError, match="stage_k"):
         dec(pose[:1], direction[:1], speed[:1], [cfg.n_speed_bins + 1])
+    # positions of any dtype come back as Python floats (float32 ones read as they are)
+    for p in (pose[:3].astype(np.float64), np.round(pose[:3]).astype(np.int32)):
+        c = dec.columns(p, direction[:3], speed[:3], k[:3])
+        assert [type(v) for v in c["x_px"] + c["y_px"]] == [float] * 6
+        assert c["x_px"] == p[:, 0].astype(np.float64).tolist() and c["y_px"] == p[:, 1].astype(np.float64).tolist()

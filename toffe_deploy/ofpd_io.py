@@ -794,17 +794,19 @@ class Decoder:
     def columns(self, pose: np.ndarray, direction: np.ndarray, speed: np.ndarray, stage_k: np.ndarray
                 ) -> dict[str, list]:
         """decode's result as one list per key (float, int, bool)."""
-        xy = np.asarray(pose, dtype=np.float64).reshape(-1, 2).T.tolist()    # [xs, ys], also for no rows
+        # float32 rows as they are: tolist gives the same Python floats as a float64 copy would
+        pose = np.asarray(pose)
+        xy = (pose if pose.dtype in _FLOAT_DTYPES else pose.astype(np.float64)).reshape(-1, 2).T.tolist()   # [xs, ys]
         direction = np.asarray(direction, dtype=np.float64).reshape(-1, 2)
-        speed = np.asarray(speed, dtype=np.float64).reshape(-1).tolist()
+        speed = np.asarray(speed, dtype=np.float64).reshape(-1)
         ks = np.asarray(stage_k, dtype=np.int64).reshape(-1).tolist()
-        if not (len(xy[0]) == direction.shape[0] == len(speed) == len(ks)):
+        if not (len(xy[0]) == direction.shape[0] == speed.shape[0] == len(ks)):
             raise ValueError("pose, direction, speed and stage_k must have the same number of rows")
         if ks and (min(ks) < 1 or max(ks) > self.n_speed_bins):
             raise ValueError(f"stage_k must be in 1..{self.n_speed_bins}")
-        # _clip per float is np.minimum(np.maximum(...)) (np.clip, NaN included); numpy's exp on
-        # the contiguous float64 array, as before (its kernel, not libm's: the reference)
-        reg = np.exp(np.array([_clip(v, -10.0, 10.0) for v in speed], dtype=np.float64)).tolist()
+        # np.minimum(np.maximum(...)) is np.clip (NaN kept) in two ufunc calls; numpy's exp on the
+        # contiguous float64 array (its kernel, not libm's: the reference)
+        reg = np.exp(np.minimum(np.maximum(speed, -10.0), 10.0)).tolist()
         f = self.px_ms_per_mps
         v_px, v_mps, clipped, bins = [], [], [], []
         if self.mode == "ofpd":
@@ -834,6 +836,8 @@ class Decoder:
                 "speed_px_ms": v_px, "speed_mps": v_mps, "speed_bin": bins, "speed_clipped": clipped,
                 "speed_bin_mps": [rep[k - 1] for k in bins]}
 
+
+_FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
 #: decode's keys and the dtypes of its arrays
 _DECODED = (("x_px", np.float64), ("y_px", np.float64), ("direction_rad", np.float64), ("speed_px_ms", np.float64),
