@@ -30,8 +30,8 @@ exclusive of the calls it makes:
     compiled     every numba kernel of the package called from Python (argument unboxing and the
                  boxing of returned arrays included: that is what a call from Python costs)
     onnxruntime  the OFPD session's run
-    python       the interpreter and numpy between them: the Pipeline's steps by name (front,
-                 batch, _result_of_batch, ..., Decoder.columns, Tracker.columns, ...) and
+    python       the interpreter and numpy between them: the Pipeline's steps by name (front_batch,
+                 front, batch, _result_of_batch, ..., Decoder.columns, Tracker.columns, ...) and
                  "(rest)", what no named step holds (process_stream's own loop among it)
 
 The parts the per-part mode times hold Python too (``decode`` is mostly Python around two
@@ -236,7 +236,7 @@ def by_call(bundle, windows, repeats: int) -> dict:
             patch(pipe.ofpd, "_run", "onnxruntime:run")
             patch(type(pipe.ofpd), "run", "python:OFPDRunner.run")
             patch(SpikeVolume, "from_events", "python:SpikeVolume.from_events")
-            for attr in ("front", "batch", "_result", "_result_of_batch", "objects_of_batch", "objects_of_ofpd",
+            for attr in ("front_batch", "front", "batch", "_result", "_result_of_batch", "objects_of_batch", "objects_of_ofpd",
                          "fuse", "place", "_faint_columns"):
                 patch(Pipeline, attr, "python:Pipeline." + attr)
             for attr in ("front_end", "speeds_of", "fuse_history", "outline_positions"):

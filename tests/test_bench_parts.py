@@ -31,8 +31,8 @@ def test_by_call_splits_the_window_into_compiled_onnxruntime_and_python(tmp_path
     for g in groups:
         assert abs(sum(v for k, v in calls.items() if k.startswith(g + ":")) - r[g]) < 0.1 * len(calls)
     # the steps every window of the cpu target runs, once each
-    for name in ("compiled:binned_ones", "compiled:pooled_cascade", "python:Pipeline.front", "python:Pipeline._result",
-                 "python:Tracker.coasting"):
+    for name in ("compiled:binned_ones", "compiled:pooled_cascade", "python:Pipeline.front_batch",
+                 "python:Pipeline.front", "python:Pipeline._result_of_batch", "python:Tracker.coasting"):
         assert calls[name] > 0 and r["calls_per_window"][name] == 1.0, name
     assert 0 < r["calls_per_window"]["onnxruntime:run"] <= 1.0            # windows with objects only
     assert r["windows"] == 2 * r["recording_windows"] and r["repeats"] == 2

@@ -593,8 +593,7 @@ with pipe:
     if half == "front":                  # split.py's worker: front end, cascade, grouping, OFPD
         n = 0
         for t0, w in wins:
-            vol, frames, _, _ = pipe.front(t0, w)
-            n += len(pipe.ofpd.run(pipe.batch(vol, frames, pipe.support)[1])[0])
+            n += len(pipe.ofpd.run(pipe.front_batch(t0, w)[1][1])[0])
     else:
         n = sum(len(r.objects) for r in pipe.process_stream(wins))
     after = loaded()

@@ -234,12 +234,33 @@ class SupportHistory:
         """Add the window at t0 (``advance`` to it first): ``pixels`` its unique linear pixel
         indices (y * W + x) with an event."""
         self.advance(t0)
+        self._add(t0, pixels)
+
+    def _add(self, t0: int, pixels: np.ndarray) -> None:
+        """push after ``advance(t0)`` (front_end advances before it reads the counts: a second
+        advance to the same t0 shifts in nothing, but cost ~2 us a window)."""
         self._push(np.asarray(pixels, np.int64))
         self.last_t0 = int(t0)
 
     def _push(self, pixels: np.ndarray) -> None:
-        old = self._ring.pop(0) if len(self._ring) == self.k else _NONE
+        old = self.leaving()
         _shift_counts(self.counts, pixels, old)
+        self._keep(pixels, old)
+
+    def leaving(self) -> np.ndarray:
+        """The event pixels of the window the next push drops (empty while it holds fewer than K)."""
+        return self._ring[0] if len(self._ring) == self.k else _NONE
+
+    def add_counted(self, t0: int, pixels: np.ndarray, old: np.ndarray) -> None:
+        """push after ``advance(t0)``, for a caller whose compiled pass already moved ``counts``
+        on (counts[old] -= 1, counts[pixels] += 1 with old = ``leaving()``:
+        runtime.window_front): the ring, the total and the window's start."""
+        self._keep(pixels, old)
+        self.last_t0 = int(t0)
+
+    def _keep(self, pixels: np.ndarray, old: np.ndarray) -> None:
+        if len(self._ring) == self.k:
+            self._ring.pop(0)
         self.total += pixels.size - old.size
         self._ring.append(pixels)
 
@@ -283,11 +304,11 @@ def front_end(volume, config, history: "SupportHistory | None" = None, t0: int |
     if dense:
         pix = event_pixels(volume)
         out = support_dense(volume, norm, min_cluster, history.counts.reshape(pix.shape), r, m, c)
-        history.push(t0, np.flatnonzero(pix))
+        history._add(t0, np.flatnonzero(pix))
         return out
     idx, pixels, pixel_index = _support_run(volume.idx, volume.shape, norm, min_cluster, history.counts, r, m, c,
                                             history.total)
-    history.push(t0, pixels)
+    history._add(t0, pixels)                             # advanced above
     out = type(volume)(idx, volume.shape)
     if pixel_index is not None:
         out.__dict__["_pixel_index"] = pixel_index      # = out.pixel_index(scratch), made in the same pass

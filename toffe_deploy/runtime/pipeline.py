@@ -58,6 +58,8 @@ from .cpu import CpuCascade
 from .ofpd_runner import OFPDRunner, providers_for
 from .run_camera import resolve_camera
 from .spikes import SpikeVolume
+from .window_front import WindowFront
+from .window_front import warm_up as window_front_warm_up
 
 TARGETS = ("cpu", "cuda", "loihi-sim", "loihi2")
 TAGS = ("fixed_pt", "floating_pt")
@@ -292,6 +294,8 @@ class Pipeline:
                              else None)   # the plane fit's windows (time_surface), also the outline's
         faint = faint_settings(self.config)                  # faint slow objects from the windows' density
         self.faint = FaintDensity(faint, self.sensor_size, self.config.dt_us) if faint is not None else None
+        #: the fast path's steps before the OFPD in one compiled call (runtime/window_front.py), or None
+        self._window_front = WindowFront(self) if WindowFront.applies(self) else None
         self.reset_tracks()
         self._entered = False
 
@@ -342,10 +346,14 @@ class Pipeline:
         """The compiled.warm_up groups this Pipeline's windows call (None: all of them). The cpu
         and cuda targets' fast path (pooled OFS grid, "blobs" grouping, no kept stages) calls the
         binning, the front end, pooled_cascade and one form of window_objects: loading only those
-        halves start-up (~1.6 -> ~0.7 s); every other path loads all, as before."""
+        halves start-up (~1.6 -> ~0.7 s); every other path loads all, as before. With temporal
+        support the last three are one kernel, runtime/window_front.py's (its own warm-up): the
+        binning alone here."""
         s = self._batch[0]                   # ofpd_settings(config), worked out once in __init__
         if not (self.sparse and self.config.ofs_pool > 1 and not self.keep_stages and s["grouping"] == "blobs"):
             return None
+        if self._window_front is not None:
+            return ("binning",)
         recent = self.support is not None and s.get("recent_events") is not None
         return ("binning", "front_end", "pooled", "objects_recent" if recent else "objects")
 
@@ -373,6 +381,8 @@ class Pipeline:
             warm_up(groups)          # the compiled kernels (every target de-duplicates pixels with them)
         if self.support is not None and half != "back":
             support_warm_up()
+        if self._window_front is not None and half != "back":
+            window_front_warm_up(self._window_front.recent)
         if half != "front":                  # the steps after the OFPD
             if self.ones_history is not None:
                 history_warm_up()
@@ -537,6 +547,19 @@ class Pipeline:
         stages = _stage_arrays(res.to_dense()) if self.keep_stages else None
         return vol, up_frames(res.frames, inverse), stages, pixels
 
+    def front_batch(self, t0: int, x: Window) -> tuple:
+        """``front`` then ``batch`` of one raw window of a sparse target: (volume after the front
+        end, batch (stage_k, OFPD input, n_events, ones), the dense stages with keep_stages else
+        None, the window's event pixels before the front end for the faint objects else None).
+        On the fast path one compiled call (runtime/window_front.py), the same bits."""
+        if self._window_front is None:
+            vol, frames, stages, pixels = self.front(t0, x)
+            return vol, self.batch(vol, frames, self.support), stages, pixels
+        x = self._check(x)
+        vol, batch, pixels = self._window_front(int(t0), x if isinstance(x, SpikeVolume) else
+                                                SpikeVolume.from_dense(x > 0))
+        return vol, batch, None, pixels if self.faint is not None else None
+
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:
         """(t0_us, window) pairs in, WindowResult per window out, in order, streaming. Windows are
         raw (the front end runs here); with ``input_support`` they come in time order, and the
@@ -554,8 +577,9 @@ class Pipeline:
                 yield from self._split.stream(self, _pairs(windows))
                 return
             for t0, x in _pairs(windows):
-                vol, frames, stages, pixels = self.front(int(t0), x)
-                yield self._result(int(t0), vol, frames, hist, pixels, stages=stages)
+                t0 = int(t0)
+                vol, batch, stages, pixels = self.front_batch(t0, x)
+                yield self._result_of_batch(t0, vol, batch, pixels, stages=stages)
             return
         # Lava backends take dense windows and may pipeline them: remember each window's t0 (and,
         # for ofpd.recent_events, a copy of the front end's history after it: the next windows move it on).

@@ -348,8 +348,7 @@ def _serve(conn: Connection, slots: _Slots) -> None:
             _, slot, t0, layout, payload = msg
             try:
                 (idx,) = unpack(layout, payload, slots.region(slot, False))
-                vol, frames, _stages, pixels = pipe.front(t0, SpikeVolume(idx, shape))
-                ks, x, n_ev, ones = pipe.batch(vol, frames, pipe.support)
+                vol, (ks, x, n_ev, ones), _stages, pixels = pipe.front_batch(t0, SpikeVolume(idx, shape))
                 out = pipe.ofpd.run(x)                      # (empty arrays for a window without objects)
                 arrays = [vol.idx, vol.bc, vol.pix, ks, n_ev, *ones, *out] + ([] if pixels is None else [pixels])
                 out_layout, out_payload = pack(arrays, slots.region(slot, True))
