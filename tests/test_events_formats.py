@@ -552,10 +552,30 @@ def test_prophesee_files_are_known_by_their_header_not_their_extension(prophesee
         np.testing.assert_array_equal(read_events(path).events, events)
 
 
-def test_bag_whose_times_go_back_mid_file_is_an_order_error_not_a_short_recording(events, tmp_path, capsys):
-    """A sequential format's metadata pass does not check order; its span ended at the last event
+def test_a_bag_with_a_bad_event_late_in_it_fails_before_run_writes(events, tmp_path, capsys, make_bundle):
+    """A sequential format's bad coordinates were found only by the read that reached them:
+    `run` had replaced --out with the windows before (the array formats check the whole file when
+    opened). The metadata pass, which reads the whole file at open, now checks every value."""
+    pytest.importorskip("rosbags")
+    ev = events[:900].copy()
+    ev["x"][700] = SIZE[0] + 5                       # in the third message of 300
+    path = _write_bag(tmp_path / "bad.bag", "dvs_msgs/msg/EventArray", _dvs_messages(ev, 300), True)
+    with pytest.raises(InputError, match=f"x = {SIZE[0] + 5} outside the 64x48 sensor at event 700"):
+        open_events(path)
+    out = tmp_path / "o.jsonl"
+    out.write_text("earlier results\n")
+    assert main(["run", str(make_bundle(tmp_path).root), "--events", str(path), "--out", str(out), "--no-progress"]) == 2
+    assert "outside the 64x48 sensor at event 700" in capsys.readouterr().err
+    assert out.read_text() == "earlier results\n"
+
+
+def test_bag_whose_times_go_back_mid_file_is_an_order_error_not_a_short_recording(events, tmp_path, capsys,
+                                                                                   make_bundle):
+    """A sequential format's metadata pass did not check order; its span ended at the last event
     (+ 1), and reading stopped at the first message starting past it, before the message going back
-    in time: info, convert and run then dropped every event after it with exit 0."""
+    in time: info, convert and run then dropped every event after it with exit 0. The pass now
+    finds the decrease and open_events names it: `run` had replaced --out with the windows before
+    it first."""
     pytest.importorskip("rosbags")
     ev = events[:900].copy()                         # 3 messages of 300; the camera's clock restarts
     ev["t"][600:] = 100 + np.arange(300)             # in the third, before the second's first event
@@ -566,7 +586,12 @@ def test_bag_whose_times_go_back_mid_file_is_an_order_error_not_a_short_recordin
     assert main(["events", "convert", str(path), str(tmp_path / "out.npz")]) == 2
     assert "timestamps decrease at event 600" in capsys.readouterr().err
     assert not (tmp_path / "out.npz").exists()
-    with open_events(path) as src:                   # the metadata first, then a read by time
-        assert src.num_events == len(ev)
-        with pytest.raises(InputError, match="timestamps decrease at event 600"):
-            list(src.iter_chunks())
+    with pytest.raises(InputError, match="timestamps decrease at event 600"):
+        open_events(path)
+    with open_events(path, sort=True) as src:       # sorted on request: every event, in time order
+        assert src.num_events == len(ev) and np.all(np.diff(src.read_all().events["t"]) >= 0)
+    out = tmp_path / "o.jsonl"
+    out.write_text("earlier results\n")
+    assert main(["run", str(make_bundle(tmp_path).root), "--events", str(path), "--out", str(out), "--no-progress"]) == 2
+    assert "timestamps decrease at event 600" in capsys.readouterr().err
+    assert out.read_text() == "earlier results\n"

@@ -260,6 +260,31 @@ def test_udp_source_receives_real_packets_and_cuts_windows_by_event_time(env):
     assert src.stats.dropped_events == 0 and src.stats.received_events == len(ev)
 
 
+def test_a_held_first_datagram_anchors_the_clock_at_its_arrival():
+    """`udp://` holds its first datagram until the next one confirms its form. The clock that
+    closes windows was anchored when the held datagram was let go, and only ever moves later: one
+    datagram per burst every 50 ms made every window ~50 ms late (p50 53.6 ms against ~10)."""
+    ev = make_events([1, 2, 3], [4, 5, 6], [5_000_000, 5_040_000, 5_040_100], [0, 1, 0])   # real-time pace
+    src = open_live("udp://127.0.0.1:0", SENSOR, idle_timeout_s=2.0)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        src.start()
+        first = time.perf_counter()
+        tx.sendto(aer_words(ev[:1]).tobytes(), ("127.0.0.1", src.port))
+        time.sleep(0.04)                                  # under FIRST_HOLD_S: held until the next
+        second = time.perf_counter()
+        tx.sendto(aer_words(ev[1:]).tobytes(), ("127.0.0.1", src.port))
+        deadline = time.perf_counter() + 5.0
+        while src.stats.received_chunks < 2 and time.perf_counter() < deadline:
+            time.sleep(0.005)
+        assert src.stats.received_chunks == 2
+        # the first datagram's arrival (the next came on time: no later), not the second's
+        assert first <= src.close_time(5_000_000) < second - 0.02
+    finally:
+        tx.close()
+        src.close()
+
+
 def test_aestreams_own_udp_sender(env, tmp_path):
     """aestream's CLI streams an AEDAT4 file (written by dv-processing) to our socket."""
     exe = shutil.which("aestream") or str(Path(sys.executable).parent / "aestream")
@@ -389,7 +414,11 @@ def test_a_live_run_that_gets_no_event_is_an_error_that_leaves_out_as_it_was(env
     r = subprocess.run(cli(env["bundle"], "--events", "-"), input=stdin_header(SENSOR),
                        capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
     assert r.returncode == 2 and r.stderr.decode().strip().splitlines()[-1] == \
-        "toffe-deploy: error: -: no events arrived (the stream held its header only)"
+        "toffe-deploy: error: -: no events arrived (the stream held its header only) before it ended"
+    r = subprocess.run(cli(env["bundle"], "--events", "-"), preexec_fn=lambda: os.close(0),   # `<&-`: no stdin
+                       capture_output=True, env=cli_env(), cwd=ROOT, timeout=300)
+    assert r.returncode == 2 and r.stderr.decode().strip().splitlines() == [
+        "toffe-deploy: error: -: stdin is closed: pipe a binary event stream in (README: Live sources)"], r.stderr
     ev = events_of(env)
     few = ev[ev["t"] < ev["t"][0] + 300]                    # less than one window (dt 500 us), as a short file
     r = subprocess.run(cli(env["bundle"], "--events", "-", "--out", out), input=stdin_header(SENSOR) + few.tobytes(),

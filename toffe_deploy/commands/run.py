@@ -496,7 +496,8 @@ def run_command(args) -> int:
                     f" ({invalid:,} invalid ones dropped: addresses outside the {sensor[0]}x{sensor[1]} sensor, "
                     "stray datagrams)" if invalid else " (the stream held its header only)" if args.events == "-"
                     else " (a sender started before 'reading ...' was printed sends into nothing)")
-                    + (f" within --idle-timeout {args.idle_timeout:g} s" if args.idle_timeout else ""))
+                    + (" before it ended" if src.ended else
+                       f" within --idle-timeout {args.idle_timeout:g} s" if args.idle_timeout else ""))
             if none_whole:                           # as a file shorter than one window
                 st = summary.live
                 raise InputError(args.events, f"the stream ended before its first window was whole ({cfg.dt_us} us): "

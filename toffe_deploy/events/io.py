@@ -198,8 +198,10 @@ def open_events(path: str | os.PathLike, sensor_size: tuple[int, int] | None = N
         src = _sorted_source(src)
     with _reading(path, src.close):
         if not sort and not isinstance(src, SequentialSource):
-            check_event_ends(path, src)          # a sequential one checks its order as it reads
+            check_event_ends(path, src)
         check_time_span(path, src.t_start_us, src.t_end_us)
+        if not sort and isinstance(src, SequentialSource) and src.disorder is not None:
+            raise src.disorder                   # found by the metadata pass over the whole file (above)
     return src
 
 

@@ -188,6 +188,7 @@ class LiveSource(abc.ABC):
     format_name = "live"
     ground_truth = None
     blocking = False                      # the reader waits for room in the queue (a pipe) instead of dropping
+    ended = False                         # the stream itself ended (a pipe's end of file), not --idle-timeout
 
     def __init__(self, name: str, sensor_size, max_events: int = QUEUE_EVENTS, idle_timeout_s: float = 0.0,
                  grace_s: float = GRACE_S):
@@ -216,10 +217,13 @@ class LiveSource(abc.ABC):
     def _produce(self) -> None:
         """Read until end of stream or ``self._stop``, passing each chunk to ``_push``."""
 
-    def _push(self, ev: np.ndarray) -> None:
+    def _push(self, ev: np.ndarray, arrival: float | None = None) -> None:
+        """Queue a chunk that arrived at perf_counter() ``arrival`` (None: now). The clocks take
+        its arrival, not the time it is pushed: `udp://` holds its first datagram up to
+        FIRST_HOLD_S, and anchoring close_time there closed every later window as much later."""
         if not ev.shape[0]:
             return
-        now = time.perf_counter()
+        now = time.perf_counter() if arrival is None else arrival
         check_chunk(self.path, ev, self.sensor_size, offset=self._offset, check_order=False)
         self._offset += int(ev.shape[0])
         if self._t_first is None:
@@ -399,7 +403,16 @@ class StdinSource(LiveSource):
     blocking = True                       # a pipe pushes back on its writer: nothing is dropped
 
     def __init__(self, sensor_size=None, fd: int | None = None, **kw):
+        if fd is None and sys.stdin is None:             # `<&-`: Python gives no stdin at all
+            raise InputError("-", "stdin is closed: pipe a binary event stream in (README: Live sources)")
         self.fd = sys.stdin.fileno() if fd is None else fd
+        try:
+            self._open(sensor_size, **kw)
+        except OSError as exc:                           # e.g. opened write-only: EBADF
+            raise InputError("-", f"cannot read stdin: {exc.strerror or exc}") from None
+
+    def _open(self, sensor_size, **kw) -> None:
+        """__init__'s checks and the header, read from ``self.fd``."""
         if os.isatty(self.fd):
             raise InputError("-", "stdin is a terminal: pipe a binary event stream in (README: Live sources)")
         wait = float(kw.get("idle_timeout_s") or 0.0)
@@ -439,6 +452,7 @@ class StdinSource(LiveSource):
             if not data:
                 if rest:
                     raise InputError("-", f"stdin ended inside an event record ({len(rest)} of {rec} bytes)")
+                self.ended = True
                 return
             data = rest + data
             n = len(data) // rec
@@ -571,6 +585,10 @@ class UdpAerSource(LiveSource):
         first datagram with an event is held until the next one, or FIRST_HOLD_S: if the next is
         of the other form and brings more events, the first was a stray and is dropped (it would
         have been the stream's first event, and every real one after it late or far off)."""
+        return [ev for ev, _at in self._receive_timed(packet, arrival)]
+
+    def _receive_timed(self, packet: bytes | None, arrival: float) -> list[tuple[np.ndarray, float]]:
+        """receive's chunks, each with the time its datagram arrived (a held one's is earlier)."""
         if self._held is not None:
             held, at = self._held
             if packet is None and arrival - at < FIRST_HOLD_S:
@@ -578,14 +596,14 @@ class UdpAerSource(LiveSource):
             self._held = None
             if packet is not None and _form(packet) != _form(held) and _addresses(packet) > _addresses(held):
                 self.stats.invalid_events += _addresses(held)      # outvoted before it was decoded
-                return [self.decode(packet, arrival)]
-            return [self.decode(held, at)] + ([] if packet is None else [self.decode(packet, arrival)])
+                return [(self.decode(packet, arrival), arrival)]
+            return [(self.decode(held, at), at)] + ([] if packet is None else [(self.decode(packet, arrival), arrival)])
         if packet is None:
             return []
         if not any(self._form_events.values()) and _addresses(packet):
             self._held = (packet, arrival)
             return []
-        return [self.decode(packet, arrival)]
+        return [(self.decode(packet, arrival), arrival)]
 
     def _produce(self) -> None:
         while not self._stop.is_set():
@@ -600,10 +618,10 @@ class UdpAerSource(LiveSource):
                 if self._stop.is_set():
                     return
                 raise
-            for ev in self.receive(packet, time.perf_counter()):
-                self._push(ev)
-        for ev in self.receive(None, math.inf):          # a held first datagram, at the end
-            self._push(ev)
+            for ev, at in self._receive_timed(packet, time.perf_counter()):
+                self._push(ev, at)
+        for ev, at in self._receive_timed(None, math.inf):   # a held first datagram, at the end
+            self._push(ev, at)
 
     def _socket_drops(self) -> int:
         """Datagrams the kernel dropped on our socket (/proc/net/udp's last column; 0 elsewhere)."""

@@ -20,6 +20,7 @@ from typing import Iterator
 
 import numpy as np
 
+from ..errors import InputError
 from .core import EVENT_DTYPE
 from .source import EventSource
 from .validate import check_chunk
@@ -35,6 +36,8 @@ class SequentialSource(EventSource):
     _points = None
     #: whether the metadata pass found the events in time order (None: no pass yet)
     _ordered = None
+    #: the metadata pass's InputError naming the first decrease of time, or None
+    disorder = None
 
     @abc.abstractmethod
     def _packets(self, resume=None) -> Iterator[np.ndarray]:
@@ -91,12 +94,19 @@ class SequentialSource(EventSource):
         """Every packet (validated when ``check``); records the metadata and restart points."""
         offset, first, prev_t, points, ordered = 0, None, None, [], True
         for ev in self._packets():
-            if check:
-                check_chunk(self.path, ev, self.sensor_size, offset=offset, prev_t=prev_t)
+            # the values always (the metadata pass reads the whole file before a run writes a line),
+            # the order only when ``check``: open_events(sort=True) sorts what this pass finds
+            check_chunk(self.path, ev, self.sensor_size, offset=offset, prev_t=prev_t, check_order=check)
             if ev.shape[0]:
                 # seeking needs time order (unchecked here for sort=True): a disorder disables it
+                was = ordered
                 ordered = ordered and (prev_t is None or int(ev["t"][0]) >= prev_t) \
                     and bool(np.all(ev["t"][1:] >= ev["t"][:-1]))
+                if was and not ordered:           # the error a reading would raise, for open_events
+                    try:
+                        check_chunk(self.path, ev, self.sensor_size, offset=offset, prev_t=prev_t)
+                    except InputError as exc:
+                        self.disorder = exc
                 points.append((self._cursor, offset, prev_t, int(ev["t"][-1])))
                 first = int(ev["t"][0]) if first is None else first
                 prev_t = int(ev["t"][-1])
