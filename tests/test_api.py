@@ -279,7 +279,7 @@ def test_a_closed_stream_refuses_calls_and_an_open_one_keeps_its_pipeline(env):
     assert flow.pipeline._entered and not flow.closed
     flow.close()
     assert flow.closed and not flow.pipeline._entered
-    for call in (lambda: flow.feed([1], [1], [4 * dt], [1]), flow.flush, flow.__enter__,
+    for call in (lambda: flow.feed([1], [1], [4 * dt], [1]), flow.flush, flow.__enter__, flow.reset,
                  lambda: flow.feed_window(5 * dt, np.zeros((b.config.n_bins, 2) + b.config.sensor_size[::-1]))):
         with pytest.raises(ValueError, match="closed"):
             call()

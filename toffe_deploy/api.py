@@ -106,6 +106,7 @@ class FlowStream:
         """Start a new recording: no buffered events, no tracks, the window grid from
         ``t_start_us`` (or the next first event) again. Events older than those fed so far are
         refused without it (they would fall in windows already processed)."""
+        self._refuse_closed()
         self.t0 = self.t_start_us                  # the next window's start
         self._origin = self.t_start_us             # the window grid's origin
         self._buf = np.empty(0, EVENT_DTYPE)
@@ -134,10 +135,13 @@ class FlowStream:
     def closed(self) -> bool:
         return self._closed
 
-    def _open(self) -> None:
-        """The pipeline, opened once (ValueError once closed)."""
+    def _refuse_closed(self) -> None:
         if self._closed:
             raise ValueError("FlowStream is closed: make a new one to go on")
+
+    def _open(self) -> None:
+        """The pipeline, opened once (ValueError once closed)."""
+        self._refuse_closed()
         if not self.pipeline._entered:
             self.pipeline.__enter__()
 
@@ -246,7 +250,8 @@ class FlowStream:
     def tracks(self) -> list[dict]:
         """Every live confirmed track after the last window ([{"track_id", "track"}]: seen in it,
         ``track["misses"]`` 0, or coasting, > 0, also past the report_misses windows for which
-        the JSON lines list a coasting track); [] without tracking."""
+        the JSON lines list a coasting track); [] without tracking. Also after close(): the
+        tracks as the last window left them."""
         if self._last is None or self.pipeline.tracker is None:
             return []
         return self.pipeline.tracker.confirmed()

@@ -557,7 +557,7 @@ class Pipeline:
             return vol, self.batch(vol, frames, self.support), stages, pixels
         x = self._check(x)
         vol, batch, pixels = self._window_front(int(t0), x if isinstance(x, SpikeVolume) else
-                                                SpikeVolume.from_dense(x > 0))
+                                                SpikeVolume.from_dense(x > 0), self.support)
         return vol, batch, None, pixels if self.faint is not None else None
 
     def process_stream(self, windows: Iterable[tuple[int, Window]]) -> Iterator[WindowResult]:

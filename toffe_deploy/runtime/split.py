@@ -2,7 +2,7 @@
 
 Why: a window's host work splits in two halves of about the same size. The first half turns the
 raw window into the OFPD's output: the front end, the OFS cascade, the grouping and the crops
-(``Pipeline.front`` and ``Pipeline.batch``) and onnxruntime. The second runs the plane fit, the
+(``Pipeline.front_batch``: one compiled call on the fast path, runtime/window_front.py) and onnxruntime. The second runs the plane fit, the
 faint objects and the tracker (``Pipeline._result_of_batch``), and `run` reads the events, bins
 them and writes the JSON line. The OFPD's input (a quarter MB a window) stays in the worker.
 The first half of window n + 1 needs only the front end's own history, the second half of window
@@ -142,7 +142,10 @@ class SplitHost:
             self.proc = subprocess.Popen(
                 [sys.executable, "-c", _BOOT, json.dumps(sys.path), str(theirs.fileno()),
                  str(-1 if fd is None else fd), str(slot_bytes)], pass_fds=keep, stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL)                # a library's print must not land in `--out -`
+                stdout=subprocess.DEVNULL,                # a library's print must not land in `--out -`
+                start_new_session=True)                   # out of the terminal's group: a Ctrl-C is ours to
+                                                          # handle (it stops the worker); one during the
+                                                          # worker's imports printed their traceback
             self.slots = _Slots(fd, slot_bytes)
         except OSError as exc:
             ours.close()
@@ -272,6 +275,9 @@ class SplitHost:
             if held and not isinstance(held[0], StopIteration):
                 raise held[0]
         except GeneratorExit:                      # left early: finish what was read, drop its results
+            if sys.is_finalizing():                # a stream left open at the interpreter's exit: no
+                self.broken = "closed at the interpreter's exit"   # state to keep (and imports fail)
+                raise
             while inflight and not self.broken:
                 slot, t0 = inflight.popleft()
                 vol, batch, pixels, out = self._batch(slot)

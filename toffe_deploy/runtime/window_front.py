@@ -33,14 +33,15 @@ from .spikes import SpikeVolume
 
 
 @njit(cache=True, nogil=True)
-def window_front(idx, old, counts_total, n_channels, n_pixels, width, height, first, min_size, slot_of, counts, radius,
+def window_front(idx, slot_of, counts, old, counts_total, n_channels, n_pixels, width, height, first, min_size, radius,
                  m, noise_factor, p, hp, wp, kernel, ofs_slot_of, weights, dv, vth_mant, reset_zero, n_bins,
                  mask_kernel, union, link, frac_closed, frac_open, need, min_count, split_frac, split_waist,
                  split_polarity, closed_apart, fixed_size, g, pool_min, pool_max, n_input, coord_scale, rule):
     """support_keep, _shift_counts(counts, pixels, old), pooled_cascade and window_objects of one
-    window (module doc). idx: its sorted unique ones; old: the event pixels of the window leaving
-    the support history (empty while it holds fewer than K); counts, counts_total: the history's
-    (H * W,) uint8 counts (moved on in place) and their sum before this window. ``rule``:
+    window (module doc). idx: its sorted unique ones; slot_of: the front end's all -1 (H * W,)
+    scratch (events.frontend.slots_for, left so); counts, counts_total: the support history's
+    (H * W,) uint8 counts (moved on in place) and their sum before this window; old: the event
+    pixels of the window leaving it (empty while it holds fewer than K). ``rule``:
     ofpd.recent_events' (r, m, c, total), its total set here to the history's sum after this
     window (ofpd_io.recent_args'), or None when the grouping reads no recent events. Returns (kept ones, the window's event
     pixels, the kept ones' bc, pix, their unique pixels and inverse, then window_objects' stage
@@ -65,26 +66,28 @@ def window_front(idx, old, counts_total, n_channels, n_pixels, width, height, fi
 
 
 class WindowFront:
-    """``WindowFront(pipeline)(t0, volume)``: a raw window's (volume after the front end, batch =
-    (stage_k, OFPD input, n_events, ones), its event pixels before the front end) through
-    window_front, with the Pipeline's settings worked out once. Only for a Pipeline that
-    ``applies`` says it fits; moves the Pipeline's support history on as events.support.front_end
-    does."""
+    """``WindowFront(pipeline)(t0, volume, history)``: a raw window's (volume after the front end,
+    batch = (stage_k, OFPD input, n_events, ones), its event pixels before the front end) through
+    window_front, with the Pipeline's settings worked out once; ``history``, the Pipeline's
+    support history, is moved on as events.support.front_end does. Taken at each call, as the
+    front end's scratch is: a caller may hand the Pipeline another history (deploy/parity.py's
+    windows each get their own), and the scratch is the calling thread's. Only for a Pipeline
+    that ``applies`` says it fits."""
 
     def __init__(self, pipe):
-        cfg, cascade, history = pipe.config, pipe.cascade, pipe.support
+        cfg, cascade = pipe.config, pipe.cascade
         s, n_input, g, blobs, crop = pipe._batch
         w, h = pipe.sensor_size
         wp, hp = cascade.sensor_size
         _k, radius, m, noise_factor = cfg.input_support
-        self.history = history
+        self.n_pixels = w * h
         self.shape = (int(cfg.n_bins), 2, h, w)
         rule = s["recent_events"]
         self.recent = rule is not None       # which form of window_front it calls (warm_up's)
-        #: every argument after (idx, old, counts_total), in window_front's order; the arrays in it
-        #: (scratches, the history's counts, the cascade's weights) are updated in place, never replaced
+        #: every argument after (idx, slot_of, counts, old, counts_total), in window_front's order; the
+        #: arrays in it (the cascade's scratch and weights, the rule) are this Pipeline's, updated in place
         self._args = (2, w * h, w, h, check_norm(cfg.input_norm) == "first", check_min_cluster(cfg.input_min_cluster),
-                      slots_for(w * h), history.counts, int(radius), int(m), int(noise_factor), int(cfg.ofs_pool), hp,
+                      int(radius), int(m), int(noise_factor), int(cfg.ofs_pool), hp,
                       wp, cascade.kernel_size, cascade._scratch, cascade._weights, cascade._dv, cascade._vth,
                       cascade._reset_zero, cascade.n_bins, cascade.mask_kernel, *blobs, *crop, n_input, COORD_SCALE,
                       None if rule is None else np.array([*rule, 0], np.int64))   # total: window_front's
@@ -96,12 +99,11 @@ class WindowFront:
         return (pipe.sparse and pipe.support is not None and pipe.config.ofs_pool > 1 and not pipe.keep_stages
                 and pipe._batch[0]["grouping"] == "blobs")
 
-    def __call__(self, t0: int, volume: SpikeVolume) -> tuple:
-        hist = self.history
+    def __call__(self, t0: int, volume: SpikeVolume, hist) -> tuple:
         hist.advance(t0)
         old = hist.leaving()
         (kept, pixels, bc, pix, upix, inverse, stage, x, n_ones, *ones) = window_front(
-            volume.idx, old, hist.total, *self._args)
+            volume.idx, slots_for(self.n_pixels), hist.counts, old, hist.total, *self._args)
         hist.add_counted(t0, pixels, old)
         out = SpikeVolume(kept, self.shape)
         out.__dict__.update(bc=bc, pix=pix, _pixel_index=(upix, inverse))
@@ -114,6 +116,6 @@ def warm_up(recent: bool) -> None:
     i64 = np.zeros(1, np.int64)
     scratch = slots_for(4)
     counts = np.zeros(4, np.uint8)
-    window_front(i64, i64[:0], 0, 2, 4, 2, 2, True, 2, scratch, counts, 1, 1, 0, 2, 1, 1, 1, slots_for(1),
+    window_front(i64, scratch, counts, i64[:0], 0, 2, 4, 2, 2, True, 2, 1, 1, 0, 2, 1, 1, 1, slots_for(1),
                  np.ones((1, 1, 1), np.int64), i64, i64, np.zeros(1, np.bool_), 1, 1, True, 1, 0.2, 1.5, 1, 1, 0.0,
                  0.65, 0.0, False, 0, 1, 1, 1, 5, 1000.0, np.zeros(4, np.int64) if recent else None)
