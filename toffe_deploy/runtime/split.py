@@ -2,14 +2,15 @@
 
 Why: a window's host work splits in two halves of about the same size. The first half turns the
 raw window into the OFPD's output: the front end, the OFS cascade, the grouping and the crops
-(``Pipeline.front_batch``: one compiled call on the fast path, runtime/window_front.py) and onnxruntime. The second runs the plane fit, the
-faint objects and the tracker (``Pipeline._result_of_batch``), and `run` reads the events, bins
-them and writes the JSON line. The OFPD's input (a quarter MB a window) stays in the worker.
-The first half of window n + 1 needs only the front end's own history, the second half of window
-n only what came before it, so a second process runs the first half one window ahead while this
-one runs the second half. Python threads cannot do this: with both halves holding the GIL
-between their compiled calls, two threads gave 1.1-1.2x the throughput for 1.2x the CPU time;
-two processes give 1.38-1.53x for 1.24-1.28x (`run` on a 2-core VM; docs/speed-log.md).
+(``Pipeline.front_batch``: one compiled call on the fast path, runtime/window_front.py) and
+onnxruntime. The second runs the plane fit, the faint objects and the tracker
+(``Pipeline._result_of_batch``), and `run` reads the events, bins them and writes the JSON line.
+The OFPD's input (a quarter MB a window) stays in the worker. The first half of window n + 1
+needs only the front end's own history, the second half of window n only what came before it,
+so a second process runs the first half one window ahead while this one runs the second half.
+Python threads cannot do this: with both halves holding the GIL between their compiled calls,
+two threads gave 1.1-1.2x the throughput for 1.2x the CPU time; two processes give 1.38-1.53x
+for 1.24-1.28x (`run` on a 2-core VM; docs/speed-log.md).
 
 Bit exact: each half runs the same code on the same state in the same order as one process does
 (tests/test_split.py compares every line). When the stream yields window n it has read window

@@ -12,7 +12,8 @@ Per window the cpu and cuda targets run, on the window's binned ones ``idx``:
 from Python into compiled code once for the three instead of four times, with no Python between
 them (``Pipeline.front``, ``events.support.front_end``, ``Pipeline.batch``, ``ofpd_input.batch``:
 their argument building, checks and look-ups). Measured on the shipped sample, one pinned core of
-this project's 2-core VM: ~70-90 us a window less (docs/speed-log.md, "2026-11-29 (evening)").
+this project's 2-core VM, in-process A/B: ~3 % of a window's CPU time less, 30-40 us (docs/speed-log.md,
+"2026-11-29 (late)"); a first step of the one-core redesign, not the whole of it.
 
 Why a second path at all: the step-by-step path (``Pipeline.front`` then ``Pipeline.batch``)
 stays, for every configuration this one does not cover (no temporal support, an unpooled OFS
@@ -43,9 +44,9 @@ def window_front(idx, slot_of, counts, old, counts_total, n_channels, n_pixels, 
     (H * W,) uint8 counts (moved on in place) and their sum before this window; old: the event
     pixels of the window leaving it (empty while it holds fewer than K). ``rule``:
     ofpd.recent_events' (r, m, c, total), its total set here to the history's sum after this
-    window (ofpd_io.recent_args'), or None when the grouping reads no recent events. Returns (kept ones, the window's event
-    pixels, the kept ones' bc, pix, their unique pixels and inverse, then window_objects' stage
-    (0-based), OFPD input, n_ones, object, x, y, channel)."""
+    window (ofpd_io.recent_args'), or None when the grouping reads no recent events. Returns
+    (kept ones, the window's event pixels, the kept ones' bc, pix, their unique pixels and
+    inverse, then window_objects' stage (0-based), OFPD input, n_ones, object, x, y, channel)."""
     kept, pixels, upix, inverse = support_keep(idx, n_channels, n_pixels, width, height, first, min_size, slot_of,
                                                counts, radius, m, noise_factor, counts_total)
     _shift_counts(counts, pixels, old)
