@@ -342,6 +342,13 @@ class Pipeline:
         return WindowResult(t0, t0 + self.config.dt_us, objects,
                             coasting=None if tracker is None else tracker.coasting(), **kw)
 
+    @property
+    def fast_path(self) -> bool:
+        """The cpu and cuda targets' fast path: a sparse target, a pooled OFS grid, grouping
+        "blobs" (ofpd_settings, worked out once in __init__) and no kept stages."""
+        return (self.sparse and self.config.ofs_pool > 1 and not self.keep_stages
+                and self._batch[0]["grouping"] == "blobs")
+
     def warm_groups(self):
         """The compiled.warm_up groups this Pipeline's windows call (None: all of them). The cpu
         and cuda targets' fast path (pooled OFS grid, "blobs" grouping, no kept stages) calls the
@@ -349,12 +356,11 @@ class Pipeline:
         halves start-up (~1.6 -> ~0.7 s); every other path loads all, as before. With temporal
         support the last three are one kernel, runtime/window_front.py's (its own warm-up): the
         binning alone here."""
-        s = self._batch[0]                   # ofpd_settings(config), worked out once in __init__
-        if not (self.sparse and self.config.ofs_pool > 1 and not self.keep_stages and s["grouping"] == "blobs"):
+        if not self.fast_path:
             return None
         if self._window_front is not None:
             return ("binning",)
-        recent = self.support is not None and s.get("recent_events") is not None
+        recent = self.support is not None and self._batch[0].get("recent_events") is not None
         return ("binning", "front_end", "pooled", "objects_recent" if recent else "objects")
 
     def __enter__(self) -> "Pipeline":

@@ -95,10 +95,9 @@ class WindowFront:
 
     @staticmethod
     def applies(pipe) -> bool:
-        """Whether ``pipe`` runs its windows this way: the cpu pipeline's fast path (a sparse
-        target, temporal support, a pooled OFS grid, grouping "blobs", no kept stages)."""
-        return (pipe.sparse and pipe.support is not None and pipe.config.ofs_pool > 1 and not pipe.keep_stages
-                and pipe._batch[0]["grouping"] == "blobs")
+        """Whether ``pipe`` runs its windows this way: its fast path (Pipeline.fast_path) with
+        temporal support."""
+        return pipe.fast_path and pipe.support is not None
 
     def __call__(self, t0: int, volume: SpikeVolume, hist) -> tuple:
         hist.advance(t0)
