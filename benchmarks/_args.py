@@ -124,9 +124,11 @@ def default_core() -> str:
 
 def guarded(prog: str, fn, *args) -> int:
     """``fn(*args)`` as a script's main runs it: a ToffeError (a missing bundle, data directory,
-    a malformed file) is one line ``PROG: error: ...`` on stderr and its exit code (2), a refused
-    read or write (OSError) one line and 2, Ctrl-C one line and 130, a closed stdout (``| head``)
-    a quiet 0, as the toffe-deploy CLI does."""
+    a malformed file) is one line ``PROG.py: error: ...`` on stderr and its exit code (2), a
+    refused read or write (OSError) one line and 2, Ctrl-C one line and 130, a closed stdout
+    (``| head``) a quiet 0, as the toffe-deploy CLI does. ``prog``: the script's name without
+    ".py"; its lines name the file as argparse's usage errors do (``PROG.py: error: ...``)."""
+    prog = f"{prog}.py"
     try:
         return int(fn(*args) or 0)
     except ToffeError as exc:

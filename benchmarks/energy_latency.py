@@ -543,13 +543,15 @@ def _measure_all(args, bundle, windows, events, input_desc, disc, t_start, stack
     md = render_markdown(result, report, short_name(machine))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out / "energy_latency.json") as tmp:
-        tmp.write_text(json.dumps(result, indent=1, default=_json_default))
-    with atomic_path(out / "energy_latency.md") as tmp:
-        tmp.write_text(md)
-    with atomic_path(out / "energy_latency.png", suffix=".png") as tmp:
-        report.plot(rows, tmp, f"Energy and latency per inference ({short_name(machine)}; "
-                               f"{cfg.sensor_size[0]}x{cfg.sensor_size[1]}, B={cfg.n_bins})", lfl)
+    # the three files as one set: all written first (the plot takes ~1 s and may fail), then
+    # renamed back to back, the .json last, so a failed write replaces none of them and a .json
+    # as new as its .md marks a whole set (a SIGKILL can fall only between two renames)
+    with atomic_path(out / "energy_latency.json") as tmp_json, atomic_path(out / "energy_latency.md") as tmp_md, \
+            atomic_path(out / "energy_latency.png", suffix=".png") as tmp_png:
+        report.plot(rows, tmp_png, f"Energy and latency per inference ({short_name(machine)}; "
+                                   f"{cfg.sensor_size[0]}x{cfg.sensor_size[1]}, B={cfg.n_bins})", lfl)
+        tmp_md.write_text(md)
+        tmp_json.write_text(json.dumps(result, indent=1, default=_json_default))
     print(md)
     log(f"wrote {out}/energy_latency.{{md,json,png}} in {result['wall_s']} s")
     return 0
@@ -910,14 +912,14 @@ def main(argv=None) -> int:
     try:
         return run(args)
     except ToffeError as exc:
-        print(f"energy_latency: error: {exc}", file=sys.stderr)
+        print(f"energy_latency.py: error: {exc}", file=sys.stderr)
         return 2
     except ModuleNotFoundError as exc:     # scikit-learn / matplotlib / onnx come with the 'lava' extra
-        print(f"energy_latency: error: Python package {exc.name!r} is missing; install the 'lava' extra "
+        print(f"energy_latency.py: error: Python package {exc.name!r} is missing; install the 'lava' extra "
               f"(pip install -e '.[lava]', as scripts/setup.sh does)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("energy_latency: interrupted", file=sys.stderr)
+        print("energy_latency.py: interrupted", file=sys.stderr)
         return 130
 
 

@@ -93,7 +93,7 @@ def test_guarded_turns_package_errors_into_one_line(args_mod, capsys):
         raise InputError("/x/y", "missing file")
 
     assert args_mod.guarded("prog", boom) == 2
-    assert capsys.readouterr().err.strip() == "prog: error: /x/y: missing file"
+    assert capsys.readouterr().err.strip() == "prog.py: error: /x/y: missing file"   # as argparse names it
     assert args_mod.guarded("prog", lambda: 0) == 0
 
 

@@ -123,7 +123,7 @@ def test_missing_bundle_is_one_line_error(tmp_path, capsys):
     harness = _load_harness()
     rc = harness.main(["--quick", "--bundle", str(tmp_path / "nope"), "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err.strip().splitlines()
-    assert rc == 2 and err[-1].startswith("energy_latency: error:") and "toffe-deploy export" in err[-1]
+    assert rc == 2 and err[-1].startswith("energy_latency.py: error:") and "toffe-deploy export" in err[-1]
     assert not (tmp_path / "o").exists()
 
 

@@ -86,3 +86,7 @@ def test_an_objects_json_keeps_its_field_order_rounding_and_a_copy_of_its_track(
     assert o.track["x"] == 100.0 and isinstance(o.track.to_dict()["x"], float)
     unset = ObjectFlow(1, 1, np.float64(1.23456), 1.0, 1.0, 1.0, 1.0, 0.0, 1, None).to_json()
     assert unset["speed_mps"] == 1.2346 and "speed_clipped" not in unset
+    # a camera with a tiny metres-per-pixel scale: a non-zero speed is never written as 0.0
+    tiny = ObjectFlow(1, 1, 3.21987e-5, 1e-4, 0.0, 1.0, 1.0, -2.4e-7, 1).to_json()
+    assert tiny["speed_mps"] == 3.22e-5 and tiny["speed_bin_mps"] == 0.0001
+    assert tiny["speed_px_s"] == 0.0 and tiny["direction_rad"] == -2.4e-7

@@ -102,7 +102,7 @@ class ObjectFlow:
 
     def to_json(self) -> dict:
         """The JSON line's object: the fields in order, direction_deg after n_events, then
-        speed_clipped, track_id and track where not None; floats to 4 decimals. Built field by
+        speed_clipped, track_id and track where not None; floats to 4 decimals (_json_float). Built field by
         field: dataclasses.asdict (recursion, a deepcopy per field) cost ~25 us an object, the
         most of what `run` spent outside the pipeline."""
         d = {"speed_bin": self.speed_bin, "ofs_bin": self.ofs_bin, "speed_mps": self.speed_mps,
@@ -114,7 +114,7 @@ class ObjectFlow:
             d["faint"] = True
         if self.track_id is not None:
             d["track_id"] = self.track_id
-        out = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in d.items()}
+        out = {k: (_json_float(v) if isinstance(v, float) else v) for k, v in d.items()}
         if self.track is not None:
             out["track"] = _track_dict(self.track)
         return out
@@ -136,6 +136,14 @@ class WindowResult:
         if self.coasting is not None:
             out["coasting"] = [{"track_id": c["track_id"], "track": _track_dict(c["track"])} for c in self.coasting]
         return out
+
+
+def _json_float(v: float) -> float:
+    """A float of the JSON line: 4 decimals, or 4 significant digits where 4 decimals would write
+    a non-zero value as 0.0 (a camera with a tiny metres-per-pixel scale gives speeds of 1e-5
+    m/s: those stay readable, every other value is written as before)."""
+    r = round(v, 4)
+    return float(f"{v:.4g}") if r == 0.0 and v != 0.0 and math.isfinite(v) else r
 
 
 def _track_dict(track) -> dict:
