@@ -42,6 +42,7 @@ import copy
 import math
 
 import numpy as np
+from .compiled import _div_small
 from .jit import njit
 
 from .plane_fit import (NEIGHBOURHOODS, _grid_planes, _solve, flow_speed_rows, fuse_direction_rows,
@@ -54,14 +55,16 @@ MAX_PLANES = 256        # planes per object: every ceil(n / 256)-th surface pixe
 def _window_rows(bc, pix, width, height, ptr, xs, bs):
     """The ones (plane bc = 2 b + p, pixel pix = y W + x; in idx order, sorted) by row p * H + y:
     ptr (2 H + 1) offsets into xs, bs (capacity >= the ones). Each row keeps the ones' order, so
-    a pixel's ones come bin by bin. One division per one."""
+    a pixel's ones come bin by bin. A one's row from one float product (compiled._div_small), not
+    an integer division."""
     rows = 2 * height
     n = bc.shape[0]
     row = np.empty(n, np.int64)
+    inv_w = 1.0 / width
     for r in range(rows + 1):
         ptr[r] = 0
     for i in range(n):
-        row[i] = (bc[i] & 1) * height + pix[i] // width
+        row[i] = (bc[i] & 1) * height + _div_small(pix[i], width, inv_w)
         ptr[row[i] + 1] += 1
     for r in range(rows):
         ptr[r + 1] += ptr[r]
