@@ -81,6 +81,10 @@ def test_show_file_without_ground_truth(tmp_path, random_events):
     (["dataset", "synth", "--out", "{tmp}/brokenidx", "--split", "test", "--limit", "1"], "index.json"),
     (["dataset", "synth", "--out", "{tmp}/o", "--threshold", "0.1", "--threshold-sigma", "0.2"], "threshold-sigma"),
     (["dataset", "synth", "--out", "{tmp}/o", "--hfov-deg", "60", "--focal-px", "500"], "exclude each other"),
+    # a focal length whose view the generator does not render (170 deg on 346 px: 15.1 px) wrote files with a
+    # negative ground-truth depth, which run and events info then refused
+    (["dataset", "synth", "--out", "{tmp}/o", "--split", "appearance", "--sensor-size", "346x260", "--focal-px",
+      "14"], "15.14..1.982e+05 px"),
     (["dataset", "synth", "--out", "{tmp}/o", "--split", "test", "--size-px", "20"], "--appearance random"),
     (["dataset", "synth", "--out", "{tmp}/o", "--split", "train", "--limit", "1", "--object-contrast", "0.3",
       "--threshold", "0.1", "--threshold-sigma", "0", "--size-px", "20", "--noise-hz", "0"], "held-out region"),
@@ -122,7 +126,8 @@ def test_malformed_index_rows_are_one_line_errors(synth_dir, tmp_path, capsys, e
 def test_bad_option_values_exit_2(tmp_path, capsys):
     for argv in (["--duration-s", "-1"], ["--limit", "0"], ["--noise-hz", "nan"], ["--size-px", "5,2"],
                  ["--sensor-size", "640"], ["--dark-fraction", "1.5"], ["--hot-pixels", "0,2"],
-                 ["--threshold", "0.1,0.2,0.3"], ["--hfov-deg", "1e-300"], ["--hfov-deg", "0.05,60"]):
+                 ["--threshold", "0.1,0.2,0.3"], ["--hfov-deg", "1e-300"], ["--hfov-deg", "0.05,60"],
+                 ["--focal-px", "0.001"], ["--depth-m", "1e-9"], ["--depth-m", "2,1e9"]):
         with pytest.raises(SystemExit) as exc:
             main(["dataset", "synth", "--out", str(tmp_path), *argv])
         assert exc.value.code == 2

@@ -148,11 +148,17 @@ def test_dsec_reader_uses_offset_and_default_size(tmp_path, random_events):
         f.create_dataset("ms_to_idx", data=ms_index(ev["t"], 0).astype(np.uint64))
     with open_events(path) as src:
         assert src.format_name == "dsec" and src.sensor_size == (640, 480)
+        assert src.attrs["sensor_size_default"] == "DSEC"        # the file records none: said so (events info, run)
         assert src.t_start_us == off + ev["t"][0]
         got = src.read(off + 10_000, off + 20_000)
     sel = ev[(ev["t"] >= 10_000) & (ev["t"] < 20_000)]
     np.testing.assert_array_equal(got["t"] - off, sel["t"])
     np.testing.assert_array_equal(got[["x", "y", "p"]], sel[["x", "y", "p"]])
+    with open_events(path, sensor_size=(346, 260)) as src:
+        assert "sensor_size_default" not in src.attrs
+    from toffe_deploy.events.info import format_info, summarize
+    assert "(DSEC's default: the file records none; pass --sensor-size WxH)" in format_info(
+        summarize(path, progress=False))
 
 
 def test_dsec_reader_reads_blosc_compressed_files_as_dsec_ships_them(tmp_path, random_events):

@@ -519,6 +519,26 @@ def test_polarities_other_than_on_off_are_refused(env, capsys, tmp_path, fmt):
         one_line_error(*cli(capsys, "events", "info", path, "--no-progress")[::2], "polarity p = 7 at event 3")
 
 
+def test_a_polarity_of_both_minus_one_and_zero_is_refused(env, capsys, tmp_path):
+    """-1 and 0 in one column is neither encoding: both read as OFF, silently (events info,
+    convert and run went ahead); -1/+1 alone still reads."""
+    ev = _events(env)
+    p = ev["p"].astype(np.int8)
+    p[p == 1] = 0
+    p[4], p[9] = -1, -1                                     # -1 and 0, no +1
+    path = tmp_path / "mixed.npz"
+    np.savez(path, x=ev["x"], y=ev["y"], t=ev["t"], p=p, sensor_size=np.array(SENSOR))
+    with unchanged(path):
+        one_line_error(*cli(capsys, "events", "info", path, "--no-progress")[::2],
+                       "polarity holds both -1 (event 4) and 0 (event 0)")
+        one_line_error(*cli(capsys, *run_args(env, events=path))[::2], "neither the 0/1 nor the -1/+1 encoding")
+    pm = tmp_path / "pm.npz"
+    np.savez(pm, x=ev["x"], y=ev["y"], t=ev["t"], p=np.where(ev["p"] > 0, 1, -1).astype(np.int8),
+             sensor_size=np.array(SENSOR))
+    code, _out, _err = cli(capsys, "events", "info", pm, "--no-progress")
+    assert code == 0
+
+
 def test_short_ground_truth_column(env, capsys, tmp_path):
     path = tmp_path / "gt.h5"
     shutil.copy(env["rec"], path)

@@ -279,6 +279,22 @@ def test_bad_fps_is_one_line_error_and_leaves_nothing(tmp_path, make_bundle, cap
     assert not (tmp_path / "v").exists()
 
 
+def test_frames_wider_than_png_takes_are_refused_before_the_run(tmp_path, make_bundle, capsys):
+    """A 65000x1 sensor draws 1,040,000 px wide frames (x16), past libpng's limit: it refused them
+    with lines of its own and ours blamed the OpenCV build; now one line before any window."""
+    from toffe_deploy.events.io import write_events_npz
+
+    bundle = make_bundle(tmp_path)
+    ev = np.zeros(3, [("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "u1")])
+    ev["x"], ev["t"] = [10, 20, 30], [0, 1000, 2000]
+    write_events_npz(tmp_path / "wide.npz", ev, (65000, 1))
+    rc = main(["run", str(bundle.root), "--events", str(tmp_path / "wide.npz"), "--render", str(tmp_path / "v"),
+               "--out", str(tmp_path / "o.jsonl"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "draws 1,040,000x16 px frames, more than PNG takes" in err
+    assert not (tmp_path / "v").exists() and not (tmp_path / "o.jsonl").exists()
+
+
 def test_fps_without_video_is_refused(tmp_path, make_bundle, capsys):
     bundle = make_bundle(tmp_path)
     rc = main(["run", str(bundle.root), "--render", str(tmp_path / "v"), "--fps", "-3", "--no-progress"])

@@ -131,6 +131,9 @@ def test_resolve_camera_defaults():
     assert davis.scale.focal_px == pytest.approx(focal_px_from_hfov(346, 60.0))
     assert resolve_camera(cfg, (346, 260), synthetic_focal_px=123.0).scale.focal_px == 123.0
     assert resolve_camera(cfg, (346, 260), focal_px=400.0, hfov_deg=10.0).scale.focal_px == 400.0
+    # a sub-pixel focal length (the option's 0.01 px minimum) was written "focal 0.0 px"
+    assert "focal 0.01 px" in resolve_camera(cfg, (346, 260), focal_px=0.01).describe(cfg)
+    assert "focal 554.3 px" in same.describe(cfg)
 
 
 def test_synthetic_spec_sensor_and_hfov(cam, capsys, tmp_path):
@@ -143,7 +146,8 @@ def test_synthetic_spec_sensor_and_hfov(cam, capsys, tmp_path):
     assert c["focal_from"] == "the synthetic recording's camera" and "pixE" in out
     rc, _, err = run_cli(capsys, cam["bundle"].root, "--synthetic", "multi:0,sensor=96x72", "--sensor-size", "80x60")
     assert rc == 2 and "contradicts --sensor-size" in err and err.count("\n") == 1
-    for spec in ("multi,sensor=96", "multi,hfov=0", "multi,sensor=0x5"):
+    for spec in ("multi,sensor=96", "multi,hfov=0", "multi,sensor=0x5",
+                 "multi,sensor=99999x10", "multi,sensor=6x6"):      # the generator's 8..4096 px a side
         rc, _, err = run_cli(capsys, cam["bundle"].root, "--synthetic", spec)
         assert rc == 2 and err.startswith("toffe-deploy: error: --synthetic") and err.count("\n") == 1
 

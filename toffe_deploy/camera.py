@@ -49,6 +49,11 @@ REFERENCE_FOCAL_PX = focal_px_from_hfov(REFERENCE_WIDTH_PX, REFERENCE_HFOV_DEG) 
 #: lengths of 0.035 .. 2.3e6 px, inside --focal-px's range (runtime.run_camera.OPTION_RANGE);
 #: (0, 180) took 1e-300 deg (a focal length of 3.7e304 px) and 179.99999999 deg (3e-8 px)
 HFOV_RANGE_DEG = (0.1, 179.0)
+#: the object depths (m) and focal lengths (px) a camera option may state, `run`'s and `dataset
+#: synth`'s alike: any camera's, with room (a depth of 1e308 m made every m/s factor 0 and a
+#: division by it fail; 1e-9 m gave the generator objects of 0 px/ms)
+DEPTH_RANGE_M = (1e-3, 1e6)
+FOCAL_RANGE_PX = (1e-2, 1e7)
 
 
 @dataclass(frozen=True)

@@ -57,8 +57,11 @@ def _sensor_size(text: str) -> tuple[int, int]:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 640x480, got {text!r}") from None
-    if not (8 <= w <= 4096 and 8 <= h <= 4096):
-        raise argparse.ArgumentTypeError(f"width and height must be in 8..4096, got {text}")
+    from ..dataset.splits import SYNTH_SIDE_PX
+
+    lo, hi = SYNTH_SIDE_PX
+    if not (lo <= w <= hi and lo <= h <= hi):
+        raise argparse.ArgumentTypeError(f"width and height must be in {lo}..{hi}, got {text}")
     return (w, h)
 
 
@@ -83,8 +86,13 @@ def _frames(text: str) -> int:
 _nonneg_int = _number(int, 0, strict=False)
 
 
+#: the widest horizontal view the generator renders (deg): its pinhole image beyond is mostly
+#: stretched edge (run's --hfov-deg, a unit conversion only, takes up to 179)
+SYNTH_HFOV_MAX_DEG = 170.0
+
+
 def register(sub) -> None:
-    from ..camera import HFOV_RANGE_DEG
+    from ..camera import DEPTH_RANGE_M, FOCAL_RANGE_PX, HFOV_RANGE_DEG
 
     p = sub.add_parser("dataset", help="generate the synthetic high-speed data set, render samples to PNG",
                        description="The synthetic TOFFE data set: objects on closed trajectories seen by "
@@ -123,14 +131,19 @@ def register(sub) -> None:
                              "random splits only; sensor options to all")
     r.add_argument("--sensor-size", type=_sensor_size, default=None, metavar="WxH",
                    help="sensor size in pixels (default: 640x480)")
-    r.add_argument("--hfov-deg", type=_range(HFOV_RANGE_DEG[0], False, 170.0), default=None, metavar="LO,HI",
-                   help=f"horizontal field of view, degrees, {HFOV_RANGE_DEG[0]:g}..170 (random: 40,90; paper: 60; the "
-                        "generator's pinhole image beyond 170 is mostly stretched edge, where run's --hfov-deg, "
-                        "a unit conversion only, takes up to 179)")
-    r.add_argument("--focal-px", type=_range(0, True), default=None, metavar="LO,HI",
-                   help="focal length in pixels, instead of --hfov-deg")
-    r.add_argument("--depth-m", type=_range(0, True), default=None, metavar="LO,HI",
-                   help="object depth, metres, per object (random: 2,12)")
+    r.add_argument("--hfov-deg", type=_range(HFOV_RANGE_DEG[0], False, SYNTH_HFOV_MAX_DEG), default=None,
+                   metavar="LO,HI",
+                   help=f"horizontal field of view, degrees, {HFOV_RANGE_DEG[0]:g}..{SYNTH_HFOV_MAX_DEG:g} (random: "
+                        f"40,90; paper: 60; the generator's pinhole image beyond {SYNTH_HFOV_MAX_DEG:g} is mostly "
+                        "stretched edge, where run's --hfov-deg, a unit conversion only, takes up to 179)")
+    r.add_argument("--focal-px", type=_range(FOCAL_RANGE_PX[0], False, FOCAL_RANGE_PX[1]), default=None,
+                   metavar="LO,HI",
+                   help="focal length in pixels, instead of --hfov-deg; it must give a field of view in --hfov-deg's "
+                        f"range on the sensor's width ({HFOV_RANGE_DEG[0]:g}..{SYNTH_HFOV_MAX_DEG:g} deg: 28..366,693 "
+                        "px at 640 px)")
+    r.add_argument("--depth-m", type=_range(DEPTH_RANGE_M[0], False, DEPTH_RANGE_M[1]), default=None,
+                   metavar="LO,HI",
+                   help=f"object depth, metres, per object, {DEPTH_RANGE_M[0]:g}..{DEPTH_RANGE_M[1]:g} (random: 2,12)")
     r.add_argument("--size-px", type=_range(0, True), default=None, metavar="LO,HI",
                    help="apparent object diameter in pixels at its depth, per object (random: 15,200; "
                    "size_m = size_px * depth / f)")
@@ -233,6 +246,7 @@ def _ranges(args, splits):
     rnd = dataclasses.replace(RANDOM, **given)
     if "focal_px" in given:
         rnd = dataclasses.replace(rnd, hfov_deg=RANDOM.hfov_deg)
+        _check_focal(given["focal_px"], rnd.sensor_size[0])
     if "size_m" in given:
         rnd = dataclasses.replace(rnd, size_px=RANDOM.size_px)
     paper = dataclasses.replace(PAPER, **{k: v for k, v in given.items() if k in SENSOR_FIELDS + ("sensor_size",)})
@@ -250,6 +264,20 @@ def _ranges(args, splits):
             raise ToffeError(f"--threshold-sigma ({rr.threshold_sigma[1]:g}) must be smaller than --threshold "
                              f"({rr.threshold[0]:g}) ({name} appearance)")
     return rnd, paper
+
+
+def _check_focal(focal_px: tuple[float, float], width: int) -> None:
+    """ToffeError unless the focal lengths give fields of view the generator renders on a sensor
+    ``width`` px wide (--hfov-deg's range): a 0.001 px focal length on 346 px gave files whose
+    ground truth held a negative depth, which `run` and `events info` then refused."""
+    from ..camera import HFOV_RANGE_DEG, focal_px_from_hfov
+
+    lo = focal_px_from_hfov(width, SYNTH_HFOV_MAX_DEG)
+    hi = focal_px_from_hfov(width, HFOV_RANGE_DEG[0])
+    if focal_px[0] < lo or focal_px[1] > hi:
+        raise ToffeError(f"--focal-px {focal_px[0]:g},{focal_px[1]:g}: on a {width} px wide sensor the generator takes "
+                         f"{lo:.4g}..{hi:.4g} px (fields of view {HFOV_RANGE_DEG[0]:g}..{SYNTH_HFOV_MAX_DEG:g} deg, "
+                         "as --hfov-deg)")
 
 
 def _synth(args) -> int:

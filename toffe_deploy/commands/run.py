@@ -7,7 +7,8 @@ as soon as it is done (runtime/output.py: whole lines, flushed). A summary (wind
 when the recording carries ground truth) closes the run: on stderr when the JSON lines go to
 stdout, so stdout stays pure JSON lines, on stdout otherwise.
 
-Any sensor size runs (the OFS is a convolution, OFPD sees a crop): the cascade is built for the
+Any sensor size up to 16.8 M pixels (config.MAX_SENSOR_PIXELS, e.g. 4096x4096) runs (the OFS is a
+convolution, OFPD sees a crop): the cascade is built for the
 recording's sensor (``--sensor-size`` for files without one, or to override it). Speeds are
 reported in px/s and in m/s for the camera of ``runtime.run_camera`` (``--depth-m``,
 ``--focal-px`` / ``--hfov-deg``, else the bundle's).
@@ -64,7 +65,8 @@ def register(sub) -> None:
     p.add_argument("--sensor-size", metavar="WxH", type=parse_size,
                    help="the recording's sensor size, e.g. 346x260: for files without one (npz/npy without "
                         "sensor_size are otherwise sized by their largest coordinate) or to override the file's; "
-                        "events outside it are an error. Any size runs (default: the file's)")
+                        "events outside it are an error. Any size up to 16.8 M pixels (4096x4096) runs "
+                        "(default: the file's)")
     p.add_argument("--depth-m", type=float, metavar="D",
                    help="object distance in metres that speeds in m/s assume (default: the bundle's, 5 m for "
                         "the shipped one); px/s speeds do not depend on it")
@@ -200,7 +202,7 @@ def synthetic_source(spec: str, sensor_size: tuple[int, int], override: tuple[in
     PinholeCamera of the spec's sensor (else ``override``, i.e. --sensor-size, else ``sensor_size``)
     and hfov (default the generator's); ``attrs["focal_px"]`` is that camera's focal length."""
     from ..camera import PinholeCamera
-    from ..dataset.splits import split_specs
+    from ..dataset.splits import SYNTH_SIDE_PX, split_specs
     from ..dataset.synth import generate_sequence
     from ..events.source import ArraySource
 
@@ -212,6 +214,9 @@ def synthetic_source(spec: str, sensor_size: tuple[int, int], override: tuple[in
         raise ToffeError(f"--synthetic {spec!r}: sensor={s['sensor'][0]}x{s['sensor'][1]} contradicts "
                          f"--sensor-size {override[0]}x{override[1]} (give one)")
     w, h = s["sensor"] or override or sensor_size
+    lo, hi = SYNTH_SIDE_PX
+    if not (lo <= w <= hi and lo <= h <= hi):        # the generator's sides, as dataset synth's
+        raise ToffeError(f"--synthetic {spec!r}: the generator renders sensors of {lo}..{hi} px a side, got {w}x{h}")
     cam = PinholeCamera(width=w, height=h) if s["hfov"] is None else PinholeCamera(width=w, height=h, hfov_deg=s["hfov"])
     seq = dataclasses.replace(specs[s["index"]], camera=cam)
     events, gt, size = generate_sequence(seq, seed=s["seed"])
@@ -264,6 +269,12 @@ def open_source(args, bundle_sensor: tuple[int, int]):
     return open_events(path, sensor_size=args.sensor_size)
 
 
+#: what the summary adds to a sensor size the file does not record: the front end's noise rules
+#: read the event density over the sensor's area, so one smaller than the camera's loses slow
+#: objects (README, "Your camera")
+GUESSED_SIZE = "pass --sensor-size WxH: the noise rules read the sensor's area"
+
+
 def sensor_origin(args, src) -> str:
     """Where the run's sensor size came from, for the summary (an inferred one is worth a warning)."""
     if args.sensor_size:
@@ -273,7 +284,9 @@ def sensor_origin(args, src) -> str:
     if args.synthetic:
         return "the synthetic camera's"
     if src.attrs.get("sensor_size_inferred"):
-        return "inferred from the largest event coordinates: pass --sensor-size WxH"
+        return f"inferred from the largest event coordinates: {GUESSED_SIZE}"
+    if src.attrs.get("sensor_size_default"):
+        return f"{src.attrs['sensor_size_default']}'s default, the file records none: {GUESSED_SIZE}"
     return "the recording's"
 
 
@@ -382,8 +395,9 @@ def run_command(args) -> int:
             focal_px = sequence_focal_px(src.attrs)
         renderer = None
         if args.render:
-            from ..render.frames import FrameRenderer
+            from ..render.frames import FrameRenderer, check_frame_size
 
+            check_frame_size(sensor)
             renderer = FrameRenderer(args.render, video=args.video, fps=10.0 if args.fps is None else args.fps,
                                      theme=args.theme, attrs=src.attrs)
         report = None

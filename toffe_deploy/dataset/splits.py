@@ -70,6 +70,9 @@ MULTI_QUADRANTS_M = ((-1.35, -0.95), (1.35, -0.95), (-1.35, 0.95), (1.35, 0.95))
 #: Longest generated sequence (s): the generator holds a whole sequence in memory (events of a
 #: 640x480 scene run to ~70 MB per second), so a typo like 1e9 must not try to allocate it.
 MAX_SYNTH_DURATION_S = 10.0
+#: the sensor sides (px) the generator renders, `dataset synth --sensor-size` and `run --synthetic`
+#: alike (`run` itself takes any W x H up to config.MAX_SENSOR_PIXELS)
+SYNTH_SIDE_PX = (8, 4096)
 DEFAULT_DURATION_S = {"train": 0.1, "test": 0.1, "multi": 0.25, "appearance": 0.1, "pairs": 0.1, "crossing": 0.1}
 DEFAULT_MULTI_COUNT = 16
 #: The programmed speed ranges as image-plane speeds (px/ms) at the reference camera and depth.

@@ -17,14 +17,21 @@ def polarity01(path, p: np.ndarray, offset: int = 0) -> np.ndarray:
     """Polarity as 1 = ON, 0 = OFF from any common encoding: bool, 0/1, -1/+1 (p > 0 is ON).
 
     Any other value (7, -3, NaN, 0.5) is an InputError: it means a wrong column or a corrupt
-    file, which ``p > 0`` would silently turn into ON/OFF events.
+    file, which ``p > 0`` would silently turn into ON/OFF events. So is a column holding both -1
+    and 0 (in the events read together, a reader's chunk): neither encoding, and both would read
+    as OFF.
     """
     p = np.asarray(p)
     if p.dtype != np.bool_ and p.size:
-        bad = np.flatnonzero(~((p == 0) | (p == 1) | (p == -1)))
+        zero, minus = p == 0, p == -1
+        bad = np.flatnonzero(~(zero | (p == 1) | minus))
         if bad.size:
             i = int(bad[0])
             raise InputError(path, f"polarity p = {p[i]!r} at event {offset + i} is not 0/1, -1/+1 or a bool")
+        if minus.any() and zero.any():
+            i, j = int(np.argmax(minus)), int(np.argmax(zero))
+            raise InputError(path, f"polarity holds both -1 (event {offset + i}) and 0 (event {offset + j}): "
+                                   "neither the 0/1 nor the -1/+1 encoding")
     return (p > 0).astype(np.uint8)
 
 

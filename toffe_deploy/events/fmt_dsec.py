@@ -24,6 +24,7 @@ class DsecSource(EventSource):
 
     def __init__(self, path, h5, sensor_size=None):
         super().__init__(path, check_sensor_size(path, sensor_size or DSEC_SENSOR_SIZE))
+        self._default_size = sensor_size is None       # the file records none: the layout's default
         self._h5 = h5
         self._cols = {n: dataset(path, h5, f"events/{n}") for n in EVENT_DTYPE.names}
         shapes = {n: d.shape for n, d in self._cols.items()}
@@ -60,7 +61,7 @@ class DsecSource(EventSource):
 
     @property
     def attrs(self):
-        return {"t_offset_us": self._t_offset}
+        return {"t_offset_us": self._t_offset, **({"sensor_size_default": "DSEC"} if self._default_size else {})}
 
     def close(self):
         try:

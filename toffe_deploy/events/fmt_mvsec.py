@@ -20,6 +20,7 @@ class MvsecSource(EventSource):
 
     def __init__(self, path, h5, sensor_size=None, camera: str | None = None):
         super().__init__(path, check_sensor_size(path, sensor_size or MVSEC_SENSOR_SIZE))
+        self._default_size = sensor_size is None       # the file records none: the layout's default
         self._h5 = h5
         cams = [camera] if camera else [c for c in ("left", "right") if f"davis/{c}/events" in h5]
         if not cams:
@@ -44,7 +45,7 @@ class MvsecSource(EventSource):
 
     @property
     def attrs(self):
-        return {"camera": self.camera}
+        return {"camera": self.camera, **({"sensor_size_default": "MVSEC"} if self._default_size else {})}
 
     def close(self):
         try:

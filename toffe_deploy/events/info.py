@@ -84,14 +84,23 @@ def _gt_summary(gt: dict | None) -> dict | None:
     return out
 
 
+def _size_note(attrs: dict) -> str:
+    """What the summary says of a sensor size the file does not record (npy: inferred; DSEC and
+    MVSEC layouts: the layout's default), else nothing."""
+    if attrs.get("sensor_size_inferred"):
+        return " (inferred from the coordinates: pass --sensor-size WxH)"
+    if attrs.get("sensor_size_default"):
+        return f" ({attrs['sensor_size_default']}'s default: the file records none; pass --sensor-size WxH)"
+    return ""
+
+
 def format_info(info: dict) -> str:
     """Human-readable lines for ``toffe-deploy events info``."""
     n = info["events"]
     lines = [
         f"file:            {info['path']} ({info['format']})",
         f"events:          {n:,}",
-        f"sensor size:     {info['sensor_width']} x {info['sensor_height']} px"
-        + (" (inferred from the coordinates)" if info["attrs"].get("sensor_size_inferred") else ""),
+        f"sensor size:     {info['sensor_width']} x {info['sensor_height']} px" + _size_note(info["attrs"]),
         f"time span:       [{info['t_start_us']}, {info['t_end_us']}) us",
         f"duration:        {info['duration_s']:.6f} s",
         f"event rate:      {info['event_rate_eps'] / 1e6:.4f} Mev/s",

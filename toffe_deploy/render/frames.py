@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 from typing import Iterable
 
+from ..errors import ToffeError
 from . import draw
 from .truth import TruthShapes
 from .video import VIDEO_NAME, FrameSink
@@ -32,6 +33,22 @@ def time_label(t_us: int) -> str:
 
     clock = datetime.datetime.fromtimestamp(t_us // 10 ** 6, tz=datetime.timezone.utc)
     return f"{clock:%Y-%m-%d %H:%M:%S}.{t_us % 10 ** 6:06d} UTC"
+
+
+#: the widest or tallest frame PNG takes here (libpng's default user limit, 1,000,000 px): a
+#: 65535x1 sensor drawn 16x asked for 1,048,560 px, and libpng and OpenCV refused it with lines
+#: of their own on stderr
+MAX_FRAME_SIDE_PX = 1_000_000
+
+
+def check_frame_size(sensor_size: tuple[int, int]) -> None:
+    """ToffeError when a W x H sensor's frames (draw.frame_scale) exceed MAX_FRAME_SIDE_PX: checked
+    before a run starts, not at its first frame."""
+    w, h = (int(v) for v in sensor_size)
+    s = draw.frame_scale((w, h))
+    if max(w, h) * s > MAX_FRAME_SIDE_PX:
+        raise ToffeError(f"--render: a {w}x{h} sensor draws {w * s:,}x{h * s:,} px frames, more than PNG takes "
+                         f"({MAX_FRAME_SIDE_PX:,} px a side)")
 
 
 class FrameRenderer:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..camera import HFOV_RANGE_DEG, SpeedScale, focal_px_from_hfov, hfov_deg_from_focal, speed_text
+from ..camera import DEPTH_RANGE_M, FOCAL_RANGE_PX, HFOV_RANGE_DEG, SpeedScale, focal_px_from_hfov, hfov_deg_from_focal, speed_text
 from ..config import ToffeConfig
 from ..errors import ToffeError
 
@@ -36,7 +36,7 @@ class RunCamera:
         px = ", ".join(f"{lo * 1000:.0f}-{hi * 1000:.0f}" for lo, hi in config.speed_bins_px_ms)
         mps = ", ".join(f"{speed_text(self.scale.to_mps(lo))}-{speed_text(self.scale.to_mps(hi))}"
                         for lo, hi in config.speed_bins_px_ms)
-        return (f"camera: {w}x{h} sensor ({self.sensor_from}), focal {self.scale.focal_px:.1f} px ({self.focal_from}), depth "
+        return (f"camera: {w}x{h} sensor ({self.sensor_from}), focal {_focal_text(self.scale.focal_px)} px ({self.focal_from}), depth "
                 f"{self.scale.depth_m:g} m ({self.depth_from}); speeds in m/s assume that depth and focal length. "
                 f"Speed bins in px/s: {px}; in m/s here: {mps}")
 
@@ -47,9 +47,15 @@ class RunCamera:
                 "speed_bins_mps": [[self.scale.to_mps(lo), self.scale.to_mps(hi)] for lo, hi in config.speed_bins_px_ms]}
 
 
-#: what --depth-m (m), --focal-px (px) and --hfov-deg (deg) may be: any camera's, with room (a
-#: depth of 1e308 m made every m/s factor 0 and a division by it fail; camera.HFOV_RANGE_DEG)
-OPTION_RANGE = {"--depth-m": (1e-3, 1e6), "--focal-px": (1e-2, 1e7), "--hfov-deg": HFOV_RANGE_DEG}
+def _focal_text(f: float) -> str:
+    """A focal length for the summary: one decimal, 3 significant digits below 1 px (a 0.01 px
+    focal length read "0.0 px")."""
+    return f"{f:.1f}" if f >= 1.0 else f"{f:.3g}"
+
+
+#: what --depth-m (m), --focal-px (px) and --hfov-deg (deg) may be (camera.DEPTH_RANGE_M,
+#: FOCAL_RANGE_PX, HFOV_RANGE_DEG)
+OPTION_RANGE = {"--depth-m": DEPTH_RANGE_M, "--focal-px": FOCAL_RANGE_PX, "--hfov-deg": HFOV_RANGE_DEG}
 
 
 def _positive(name: str, v: float | None) -> None:
