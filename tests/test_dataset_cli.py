@@ -164,3 +164,23 @@ def test_sequences_without_events_are_warned_about(tmp_path, capsys):
                  "--duration-s", "0.002", "--sensor-size", "10x10", "--no-progress"]) == 0
     err = capsys.readouterr().err
     assert "toffe-deploy: warning: 1 sequence(s) without a single event (test_" in err
+
+
+def test_one_data_set_is_one_camera_and_unlisted_files_are_named(tmp_path, capsys):
+    """A split of another sensor size into an existing data set wrote an index of two cameras,
+    exit 0 (train and eval read one size): refused, the index as it was. A split regenerated with
+    fewer sequences leaves the files it no longer lists: named in a warning (eval --split DIR/SPLIT/
+    would read them)."""
+    out = tmp_path / "d"
+    base = ["dataset", "synth", "--out", str(out), "--duration-s", "0.005", "--no-progress"]
+    assert main(base + ["--split", "test", "--limit", "3", "--sensor-size", "64x48"]) == 0
+    assert main(base + ["--split", "multi", "--limit", "1", "--multi-count", "1", "--sensor-size", "64x48"]) == 0
+    before = (out / "index.json").read_bytes()
+    capsys.readouterr()
+    assert main(base + ["--split", "test", "--limit", "1", "--sensor-size", "96x72"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "holds multi at 64x48; these splits would be 96x72" in err, err
+    assert (out / "index.json").read_bytes() == before
+    assert main(base + ["--split", "test", "--limit", "1", "--sensor-size", "64x48"]) == 0
+    err = capsys.readouterr().err
+    assert "test: 2 .h5 file(s) the index does not list" in err, err

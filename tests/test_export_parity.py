@@ -167,6 +167,25 @@ def test_run_parity_json_is_strict(setup):
     assert parity.summary_lines(out)[0].startswith("parity on")
 
 
+def test_scores_take_each_windows_focal_length_as_eval_does():
+    """speedE of the end-to-end check with the window's focal length: the px/ms error at the
+    object's true depth (metrics.FlowErrors, as eval and run); a prediction exact in px/ms
+    scores 0 m/s whatever depth the bundle states; generated windows record their camera's."""
+    from toffe_deploy.camera import PinholeCamera
+    from toffe_deploy.deploy.windows import heldout_windows
+    from toffe_deploy.metrics import Prediction
+
+    truth = ObjectTruth(0, 10.0, 10.0, 0.0, 40.0, 2, speed_px_ms=4.0, depth_m=2.0)
+    pred = Prediction(2, 10.0, 10.0, 0.0, 100.0, 20.0, 4.0)     # exact in px/ms; its m/s at another depth
+    got = parity._scores([[pred]], [[truth]], [243.0])
+    assert got["speedE"] == pytest.approx(0.0, abs=1e-9) and got["speedE_px_ms"] == pytest.approx(0.0, abs=1e-9)
+    assert parity._scores([[pred]], [[truth]], [])["speedE"] == pytest.approx(60.0)    # unknown camera: m/s
+    small = ToffeConfig(sensor_size=(96, 72))
+    held = heldout_windows(small, seed=0, n_windows=2)
+    f = PinholeCamera(96, 72).f                                 # the generator's 60 deg over 96 px
+    assert held.source["focal_px"] == pytest.approx(f) and held.focal_px == [pytest.approx(f)] * len(held)
+
+
 def test_heldout_windows_from_a_data_set(tmp_path):
     """--data DIR: windows come from the held-out 'test' sequences, with their ground truth."""
     import dataclasses
@@ -183,6 +202,9 @@ def test_heldout_windows_from_a_data_set(tmp_path):
     assert held.source["kind"] == "data set" and len(held.source["files"]) == 2
     assert 1 <= len(held) <= 4 and all(w.shape == (CFG.n_bins, 2, CFG.height, CFG.width) for w in held.windows)
     assert all(w.any() for w in held.windows) and all(isinstance(t, list) for t in held.truths)
+    # each window keeps its file's focal length, which the end-to-end speedE needs as eval does
+    # (without it export stated m/s at the bundle's depth against the truth's, ~12x eval's on DAVIS data)
+    assert held.focal_px == [pytest.approx(PinholeCamera(CFG.width, CFG.height).f)] * len(held)
     other = ToffeConfig(sensor_size=(64, 48))
     with pytest.raises(Exception, match="sensor size"):
         heldout_windows(other, data=tmp_path, n_windows=2)

@@ -46,6 +46,8 @@ def test_train_resume_and_eval(data, tmp_path, capsys):
     cap = capsys.readouterr()
     assert "nothing to resume" in cap.err and "checkpoint written" not in cap.out
     assert {p.name: p.stat().st_mtime_ns for p in ck.iterdir() if p.is_file()} == stamps
+    assert main(args + ["--epochs", "1", "--resume"]) == 0          # fewer epochs than done: said, not silent
+    assert "had trained 2 OFPD epochs, more than --epochs 1: its OFPD is kept as it is" in capsys.readouterr().err
     assert main(args + ["--epochs", "2", "--resume", "--ofpd-pool", "2"]) == 2   # other OFPD settings: refused,
     assert "cannot resume" in capsys.readouterr().err                          # as for an interrupted run
 
@@ -57,6 +59,10 @@ def test_train_resume_and_eval(data, tmp_path, capsys):
     assert "Tracking (tracking.Tracker" in table and "| MOTA | IDF1 |" in table
     res = json.loads(out_json.read_text())
     assert [r["dt_us"] for r in res["per_dt"]] == [500, 1000]
+    # the data and its camera, beside the checkpoint's (eval said nothing of what it evaluated on)
+    assert res["data"] == str(data) and res["data_sensor_size"] == [res["checkpoint_sensor_size"]]
+    assert res["data_focal_px"] is None or res["data_focal_px"] > 0
+    assert f"data `{data}`: {res['data_sensor_size'][0][0]}x{res['data_sensor_size'][0][1]}" in table
     trk = res["per_dt"][0]["tracking"]
     assert trk["windows"] == 4 * 6 and trk["gt_objects"] > 0 and {"mota", "idf1", "id_switches"} <= set(trk)
     assert res["per_dt"][0]["all"]["n_gt"] > 0 and set(res["per_dt"][0]["separation"]) == {"1", "2", "3", "4"}
@@ -81,6 +87,26 @@ def test_train_out_naming_a_file_or_the_data_is_refused_before_training(data, tm
         assert err.count("\n") == 1 and needle in err, err
     assert f.read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
     assert (data / "index.json").is_file()
+
+
+def test_out_at_a_bundle_and_untrained_parts_are_refused_before_training(data, tmp_path, capsys, make_bundle):
+    """--out at a deploy bundle: training wrote its checkpoint into it, exit 0, and the bundle's
+    hashes failed from then on. --epochs 0 / --ofs-epochs 0 from scratch wrote a random OFPD or
+    DOTIE's OFS stages, exit 0 (with --init-from, 0 keeps that checkpoint's: a test above)."""
+    bundle = make_bundle(tmp_path / "b")
+    before = sorted((p.name, p.read_bytes()) for p in bundle.root.iterdir() if p.is_file())
+    base = ["train", "--data", str(data), "--windows-per-seq", "1", "--no-progress"]
+    for extra, needle in (([f"--out={bundle.root}", "--epochs", "1", "--ofs-epochs", "1"],
+                           "a deploy bundle (export's output), which training would overwrite"),
+                          (["--out", str(tmp_path / "c1"), "--epochs", "0"], "--epochs 0 would leave the OFPD untrained"),
+                          (["--out", str(tmp_path / "c2"), "--ofs-epochs", "0", "--stage", "ofs"],
+                           "--ofs-epochs 0 would leave the OFS stages untrained"),
+                          (["--out", str(tmp_path / "c3"), "--epochs", "-1"], "--epochs must be >= 0, got -1")):
+        assert main(base + extra) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and needle in err, err
+    assert sorted((p.name, p.read_bytes()) for p in bundle.root.iterdir() if p.is_file()) == before
+    assert not any((tmp_path / c).exists() for c in ("c1", "c2", "c3"))
 
 
 def test_training_on_data_without_some_speed_bins_warns(tmp_path, capsys):
@@ -125,6 +151,36 @@ def test_stage_ofpd_and_resume_refuse_data_of_another_sensor_and_record_the_data
                  "--windows-per-seq", "2", "--no-progress"]) == 0
     got = load_checkpoint(ck).config.dataset
     assert got["data_dir"] == str(data) and got["ofs_dataset"] == {"data_dir": "/elsewhere"}
+
+
+def test_a_stage_ofs_checkpoint_says_its_ofpd_is_untrained_until_trained(data, tmp_path, capsys):
+    """--stage ofs from scratch writes a random OFPD: export bundled it without a word (end to
+    end "pass"); now the checkpoint records it, export warns, and --stage ofpd clears it."""
+    ck = tmp_path / "ck"
+    base = ["train", "--data", str(data), "--out", str(ck), "--windows-per-seq", "2", "--no-progress"]
+    assert main(base + ["--stage", "ofs", "--ofs-epochs", "1"]) == 0
+    assert load_checkpoint(ck).config.dataset["untrained"] == ["OFPD"]
+    capsys.readouterr()
+    assert main(["export", str(ck), "-o", str(tmp_path / "b"), "--checks", "none", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the checkpoint holds parts never trained: OFPD" in err, err
+    manifest = json.loads((tmp_path / "b" / "manifest.json").read_text())
+    assert any("never trained: OFPD" in w for w in manifest["warnings"])
+    assert main(base + ["--stage", "ofpd", "--epochs", "1"]) == 0
+    assert "untrained" not in load_checkpoint(ck).config.dataset
+
+
+def test_resume_on_another_data_set_records_it(data, capsys):
+    """A --resume on another data set of the same camera went on (with a warning) but the
+    checkpoint kept naming the first data set; now it names the one it finished on."""
+    from toffe_deploy.config import ToffeConfig
+    from toffe_deploy.model.data import find_sequences
+    from toffe_deploy.model.train import same_camera_data
+
+    first = ToffeConfig(dataset={"data_dir": "/elsewhere"})
+    got = same_camera_data(first, find_sequences(data, "train"), data, 0, data / "ck", resume=True).dataset
+    assert got["data_dir"] == str(data) and got["resumed_from_dataset"] == {"data_dir": "/elsewhere"}
+    assert "began on /elsewhere; it goes on with this data set" in capsys.readouterr().err
 
 
 def test_ofpd_pool_retrains_only_the_ofpd(data, tmp_path, capsys):
@@ -415,3 +471,12 @@ def test_train_dt_beyond_the_longest_window_is_refused(tmp_path, capsys):
     assert main(["train", "--data", str(tmp_path), "--out", str(tmp_path / "ck"), "--dt", "10000000000"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--dt must be <= 1000000000 us" in err and not (tmp_path / "ck").exists()
+
+
+def test_a_directory_with_only_a_stopped_runs_progress_says_resume(tmp_path, capsys):
+    """export of an --out whose first training run was stopped (only .train_state/ in it) said
+    "not a checkpoint directory" and nothing of how to finish it."""
+    (tmp_path / "ck" / ".train_state").mkdir(parents=True)
+    assert main(["export", str(tmp_path / "ck"), "-o", str(tmp_path / "b"), "--checks", "none", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not a checkpoint directory" in err and "--resume" in err, err

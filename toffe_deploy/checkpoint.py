@@ -150,7 +150,10 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
         raise InputError(root, "a deploy bundle (export's output), not a checkpoint: give the checkpoint "
                                "directory it was exported from (e.g. ckpt/)")
     if not root.is_dir() or not any((root / f).exists() for f in (CONFIG_FILE, OFS_FILE, "ofpd.safetensors")):
-        raise InputError(root, "not a checkpoint directory (expected config.json, ofs.safetensors, ofpd.safetensors)")
+        unfinished = root.is_dir() and (root / ".train_state").is_dir()     # model.train.STATE_DIR
+        raise InputError(root, "not a checkpoint directory (expected config.json, ofs.safetensors, ofpd.safetensors)"
+                               + ("; it holds a stopped training run's progress: finish it with `toffe-deploy train "
+                                  "... --resume` and the same options" if unfinished else ""))
     config = load_config(root / CONFIG_FILE)
     try:
         from .ofpd_io import ofpd_param_shapes

@@ -139,11 +139,12 @@ def evaluate(opts: EvalOptions) -> dict:
         raise ToffeError(f"--dt {short[0]}: a window of {cfg.n_bins} time bins needs at least {cfg.n_bins} us")
     files = split_files(opts.data, opts.split)
 
-    attrs, spans = [], []
+    attrs, spans, sensors = [], [], set()
     for path in files:
         with open_events(path) as src:
             attrs.append(src.attrs)
             spans.append(int(src.t_end_us - src.t_start_us))
+            sensors.add(tuple(int(v) for v in src.sensor_size))
     need = 2 if opts.skip_stream_start else 1          # windows a sequence must hold to give one
     long = [dt for dt in opts.dts if files and need * dt > max(spans)]
     if long:                    # before the work: a table of nothing, exit 0, was the answer
@@ -169,7 +170,16 @@ def evaluate(opts: EvalOptions) -> dict:
              f"the sampled windows {why}" if opts.track_windows > 0 else
              f"{opts.ckpt}: ofpd.faint_objects is not applied to the sampled windows {why}; --track-windows applies it "
              "over consecutive windows, and benchmarks/bench_tracking.py scores the deployed pipeline with it")
-    results = {"checkpoint": str(opts.ckpt), "trained_dt_us": cfg.dt_us, "split": opts.split, "ofs": opts.ofs,
+    from .runtime.truth import sequence_focal_px
+
+    focals = {sequence_focal_px(a) for a in attrs}
+    focals = {None if f is None else round(f, 3) for f in focals}
+    # what was evaluated on: the data and its camera beside the checkpoint's (a 346x260 checkpoint on
+    # 1280x720 data ran without a word of it)
+    camera = {"data": str(opts.data), "data_sensor_size": [list(v) for v in sorted(sensors)],
+              "data_focal_px": next(iter(focals)) if len(focals) == 1 else None,
+              "checkpoint_sensor_size": list(cfg.sensor_size), "checkpoint_focal_px": round(cfg.focal_px, 3)}
+    results = {**camera, "checkpoint": str(opts.ckpt), "trained_dt_us": cfg.dt_us, "split": opts.split, "ofs": opts.ofs,
                "faint_objects_applied": False,
                "faint_objects_in_tracking": faint is not None and opts.track_windows > 0, "sequences": len(files),
                "max_windows_per_sequence": opts.max_windows, "gate_px": opts.gate_px,
@@ -238,12 +248,24 @@ def _f(v: float, nd: int = 2) -> str:
     return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{nd}f}"
 
 
+def _camera_text(r: dict) -> str:
+    """``; data D: WxH, focal F px (the checkpoint's: ...)`` for the header; empty for results
+    written before eval recorded the data's camera."""
+    if "data_sensor_size" not in r:
+        return ""
+    sizes = " and ".join(f"{w}x{h}" for w, h in r["data_sensor_size"]) or "no sequences"
+    f = r.get("data_focal_px")
+    ck = r["checkpoint_sensor_size"]
+    return (f"; data `{r['data']}`: {sizes}, focal {'mixed' if f is None else f'{f:g} px'}; the checkpoint's "
+            f"{ck[0]}x{ck[1]}, {r['checkpoint_focal_px']:g} px")
+
+
 def format_markdown(r: dict) -> str:
     """Table 1 style markdown: detection (recall, FP per window, bin accuracy) and errors beside the
     paper's, then per-bin rows, the bin confusion matrix, the breakdowns and the OFS separation."""
     rows = sorted(r["per_dt"], key=lambda x: -x["dt_us"])
-    lines = [f"Checkpoint `{r['checkpoint']}` (trained at dt = {r['trained_dt_us']} us), split `{r['split']}`, "
-             f"{r['sequences']} sequences, <= {r['max_windows_per_sequence']} windows each"
+    lines = [f"Checkpoint `{r['checkpoint']}` (trained at dt = {r['trained_dt_us']} us{_camera_text(r)}), split "
+             f"`{r['split']}`, {r['sequences']} sequences, <= {r['max_windows_per_sequence']} windows each"
              f"{' less its first' if r.get('skip_stream_start') else ''}, OFS {r['ofs']}; "
              f"one-to-one matching within {r['gate_px']:g} px.", "",
              "| dt (us) | recall | FP / window | bin acc. | pixE (px) | dirE (deg) | speedE (m/s) | speedE (px/ms) "

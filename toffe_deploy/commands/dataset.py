@@ -290,6 +290,12 @@ def _synth(args) -> int:
         raise ToffeError(f"--duration-s {args.duration_s:g} is longer than {MAX_SYNTH_DURATION_S:g} s (each "
                          "sequence is generated in memory)")
     splits = SPLITS if args.split == "all" else (args.split,)
+    if Path(args.out).is_dir():           # another camera's data set there: before the warnings below
+        from ..dataset.appearance import PAPER
+        from ..dataset.build import check_one_camera, read_index
+
+        check_one_camera(Path(args.out), read_index(Path(args.out)), {tuple(args.sensor_size or PAPER.sensor_size)},
+                         splits)
     rnd, paper = _ranges(args, splits)
     specs = {}
     for split in splits:

@@ -23,8 +23,10 @@ def register(sub) -> None:
     p.add_argument("--dt", type=int, default=None,
                    help="window length in microseconds a new checkpoint is trained for (default 500; a run on an "
                         "existing checkpoint (--resume, --stage ofpd, --init-from) keeps its own, and refuses another)")
-    p.add_argument("--ofs-epochs", type=int, default=4, help="epochs per OFS stage (default 4)")
-    p.add_argument("--epochs", type=int, default=30, help="OFPD epochs (default 30)")
+    p.add_argument("--ofs-epochs", type=int, default=4,
+                   help="epochs per OFS stage (default 4; 0 only with --init-from or --resume: keeps their stages)")
+    p.add_argument("--epochs", type=int, default=30,
+                   help="OFPD epochs (default 30; 0 only with --init-from or --resume: keeps their OFPD)")
     p.add_argument("--windows-per-seq", type=int, default=30,
                    help="training windows sampled per sequence (default 30)")
     p.add_argument("--seed", type=int, default=0, help="random seed for window sampling, init and shuffling (default 0)")
@@ -61,8 +63,9 @@ def register(sub) -> None:
                    help="OFS neuron reset: 'subtract' (the paper's eq. 1) or 'zero' (Loihi 2's stock CUBA LIF, "
                         "what NeuroCores, netx and NIR run) (default: the checkpoint's, else subtract)")
     p.add_argument("--init-from", type=Path, default=None, metavar="CKPT",
-                   help="start from this checkpoint's config and OFS stages (fine-tune them, e.g. with --reset zero; "
-                        "--stage all then retrains the OFPD on the new stages' outputs)")
+                   help="start from this checkpoint's config, OFS stages and OFPD (fine-tune them, e.g. with --reset "
+                        "zero or on your camera's data; --stage all then fine-tunes the OFPD on the new stages' "
+                        "outputs, --epochs 0 keeps it as it is)")
     p.add_argument("--speed-balance", action="store_true",
                    help="OFPD speed loss: weigh each sample by the inverse frequency of its true speed bin "
                         "(model/train.py SpeedLoss; default off: plain L1 on ln speed)")
@@ -107,14 +110,30 @@ def run(args) -> int:
     if not args.speed_edge_weight >= 0:
         raise ToffeError(f"--speed-edge-weight must be >= 0, got {args.speed_edge_weight}")
     for name in ("dt", "ofs_epochs", "epochs", "windows_per_seq"):
-        if getattr(args, name) is not None and getattr(args, name) < (0 if "epochs" in name else 1):
-            raise ToffeError(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
+        low = 0 if "epochs" in name else 1
+        if getattr(args, name) is not None and getattr(args, name) < low:
+            raise ToffeError(f"--{name.replace('_', '-')} must be {'>= 0' if low == 0 else 'positive'}, "
+                             f"got {getattr(args, name)}")
+    # 0 epochs keeps what the run starts from: --init-from's (or a resumed run's) weights; from
+    # scratch it wrote a checkpoint with a random OFPD or DOTIE's OFS stages, exit 0
+    if not (args.init_from or args.resume):
+        if args.epochs == 0 and args.stage in ("ofpd", "all"):
+            raise ToffeError("--epochs 0 would leave the OFPD untrained: train it (--epochs N), keep another "
+                             "checkpoint's with --init-from CKPT, or train the OFS stages only (--stage ofs)")
+        if args.ofs_epochs == 0 and args.stage in ("ofs", "all"):
+            raise ToffeError("--ofs-epochs 0 would leave the OFS stages untrained: train them (--ofs-epochs N) or "
+                             "keep another checkpoint's with --init-from CKPT")
     if args.dt is not None and args.dt > MAX_DT_US:                 # the checkpoint's config would be refused, after the training
         raise ToffeError(f"--dt must be <= {MAX_DT_US} us, got {args.dt}")
     from ..fileio import check_outputs
 
     check_outputs(dirs=[("--out", args.out)], inputs=[("the data set", args.data),      # before any training
                                                       ("the --init-from checkpoint", args.init_from)])
+    from ..deploy.bundle import is_bundle_dir
+
+    if is_bundle_dir(args.out):          # training wrote a checkpoint into it, exit 0: the bundle's hashes then failed
+        raise ToffeError(f"--out {args.out}: a deploy bundle (export's output), which training would overwrite: "
+                         "train into a checkpoint directory (e.g. ckpt-mine/), then export it")
     import torch
 
     if args.device not in ("auto", "cpu") and not args.device.startswith("cuda"):

@@ -152,6 +152,8 @@ def build_dataset(root: str | os.PathLike, specs_by_split: dict[str, list[Sequen
     if root.exists() and not root.is_dir():
         raise InputError(root, "exists and is not a directory")
     old = read_index(root) if root.exists() else None
+    check_one_camera(root, old, {(int(s.camera.width), int(s.camera.height))
+                                 for specs in specs_by_split.values() for s in specs}, specs_by_split)
     todo = [(spec, sequence_seed(seed, "dvs:" + spec.name), root, force)
             for split in specs_by_split for spec in specs_by_split[split]]
     bar = tqdm(total=len(todo), desc="synth", unit="seq", file=sys.stderr, disable=not progress)
@@ -177,7 +179,43 @@ def build_dataset(root: str | os.PathLike, specs_by_split: dict[str, list[Sequen
              "n_events": int(sum(r["n_events"] for r in seqs)), "sequences": seqs}
     with atomic_path(root / "index.json", suffix=".json") as tmp:
         tmp.write_text(json.dumps(index, indent=1) + "\n", encoding="utf-8")
+    _warn_unlisted(root, specs_by_split, seqs)
     return index
+
+
+def check_one_camera(root: Path, old: dict | None, new: set, splits) -> None:
+    """InputError when the splits kept from the index ``old`` (those not in ``splits``, the ones
+    regenerated) were made with another sensor size than ``new`` (the sizes now generated): one
+    data set is one camera (train and eval read one size; a run wrote train at 346x260 and test
+    at 640x480 into one index, exit 0). `dataset synth` asks before its other checks too."""
+    kept = {}
+    for r in (old or {}).get("sequences", []):
+        if r.get("split") not in splits and isinstance(r.get("sensor_size"), list) and len(r["sensor_size"]) == 2:
+            kept.setdefault(tuple(int(v) for v in r["sensor_size"]), set()).add(r.get("split"))
+    other = {size: splits for size, splits in kept.items() if size not in new}
+    if new and other:
+        (w, h), splits = next(iter(other.items()))
+        nw, nh = next(iter(new))
+        raise InputError(root, f"holds {', '.join(sorted(map(str, splits)))} at {w}x{h}; these splits would be "
+                               f"{nw}x{nh}: a data set is one camera (train and eval read one sensor size): "
+                               "generate into another --out, or regenerate every split (--split all)")
+
+
+def _warn_unlisted(root: Path, specs_by_split: dict, seqs: list) -> None:
+    """Warn of .h5 files in a regenerated split's folder that the index no longer lists (an
+    earlier run with more sequences, or a larger --limit): `eval --split DIR/SPLIT/` would read
+    them. They are left in place: the folder may hold the user's own files."""
+    from ..errors import warn
+
+    listed = {str(r.get("file")) for r in seqs}
+    for split in specs_by_split:
+        folder = root / split
+        extra = sorted(p.name for p in folder.glob("*.h5") if f"{split}/{p.name}" not in listed) \
+            if folder.is_dir() else []
+        if extra:
+            warn(f"{folder}: {len(extra)} .h5 file(s) the index does not list (e.g. {extra[0]}; from an earlier, "
+                 "larger run): training reads the index, but `eval --split` on that folder would read them too; "
+                 "delete them")
 
 
 def iter_split_files(root: str | os.PathLike, split: str | None = None) -> Iterable[Path]:

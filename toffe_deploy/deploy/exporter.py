@@ -46,14 +46,20 @@ def _checkpoint_hashes(root: Path) -> dict[str, str]:
 def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, force: bool = False,
                   variants: Sequence[str] = (), checks: Sequence[str] | None = DEFAULT_CHECKS,
                   data: str | os.PathLike | None = None, seed: int = 0, n_windows: int = 16, lava_windows: int = 2,
-                  progress: bool = True, log: TextIO | None = sys.stderr) -> ExportResult:
+                  progress: bool = True, log: TextIO | None | str = "stderr") -> ExportResult:
     """Export a checkpoint directory to a bundle at ``out_dir`` (see module docstring).
+
+    log: where the warnings are printed: a stream, None for nowhere, or "stderr" (the default):
+    sys.stderr as it is at the call (a default of sys.stderr itself was the stream of the import,
+    not a later redirection's).
 
     checks: which parity checks to run (None or () = none, for quick bundles in tests).
     data: a data-set directory whose held-out ('test') sequences provide the parity windows;
     otherwise windows are generated with the synthetic generator (seeded, small).
     """
     t_start = time.perf_counter()
+    if log == "stderr":
+        log = sys.stderr
     out_dir = Path(out_dir)
     check_output_dir(out_dir, force=force)
     if checks and ("lava_vs_fixed" in checks or "netx_vs_fixed" in checks):
@@ -63,6 +69,11 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
     config = ckpt.config
     q = quantize_stages(ckpt.ofs, Path(ckpt_dir) / "ofs.safetensors", config.reset)
     warnings = list(q.warnings)
+    untrained = (config.dataset or {}).get("untrained")
+    if untrained:                  # train's record (model.train.with_untrained): a bundle of it runs, badly
+        warnings.append(f"the checkpoint holds parts never trained: {', '.join(map(str, untrained))} (a `train "
+                        "--stage ofs` checkpoint, or a stopped run's .train_state copy): train them (`train --stage "
+                        "ofpd`, or `train --resume`) before deploying")
 
     from . import onnx_export
     from ..energy.cost_model import loihi2_footprint

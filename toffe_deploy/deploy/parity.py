@@ -471,12 +471,16 @@ def _agreement(flt: list[list], dep: list[list]) -> dict:
             "mean_speed_diff_mps": float(np.mean(dspd)) if dspd else 0.0}
 
 
-def _scores(preds: list[list], truths: list[list]) -> dict:
+def _scores(preds: list[list], truths: list[list], focal_px: list) -> dict:
+    """FlowErrors over the windows, each with its camera's focal length, as eval and run score:
+    speedE is the px/ms error in m/s at each object's true depth (without the focal length it
+    compared m/s at the bundle's depth with the truth's, ~12x too large on DAVIS346 data)."""
     from ..metrics import FlowErrors
 
     fe = FlowErrors()
-    for p, t in zip(preds, truths):
-        fe.add_window(p, t)
+    focal_px = list(focal_px) + [None] * (len(truths) - len(focal_px))      # a HeldOut built without them
+    for p, t, f in zip(preds, truths, focal_px):
+        fe.add_window(p, t, focal_px=f)
     return fe.summary()
 
 
@@ -504,7 +508,7 @@ def check_end_to_end(bundle: Bundle, models, model, held: HeldOut) -> dict:
         out.update(status="skipped: held-out windows have no ground truth (agreement reported instead)",
                    headline=f"{out['agreement']['matched']} of {out['agreement']['objects_float']} float objects matched")
         return out
-    sf, sd, sr = _scores(flt, held.truths), _scores(dep, held.truths), _scores(ref, held.truths)
+    sf, sd, sr = (_scores(x, held.truths, held.focal_px) for x in (flt, dep, ref))
     out.update(float_errors=sf, deployed_errors=sd, fixed_reference_errors=sr)
     if sf["n_matched"] == 0 or sd["n_matched"] == 0:
         out.update(status=f"skipped: no ground-truth object matched (float {sf['n_matched']}, deployed "
@@ -517,10 +521,11 @@ def check_end_to_end(bundle: Bundle, models, model, held: HeldOut) -> dict:
     if run is not None:          # each reduced-precision OFPD end to end, against the fp32 deployment
         out["variants"] = {}
         for v in bundle.ofpd_variants:
-            sv = _scores(_predictions_runtime(bundle, held, v), held.truths)
+            sv = _scores(_predictions_runtime(bundle, held, v), held.truths, held.focal_px)
             out["variants"][v] = {"errors": sv, "relative_to_fp32": {m: _rel(sv[m], sd[m]) for m in metrics},
                                   "goal": f"informational: within {VARIANT_E2E_GOAL:.0%} of fp32 to be worth shipping"}
-    head = ", ".join(f"{m} {sd[m]:.3g} vs {sf[m]:.3g}" for m in metrics)
+    unit = {"pixE": " px", "dirE": " deg", "speedE": " m/s"}
+    head = ", ".join(f"{m} {sd[m]:.3g} vs {sf[m]:.3g}{unit[m]}" for m in metrics)
     if run is not None and not ok:
         head += " (fixed reference: " + ", ".join(f"{m} {sr[m]:.3g}" for m in metrics) + ")"
     out.update(status=_status(ok), headline=head)

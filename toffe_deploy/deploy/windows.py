@@ -44,6 +44,7 @@ class HeldOut:
     source: dict = field(default_factory=dict)
     support: list = field(default_factory=list)
     ones: list = field(default_factory=list)
+    focal_px: list = field(default_factory=list)    # per window: its camera's focal length (None: unknown)
 
     def __len__(self) -> int:
         return len(self.windows)
@@ -66,10 +67,11 @@ class HeldOut:
             return None
         return self.ones[i].after(self.t0[i], self.windows[i])
 
-    def add(self, t0: int, window: np.ndarray, truths, support, ones=None) -> None:
+    def add(self, t0: int, window: np.ndarray, truths, support, ones=None, focal_px: float | None = None) -> None:
         self.windows.append(window)
         self.t0.append(t0)
         self.truths.append(truths)
+        self.focal_px.append(focal_px)
         if support is not None:
             self.support.append(support)
         if ones is not None:
@@ -121,22 +123,26 @@ def _from_generator(config: ToffeConfig, seed: int, n_windows: int, progress: bo
     per_seq = -(-n_windows // GEN_SEQUENCES)
     duration_s = (per_seq + 2) * config.dt_us * 1e-6
     specs = split_specs("multi", seed=seed, duration_s=duration_s, multi_count=GEN_SEQUENCES)
+    # the generator's 60 deg view over the checkpoint's sensor (its focal length is recorded and
+    # scored with: the model reads image-plane motion; a checkpoint's own focal_px may be the
+    # 640 px reference's on a small test sensor, a view of a few degrees that held no object)
     cam = PinholeCamera(width=config.width, height=config.height)
     held = HeldOut([], [], [], {"kind": "generated", "generator": "toffe_deploy.dataset.synth (split 'multi')",
                                "seed": seed, "sequences": [s.name for s in specs], "duration_s": duration_s,
-                               "sensor_size": list(config.sensor_size), "dt_us": config.dt_us,
+                               "sensor_size": list(config.sensor_size), "focal_px": cam.f, "dt_us": config.dt_us,
                                "held_out": "multi-object scenes on the test curves; training uses the "
                                            "'train' split only"})
     for i, spec in enumerate(specs):
         events, gt, _ = generate_sequence(dataclasses.replace(spec, camera=cam), seed + i)
         for t0, b, tr, sup, ones in _windows_of(events, gt, config, config.dt_us, int(duration_s * 1e6), per_seq):
-            held.add(t0, b, tr, sup, ones)
+            held.add(t0, b, tr, sup, ones, cam.f)
     return held
 
 
 def _from_data(config: ToffeConfig, data: str | os.PathLike, seed: int, n_windows: int) -> HeldOut:
     from ..events.io import open_events
     from ..model.data import find_sequences
+    from ..runtime.truth import sequence_focal_px
 
     files = find_sequences(data, "test")
     rng = np.random.default_rng(seed)
@@ -151,8 +157,9 @@ def _from_data(config: ToffeConfig, data: str | os.PathLike, seed: int, n_window
                                            f"{list(config.sensor_size)}")
             events = src.read(src.t_start_us, src.t_end_us + 1)
             gt = src.ground_truth
+            focal = sequence_focal_px(src.attrs)
             for t0, b, tr, sup, ones in _windows_of(events, gt, config, src.t_start_us, src.t_end_us + 1, per_file):
-                held.add(t0, b, tr, sup, ones)
+                held.add(t0, b, tr, sup, ones, focal)
     return held
 
 
@@ -166,6 +173,7 @@ def heldout_windows(config: ToffeConfig, data: str | os.PathLike | None = None, 
     held.windows = held.windows[:n_windows]
     held.t0 = held.t0[:n_windows]
     held.truths = held.truths[:n_windows]
+    held.focal_px = held.focal_px[:n_windows]
     held.support = held.support[:n_windows]
     held.source["n_windows"] = len(held.windows)
     return held

@@ -559,8 +559,20 @@ def same_camera_data(config: ToffeConfig, files, data: Path, seed: int, out: Pat
         return config
     if resume:              # (a data set moved, or another of the same camera: the caller's to say)
         warn(f"{data}: the run --resume continues began on {old.get('data_dir')}; it goes on with this data set")
-        return config
+        # recorded (it kept naming the first data set): this one, the first as ``resumed_from_dataset``
+        return dataclasses.replace(config, dataset={**prov, "resumed_from_dataset": old})
     return dataclasses.replace(config, dataset={**prov, "ofs_dataset": old})
+
+
+def with_untrained(config: ToffeConfig, parts: list[str]) -> ToffeConfig:
+    """``config`` whose ``dataset["untrained"]`` names the parts a checkpoint holds without
+    training ("OFPD", "OFS stage 3", ...; none: the key dropped): export warns of them (a
+    --stage ofs checkpoint's OFPD is random, a stopped run's pending copy lacks stages), and
+    the run that trains them drops them."""
+    dataset = {k: v for k, v in (config.dataset or {}).items() if k != "untrained"}
+    if parts:
+        dataset["untrained"] = list(parts)
+    return dataclasses.replace(config, dataset=dataset)
 
 
 def init_config(init: ToffeConfig, files, data: Path, seed: int, init_from) -> ToffeConfig:
@@ -675,11 +687,13 @@ def train(opts: TrainOptions) -> Path | None:
             _check_kept_settings(opts, config, out, "the checkpoint --stage ofpd trains on",
                                  "drop the option, or train a new checkpoint (--stage all)")
         config = same_camera_data(config, files, Path(opts.data), opts.seed, out, resume)
+        ofpd_trained = "OFPD" not in (config.dataset or {}).get("untrained", [])
     elif init_ofs is not None:
         config = init_config(init.config, files, Path(opts.data), opts.seed, opts.init_from)
         _check_kept_settings(opts, config, opts.init_from, "the --init-from checkpoint",
                              "drop the option (fine-tuning keeps the model's settings), or train from scratch")
         ofs_params, ofpd_state = [dict(p) for p in init_ofs], init.ofpd_state
+        ofpd_trained = "OFPD" not in (init.config.dataset or {}).get("untrained", [])
         state = {}
     else:
         if opts.stage == "ofpd":
@@ -690,6 +704,7 @@ def train(opts: TrainOptions) -> Path | None:
         config = dataclasses.replace(config, ofs_pool=NEW_OFS_POOL if opts.ofs_pool is None else int(opts.ofs_pool),
                                      input_support=opts.input_support)
         ofs_params, ofpd_state = dotie_ofs(config), random_ofpd_state(config, opts.seed)
+        ofpd_trained = False
         state = {}
     if opts.reset is not None and opts.reset != config.reset:
         config = dataclasses.replace(config, reset=opts.reset)
@@ -708,6 +723,9 @@ def train(opts: TrainOptions) -> Path | None:
         raise InputError(out, str(exc)) from None
     ofs_left = opts.stage != "ofpd" and len(set(state.get("ofs_done", []))) < config.n_speed_bins
     ofpd_left = opts.stage != "ofs" and int(state.get("ofpd_epoch") or 0) < opts.ofpd_epochs
+    if resume and opts.stage != "ofs" and int(state.get("ofpd_epoch") or 0) > opts.ofpd_epochs:
+        warn(f"{out}: the run --resume continues had trained {int(state['ofpd_epoch'])} OFPD epochs, more than "
+             f"--epochs {opts.ofpd_epochs}: its OFPD is kept as it is")
     if resume and state.get("finished") and not fresh and not ofs_left and not ofpd_left:
         # a finished run: it loaded the data and rewrote the checkpoint for nothing (minutes); other
         # OFPD settings were refused above, as for an interrupted run
@@ -720,6 +738,7 @@ def train(opts: TrainOptions) -> Path | None:
         if opts.stage == "ofs":
             raise ToffeError("--ofpd-pool / --ofpd-kernels change the OFPD, which --stage ofs does not train")
         ofpd_state = random_ofpd_state(config, opts.seed)
+        ofpd_trained = False
     t_start = time.time()
     windows = load_windows(files, config, config.dt_us, opts.per_file, opts.seed, progress=opts.progress)
     if len(windows) == 0:
@@ -761,12 +780,14 @@ def train(opts: TrainOptions) -> Path | None:
             done.add(k)
             state["ofs_done"] = sorted(done)
             pending.parent.mkdir(parents=True, exist_ok=True)
-            save_checkpoint(pending, config, ofs_params, ofpd_state)     # not --out: the run is not done
+            left = [f"OFS stage {j}" for j in range(1, config.n_speed_bins + 1) if j not in done]
+            save_checkpoint(pending, with_untrained(config, left + ([] if ofpd_trained else ["OFPD"])),
+                            ofs_params, ofpd_state)                     # not --out: the run is not done
             _save_state(out, state)
         stages = quantize_stages(ofs_params, config.reset)
         log["ofs_separation_train"] = separation_scores(stages, windows, config, seed=opts.seed)
         if opts.stage == "ofs":
-            save_checkpoint(out, config, ofs_params, ofpd_state)
+            save_checkpoint(out, with_untrained(config, [] if ofpd_trained else ["OFPD"]), ofs_params, ofpd_state)
         _save_state(out, state)
 
     if opts.stage in ("ofpd", "all"):
@@ -826,7 +847,8 @@ def train(opts: TrainOptions) -> Path | None:
             state["ofpd_epoch"] = ep + 1
             _save_state(out, state, model, opt)
         ofpd_state = {k: v.detach().cpu().numpy() for k, v in model.state_dict().items()}
-        save_checkpoint(out, config, ofs_params, ofpd_state)
+        ofpd_trained = ofpd_trained or opts.ofpd_epochs > 0 or ep0 > 0
+        save_checkpoint(out, with_untrained(config, [] if ofpd_trained else ["OFPD"]), ofs_params, ofpd_state)
     log["train_seconds"] = round(time.time() - t_start, 1)
     _save_state(out, state)
     with atomic_path(out / "train_log.json") as tmp:
