@@ -90,6 +90,12 @@ class ToffeConfig:
         return len(self.speed_bins)
 
     @property
+    def untrained(self) -> list[str]:
+        """The parts a checkpoint holds without training, as its training run recorded them in
+        ``dataset["untrained"]`` (model.train.with_untrained); [] for a trained one."""
+        return list((self.dataset or {}).get("untrained") or [])
+
+    @property
     def speed_scale(self) -> SpeedScale:
         """m/s <-> px/ms at the depth and focal length the bins are stated for."""
         return SpeedScale(self.focal_px, self.depth_m)

@@ -172,8 +172,7 @@ def evaluate(opts: EvalOptions) -> dict:
              "over consecutive windows, and benchmarks/bench_tracking.py scores the deployed pipeline with it")
     from .runtime.truth import sequence_focal_px
 
-    focals = {sequence_focal_px(a) for a in attrs}
-    focals = {None if f is None else round(f, 3) for f in focals}
+    focals = {None if f is None else round(f, 3) for f in map(sequence_focal_px, attrs)}
     # what was evaluated on: the data and its camera beside the checkpoint's (a 346x260 checkpoint on
     # 1280x720 data ran without a word of it)
     camera = {"data": str(opts.data), "data_sensor_size": [list(v) for v in sorted(sensors)],

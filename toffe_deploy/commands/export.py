@@ -92,7 +92,7 @@ def run(args) -> int:
                            "machine compiles (about 2 minutes, once)", after_s=45.0):   # a warm export: ~22 s
         res = export_bundle(args.checkpoint, args.out, force=args.force, variants=_list(args.variants),
                             checks=checks, data=args.data, seed=args.seed, n_windows=args.windows,
-                            lava_windows=args.lava_windows, progress=show_progress(args), log=sys.stderr)
+                            lava_windows=args.lava_windows, progress=show_progress(args))
     b = res.bundle
     print(f"wrote bundle {b.root}/ ({len(b.manifest['files'])} files, {len(b.ofs)} OFS stages, "
           f"sensor {b.config.width}x{b.config.height}, B={b.config.n_bins}, dt={b.config.dt_us} us) "

@@ -192,11 +192,11 @@ def check_one_camera(root: Path, old: dict | None, new: set, splits) -> None:
     for r in (old or {}).get("sequences", []):
         if r.get("split") not in splits and isinstance(r.get("sensor_size"), list) and len(r["sensor_size"]) == 2:
             kept.setdefault(tuple(int(v) for v in r["sensor_size"]), set()).add(r.get("split"))
-    other = {size: splits for size, splits in kept.items() if size not in new}
+    other = {size: held for size, held in kept.items() if size not in new}
     if new and other:
-        (w, h), splits = next(iter(other.items()))
+        (w, h), held = next(iter(other.items()))
         nw, nh = next(iter(new))
-        raise InputError(root, f"holds {', '.join(sorted(map(str, splits)))} at {w}x{h}; these splits would be "
+        raise InputError(root, f"holds {', '.join(sorted(map(str, held)))} at {w}x{h}; these splits would be "
                                f"{nw}x{nh}: a data set is one camera (train and eval read one sensor size): "
                                "generate into another --out, or regenerate every split (--split all)")
 

@@ -69,9 +69,8 @@ def export_bundle(ckpt_dir: str | os.PathLike, out_dir: str | os.PathLike, *, fo
     config = ckpt.config
     q = quantize_stages(ckpt.ofs, Path(ckpt_dir) / "ofs.safetensors", config.reset)
     warnings = list(q.warnings)
-    untrained = (config.dataset or {}).get("untrained")
-    if untrained:                  # train's record (model.train.with_untrained): a bundle of it runs, badly
-        warnings.append(f"the checkpoint holds parts never trained: {', '.join(map(str, untrained))} (a `train "
+    if config.untrained:           # train's record (model.train.with_untrained): a bundle of it runs, badly
+        warnings.append(f"the checkpoint holds parts never trained: {', '.join(map(str, config.untrained))} (a `train "
                         "--stage ofs` checkpoint, or a stopped run's .train_state copy): train them (`train --stage "
                         "ofpd`, or `train --resume`) before deploying")
 

@@ -687,13 +687,13 @@ def train(opts: TrainOptions) -> Path | None:
             _check_kept_settings(opts, config, out, "the checkpoint --stage ofpd trains on",
                                  "drop the option, or train a new checkpoint (--stage all)")
         config = same_camera_data(config, files, Path(opts.data), opts.seed, out, resume)
-        ofpd_trained = "OFPD" not in (config.dataset or {}).get("untrained", [])
+        ofpd_trained = "OFPD" not in config.untrained
     elif init_ofs is not None:
         config = init_config(init.config, files, Path(opts.data), opts.seed, opts.init_from)
         _check_kept_settings(opts, config, opts.init_from, "the --init-from checkpoint",
                              "drop the option (fine-tuning keeps the model's settings), or train from scratch")
         ofs_params, ofpd_state = [dict(p) for p in init_ofs], init.ofpd_state
-        ofpd_trained = "OFPD" not in (init.config.dataset or {}).get("untrained", [])
+        ofpd_trained = "OFPD" not in init.config.untrained
         state = {}
     else:
         if opts.stage == "ofpd":
