@@ -778,7 +778,30 @@ def test_times_beyond_int64s_range_are_named_not_wrapped(capsys, tmp_path, kind)
         a["t"] = np.arange(5)
         a["t"][4] = 2 ** 64 - 1
     np.save(tmp_path / "t.npy", a)
-    one_line_error(*cli(capsys, "events", "info", tmp_path / "t.npy")[::2], "beyond 2**53 us", "at event 4")
+    one_line_error(*cli(capsys, "events", "info", tmp_path / "t.npy")[::2], "beyond 2**53 us", "at event 4",
+                   "nanoseconds?")
+
+
+def test_nanosecond_timestamps_get_a_hint_in_info_and_run(env, capsys, tmp_path):
+    """A recording in ns read as us (ROS stamps, many loggers) ran with no word: near-empty windows.
+    Every timestamp a multiple of 1000 now gets a hint in `events info` and, once, in `run`
+    (stderr at once, the summary and its JSON); a us recording gets none."""
+    ev = read_events(env["rec"]).events
+    ns = ev.copy()
+    ns["t"] = (ev["t"] - ev["t"][0]) * 1000
+    write_events_npz(tmp_path / "ns.npz", ns, SENSOR)
+    write_events_npz(tmp_path / "us.npz", ev, SENSOR)
+    rc, out, _ = cli(capsys, "events", "info", tmp_path / "ns.npz")
+    assert rc == 0 and "note:" in out and "multiple of 1000 us: if they are nanoseconds, divide t by 1000" in out
+    rc, out, _ = cli(capsys, "events", "info", tmp_path / "us.npz", "--json")
+    assert rc == 0 and json.loads(out)["time_unit_note"] is None
+    rc, _, err = cli(capsys, *run_args(env, "--target", "cpu", "--out", tmp_path / "f.jsonl",    # ~11,000 windows
+                                       "--summary-json", tmp_path / "s.json", events=tmp_path / "ns.npz"))
+    assert rc == 0 and err.count("divide t by 1000") == 2, err      # at once, and the summary's warning line
+    assert "multiple of 1000 us" in json.loads((tmp_path / "s.json").read_text())["time_unit_note"]
+    rc, _, err = cli(capsys, *run_args(env, "--target", "cpu", "--max-windows", "8", "--out", tmp_path / "g.jsonl",
+                                       events=tmp_path / "us.npz"))
+    assert rc == 0 and "nanoseconds" not in err, err
 
 
 def test_small_option_slips_are_refused(env, capsys, tmp_path):

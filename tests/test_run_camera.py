@@ -255,6 +255,9 @@ def test_eval_reads_another_sensor_size_as_the_runtime_does(cam, capsys, tmp_pat
     assert "| 500 |" in capsys.readouterr().out
 
 
-def test_speeds_in_summary_lines_have_three_digits_and_no_exponent():
-    assert [speed_text(v) for v in (0.336729, 6.06113, 84.0, 1.0, 1016.4, 5000.0)] == \
-        ["0.337", "6.06", "84", "1", "1020", "5000"]
+def test_speeds_in_summary_lines_have_three_digits_and_an_exponent_only_at_the_extremes():
+    assert [speed_text(v) for v in (0.336729, 6.06113, 84.0, 1.0, 1016.4, 5000.0, 0.0012345, 0.0, 999_499.0)] == \
+        ["0.337", "6.06", "84", "1", "1020", "5000", "0.00123", "0", "999000"]
+    # beyond 1e-4 .. 1e6 (--depth-m 1e-3 --focal-px 1e7, or the reverse) an exponent, both ends alike
+    assert [speed_text(v) for v in (3.3e-05, 1e-07, 2.7e9, 999_600.0, -4.2e-4)] == \
+        ["3.3e-05", "1e-07", "2.7e+09", "1e+06", "-0.00042"]

@@ -127,7 +127,11 @@ class PinholeCamera:
 
 
 def speed_text(v: float) -> str:
-    """A speed for a summary line: 3 significant digits without an exponent (0.337, 6.06, 84,
-    5000; ``:g`` wrote 5e+03 and ``:.6g`` 0.336729)."""
+    """A speed for a summary line: 3 significant digits, without an exponent from 1e-4 to below
+    1e6 (0.337, 6.06, 84, 5000; ``:g`` wrote 5e+03 and ``:.6g`` 0.336729), with one beyond
+    (3.3e-05, 2.7e+09), never "0.0000001" or "2700000000": one rule at both ends (an extreme
+    --depth-m or --focal-px reaches either)."""
     r = float(f"{v:.3g}")
+    if r != 0.0 and not 1e-4 <= abs(r) < 1e6:
+        return f"{r:.3g}"
     return f"{r:.0f}" if abs(r) >= 100 else f"{r:g}"

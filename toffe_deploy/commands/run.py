@@ -269,6 +269,11 @@ def open_source(args, bundle_sensor: tuple[int, int]):
     return open_events(path, sensor_size=args.sensor_size)
 
 
+#: at most how many first windows run reads for events.convert.TimeUnitCheck's hint (a recording in
+#: microseconds decides it at its first timestamp off a multiple of 1000, ns at its 100th event)
+TIME_UNIT_WINDOWS = 10_000
+
+
 #: what the summary adds to a sensor size the file does not record: the front end's noise rules
 #: read the event density over the sensor's area, so one smaller than the camera's loses slow
 #: objects (README, "Your camera")
@@ -297,6 +302,7 @@ def run_command(args) -> int:
     from ..runtime.pipeline import Pipeline
     from ..runtime.run_camera import resolve_camera
     from ..runtime.spikes import SpikeVolume
+    from ..events.convert import TimeUnitCheck
 
     if args.max_windows is not None and args.max_windows < 1:
         raise ToffeError("--max-windows must be >= 1")
@@ -409,15 +415,23 @@ def run_command(args) -> int:
         # (t0, volume, time the window was ready, newest event's time or None)
         pending: collections.deque = collections.deque()
 
+        def time_unit_said(unit):
+            """The first windows' timestamps: nanoseconds read as us? Said once, at once and in
+            the summary; -> None (checked)."""
+            summary.time_unit_note = unit.hint()
+            if summary.time_unit_note:
+                print(f"toffe-deploy: warning: {summary.time_unit_note}", file=sys.stderr, flush=True)
+
         def windows():
             t_next = t_start
+            unit = TimeUnitCheck()
             skip = args.skip_empty_after or None
             dropped = 0              # a live source's windows jumped over after its queue dropped their events
             cut = ({"include_incomplete": args.include_incomplete} if live else {"t_end": t_end})
             for i, (t0, ev) in enumerate(src.iter_windows(cfg.dt_us, t_start=t_start, skip_empty_after=skip, **cut)):
                 if n_total is not None and i >= n_total:
                     summary.incomplete_us = 0          # --max-windows ended the run, not the recording
-                    return
+                    break
                 if t_next is not None and t0 > t_next:
                     n = (t0 - t_next) // cfg.dt_us
                     if live:         # not empty, not done: the live line counts them, summary.skip does not
@@ -426,9 +440,15 @@ def run_command(args) -> int:
                     if n > 0:
                         summary.skip(n, cfg.dt_us)
                 t_next = t0 + cfg.dt_us
+                if unit is not None:
+                    unit.feed(ev["t"])
+                    if unit.decided or i >= TIME_UNIT_WINDOWS:
+                        unit = time_unit_said(unit)
                 vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor)
                 pending.append((t0, vol, time.perf_counter(), int(ev["t"][-1]) if live and ev.shape[0] else None))
                 yield t0, vol
+            if unit is not None:                       # a run shorter than the check
+                time_unit_said(unit)
 
         summary = RunSummary(target=args.target, tag=args.tag,          # as the header: cpu and cuda run fixed_pt's arithmetic
                              camera=camera.describe(cfg), camera_json=camera.to_json(cfg),

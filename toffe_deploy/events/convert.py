@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import InputError
 from .core import EVENT_DTYPE
-from .validate import coordinates_in_range
+from .validate import BEYOND_HINT, coordinates_in_range
 
 
 def polarity01(path, p: np.ndarray, offset: int = 0) -> np.ndarray:
@@ -49,7 +49,7 @@ def time_us(path, t: np.ndarray, offset: int = 0, scale: float = 1.0, what: str 
         big = np.flatnonzero(np.abs(t) * scale > 2.0 ** 53)      # int64's cast wrapped these to -2**63
         if big.size:
             i = int(big[0])
-            raise InputError(path, f"{what} = {t[i]!r} at event {offset + i} is beyond 2**53 us (corrupt?)")
+            raise InputError(path, f"{what} = {t[i]!r} at event {offset + i} is beyond 2**53 us ({BEYOND_HINT})")
         if scale == 1.0:
             frac = np.flatnonzero(t != np.round(t))
             if frac.size:
@@ -62,7 +62,7 @@ def time_us(path, t: np.ndarray, offset: int = 0, scale: float = 1.0, what: str 
         raise InputError(path, f"{what} has dtype {t.dtype}, expected integer or float times")
     if t.dtype == np.uint64 and t.size and int(t.max()) > 2 ** 53:     # read as int64 it went negative
         i = int(np.argmax(t > 2 ** 53))
-        raise InputError(path, f"{what} = {int(t[i])} at event {offset + i} is beyond 2**53 us (corrupt?)")
+        raise InputError(path, f"{what} = {int(t[i])} at event {offset + i} is beyond 2**53 us ({BEYOND_HINT})")
     t = t.astype(np.int64)
     return t * int(scale) if scale != 1.0 else t
 
@@ -84,3 +84,47 @@ def to_events(path, x, y, t_us: np.ndarray, p, offset: int = 0) -> np.ndarray:
     out["t"] = t_us
     out["p"] = polarity01(path, p, offset)
     return out
+
+
+class TimeUnitCheck:
+    """Whether a recording's timestamps look like nanoseconds read as microseconds, which no
+    reader can refuse (both are integers): ``feed`` it timestamps (int64 us, any chunks), then
+    ``hint()`` is one sentence or None.
+
+    The sign: every timestamp a multiple of 1000 over at least ``min_events`` events spanning
+    more than 1000 us (a us-resolution camera stored in ns, as ROS messages and many loggers
+    write it; a camera's microseconds sit on every value, and 100 of them all on multiples of
+    1000 by chance is a 1e-300 event). A recording quantized to whole milliseconds gets the hint
+    too, which is why it says "if". Unix-epoch nanoseconds (~1.7e18) never get here: they lie
+    beyond validate.MAX_TIME_US, refused with BEYOND_HINT."""
+
+    def __init__(self, min_events: int = 100):
+        self.min_events = int(min_events)
+        self.events = 0
+        self.all_kilo = True
+        self.t_min: int | None = None
+        self.t_max: int | None = None
+
+    def feed(self, t: np.ndarray) -> None:
+        if t.size == 0:
+            return
+        self.events += int(t.size)
+        lo, hi = int(t.min()), int(t.max())
+        self.t_min = lo if self.t_min is None else min(self.t_min, lo)
+        self.t_max = hi if self.t_max is None else max(self.t_max, hi)
+        if self.all_kilo:
+            self.all_kilo = not (t % 1000).any()
+
+    @property
+    def decided(self) -> bool:
+        """Whether more timestamps can no longer change ``hint()`` (a caller may stop feeding)."""
+        return self.t_max is not None and (not self.all_kilo or (
+            self.events >= self.min_events and self.t_max - self.t_min > 1000))
+
+    def hint(self) -> str | None:
+        if self.t_max is None:
+            return None
+        if self.all_kilo and self.events >= self.min_events and self.t_max - self.t_min > 1000:
+            return (f"every timestamp of {self.events:,} events is a multiple of 1000 us: if they are nanoseconds, "
+                    "divide t by 1000 (times must be in microseconds)")
+        return None

@@ -15,8 +15,10 @@ def summarize(path: str | os.PathLike, sensor_size=None, sort: bool = False, pro
     """
     from tqdm import tqdm
 
+    from .convert import TimeUnitCheck
     from .io import open_events
 
+    unit = TimeUnitCheck()
     with open_events(path, sensor_size=sensor_size, sort=sort) as src:
         n_on = n_total = 0
         x_min = y_min = None
@@ -29,6 +31,7 @@ def summarize(path: str | os.PathLike, sensor_size=None, sort: bool = False, pro
                     continue
                 n_total += int(ev.shape[0])
                 n_on += int(np.count_nonzero(ev["p"]))
+                unit.feed(ev["t"])
                 first = int(ev["t"][0]) if first is None else first
                 last = int(ev["t"][-1])
                 x_min = min(int(ev["x"].min()), x_min if x_min is not None else 1 << 16)
@@ -56,6 +59,7 @@ def summarize(path: str | os.PathLike, sensor_size=None, sort: bool = False, pro
             "x_range": [x_min, x_max] if n_total else None,
             "y_range": [y_min, y_max] if n_total else None,
             "ground_truth": _gt_summary(src.ground_truth),
+            "time_unit_note": unit.hint(),
             "attrs": src.attrs,
         }
     return info
@@ -133,6 +137,8 @@ def format_info(info: dict) -> str:
         if k in info["attrs"]:
             v = info["attrs"][k]
             lines.append(f"{k + ':':<17}{v if not isinstance(v, (dict, list)) else _short(v)}")
+    if info.get("time_unit_note"):
+        lines.append(f"note:            {info['time_unit_note']}")
     return "\n".join(lines)
 
 

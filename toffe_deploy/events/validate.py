@@ -17,6 +17,8 @@ REQUIRED_FIELDS = tuple(EVENT_DTYPE.names)
 #: Largest timestamp accepted (us): 2**53, ~285 years, covers Unix-epoch microseconds and stays
 #: exact in float64; larger values are corrupt (int64 max would make every window loop overflow).
 MAX_TIME_US = 2 ** 53
+#: what a time beyond MAX_TIME_US likely is: Unix-epoch nanoseconds (~1.7e18) pass it, microseconds never
+BEYOND_HINT = "nanoseconds? times must be in microseconds: divide t by 1000; else corrupt"
 #: Longest recording accepted (us): one week. Longer spans are a corrupt timestamp, not a recording.
 MAX_DURATION_US = 7 * 24 * 3600 * 10 ** 6
 
@@ -28,7 +30,7 @@ def check_time_span(path: str | os.PathLike, t_start_us: int, t_end_us: int) -> 
     """
     if max(t_start_us, t_end_us) > MAX_TIME_US:
         raise InputError(path, f"time span [{t_start_us}, {t_end_us}) us goes beyond 2**53 us "
-                               "(corrupt timestamps?)")
+                               f"({BEYOND_HINT})")
     if t_end_us - t_start_us > MAX_DURATION_US:
         raise InputError(path, f"spans {(t_end_us - t_start_us) / 86400e6:,.1f} days, more than the 7 days "
                                "toffe-deploy accepts (a corrupt timestamp?)")
@@ -105,7 +107,7 @@ def check_chunk(path: str | os.PathLike, ev: np.ndarray, sensor_size: tuple[int,
     bad = np.flatnonzero((t < 0) | (t > MAX_TIME_US))
     if bad.size:
         i = int(bad[0])
-        what = "negative timestamp" if t[i] < 0 else "timestamp beyond 2**53 us (corrupt?)"
+        what = "negative timestamp" if t[i] < 0 else f"timestamp beyond 2**53 us ({BEYOND_HINT})"
         raise InputError(path, f"{what} t = {int(t[i])} us at event {offset + i}")
     if not check_order:
         return

@@ -178,6 +178,8 @@ class RunSummary:
     #: live sources: per window, line written - host time of its newest event (events.live's clock)
     event_latencies_s: list[float] = field(default_factory=list)
     live: dict | None = None                # live sources: events.live.LiveStats (received, dropped, late)
+    #: events.convert.TimeUnitCheck's hint on the first windows' timestamps (nanoseconds read as us?)
+    time_unit_note: str | None = None
 
     def skip(self, n_windows: int, dt_us: int) -> None:
         """Record a stretch of ``n_windows`` empty windows the run jumped over (see --skip-empty-after)."""
@@ -221,7 +223,8 @@ class RunSummary:
                 "incomplete_tail_us": self.incomplete_us,
                 "bridge_traffic": self.traffic.to_json() if self.traffic is not None else None,
                 "live": None if self.live is None else
-                {**self.live, "event_latency_ms": percentiles_ms(self.event_latencies_s)}}
+                {**self.live, "event_latency_ms": percentiles_ms(self.event_latencies_s)},
+                "time_unit_note": self.time_unit_note}
 
     @property
     def latency_kind(self) -> str:
@@ -253,6 +256,8 @@ class RunSummary:
                            "window had been closed and were dropped: their times went back (events out of order at "
                            "the source) or the producer stalled for longer than the grace (--window-grace-ms gives it "
                            "longer; a file gives every event)")
+        if self.time_unit_note:
+            out.append(f"warning: {self.time_unit_note}")
         if self.skipped_windows:
             out.append(f"skipped {self.skipped_windows} empty windows in {self.skipped_gaps} gap(s) without events "
                        f"(longest {self.longest_gap_us / 1e6:.3f} s); no JSON line for them")
