@@ -77,6 +77,30 @@ def test_fast_detection_identical_on_the_shipped_sample():
     assert boxes > 0
 
 
+def test_host_part_from_the_layers_spikes_gives_the_references_boxes():
+    """energy_latency's Loihi 2 row times DOTIE's host part at the optimised level: from the
+    layer's spikes and each step's event pixels, the same boxes as the reference's recovery and
+    scikit-learn DBSCAN (before 2026-11-30 the row timed that reference code, TOFFE's compiled)."""
+    from toffe_deploy.baselines.dotie import dotie_cluster_steps, dotie_postprocess
+    from toffe_deploy.events.io import open_events
+
+    p = DotieParams()
+    with open_events(SAMPLE) as src:
+        size = tuple(src.sensor_size)
+        fast = FastDotie(size, 5, 500, p)
+        boxes = 0
+        for i, (t0, ev) in enumerate(src.iter_windows(500)):
+            if i >= 4:
+                break
+            x = dotie_frames(ev, t0, 500, 5, size)
+            spikes, _out = dotie_separate_x(x, p)
+            ref = dotie_cluster_steps(dotie_postprocess(x, spikes, p), p)
+            got = fast.host_part([np.flatnonzero(s) for s in spikes], [np.flatnonzero(f) for f in x])
+            assert got == ref
+            boxes += sum(len(r) for r in ref)
+    assert boxes > 0
+
+
 def _sk(xs, ys, eps=15.0, ms=10):
     return DBSCAN(eps=eps, min_samples=ms).fit(np.column_stack([xs, ys]).astype(float)).labels_
 

@@ -56,6 +56,31 @@ def test_dotie_counts_neighbour_pairs_and_both_variants(rng):
     assert plain.loihi[0].n_neurons == 24 * 32 and plain.loihi[0] is clus.loihi[0]
 
 
+def test_the_host_part_left_beside_loihi_is_counted_alike_for_both_models():
+    """With the spiking layers on Loihi 2, what stays on the host is priced by one rule for TOFFE
+    and DOTIE: the event-driven rule without the layers (until 2026-11-30 DOTIE's recovery was
+    priced over whole frames, TOFFE's masks over its events). The same events on a 16x larger
+    sensor cost both models the same host operations (the blob lies far enough from the borders
+    that no morphology box is clipped: DOTIE's reaches 48 px beyond its spikes)."""
+    from toffe_deploy.energy import rules
+
+    small = np.zeros((5, 2, 96, 128), np.uint16)
+    small[:, 1, 44:52, 60:68] = 3
+    big = np.zeros((5, 2, 384, 512), np.uint16)
+    big[:, :, :96, :128] = small
+    by_size = []
+    for x in (small, big):
+        h, w = x.shape[-2:]
+        _r, toffe = count_toffe(x, _params(), ToffeConfig(sensor_size=(w, h)), ofpd_macs=100, ofpd_in_elems=10)
+        plain, clus, _win, spikes = count_dotie(x)
+        assert spikes.any()                                # DOTIE's layer fired: there is a recovery to count
+        for mc in (toffe, plain, clus):
+            assert mc.host_hybrid == rules.host_part(mc.work)
+        assert clus.host_hybrid.energy_j() > plain.host_hybrid.energy_j()       # its listing and DBSCAN
+        by_size.append((toffe.host_hybrid.energy_j(), clus.host_hybrid.energy_j()))
+    assert by_size[0] == pytest.approx(by_size[1])
+
+
 def test_toffe_input_cost_follows_the_events_not_the_sensor():
     # the cpu target builds its window from the events: the same events on a 16x larger
     # sensor cost the same host operations outside the cascade's own (sensor-independent) work

@@ -487,12 +487,24 @@ class FastDotie:
     def detect(self, events: np.ndarray, t0: int) -> list[list[Detection]]:
         """DOTIE with clustering: each step's boxes (grid DBSCAN, no run under min_samples pixels)."""
         out_pix, out_ptr, _s, _p = self.steps(events, t0)
+        return [self.cluster(out_pix[out_ptr[b]:out_ptr[b + 1]]) for b in range(self.n_bins)]
+
+    def cluster(self, px: np.ndarray) -> list[Detection]:
+        """One step's boxes from its separated event pixels (linear ids, row-major order)."""
+        if px.shape[0] < self.p.min_samples:
+            return []
+        ys, xs = np.divmod(px, self.width)
+        return boxes_of(xs, ys, grid_dbscan(xs, ys, float(self.p.eps), int(self.p.min_samples)), self.p)
+
+    def host_part(self, spikes: list[np.ndarray], events: list[np.ndarray]) -> list[list[Detection]]:
+        """DOTIE with clustering after its layer ran elsewhere (Loihi 2): from each step's spiking
+        pixels and its distinct event pixels (linear ids), the recovery, the listing and the
+        boxes, as ``detect`` computes them after its own layer (the same boxes: the benchmark
+        checks each window against the reference's)."""
         res = []
-        for b in range(self.n_bins):
-            px = out_pix[out_ptr[b]:out_ptr[b + 1]]
-            if px.shape[0] < self.p.min_samples:
-                res.append([])
-                continue
-            ys, xs = np.divmod(px, self.width)
-            res.append(boxes_of(xs, ys, grid_dbscan(xs, ys, float(self.p.eps), int(self.p.min_samples)), self.p))
+        for spk, inp in zip(spikes, events):
+            buf = np.empty(inp.shape[0], np.int64)
+            k = _recover(spk, spk.shape[0], inp, inp.shape[0], self.width, self.height, self.lo, self.hi, self.elo,
+                         self.ehi, self.pad, self.bits, self.tmp, buf)
+            res.append(self.cluster(np.sort(buf[:k])))
         return res

@@ -206,10 +206,13 @@ differ on r), so v[t] = lambda v[t-1] + conv(W, s[t]); v_threshold is vth plus h
 state unit (1 / (128 s)), which decides ties the way the integers do. Run one window (B steps)
 at a time from rest. NIR's LIF resets to v_reset in the step it fires: **a `reset: zero`
 bundle's graph reproduces it** (metadata `reproduces_bundle`; checked in snnTorch 1.0 and
-Norse 1.1 by `benchmarks/nir_check.py`) up to float rounding: a membrane within float32
-rounding of its threshold can fire where the integers do not, or not fire where they do (1
-spike of 12,045 on the shipped checkpoint's 4 held-out windows; 12 of about 524,000, all in
-stage 1, in a float32 forward-Euler run on dense random input); **NIR cannot express reset
+Norse 1.1 by `benchmarks/nir_check.py`) up to the decay's truncation: Loihi truncates the
+decayed potential toward zero to whole state units every step (trunc0(v (4096 - dv) / 4096)),
+which NIR's exact v * lambda cannot express, so the graph's membrane can sit up to about a unit
+per step above the integers', and a potential that reaches exactly the integer threshold (no
+spike: v > vth is strict) fires in the graph (1 spike of 12,045 on the shipped checkpoint's 4
+held-out windows; a few in hundreds of thousands on dense random input, the same spikes in
+float64 as in float32: not float rounding, checked from outside on 2026-11-30); **NIR cannot express reset
 by subtraction**, so a `reset: subtract` bundle's graph says so in `metadata.reset` and its readers run a zero-reset
 network instead. `metadata` also holds the integer parameters and the cascade rule (stage N
 first, closing with mask_kernel, inversion), which NIR cannot express. Readers that open the

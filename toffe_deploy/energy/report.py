@@ -139,9 +139,10 @@ def markdown_table(rows: list[dict], machine_name: str) -> str:
         return (f"{fmt(p['dotie_cluster'][col][0] / p['toffe'][col][0])}x / "
                 f"{fmt(p['dotie_cluster'][col][1] / p['toffe'][col][1])}x")
 
-    lines.append("| ratio DOTIE with clustering / TOFFE (across levels and counting: DOTIE's reference code over "
-                 "whole frames, TOFFE's deployed pipeline over its events; like for like: the like-for-like "
-                 "table) | " + " | ".join(
+    lines.append("| ratio DOTIE with clustering / TOFFE (cpu column across levels and counting: DOTIE's reference "
+                 "code over whole frames, TOFFE's deployed pipeline over its events, like for like in the "
+                 "like-for-like table; Loihi 2 column like for like: both host parts compiled and event driven, "
+                 "counted by one rule) | " + " | ".join(
         [pr("cpu"), rcell("cpu"), pr("cuda"), rcell("cuda"), pr("loihi"), rcell("loihi-sim"), rcell("loihi2")]) + " |")
     return "\n".join(lines)
 
@@ -149,8 +150,9 @@ def markdown_table(rows: list[dict], machine_name: str) -> str:
 def legend() -> str:
     return ("Cells: dynamic energy per inference E (mJ) [how] / latency per inference L (ms, p50, batch 1). "
             "[m] modelled from the operations of the code the row times, counted as it runs (constants in the "
-            "JSON): DOTIE's reference code over whole frames (as the dense rule counts), TOFFE's deployed "
-            "pipeline over its events (as the event-driven rule); [r] measured RAPL, [n] measured NVML, "
+            "JSON): on the cpu column DOTIE's reference code over whole frames (as the dense rule counts), "
+            "TOFFE's deployed pipeline over its events (as the event-driven rule); on the Loihi 2 column each "
+            "host part by the event-driven rule (energy.rules.host_part), timed in its compiled form; [r] measured RAPL, [n] measured NVML, "
             "[j] measured Jetson INA3221, [l] Loihi 2 profiler, [b] measured but below noise; "
             "ᵐ latency modelled (Loihi 2 T_ts x B from counted activity, plus the host part measured here). "
             "n/a: target not available on this machine (reason in the JSON).")

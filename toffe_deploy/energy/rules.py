@@ -110,6 +110,15 @@ def dense(w: Work) -> HostOps:
 RULE_FUNCTIONS = {"event": event_driven, "dense": dense}
 
 
+def host_part(w: Work) -> HostOps:
+    """What stays on the host when the spiking layers run on Loihi 2, for every model alike: the
+    event-driven rule without the layers (the events indexed for the chip, morphology over the
+    spikes' box, masks over the events, the frames' pixels listed from themselves, and the
+    rest: front end, clustering or grouping, OFPD). The event rule because the host is the
+    deployed, event-driven code for both models (DOTIE's optimised level, TOFFE's runtime)."""
+    return event_driven(dataclasses.replace(w, layers=[]))
+
+
 def energy_split(ops: HostOps) -> dict:
     """{compute_uj, memory_uj (SRAM, 1.25 pJ/B), total_uj, memory_dram_uj (all-DRAM bound)}."""
     compute = dataclasses.replace(ops, sram_bytes=0.0).energy_j() * 1e6
