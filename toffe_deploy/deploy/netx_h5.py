@@ -3,9 +3,9 @@
 netx reads ``layer/<i>/...`` groups (lava.lib.dl.netx.hdf5.Network): an input layer giving the
 shape (stored C, H, W) and a conv layer with inChannels, outChannels, kernelSize, stride,
 padding, dilation, groups, weight (O, I, kH, kW) and neuron/{type, iDecay, vDecay, vThMant,
-refDelay}. netx builds Lava's LIF with vth = vThMant, du = iDecay - 1, dv = vDecay and flips the
-kernel for Lava's true convolution, so storing our cross-correlation weights unchanged with
-iDecay = du + 1 = 4096 reproduces our integers exactly.
+refDelay, gradedSpike = False: binary spikes}. netx builds Lava's LIF with vth = vThMant,
+du = iDecay - 1, dv = vDecay and flips the kernel for Lava's true convolution, so storing our
+cross-correlation weights unchanged with iDecay = du + 1 = 4096 reproduces our integers exactly.
 
 netx's stock neuron resets v to 0 after a spike. A reset "zero" bundle's files reproduce its
 OFS exactly when loaded as ``Network(net_config=f, reset_interval=n_bins,

@@ -172,7 +172,7 @@ legacy value: boxes / fixed / mps / no motion planes / bin from the OFS / join).
 `layer/0`: `type = input`, `shape = (C_in, H, W)`; `layer/1`: `type = conv`, `shape = (1, H, W)`,
 `inChannels`, `outChannels = 1`, `kernelSize`, `stride = 1`, `padding = K//2`, `dilation = 1`,
 `groups = 1`, `weight` (1, C_in, K, K) float32 holding whole numbers (the same integers as ofs_loihi.json; netx reads float weights) and
-`neuron/{type = CUBA, iDecay = 4096, vDecay = dv, vThMant = vth_mant, refDelay = 1}`;
+`neuron/{type = CUBA, iDecay = 4096, vDecay = dv, vThMant = vth_mant, refDelay = 1, gradedSpike = false}`;
 `simulation/{Ts = 1, tSample = B}`; file attributes `reset_note`, `reset_interval`, `reset_offset`.
 netx's stock CUBA neuron resets to zero after a spike. For a **`reset: zero` bundle the files
 reproduce the bundle bit for bit** when loaded with the periodic reset the manifest states
