@@ -50,6 +50,20 @@ def test_train_resume_and_eval(data, tmp_path, capsys):
     assert "had trained 2 OFPD epochs, more than --epochs 1: its OFPD is kept as it is" in capsys.readouterr().err
     assert main(args + ["--epochs", "2", "--resume", "--ofpd-pool", "2"]) == 2   # other OFPD settings: refused,
     assert "cannot resume" in capsys.readouterr().err                          # as for an interrupted run
+    # keys the host sets after training (benchmarks/fit_plane_fit.py --write) stay: a resume of the
+    # finished run took them for other OFPD settings, trained a random OFPD and wrote the old ones back
+    cfg = json.loads((ck / "config.json").read_text())
+    cfg["ofpd"].update(plane_fit_dir_weight=0.9, plane_fit_history=[4, 20, 3])
+    (ck / "config.json").write_text(json.dumps(cfg))
+    assert main(args + ["--epochs", "2", "--resume"]) == 0
+    assert "nothing to resume" in capsys.readouterr().err
+    losses = json.loads((ck / "train_log.json").read_text())["ofpd_loss"]
+    assert main(args + ["--epochs", "3", "--resume"]) == 0          # trains on: the OFPD's epoch 3, not a new one
+    assert json.loads((ck / ".train_state" / "state.json").read_text())["ofpd_epoch"] == 3
+    assert json.loads((ck / "train_log.json").read_text())["ofpd_loss"][:2] == losses   # epochs 1-2 kept
+    assert load_checkpoint(ck).config.ofpd["plane_fit_history"] == [4, 20, 3]
+    assert load_checkpoint(ck).config.ofpd["plane_fit_dir_weight"] == 0.9
+    capsys.readouterr()
 
     out_json = tmp_path / "eval.json"
     assert main(["eval", str(ck), "--data", str(data), "--dt", "500,1000", "--max-windows", "3",

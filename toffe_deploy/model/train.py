@@ -716,9 +716,15 @@ def train(opts: TrainOptions) -> Path | None:
             config = dataclasses.replace(config, **{key: int(want)})
     if opts.stage in ("ofpd", "all") and not (resume and state.get("ofpd_settings")):
         config = with_current_layout(config)      # a fresh OFPD trains on today's input/output layout
+    # an interrupted run's OFPD settings are in its state (--out's checkpoint has the old ones until
+    # it ends); a finished run's are --out's own, with what the host set since (fit_plane_fit.py
+    # --write): comparing those with the state's made a resume retrain a random OFPD and drop them.
+    # Other --ofpd-pool / --ofpd-kernels are refused either way.
+    interrupted = state.get("ofpd_settings") if resume else None
+    if resume and state.get("finished"):
+        interrupted = ofpd_io.ofpd_settings(config)
     try:
-        config, fresh = resolve_ofpd_settings(config, opts.ofpd_pool, opts.ofpd_kernels,
-                                              state.get("ofpd_settings") if resume else None)
+        config, fresh = resolve_ofpd_settings(config, opts.ofpd_pool, opts.ofpd_kernels, interrupted)
     except ValueError as exc:
         raise InputError(out, str(exc)) from None
     ofs_left = opts.stage != "ofpd" and len(set(state.get("ofs_done", []))) < config.n_speed_bins
