@@ -38,7 +38,9 @@ def approaching(track: dict, centre: tuple[float, float]) -> bool:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--bundle", default=str(ROOT / "export"))
+    ap.add_argument("--bundle", default="export/",
+                    help="deploy bundle (default: export/ in the current directory, as `toffe-deploy export` "
+                         "writes it and `toffe-deploy run` reads it)")
     ap.add_argument("--events", default=str(SAMPLE))
     ap.add_argument("--target", default="cpu", choices=api.TARGETS)
     ap.add_argument("--packet-us", type=int, default=2000, help="packet length, in us of recording (a camera driver's packet of events)")

@@ -73,6 +73,18 @@ def test_robot_loop_example_runs(env):
     assert lines[-1].startswith("24 windows, ") and "confirmed tracks" in lines[-1]
 
 
+def test_robot_loop_example_takes_the_bundle_where_run_does(env, tmp_path):
+    """Its default bundle was the repository's export/, wherever it ran; `toffe-deploy export`
+    writes export/ in the current directory and `run` reads it there: so does the example now."""
+    (tmp_path / "export").symlink_to(env["bundle"].root, target_is_directory=True)
+    cmd = [sys.executable, str(ROOT / "examples" / "robot_loop.py"), "--events", str(env["rec"]), "--max-ms", "2"]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert p.returncode == 0 and "windows" in p.stdout.splitlines()[-1], p.stderr
+    (tmp_path / "export").unlink()
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert p.returncode == 2 and p.stderr.startswith("robot_loop: error: export: bundle directory does not exist")
+
+
 def test_robot_loop_example_reads_a_whole_file_without_a_sensor_size(env, tmp_path):
     """--max-ms inf (the whole recording) gave an OverflowError traceback, and a .npy recording
     (no sensor size in it) ran on a sensor guessed from its largest coordinates, unsaid:

@@ -108,7 +108,12 @@ def test_output_dir_rules(tmp_path, bundle_dir):
     other = tmp_path / "other"
     other.mkdir()
     (other / "thesis.tex").write_text("precious")
-    with pytest.raises(InputError, match="not a toffe-deploy bundle.*--force"):
+    with pytest.raises(InputError, match=r"not a toffe-deploy bundle \(holds thesis.tex\).*--force"):
+        check_output_dir(other)          # the files named, as for a bundle with others beside it
+    for name in ("a.txt", "b.txt", "c.txt"):
+        (other / name).write_text("x")
+    (other / "notes").mkdir()
+    with pytest.raises(InputError, match=r"holds a.txt, b.txt, c.txt and 2 more\)"):
         check_output_dir(other)
     check_output_dir(other, force=True)
     (tmp_path / "file").write_text("x")

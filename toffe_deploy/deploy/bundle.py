@@ -269,8 +269,11 @@ def check_output_dir(path: str | os.PathLike, force: bool = False) -> None:
                 return
         except (OSError, UnicodeDecodeError):
             pass
-    raise InputError(p, "output directory exists and is not a toffe-deploy bundle "
-                        "(holds other files); choose another -o or pass --force to replace it")
+    names = sorted(e.name + ("/" if e.is_dir() else "") for e in entries)
+    shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+    raise InputError(p, f"output directory exists and is not a toffe-deploy bundle (holds {shown}): writing "
+                        "the bundle replaces the directory whole and would delete them; choose another -o or "
+                        "pass --force to replace it")
 
 
 def foreign_files(path: str | os.PathLike, manifest: dict) -> list[str]:
