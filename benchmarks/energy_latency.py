@@ -768,7 +768,8 @@ def loihi_rows(args, bundle, cfg, windows, cascades, dotie_spikes, toffe_counts,
                  "E_mj": lo_d["energy_mj"], "E_model_mj": lo_d["energy_mj"], "E_kind": cm.LOIHI_LABEL,
                  "L_ms": lo_d["latency_ms"], "L_kind": "modelled Loihi 2 (sum of T_ts over B steps)",
                  "notes": ["Loihi side only, as the paper's row; activity counted from the numpy DOTIE layer "
-                           "(no Lava process for DOTIE's graded input)", f"host post-processing would add {post_mj:.3g} mJ (modelled)"]})
+                           "(no Lava process for DOTIE's graded input)", f"its host part (events indexed for the chip, recovery) would "
+                           f"add {post_mj:.3g} mJ (modelled)"]})
     # its host part at the level TOFFE's runs at (compiled, event driven: FastDotie, the optimised
     # DOTIE of the like-for-like table), from the layer's spikes and the step's event pixels, as
     # TOFFE's starts from Loihi's spikes and the window's ones; its public code's form (OpenCV,

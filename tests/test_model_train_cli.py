@@ -82,6 +82,19 @@ def test_train_resume_and_eval(data, tmp_path, capsys):
     assert res["per_dt"][0]["all"]["n_gt"] > 0 and set(res["per_dt"][0]["separation"]) == {"1", "2", "3", "4"}
 
 
+def test_resume_after_an_ofs_only_run_may_pick_the_ofpd_grid(data, tmp_path, capsys):
+    """A finished `--stage ofs` run trained no OFPD, so its progress holds no OFPD settings to
+    keep: `--resume --stage all --ofpd-pool 2` trains the OFPD on that grid (a review of the
+    fix for fitted keys found it refused as "other settings")."""
+    ck = tmp_path / "ck"
+    args = ["train", "--data", str(data), "--out", str(ck), "--ofs-epochs", "1", "--windows-per-seq", "3",
+            "--no-progress"]
+    assert main(args + ["--stage", "ofs"]) == 0
+    capsys.readouterr()
+    assert main(args + ["--stage", "all", "--resume", "--epochs", "1", "--ofpd-pool", "2"]) == 0, capsys.readouterr().err
+    assert load_checkpoint(ck).config.ofpd["pool"] == 2 and "OFPD" not in load_checkpoint(ck).config.untrained
+
+
 def test_train_rejects_missing_data_in_one_line(tmp_path, capsys):
     assert main(["train", "--data", str(tmp_path / "nope"), "--out", str(tmp_path / "ck")]) == 2
     err = capsys.readouterr().err.strip()

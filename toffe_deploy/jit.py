@@ -25,12 +25,14 @@ from numba.core import bytecode
 
 
 def njit(*args, **options):
-    """numba's njit with ``error_model="numpy"`` unless a kernel asks otherwise: no zero test and
-    exception path per integer or float division (Python's model raises ZeroDivisionError from
-    compiled code). Every kernel divides by sizes, counts and constants its callers check
-    first, so the results are the same bits; measured on the shipped sample, one pinned core,
-    four A/B pairs of processes with separate caches: 780 -> 772 us a window (1 %), the same
-    object flow (docs/speed-log.md, 2026-11-30)."""
+    """numba's njit with ``error_model="numpy"`` unless a kernel asks otherwise: a division by
+    zero gives inf, nan or 0 instead of raising ZeroDivisionError from compiled code, so float
+    ``/`` loses its zero test and integer ``//`` and ``%`` their exception path. Every kernel
+    divides by sizes, counts and constants its callers check first, so the results are the same
+    bits; measured on the shipped sample, one pinned core, four A/B pairs of processes with
+    separate caches: 780 -> 772 us a window (1 %), the same object flow (docs/speed-log.md,
+    2026-11-30). numba's cache key holds no compile options: a cache written before this change
+    is used until a kernel's source file changes (a new install), with the same results."""
     options.setdefault("error_model", "numpy")
     return _numba_njit(*args, **options)
 

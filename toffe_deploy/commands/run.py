@@ -269,9 +269,10 @@ def open_source(args, bundle_sensor: tuple[int, int]):
     return open_events(path, sensor_size=args.sensor_size)
 
 
-#: at most how many first windows run reads for events.convert.TimeUnitCheck's hint (a recording in
-#: microseconds decides it at its first timestamp off a multiple of 1000, ns at its 100th event)
-TIME_UNIT_WINDOWS = 10_000
+#: at most how many first windows with events run reads for events.convert.TimeUnitCheck's hint (a
+#: recording in microseconds decides it at its first timestamp off a multiple of 1000, one in ns at
+#: its 100th event; empty windows do not count: a sparse recording in ns has many)
+TIME_UNIT_WINDOWS = 1_000
 
 
 #: what the summary adds to a sensor size the file does not record: the front end's noise rules
@@ -442,7 +443,7 @@ def run_command(args) -> int:
                 t_next = t0 + cfg.dt_us
                 if unit is not None:
                     unit.feed(ev["t"])
-                    if unit.decided or i >= TIME_UNIT_WINDOWS:
+                    if unit.decided or unit.chunks >= TIME_UNIT_WINDOWS:
                         unit = time_unit_said(unit)
                 vol = SpikeVolume.from_events(ev, t0, cfg.dt_us, cfg.n_bins, sensor)
                 pending.append((t0, vol, time.perf_counter(), int(ev["t"][-1]) if live and ev.shape[0] else None))

@@ -101,6 +101,7 @@ class TimeUnitCheck:
     def __init__(self, min_events: int = 100):
         self.min_events = int(min_events)
         self.events = 0
+        self.chunks = 0                  # non-empty feeds (a run's windows with events)
         self.all_kilo = True
         self.t_min: int | None = None
         self.t_max: int | None = None
@@ -108,6 +109,7 @@ class TimeUnitCheck:
     def feed(self, t: np.ndarray) -> None:
         if t.size == 0:
             return
+        self.chunks += 1
         self.events += int(t.size)
         lo, hi = int(t.min()), int(t.max())
         self.t_min = lo if self.t_min is None else min(self.t_min, lo)

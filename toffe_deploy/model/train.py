@@ -620,6 +620,11 @@ def with_current_layout(config: ToffeConfig) -> ToffeConfig:
     return dataclasses.replace(config, ofpd={**ofpd_io.ofpd_settings(config), **ofpd_io.CURRENT_LAYOUT})
 
 
+#: the config.ofpd keys that shape the OFPD network and its input (a trained OFPD fits only them);
+#: the others are the host's (grouping thresholds, plane fit, outlines), settable after training
+OFPD_NETWORK_KEYS = ("crop_px", "pool", "conv_channels", "conv_kernels", "hidden", *ofpd_io.CURRENT_LAYOUT)
+
+
 def resolve_ofpd_settings(config: ToffeConfig, pool: int | None, kernels: tuple[int, int] | None,
                           interrupted: dict | None = None) -> tuple[ToffeConfig, bool]:
     """The OFPD settings a run trains with, and whether they differ from the checkpoint's.
@@ -717,12 +722,15 @@ def train(opts: TrainOptions) -> Path | None:
     if opts.stage in ("ofpd", "all") and not (resume and state.get("ofpd_settings")):
         config = with_current_layout(config)      # a fresh OFPD trains on today's input/output layout
     # an interrupted run's OFPD settings are in its state (--out's checkpoint has the old ones until
-    # it ends); a finished run's are --out's own, with what the host set since (fit_plane_fit.py
-    # --write): comparing those with the state's made a resume retrain a random OFPD and drop them.
-    # Other --ofpd-pool / --ofpd-kernels are refused either way.
+    # it ends). A finished run's network and input layout are the state's too (what its partial
+    # OFPD was trained on), but the rest are --out's own, with what the host set since
+    # (fit_plane_fit.py --write): comparing all of them with the state's made a resume retrain a
+    # random OFPD and drop the fitted keys. Other --ofpd-pool / --ofpd-kernels are refused either
+    # way; a finished run that trained no OFPD (--stage ofs) has no settings to keep.
     interrupted = state.get("ofpd_settings") if resume else None
-    if resume and state.get("finished"):
-        interrupted = ofpd_io.ofpd_settings(config)
+    if resume and state.get("finished") and interrupted:
+        interrupted = {**ofpd_io.ofpd_settings(config),
+                       **{k: v for k, v in interrupted.items() if k in OFPD_NETWORK_KEYS}}
     try:
         config, fresh = resolve_ofpd_settings(config, opts.ofpd_pool, opts.ofpd_kernels, interrupted)
     except ValueError as exc:
