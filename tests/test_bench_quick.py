@@ -114,6 +114,12 @@ def test_quick_run_writes_table_json_and_png(tiny_bundle, tiny_events, tmp_path,
     assert "Like for like" in md and "E event rule" in md
     lo = rows[("toffe", "loihi-sim")]["loihi"]
     assert len(lo["stages"]) == 4 and lo["latency_ms"] > 0
+    # Loihi 2 + host like for like: TOFFE's host latency holds its front end, DOTIE's host part is
+    # timed in its compiled form (its public code's time kept apart, not used)
+    host = rows[("toffe", "loihi-sim")]["host"]
+    assert 0 < host["front_end_latency"]["p50_ms"] < host["latency_ms"]
+    dc = rows[("dotie_cluster", "loihi-sim")]
+    assert dc["host"]["reference_code_latency"]["p50_ms"] > 0 and "compiled" in dc["L_kind"]
     assert "cpu" in res["ratios"] and res["goals"]["evaluated"]
     png = (out / "energy_latency.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and struct.unpack(">II", png[16:24])[0] > 100
