@@ -37,9 +37,13 @@ from .rules import LayerWork, Work
 class ModelCount:
     loihi: list[LoihiActivity] = field(default_factory=list)
     host_all: HostOps = field(default_factory=HostOps)
-    host_hybrid: HostOps = field(default_factory=HostOps)
     extra: dict = field(default_factory=dict)
     work: Work | None = None           # what the inference computes, for the counting rules (rules.py)
+
+    @property
+    def host_hybrid(self) -> HostOps:
+        """What stays on the host beside Loihi 2: rules.host_part of ``work`` (module doc)."""
+        return rules.host_part(self.work) if self.work is not None else HostOps()
 
 
 def counted_ofs_stage(inp: np.ndarray, p: LoihiOFSParams, act: LoihiActivity) -> tuple[np.ndarray, int]:
@@ -209,7 +213,7 @@ def count_toffe(binned: np.ndarray, params: list[LoihiOFSParams], config: ToffeC
                 morph=morph, mask_event=mask_event, mask_dense=float(2 * n * b * ch * h * w),
                 scan_event=float(stage_px), scan_dense=float(n * h_s * w_s),
                 post=ofpd + sort_unique_ops(n_raw) + extras)
-    mc = ModelCount(loihi=acts, host_all=binarize + extras + ofs_host + masks + ofpd, host_hybrid=rules.host_part(work),
+    mc = ModelCount(loihi=acts, host_all=binarize + extras + ofs_host + masks + ofpd,
                     extra={"ofpd_calls": ofpd_calls, "input_events": int(np.count_nonzero(binned)), "raw_events": n_raw},
                     work=work)
     return res, mc
@@ -249,7 +253,7 @@ def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()
     layer = LayerWork(h * w, b, 1, p.weight.shape[0], float(sum(act.synops)), float(sum(act.active)))
     work = Work(frame_px=h * w, steps=b, channels=1, input_events=n_raw, layers=[layer], morph=morph,
                 mask_event=mask_event, mask_dense=float(4 * b * h * w))
-    plain = ModelCount(loihi=[act], host_all=host_layer + post, host_hybrid=rules.host_part(work),
+    plain = ModelCount(loihi=[act], host_all=host_layer + post,
                        extra={"separated_px": int(out.sum()), "raw_events": n_raw}, work=work)
     cl = HostOps()
     totals = {"dbscan_points": 0, "dbscan_runs": 0, "dbscan_neighbour_pairs": 0, "boxes": 0}
@@ -262,7 +266,7 @@ def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()
     # the listing of the separated pixels is a rule's (scan_*): per pixel by the event rule (it
     # was a full-frame scan by both, 2 uJ of 7.5 by the event rule)
     cl_work = dataclasses.replace(work, post=work.post + cl, scan_event=float(out.sum()), scan_dense=float(b * h * w))
-    cluster = ModelCount(loihi=[act], host_all=plain.host_all + scan + cl, host_hybrid=rules.host_part(cl_work),
+    cluster = ModelCount(loihi=[act], host_all=plain.host_all + scan + cl,
                          extra={"separated_px": int(out.sum()), "raw_events": n_raw, **totals}, work=cl_work)
     union = out.any(axis=0)
     window_ops, window_stats = count_clustering(union, p, scan=False)
@@ -270,7 +274,7 @@ def count_dotie(binned: np.ndarray, p: DotieParams = DotieParams()
                                    scan_dense=float(h * w))
     window = ModelCount(loihi=[act], host_all=plain.host_all + HostOps(op_int8=out.size) + HostOps(
                             op_int8=h * w, sram_bytes=h * w) + window_ops,
-                        host_hybrid=rules.host_part(win_work), extra={"separated_px": int(out.sum()), **window_stats},
+                        extra={"separated_px": int(out.sum()), **window_stats},
                         work=win_work)
     return plain, cluster, window, spikes
 
