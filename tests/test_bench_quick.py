@@ -243,3 +243,42 @@ def test_toffe_loihi_latency_keeps_its_host_part_without_the_cpu_row(tiny_bundle
     assert toffe["host"]["latency_ms"] > 0
     assert toffe["L_ms"] == pytest.approx(toffe["loihi"]["latency_ms"] + toffe["host"]["latency_ms"])
     assert ("toffe", "cpu") not in rows
+
+
+def test_like_for_like_toffe_continues_its_stream_with_the_objects_of_copied_histories(make_bundle, tmp_path):
+    """The like-for-like optimised TOFFE runs window i right after window i - 1 on the Pipeline's
+    own histories (no copy a timed window pays and `run` never makes): the same objects, tracks
+    included, as starting every window from copies of its histories, in order, after a jump
+    back, and across a gap left by a window too sparse to list."""
+    import types
+
+    from toffe_deploy import ofpd_io
+    from toffe_deploy.baselines.registry import BenchContext, toffe_models
+    from toffe_deploy.events.io import write_events_h5
+    from toffe_deploy.runtime.pipeline import Pipeline
+
+    ofpd = {"crop_px": 32, "pool": 2, **ofpd_io.CURRENT_LAYOUT, "min_events": 8, "plane_fit_weight": 1.0,
+            "plane_fit_min_px_ms": 0.0, "plane_fit_dir_weight": 1.0, "plane_fit_history": [8, 6, 2]}
+    bundle = make_bundle(tmp_path / "b", sensor=SIZE, ofpd=ofpd, input_min_cluster=4, input_support=(3, 1, 3, 1))
+    ev = moving_squares(12)
+    ev = ev[(ev["t"] < 3000) | (ev["t"] >= 3500) | (ev["t"] % 200 == 0)]     # window 6 sparse: a gap
+    path = tmp_path / "squares.h5"
+    write_events_h5(path, ev, SIZE)
+    harness = _load_harness()
+    cfg = bundle.config
+    args = types.SimpleNamespace(windows=12, min_events=300, synthetic=None, events=str(path))
+    windows, events, _desc = harness.load_windows(args, cfg)
+    t0s = [t for t, _x in windows]
+    assert cfg.dt_us * 6 not in t0s and len(windows) >= 8       # the gap is there
+
+    def objects(stream):
+        with Pipeline(bundle, "cpu") as pipe:
+            ctx = BenchContext(windows=windows, events=events, bundle=bundle, config=cfg, pipe=pipe,
+                               supports=args.supports, ones=args.ones)
+            run = next(m for m in toffe_models(ctx, stream=stream) if m.level == "optimised").run
+            return [[(o.speed_bin, o.x, o.y, o.direction_rad, o.speed_mps, o.track_id) for o in run(i)]
+                    for i in [*range(len(windows)), 0, 1, 2]]
+
+    streamed = objects(True)
+    assert sum(map(len, streamed)) >= len(windows)              # objects to compare, windows with several
+    assert streamed == objects(False)
